@@ -1,0 +1,1 @@
+"""The ROS-free core: models, compensators, synthesis, identification, metrics, recording, diagnosis."""

@@ -1,0 +1,198 @@
+"""Multivariable hysteresis compensator, inverse multiplicative structure (paper Eq. 5–6, Fig. 5).
+
+``U = Dp⁻¹(Y_H + h)`` with ``h = H(U)`` the Bouc-Wen state driven by the compensator's own output: no inversion
+of the nonlinear operator, the compensator's parameters are the model's.
+
+In discrete time ``h[k]`` depends on ``U[k]`` (through ``dU = U[k] − U[k−1]``), so Eq. 6 is implicit at every
+sample.  ``loop='exact'`` solves it: given the signs of ``dÛ`` the increment of h is linear in dU, so each of the
+2ⁿ sign patterns gives a linear system and the consistent one is kept (n = 2 → at most four 2×2 solves; the
+previous pattern is tried first).  The compensator is then the exact inverse of the discrete model
+(``model ∘ compensator = identity`` to rounding).  ``loop='delayed'`` uses ``h[k−1]``, i.e. a unit delay in the
+loop as a Simulink implementation would have; its error is one sample's increment of h.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .._jit import njit
+from ..config import BoucWenConfig
+from ..models.bouc_wen import BoucWenState, _bw_increment
+
+__all__ = ["HysteresisCompensator"]
+
+
+class HysteresisCompensator:
+    """Streaming ``Y_H [m] → U [V]``; ``process(block[N, n]) -> block[N, k]``."""
+
+    def __init__(self, cfg: BoucWenConfig, loop: str = "exact", voltage_limit: float | None = None):
+        if loop not in ("exact", "delayed"):
+            raise ValueError("loop must be 'exact' or 'delayed'")
+        if loop == "exact" and cfg.n_in != cfg.n_out:
+            loop = "delayed"  # the exact per-sample solve needs a square system
+        self.cfg = cfg
+        self.loop = loop
+        p = cfg.arrays()
+        self._Dp, self._A, self._B, self._G = p["Dp"], p["A"], p["B"], p["Gamma"]
+        self._D1, self._D2, self._P = p["Delta1"], p["Delta2"], p["P"]
+        self._Dp_pinv = np.linalg.pinv(self._Dp)
+        self.state = BoucWenState(cfg.n_out, cfg.n_in)
+        self._signs = np.ones(cfg.n_out)
+        self.fallbacks = 0  #: samples where no sign pattern was consistent (delayed formula used instead)
+        # Saturating here (as the amplifier will) keeps the internal h equal to the plant's even when a reference
+        # asks for more than the actuator can give.
+        self.voltage_limit = float(voltage_limit) if voltage_limit is not None else np.inf
+        self.saturated = 0  #: samples clamped to the voltage limit
+
+    @property
+    def n_in(self) -> int:
+        return self.cfg.n_out
+
+    @property
+    def n_out(self) -> int:
+        return self.cfg.n_in
+
+    def reset(self) -> None:
+        self.state = BoucWenState(self.cfg.n_out, self.cfg.n_in)
+        self._signs[:] = 1.0
+        self.fallbacks = 0
+        self.saturated = 0
+
+    def process(self, yh: np.ndarray) -> np.ndarray:
+        yh = np.ascontiguousarray(yh, dtype=float)
+        if yh.ndim != 2 or yh.shape[1] != self.n_in:
+            raise ValueError(f"expected a block of shape [N, {self.n_in}], got {yh.shape}")
+        u = np.empty((yh.shape[0], self.n_out))
+        s = self.state
+        fb = np.zeros(2, np.int64)
+        _bw_comp_run(self._Dp, self._Dp_pinv, self._A, self._B, self._G, self._D1, self._D2, self._P,
+                     s.h, s.u_prev, s.started, self._signs, self.loop == "exact", self.voltage_limit, yh, u, fb)
+        self.fallbacks += int(fb[0])
+        self.saturated += int(fb[1])
+        return u
+
+    @property
+    def h(self) -> np.ndarray:
+        return self.state.h.copy()
+
+
+@njit
+def _solve_small(M, r, x):  # pragma: no cover - compiled
+    """Gaussian elimination with partial pivoting for a small dense system; False if singular."""
+    n = r.shape[0]
+    a = M.copy()
+    b = r.copy()
+    for c in range(n):
+        p = c
+        for i in range(c + 1, n):
+            if abs(a[i, c]) > abs(a[p, c]):
+                p = i
+        if abs(a[p, c]) < 1e-300:
+            return False
+        if p != c:
+            for j in range(n):
+                tmp = a[c, j]
+                a[c, j] = a[p, j]
+                a[p, j] = tmp
+            tmp = b[c]
+            b[c] = b[p]
+            b[p] = tmp
+        for i in range(c + 1, n):
+            f = a[i, c] / a[c, c]
+            for j in range(c, n):
+                a[i, j] -= f * a[c, j]
+            b[i] -= f * b[c]
+    for i in range(n - 1, -1, -1):
+        acc = b[i]
+        for j in range(i + 1, n):
+            acc -= a[i, j] * x[j]
+        x[i] = acc / a[i, i]
+    return True
+
+
+@njit
+def _bw_comp_run(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exact, ulim, yh, u, counters):  # pragma: no cover
+    N = yh.shape[0]
+    n = h.shape[0]
+    k = u_prev.shape[0]
+    r = np.zeros(n)
+    du = np.zeros(k)
+    dh = np.zeros(n)
+    M = np.zeros((n, n))
+    W = np.zeros((n, n))
+    s = np.zeros(n)
+    npat = 1 << n
+    for t in range(N):
+        if not started[0]:
+            # first sample: h = 0 and dU = 0 by definition, U = Dp⁻¹·Y_H
+            for j in range(k):
+                acc = 0.0
+                for i in range(n):
+                    acc += Dp_pinv[j, i] * yh[t, i]
+                if acc > ulim or acc < -ulim:
+                    acc = ulim if acc > 0 else -ulim
+                    counters[1] += 1
+                u_prev[j] = acc
+                u[t, j] = acc
+            started[0] = True
+            continue
+        solved = False
+        if exact:
+            # r = Y_H − Dp·u_prev + h_prev
+            for i in range(n):
+                acc = yh[t, i] + h[i]
+                for j in range(k):
+                    acc -= Dp[i, j] * u_prev[j]
+                r[i] = acc
+            # try the previous sign pattern first, then the others
+            for q in range(npat + 1):
+                if q == 0:
+                    for i in range(n):
+                        s[i] = signs[i]
+                else:
+                    for i in range(n):
+                        s[i] = 1.0 if ((q - 1) >> i) & 1 else -1.0
+                # W[i, l] = B s_l h_l + G |h_l| + D1 h_l + D2 s_l |h_l|;  (Dp − A + W·P)·dU = r
+                for i in range(n):
+                    for l in range(n):
+                        ah = abs(h[l])
+                        W[i, l] = B[i, l] * s[l] * h[l] + G[i, l] * ah + D1[i, l] * h[l] + D2[i, l] * s[l] * ah
+                for i in range(n):
+                    for j in range(k):
+                        acc = Dp[i, j] - A[i, j]
+                        for l in range(n):
+                            acc += W[i, l] * P[l, j]
+                        M[i, j] = acc
+                if not _solve_small(M, r, du):
+                    continue
+                ok = True
+                for l in range(n):
+                    d = 0.0
+                    for j in range(k):
+                        d += P[l, j] * du[j]
+                    if d * s[l] < 0.0:
+                        ok = False
+                        break
+                if ok:
+                    solved = True
+                    for i in range(n):
+                        signs[i] = s[i]
+                    break
+            if not solved:
+                counters[0] += 1
+        if not solved:
+            for j in range(k):
+                acc = 0.0
+                for i in range(n):
+                    acc += Dp_pinv[j, i] * (yh[t, i] + h[i])
+                du[j] = acc - u_prev[j]
+        for j in range(k):
+            un = u_prev[j] + du[j]
+            if un > ulim or un < -ulim:
+                du[j] = (ulim if un > 0 else -ulim) - u_prev[j]
+                counters[1] += 1
+        _bw_increment(A, B, G, D1, D2, P, h, du, dh)
+        for i in range(n):
+            h[i] += dh[i]
+        for j in range(k):
+            u_prev[j] = u_prev[j] + du[j]
+            u[t, j] = u_prev[j]

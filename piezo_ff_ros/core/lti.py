@@ -1,0 +1,438 @@
+"""Linear time-invariant building blocks: factored transfer functions and exact ZOH streaming filters.
+
+Why not ``scipy.signal.cont2discrete`` + ``tf2sos``: the paper's transfer functions are order 9 with coefficients
+spanning 1e-7 … 1e9; expanded polynomials lose most of their digits.  Instead every transfer function is kept in
+factored form, split into its modes (partial fractions at distinct poles), and each mode is discretised exactly by
+zero-order hold (``a = exp(pT)``, ``b = expm1(pT)/p``).  The result is a block-diagonal real state space (1×1 and
+2×2 blocks) run by one compiled loop with carried state: bit-identical whatever the block split.
+
+Continuous MIMO state spaces (the H∞ controller) go through the same modal route when their eigenvectors are
+well conditioned, otherwise through a dense ZOH (``scipy.linalg.expm``) in a single block.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import scipy.linalg
+
+from ._jit import njit
+
+__all__ = [
+    "FactoredTF",
+    "TFMatrix",
+    "DiscreteModalSS",
+    "LTIFilter",
+]
+
+_PAIR_TOL = 1e-9
+
+
+@dataclass(frozen=True)
+class FactoredTF:
+    """A SISO transfer function ``k · Π num_factors(s) / Π den_factors(s)``.
+
+    Each factor is a polynomial in s, highest power first (``[1, a]`` is ``s + a``, ``[1, b, c]`` is
+    ``s² + b s + c``), exactly as papers print them.
+    """
+
+    gain: float
+    num: tuple = ()
+    den: tuple = ()
+
+    @staticmethod
+    def from_dict(d: dict) -> "FactoredTF":
+        return FactoredTF(float(d.get("k", d.get("gain", 0.0))),
+                          tuple(tuple(float(c) for c in f) for f in d.get("num", [])),
+                          tuple(tuple(float(c) for c in f) for f in d.get("den", [])))
+
+    def to_dict(self) -> dict:
+        return {"k": float(self.gain), "num": [list(f) for f in self.num], "den": [list(f) for f in self.den]}
+
+    # -- algebra -------------------------------------------------------------------------------------------------
+    def zeros(self) -> np.ndarray:
+        return _roots_of_factors(self.num)
+
+    def poles(self) -> np.ndarray:
+        return _roots_of_factors(self.den)
+
+    @property
+    def order(self) -> int:
+        return sum(len(f) - 1 for f in self.den)
+
+    @property
+    def relative_degree(self) -> int:
+        return self.order - sum(len(f) - 1 for f in self.num)
+
+    def is_zero(self) -> bool:
+        return self.gain == 0.0
+
+    def eval(self, s) -> np.ndarray:
+        """Frequency response at complex points ``s`` (array)."""
+        s = np.asarray(s, dtype=complex)
+        out = np.full(s.shape, self.gain, dtype=complex)
+        for f in self.num:
+            out = out * np.polyval(f, s)
+        for f in self.den:
+            out = out / np.polyval(f, s)
+        return out
+
+    def dc_gain(self) -> float:
+        return float(np.real(self.eval(np.array([0.0]))[0]))
+
+    def leading_gain(self) -> float:
+        """The overall gain once every factor is made monic (``k · Π lead(num) / Π lead(den)``)."""
+        g = self.gain
+        for f in self.num:
+            g *= f[0]
+        for f in self.den:
+            g /= f[0]
+        return g
+
+    def duplicated_factors(self) -> list[tuple]:
+        """Factors printed both in the numerator and the denominator (they cancel)."""
+        den = list(self.den)
+        dup = []
+        for f in self.num:
+            if f in den:
+                dup.append(f)
+                den.remove(f)
+        return dup
+
+    def cancelled(self) -> "FactoredTF":
+        """Same transfer function with factors that appear verbatim in num and den removed."""
+        num, den = list(self.num), list(self.den)
+        for f in self.duplicated_factors():
+            num.remove(f)
+            den.remove(f)
+        return FactoredTF(self.gain, tuple(num), tuple(den))
+
+    def scaled(self, factor: float) -> "FactoredTF":
+        return FactoredTF(self.gain * factor, self.num, self.den)
+
+    def is_stable(self) -> bool:
+        p = self.poles()
+        return bool(np.all(p.real < 0.0))
+
+    # -- modes -------------------------------------------------------------------------------------------------
+    def modes(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """Poles ``p``, residues ``c`` and direct term ``d`` with ``H(s) = d + Σ c_i/(s − p_i)``.
+
+        Requires distinct poles (after cancelling verbatim duplicates).
+        """
+        tf = self.cancelled()
+        p = tf.poles()
+        z = tf.zeros()
+        k = tf.leading_gain()
+        if len(z) > len(p):
+            raise ValueError("improper transfer function (more zeros than poles)")
+        d = k if len(z) == len(p) else 0.0
+        if self.gain == 0.0:
+            return np.zeros(0, complex), np.zeros(0, complex), 0.0
+        if len(p) == 0:
+            return np.zeros(0, complex), np.zeros(0, complex), float(k)
+        sep = np.abs(p[:, None] - p[None, :])
+        np.fill_diagonal(sep, np.inf)
+        if np.any(sep < 1e-9 * np.maximum(1.0, np.abs(p))[:, None]):
+            raise ValueError("repeated poles: modal discretisation needs distinct poles")
+        c = np.empty(len(p), complex)
+        for i, pi in enumerate(p):
+            c[i] = k * np.prod(pi - z) / np.prod(np.delete(pi - p, i))
+        return p, c, float(d)
+
+
+def _roots_of_factors(factors) -> np.ndarray:
+    roots = [np.roots(np.asarray(f, float)) for f in factors if len(f) > 1]
+    return np.concatenate(roots).astype(complex) if roots else np.zeros(0, complex)
+
+
+@dataclass(frozen=True)
+class TFMatrix:
+    """A matrix of SISO :class:`FactoredTF` entries, ``entries[i][j]`` from input j to output i."""
+
+    entries: tuple
+
+    @staticmethod
+    def from_nested(rows: Sequence[Sequence[FactoredTF]]) -> "TFMatrix":
+        return TFMatrix(tuple(tuple(r) for r in rows))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return len(self.entries), len(self.entries[0])
+
+    def __getitem__(self, ij) -> FactoredTF:
+        i, j = ij
+        return self.entries[i][j]
+
+    def eval(self, s) -> np.ndarray:
+        """Frequency response, shape ``[len(s), n_out, n_in]``."""
+        s = np.atleast_1d(np.asarray(s, complex))
+        n, m = self.shape
+        out = np.empty((len(s), n, m), complex)
+        for i in range(n):
+            for j in range(m):
+                out[:, i, j] = self.entries[i][j].eval(s)
+        return out
+
+    def dc_gain(self) -> np.ndarray:
+        return np.real(self.eval(np.array([0.0]))[0])
+
+    def to_control(self):
+        """A ``control.StateSpace`` realisation: the per-entry modal realisations stacked (not minimal)."""
+        import control
+
+        A, B, C, D = continuous_modal_realisation(self)
+        return control.ss(A, B, C, D)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Continuous modal realisation (real block-diagonal) of a TF matrix
+# ----------------------------------------------------------------------------------------------------------------
+
+def _real_blocks_from_modes(p, b_rows, c_cols):
+    """Group complex modes into real 1×1 / 2×2 blocks.
+
+    ``b_rows[i]`` (n_in,) and ``c_cols[i]`` (n_out,) are the complex input and output vectors of mode i.
+    Returns lists of (A_blk, B_blk, C_blk).
+    """
+    blocks = []
+    used = np.zeros(len(p), bool)
+    for i in range(len(p)):
+        if used[i]:
+            continue
+        pi = p[i]
+        if abs(pi.imag) <= _PAIR_TOL * max(1.0, abs(pi)):
+            used[i] = True
+            blocks.append((np.array([[pi.real]]), np.real(b_rows[i])[None, :], np.real(c_cols[i])[:, None]))
+            continue
+        # find its conjugate partner
+        cand = [j for j in range(len(p)) if not used[j] and j != i]
+        j = min(cand, key=lambda j: abs(p[j] - np.conj(pi)))
+        used[i] = used[j] = True
+        if pi.imag < 0:
+            i, j = j, i
+            pi = p[i]
+        bi, ci = b_rows[i], c_cols[i]
+        # complex mode x' = p x + b u, y = 2 Re(c x): real state [Re x, Im x]
+        A = np.array([[pi.real, -pi.imag], [pi.imag, pi.real]])
+        B = np.vstack([bi.real, bi.imag])
+        C = np.column_stack([2 * ci.real, -2 * ci.imag])
+        blocks.append((A, B, C))
+    return blocks
+
+
+def continuous_modal_realisation(tfm: TFMatrix):
+    """Real block-diagonal continuous (A, B, C, D) stacking every entry's modes."""
+    n_out, n_in = tfm.shape
+    As, Bs, Cs = [], [], []
+    D = np.zeros((n_out, n_in))
+    for i in range(n_out):
+        for j in range(n_in):
+            tf = tfm[i, j]
+            if tf.is_zero():
+                continue
+            p, c, d = tf.modes()
+            D[i, j] += d
+            brow = np.zeros((len(p), n_in), complex)
+            brow[:, j] = 1.0
+            ccol = np.zeros((len(p), n_out), complex)
+            ccol[:, i] = c
+            for A, B, C in _real_blocks_from_modes(p, brow, ccol):
+                As.append(A)
+                Bs.append(B)
+                Cs.append(C)
+    A = scipy.linalg.block_diag(*As) if As else np.zeros((0, 0))
+    B = np.vstack(Bs) if Bs else np.zeros((0, n_in))
+    C = np.hstack(Cs) if Cs else np.zeros((n_out, 0))
+    return A, B, C, D
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Discrete block-diagonal state space and its streaming filter
+# ----------------------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class DiscreteModalSS:
+    """x[k+1] = A x[k] + B u[k];  y[k] = C x[k] + D u[k], with A block-diagonal (``sizes`` of its blocks)."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    sizes: np.ndarray
+    dt: float
+
+    @property
+    def n_states(self) -> int:
+        return self.A.shape[0]
+
+    @property
+    def n_in(self) -> int:
+        return self.B.shape[1]
+
+    @property
+    def n_out(self) -> int:
+        return self.C.shape[0]
+
+    @property
+    def strictly_proper(self) -> bool:
+        return not np.any(self.D)
+
+    # -- construction -----------------------------------------------------------------------------------------
+    @staticmethod
+    def zoh_from_tf_matrix(tfm: TFMatrix, dt: float) -> "DiscreteModalSS":
+        """Each SISO entry discretised on its own by exact zero-order hold, stacked."""
+        n_out, n_in = tfm.shape
+        blocks = []
+        D = np.zeros((n_out, n_in))
+        for i in range(n_out):
+            for j in range(n_in):
+                tf = tfm[i, j]
+                if tf.is_zero():
+                    continue
+                p, c, d = tf.modes()
+                D[i, j] += d
+                a, beta = _zoh_scalar(p, dt)
+                brow = np.zeros((len(p), n_in), complex)
+                brow[:, j] = beta
+                ccol = np.zeros((len(p), n_out), complex)
+                ccol[:, i] = c
+                blocks += _real_blocks_from_modes(a, brow, ccol)
+        return DiscreteModalSS._assemble(blocks, D, n_in, n_out, dt)
+
+    @staticmethod
+    def zoh_from_ss(A, B, C, D, dt: float, cond_limit: float = 1e8) -> "DiscreteModalSS":
+        """Exact ZOH of a continuous MIMO state space; modal when the eigenvectors are well conditioned."""
+        A, B, C, D = (np.atleast_2d(np.asarray(x, float)) for x in (A, B, C, D))
+        n_out, n_in = D.shape
+        n = A.shape[0]
+        if n == 0:
+            return DiscreteModalSS._assemble([], D, n_in, n_out, dt)
+        lam, V = np.linalg.eig(A)
+        sep = np.abs(lam[:, None] - lam[None, :])
+        np.fill_diagonal(sep, np.inf)
+        distinct = n == 1 or np.min(sep) > 1e-9 * max(1.0, np.max(np.abs(lam)))
+        if distinct and np.linalg.cond(V) < cond_limit:
+            Bm = np.linalg.solve(V, B.astype(complex))
+            Cm = C @ V
+            a, beta = _zoh_scalar(lam, dt)
+            blocks = _real_blocks_from_modes(a, Bm * beta[:, None], Cm.T.copy())
+            return DiscreteModalSS._assemble(blocks, D, n_in, n_out, dt)
+        # dense fallback: expm of the augmented matrix
+        M = np.zeros((n + n_in, n + n_in))
+        M[:n, :n] = A * dt
+        M[:n, n:] = B * dt
+        E = scipy.linalg.expm(M)
+        return DiscreteModalSS._assemble([(E[:n, :n], E[:n, n:], C)], D, n_in, n_out, dt)
+
+    @staticmethod
+    def _assemble(blocks, D, n_in, n_out, dt) -> "DiscreteModalSS":
+        if not blocks:
+            return DiscreteModalSS(np.zeros((0, 0)), np.zeros((0, n_in)), np.zeros((n_out, 0)),
+                                   np.asarray(D, float), np.zeros(0, np.int64), dt)
+        A = scipy.linalg.block_diag(*[b[0] for b in blocks])
+        B = np.vstack([b[1] for b in blocks])
+        C = np.hstack([b[2] for b in blocks])
+        sizes = np.array([b[0].shape[0] for b in blocks], np.int64)
+        return DiscreteModalSS(np.ascontiguousarray(A), np.ascontiguousarray(B), np.ascontiguousarray(C),
+                               np.ascontiguousarray(np.asarray(D, float)), sizes, float(dt))
+
+    def dc_gain(self) -> np.ndarray:
+        n = self.n_states
+        if n == 0:
+            return self.D.copy()
+        return self.C @ np.linalg.solve(np.eye(n) - self.A, self.B) + self.D
+
+    def is_stable(self) -> bool:
+        if self.n_states == 0:
+            return True
+        return bool(np.max(np.abs(np.linalg.eigvals(self.A))) < 1.0)
+
+    def packed(self):
+        """Arrays for the compiled kernel: A stored row-wise per block (``[n, max_block]``) and offsets."""
+        n = self.n_states
+        smax = int(self.sizes.max()) if n else 1
+        Ablk = np.zeros((max(n, 1), smax))
+        offsets = np.zeros(len(self.sizes), np.int64)
+        off = 0
+        for b, s in enumerate(self.sizes):
+            offsets[b] = off
+            Ablk[off:off + s, :s] = self.A[off:off + s, off:off + s]
+            off += s
+        return Ablk, offsets
+
+
+def _zoh_scalar(p: np.ndarray, dt: float):
+    """ZOH of x' = p x + u: a = exp(p dt), beta = (exp(p dt) − 1)/p (→ dt for p = 0)."""
+    p = np.asarray(p, complex)
+    a = np.exp(p * dt)
+    small = np.abs(p * dt) < 1e-12
+    beta = np.where(small, dt, np.expm1(p * dt) / np.where(small, 1.0, p))
+    return a, beta
+
+
+class LTIFilter:
+    """Streaming MIMO filter for a :class:`DiscreteModalSS`; ``process`` blocks of shape ``[N, n_in]``."""
+
+    def __init__(self, ss: DiscreteModalSS):
+        self.ss = ss
+        self._Ablk, self._offsets = ss.packed()
+        self.x = np.zeros(ss.n_states)
+
+    @property
+    def n_in(self) -> int:
+        return self.ss.n_in
+
+    @property
+    def n_out(self) -> int:
+        return self.ss.n_out
+
+    def reset(self) -> None:
+        self.x[:] = 0.0
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        u = np.ascontiguousarray(u, dtype=float)
+        y = np.empty((u.shape[0], self.ss.n_out))
+        _bank_run(self._Ablk, self._offsets, self.ss.sizes, self.ss.B, self.ss.C, self.ss.D, self.x, u, y)
+        return y
+
+    def output_now(self) -> np.ndarray:
+        """C x (the strictly proper part of the next output)."""
+        return self.ss.C @ self.x
+
+    def settle_to(self, u_const: np.ndarray) -> None:
+        """Put the state at its steady state for a constant input (for bumpless start from a held value)."""
+        n = self.ss.n_states
+        if n:
+            self.x[:] = np.linalg.solve(np.eye(n) - self.ss.A, self.ss.B @ np.asarray(u_const, float))
+
+
+@njit(cache=True)
+def _bank_run(Ablk, offsets, sizes, B, C, D, x, u, y):  # pragma: no cover - compiled
+    N = u.shape[0]
+    n_in = u.shape[1]
+    n_out = y.shape[1]
+    ns = x.shape[0]
+    nb = sizes.shape[0]
+    xn = np.empty(ns)
+    for k in range(N):
+        for o in range(n_out):
+            acc = 0.0
+            for i in range(ns):
+                acc += C[o, i] * x[i]
+            for j in range(n_in):
+                acc += D[o, j] * u[k, j]
+            y[k, o] = acc
+        for b in range(nb):
+            off = offsets[b]
+            s = sizes[b]
+            for r in range(s):
+                acc = 0.0
+                for c in range(s):
+                    acc += Ablk[off + r, c] * x[off + c]
+                for j in range(n_in):
+                    acc += B[off + r, j] * u[k, j]
+                xn[off + r] = acc
+        for i in range(ns):
+            x[i] = xn[i]

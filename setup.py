@@ -1,0 +1,31 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "piezo_ff_ros"
+executables = ["driver", "compensator", "trajectory", "recorder", "reproduce"]
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*", "bench"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/launch", glob("launch/*.py")),
+        # `ros2 run` looks in lib/<pkg>/; after a plain `pip install .` scripts live in bin/: tiny shims bridge it.
+        ("lib/" + package_name, ["ros2run/" + e for e in executables]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="piezo_ff_ros developers",
+    maintainer_email="piezo_ff_ros@example.com",
+    description="Sensorless multivariable feedforward compensation of piezoelectric positioners (ROS 2)",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [f"{e} = {package_name}.entry_points:{e}" for e in executables]
+        + [f"piezo-ff = {package_name}.entry_points:piezo_ff"],
+    },
+)
