@@ -17,5 +17,5 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   echo "$want" > "$stamp"
 fi
 # the package itself (registers it in the venv's ament index, installs console scripts and ros2-run shims)
-.venv/bin/python -m pip install -q --no-deps --no-build-isolation . >/dev/null
+.venv/bin/python -m pip install -q --no-deps . >/dev/null
 echo "[setup] ready: $(.venv/bin/python -c 'import piezo_ff_ros, sys; print("piezo_ff_ros", piezo_ff_ros.__version__, "python", sys.version.split()[0])')"

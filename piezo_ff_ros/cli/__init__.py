@@ -10,7 +10,7 @@ import argparse
 import importlib
 import sys
 
-SUBCOMMANDS = ["reproduce", "demo", "analyze", "identify", "commission", "diagnose", "bench"]
+SUBCOMMANDS = ["reproduce", "demo", "analyze", "identify", "commission", "diagnose", "bench", "check"]
 
 
 def build_parser() -> argparse.ArgumentParser:
