@@ -1,0 +1,129 @@
+"""What every node shares: the block message of the topic contract, QoS, stamps, diagnostics, the spin loop.
+
+Block message (docs/topics.md): ``sensor_msgs/msg/PointCloud2`` used as a table of N samples, height 1, width N,
+one FLOAT64 field per axis named after it, row-major little-endian ``[N, axes]`` data, ``header.stamp`` = time of
+the first sample = ``t0 + k0·dt_ns`` with ``dt_ns = round(1e9/fs)`` so that sample indices are exact.
+"""
+from __future__ import annotations
+
+import sys
+from typing import Sequence
+
+import numpy as np
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2, PointField
+
+__all__ = ["BLOCK_QOS", "RECORD_QOS", "LATCHED_QOS", "FRAME_ID", "dt_ns", "pack_block", "unpack_block",
+           "stamp_to_ns", "ns_to_stamp", "k0_of", "spin_node", "BlockFormatError"]
+
+FRAME_ID = "piezo"
+
+#: blocks: reliable, keep-last 100, volatile — publishers and subscribers alike
+BLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+#: the recorder's subscriptions: same policies, deeper queue (a busy recorder must not lose blocks)
+RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+#: ``experiment`` markers: late joiners (the recorder) still get the current segment
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+_FLOAT64 = PointField.FLOAT64
+
+
+class BlockFormatError(ValueError):
+    """A block message that does not follow the contract (the text says what is wrong)."""
+
+
+def dt_ns(sample_rate: float) -> int:
+    """Sample period in integer nanoseconds (50 000 at 20 kHz)."""
+    return int(round(1e9 / float(sample_rate)))
+
+
+def ns_to_stamp(ns: int, stamp) -> None:
+    stamp.sec = int(ns // 1_000_000_000)
+    stamp.nanosec = int(ns % 1_000_000_000)
+
+
+def stamp_to_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def k0_of(msg, t0_ns: int, period_ns: int) -> int:
+    """Index of the first sample of a block message."""
+    return (stamp_to_ns(msg.header.stamp) - t0_ns) // period_ns
+
+
+def pack_block(block: np.ndarray, axes: Sequence[str], stamp_ns: int, msg: PointCloud2 | None = None) -> PointCloud2:
+    """``[N, axes]`` float array → PointCloud2 of the contract."""
+    data = np.ascontiguousarray(block, dtype="<f8")
+    n, k = data.shape
+    if k != len(axes):
+        raise ValueError(f"block has {k} columns for axes {list(axes)}")
+    msg = PointCloud2() if msg is None else msg
+    ns_to_stamp(stamp_ns, msg.header.stamp)
+    msg.header.frame_id = FRAME_ID
+    msg.height = 1
+    msg.width = n
+    msg.fields = [PointField(name=a, offset=8 * i, datatype=_FLOAT64, count=1) for i, a in enumerate(axes)]
+    msg.is_bigendian = False
+    msg.point_step = 8 * k
+    msg.row_step = 8 * k * n
+    msg.is_dense = True
+    msg.data = data.tobytes()
+    return msg
+
+
+def unpack_block(msg: PointCloud2, axes: Sequence[str] | None = None) -> np.ndarray:
+    """PointCloud2 of the contract → ``[N, axes]`` float64 array (a copy); :class:`BlockFormatError` otherwise."""
+    fields = list(msg.fields)
+    k = len(fields)
+    if k == 0:
+        raise BlockFormatError("no fields")
+    names = [f.name for f in fields]
+    if axes is not None and names != list(axes):
+        raise BlockFormatError(f"fields {names}, expected axes {list(axes)}")
+    for i, f in enumerate(fields):
+        if f.datatype != _FLOAT64 or f.offset != 8 * i or f.count not in (0, 1):
+            raise BlockFormatError(f"field {f.name!r}: expected FLOAT64 at offset {8 * i}")
+    if msg.is_bigendian:
+        raise BlockFormatError("big-endian data")
+    n = int(msg.width) * int(msg.height)
+    if msg.point_step != 8 * k:
+        raise BlockFormatError(f"point_step {msg.point_step}, expected {8 * k}")
+    raw = bytes(msg.data) if not isinstance(msg.data, (bytes, bytearray, memoryview)) else msg.data
+    if len(raw) != 8 * k * n:
+        raise BlockFormatError(f"{len(raw)} data bytes for {n} samples × {k} fields")
+    return np.frombuffer(raw, dtype="<f8").reshape(n, k).astype(float)
+
+
+def spin_node(node, on_exit=None) -> int:
+    """Spin until SIGINT/SIGTERM (ExternalShutdownException in these rclpy versions); clean exit code 0."""
+    code = 0
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as exc:  # noqa: BLE001 - last resort: a clear one-line message, not a traceback
+        print(f"{node.get_name()}: fatal: {exc}", file=sys.stderr)
+        code = 1
+    finally:
+        if on_exit is not None:
+            try:
+                on_exit()
+            except Exception as exc:  # noqa: BLE001
+                print(f"{node.get_name()}: error while finishing: {exc}", file=sys.stderr)
+                code = 1
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+def diag_values(d: dict):
+    """dict → list of diagnostic_msgs/KeyValue."""
+    from diagnostic_msgs.msg import KeyValue
+
+    return [KeyValue(key=str(k), value=str(v)) for k, v in d.items()]
