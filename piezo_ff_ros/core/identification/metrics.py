@@ -1,0 +1,41 @@
+"""Goodness of fit as MATLAB ``compare`` reports it (normalised RMSE, in percent)."""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["fit_percent", "rmse"]
+
+
+def fit_percent(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
+    """``100·(1 − ‖y − ŷ‖ / ‖y − ȳ‖)`` per output column (MATLAB ``compare``/``goodnessOfFit('NRMSE')``).
+
+    Parameters
+    ----------
+    y, y_hat : array [N] or [N, outputs]
+        Measured and simulated outputs (same units).
+
+    Returns
+    -------
+    numpy.ndarray
+        One fit per output (100 = perfect, 0 = no better than the mean, negative = worse).  An output that does not
+        vary (‖y − ȳ‖ = 0) gets NaN.
+    """
+    y = np.asarray(y, float)
+    y_hat = np.asarray(y_hat, float)
+    if y.shape != y_hat.shape:
+        raise ValueError(f"fit_percent: shapes differ ({y.shape} vs {y_hat.shape})")
+    if y.ndim == 1:
+        y, y_hat = y[:, None], y_hat[:, None]
+    num = np.linalg.norm(y - y_hat, axis=0)
+    den = np.linalg.norm(y - y.mean(axis=0), axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(den > 0, 100.0 * (1.0 - num / np.where(den > 0, den, 1.0)), np.nan)
+
+
+def rmse(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
+    """Root-mean-square error per output column."""
+    y = np.asarray(y, float)
+    y_hat = np.asarray(y_hat, float)
+    if y.ndim == 1:
+        y, y_hat = y[:, None], y_hat[:, None]
+    return np.sqrt(np.mean((y - y_hat) ** 2, axis=0))

@@ -1,0 +1,234 @@
+"""Import recorded runs from the formats a dSPACE/Simulink lab exports: CSV and MATLAB ``.mat``.
+
+Both give a :class:`~piezo_ff_ros.core.recording.run.RunData` in SI units (s, V, m).  Anything that would make an
+identification silently wrong is refused with a ``ValueError`` that names the file, the column/variable and the row:
+missing columns, non-numeric cells, NaN/Inf, non-uniform or non-increasing time, and values whose order of
+magnitude says the unit is not the one the format promises (displacements in µm or mm instead of m, voltages in mV
+or kV-scale numbers instead of V).
+
+CSV: a header ``t,u_x,u_y,x,y`` (any number of axes: every ``u_<axis>`` needs a matching ``<axis>`` column; an
+optional ``r_<axis>`` column is read as the reference).  ``.mat``: variables ``t`` [N], ``u`` [N×axes], ``y``
+[N×axes] (optionally ``r`` [N×axes] and ``axes``, a cell/char array of axis names).
+"""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from .run import RunData
+
+__all__ = ["load_csv", "load_mat", "check_run_arrays", "MAX_DISPLACEMENT", "MAX_VOLTAGE", "UNIFORM_TOL"]
+
+#: largest plausible |displacement| of a piezo positioner [m]; above it the column is almost surely µm or mm
+MAX_DISPLACEMENT = 5e-3
+#: largest plausible |drive voltage| [V]; piezo drives stay well under 1.5 kV, larger numbers are mV or counts
+MAX_VOLTAGE = 2000.0
+#: relative tolerance on the sample period (recorders write t with ~6–9 significant digits)
+UNIFORM_TOL = 1e-3
+
+
+def _fail(path, msg: str):
+    raise ValueError(f"{path}: {msg}")
+
+
+def check_run_arrays(path, t: np.ndarray, u: np.ndarray, y: np.ndarray, u_names, y_names,
+                     row_offset: int = 0, ref: np.ndarray | None = None) -> None:
+    """Validate arrays of a run; raise ``ValueError`` saying what is wrong and where.
+
+    ``row_offset`` maps array index 0 to the row number printed in messages (2 for a CSV with one header line,
+    1 for MATLAB's 1-based indexing).
+    """
+    n = len(t)
+    if n < 2:
+        _fail(path, f"only {n} sample(s); need at least 2")
+    for name, arr in [("t", t[:, None])] + [(nm, u[:, [i]]) for i, nm in enumerate(u_names)] + \
+            [(nm, y[:, [i]]) for i, nm in enumerate(y_names)]:
+        bad = ~np.isfinite(arr[:, 0])
+        if bad.any():
+            k = int(np.argmax(bad))
+            _fail(path, f"column {name!r}: {'NaN' if np.isnan(arr[k, 0]) else 'Inf'} at row {k + row_offset} "
+                        f"({int(bad.sum())} non-finite value(s) in total)")
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        k = int(np.argmax(dt <= 0))
+        _fail(path, f"column 't': time does not increase at row {k + 1 + row_offset} "
+                    f"(t={t[k + 1]:.9g} after t={t[k]:.9g})")
+    dt0 = float(np.median(dt))
+    dev = np.abs(dt - dt0) > UNIFORM_TOL * dt0
+    if dev.any():
+        k = int(np.argmax(dev))
+        _fail(path, f"column 't': non-uniform sampling at row {k + 1 + row_offset} (step {dt[k]:.9g} s, "
+                    f"median step {dt0:.9g} s; {int(dev.sum())} irregular step(s)); resample before importing")
+    for i, nm in enumerate(y_names):
+        m = float(np.max(np.abs(y[:, i])))
+        if m > MAX_DISPLACEMENT:
+            k = int(np.argmax(np.abs(y[:, i])))
+            unit = "µm" if m > 1.0 else "mm"
+            _fail(path, f"column {nm!r}: displacement {y[k, i]:.6g} at row {k + row_offset} is not plausible in "
+                        f"metres (|y| ≤ {MAX_DISPLACEMENT:g} m expected); the column looks like {unit} — "
+                        f"convert to m")
+    if ref is not None:
+        m = float(np.max(np.abs(ref)))
+        if not np.all(np.isfinite(ref)):
+            k = int(np.argmax(~np.isfinite(ref).all(axis=1)))
+            _fail(path, f"reference: non-finite value at row {k + row_offset}")
+        if m > MAX_DISPLACEMENT:
+            _fail(path, f"reference: |r| up to {m:.6g} is not plausible in metres; it looks like µm — convert to m")
+    for i, nm in enumerate(u_names):
+        m = float(np.max(np.abs(u[:, i])))
+        if m > MAX_VOLTAGE:
+            k = int(np.argmax(np.abs(u[:, i])))
+            _fail(path, f"column {nm!r}: voltage {u[k, i]:.6g} at row {k + row_offset} is kV-scale (|u| ≤ "
+                        f"{MAX_VOLTAGE:g} V expected); the column looks like mV or raw counts — convert to V")
+
+
+def load_csv(path, delimiter: str | None = None) -> RunData:
+    """Load a run from CSV with header ``t,u_<axis>…,<axis>…`` (s, V, m), uniformly sampled.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    delimiter : str, optional
+        Field separator; sniffed from the header (``,``, ``;``, tab) when not given.
+
+    Returns
+    -------
+    RunData
+        ``axes`` in the order of the ``u_<axis>`` columns.
+
+    Raises
+    ------
+    ValueError
+        Missing/duplicate columns, non-numeric cells, NaN, non-uniform time, implausible units (with row/column).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"{p}: no such file")
+    text = p.read_text(errors="replace")
+    lines = text.splitlines()
+    # skip leading comment lines (# …) that some exporters write
+    skip = 0
+    while skip < len(lines) and (not lines[skip].strip() or lines[skip].lstrip().startswith("#")):
+        skip += 1
+    if skip >= len(lines):
+        _fail(p, "empty file (no header line)")
+    header_line = lines[skip]
+    if delimiter is None:
+        delimiter = max([",", ";", "\t"], key=header_line.count)
+        if header_line.count(delimiter) == 0:
+            delimiter = ","
+    header = [h.strip().strip('"').strip() for h in next(csv.reader([header_line], delimiter=delimiter))]
+    if len(set(header)) != len(header):
+        dup = sorted({h for h in header if header.count(h) > 1})
+        _fail(p, f"header line {skip + 1}: duplicate column(s) {dup}")
+    if "t" not in header:
+        _fail(p, f"header line {skip + 1}: missing column 't' (time in s); found {header}")
+    axes = [h[2:] for h in header if h.startswith("u_")]
+    if not axes:
+        _fail(p, f"header line {skip + 1}: no input column 'u_<axis>' (voltage in V); found {header}")
+    missing = [a for a in axes if a not in header]
+    if missing:
+        _fail(p, f"header line {skip + 1}: missing displacement column(s) {missing} for input(s) "
+                 f"{['u_' + a for a in missing]}; found {header}")
+    extra_out = [h for h in header if h not in ("t",) and not h.startswith(("u_", "r_")) and h not in axes]
+    has_ref = all(f"r_{a}" in header for a in axes)
+    rows = []
+    width = len(header)
+    for lineno, line in enumerate(lines[skip + 1:], start=skip + 2):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        cells = next(csv.reader([line], delimiter=delimiter))
+        if len(cells) != width:
+            _fail(p, f"row {lineno}: {len(cells)} field(s), header has {width}")
+        vals = []
+        for name, c in zip(header, cells):
+            c = c.strip()
+            try:
+                vals.append(float(c))
+            except ValueError:
+                _fail(p, f"row {lineno}, column {name!r}: not a number ({c!r})")
+        rows.append(vals)
+    if not rows:
+        _fail(p, "no data rows after the header")
+    data = np.array(rows, float)
+    col = {h: i for i, h in enumerate(header)}
+    t = data[:, col["t"]]
+    u = data[:, [col[f"u_{a}"] for a in axes]]
+    y = data[:, [col[a] for a in axes]]
+    ref = data[:, [col[f"r_{a}"] for a in axes]] if has_ref else None
+    # row numbers in messages: the data row's line number in the file (blank/comment lines are rare; we map index
+    # to line assuming none inside the data, which is what exporters write)
+    check_run_arrays(p, t, u, y, [f"u_{a}" for a in axes], axes, row_offset=skip + 2, ref=ref)
+    meta = {"source": str(p), "format": "csv"}
+    if extra_out:
+        meta["ignored_columns"] = extra_out
+    return RunData(t=t, u=u, y=y, axes=tuple(axes), reference=ref, meta=meta)
+
+
+def load_mat(path) -> RunData:
+    """Load a run from a MATLAB ``.mat`` file with variables ``t`` [N], ``u`` [N×axes], ``y`` [N×axes].
+
+    Row/column vectors are accepted for one axis; ``u``/``y`` given as axes×N are transposed when unambiguous.
+    MATLAB v7.3 (HDF5) files are refused with a message (save with ``-v7``).
+
+    Raises
+    ------
+    ValueError
+        Missing variables, shape mismatch, NaN, non-uniform time, implausible units (with the MATLAB row index).
+    """
+    import scipy.io
+
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"{p}: no such file")
+    try:
+        d = scipy.io.loadmat(str(p), squeeze_me=False)
+    except NotImplementedError:
+        _fail(p, "MATLAB v7.3 (HDF5) file; re-save with save(..., '-v7')")
+    except Exception as exc:  # noqa: BLE001 - scipy raises several types for corrupt files
+        _fail(p, f"not a readable MATLAB .mat file ({exc})")
+    missing = [v for v in ("t", "u", "y") if v not in d]
+    if missing:
+        found = sorted(k for k in d if not k.startswith("__"))
+        _fail(p, f"missing variable(s) {missing}; found {found} (expected t [N], u [N×axes], y [N×axes])")
+
+    def num(name):
+        try:
+            return np.asarray(d[name], float)
+        except (TypeError, ValueError):
+            _fail(p, f"variable {name!r} is not numeric")
+
+    t = num("t").ravel()
+    n = len(t)
+
+    def as_matrix(name):
+        a = num(name)
+        if a.ndim != 2:
+            _fail(p, f"variable {name!r}: expected a matrix, got {a.ndim} dimension(s)")
+        if a.shape[0] != n and a.shape[1] == n:
+            a = a.T
+        if a.shape[0] != n:
+            _fail(p, f"variable {name!r}: shape {a.shape} does not match t with {n} samples")
+        return a
+
+    u, y = as_matrix("u"), as_matrix("y")
+    if u.shape[1] != y.shape[1]:
+        _fail(p, f"variables 'u' and 'y': {u.shape[1]} input(s) but {y.shape[1]} output(s)")
+    k = u.shape[1]
+    axes = ("x", "y", "z")[:k] if k <= 3 else tuple(f"a{i}" for i in range(k))
+    if "axes" in d:
+        try:
+            names = [str(np.asarray(a).ravel()[0]) if np.asarray(a).size else "" for a in np.asarray(d["axes"]).ravel()]
+            if len(names) == 1 and len(names[0]) == k:  # char array 'xy'
+                names = list(names[0])
+            if len(names) == k and all(names):
+                axes = tuple(names)
+        except (TypeError, ValueError, IndexError):
+            pass
+    ref = as_matrix("r") if "r" in d else None
+    check_run_arrays(p, t, u, y, [f"u(:,{i + 1})" for i in range(k)], [f"y(:,{i + 1})" for i in range(k)],
+                     row_offset=1, ref=ref)
+    return RunData(t=t, u=u, y=y, axes=tuple(axes), reference=ref, meta={"source": str(p), "format": "mat"})
