@@ -1,0 +1,287 @@
+"""Sample blocks ↔ ``sensor_msgs/msg/PointCloud2`` fields, without ROS.
+
+The topic contract (docs/topics.md) carries a block of N samples × k axes as a PointCloud2 "table":
+``height = 1``, ``width = N``, one little-endian FLOAT64 field per axis (named by the axis, offsets 0, 8, …),
+``point_step = 8·k``, ``row_step = point_step·N``, ``data`` = the [N, k] float64 block row-major, and
+``header.stamp`` = the time of the block's FIRST sample.  Stamps are integer nanoseconds on a grid of
+``dt_ns = round(1e9 / fs)`` (50 000 ns at 20 kHz), so sample ``k`` of a run has stamp ``t0_ns + k·dt_ns`` and the
+sample index of every block is exact.
+
+This module never imports rclpy.  It offers:
+
+- :func:`encode_block` / :func:`decode_block`: block ↔ a plain ``dict`` of PointCloud2 fields (the nodes turn that
+  dict into the real ``sensor_msgs.msg.PointCloud2``; :func:`decode_block` also accepts any message-like object
+  with the same attributes: an rclpy message, a ``rosbags`` or ``mcap_ros2`` decoded message);
+- :func:`serialize_block` / :func:`deserialize_block`: block ↔ CDR bytes (with the 4-byte encapsulation header, as
+  on the wire and in MCAP), via the ``rosbags`` type store, so that recordings can be written and read without ROS;
+- :func:`serialize_message` / :func:`deserialize_message`: the same for any standard message given as nested dicts
+  (``std_msgs/msg/String``, ``diagnostic_msgs/msg/DiagnosticArray`` …);
+- stamp ↔ sample-index helpers (:func:`sample_period_ns`, :func:`stamp_for_index`, :func:`index_for_stamp`).
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+__all__ = [
+    "BLOCK_TYPE", "FRAME_ID", "FLOAT64", "sample_period_ns", "stamp_for_index", "index_for_stamp",
+    "stamp_to_ns", "ns_to_stamp", "encode_block", "decode_block", "block_axes", "serialize_block",
+    "deserialize_block", "serialize_message", "deserialize_message", "typestore",
+]
+
+BLOCK_TYPE = "sensor_msgs/msg/PointCloud2"  #: message type of the reference/voltage/displacement topics
+FRAME_ID = "piezo"  #: header.frame_id of every block
+FLOAT64 = 8  #: sensor_msgs/PointField.FLOAT64
+_NS = 1_000_000_000
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# stamps ↔ sample indices (integer nanoseconds, exact)
+
+def sample_period_ns(sample_rate: float) -> int:
+    """Sample period in integer nanoseconds, ``round(1e9 / fs)`` (50 000 at 20 kHz).
+
+    Raises ``ValueError`` when ``fs`` is not positive and finite, or when the period is not a whole number of
+    nanoseconds to within 1e-6 ns relative error (stamps would then drift from ``k / fs``).
+    """
+    fs = float(sample_rate)
+    if not np.isfinite(fs) or fs <= 0:
+        raise ValueError(f"sample_rate: must be positive and finite, got {sample_rate!r}")
+    dt_ns = round(1e9 / fs)
+    if dt_ns < 1 or abs(dt_ns - 1e9 / fs) > 1e-6 * dt_ns:
+        raise ValueError(f"sample_rate: {fs} Hz has no whole-nanosecond period (1e9/fs = {1e9 / fs!r} ns); "
+                         "choose a rate that divides 1e9")
+    return int(dt_ns)
+
+
+def stamp_for_index(k: int, t0_ns: int, dt_ns: int) -> int:
+    """Stamp [ns] of sample ``k``: ``t0_ns + k·dt_ns`` (exact integer arithmetic)."""
+    return int(t0_ns) + int(k) * int(dt_ns)
+
+
+def index_for_stamp(stamp_ns: int, t0_ns: int, dt_ns: int, *, strict: bool = True) -> int:
+    """Sample index of ``stamp_ns``: ``(stamp_ns − t0_ns) / dt_ns``.
+
+    With ``strict`` (default) a stamp off the sample grid raises ``ValueError``; otherwise the nearest index is
+    returned.
+    """
+    q, r = divmod(int(stamp_ns) - int(t0_ns), int(dt_ns))
+    if r:
+        if strict:
+            raise ValueError(f"stamp {stamp_ns} ns is not on the sample grid t0={t0_ns} ns + k·{dt_ns} ns "
+                             f"(off by {r} ns)")
+        if 2 * r >= dt_ns:
+            q += 1
+    return int(q)
+
+
+def stamp_to_ns(stamp: Any) -> int:
+    """``builtin_interfaces/Time`` (dict or object with ``sec``/``nanosec``) → integer nanoseconds."""
+    if isinstance(stamp, Mapping):
+        return int(stamp["sec"]) * _NS + int(stamp["nanosec"])
+    return int(stamp.sec) * _NS + int(stamp.nanosec)
+
+
+def ns_to_stamp(stamp_ns: int) -> dict:
+    """Integer nanoseconds → ``{"sec": …, "nanosec": …}`` (``nanosec`` in [0, 1e9), as ROS requires)."""
+    sec, nanosec = divmod(int(stamp_ns), _NS)
+    if not -2**31 <= sec < 2**31:
+        raise ValueError(f"stamp {stamp_ns} ns does not fit builtin_interfaces/Time (int32 seconds)")
+    return {"sec": sec, "nanosec": nanosec}
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# block ↔ PointCloud2 fields (plain Python)
+
+def _as_block(block, n_axes: int | None = None) -> np.ndarray:
+    arr = np.asarray(block, dtype=np.float64)
+    if arr.ndim == 1 and n_axes == 1:
+        arr = arr[:, None]
+    if arr.ndim != 2:
+        raise ValueError(f"block: expected a 2-D [N, axes] array, got shape {arr.shape}")
+    if n_axes is not None and arr.shape[1] != n_axes:
+        raise ValueError(f"block: expected {n_axes} columns (one per axis), got shape {arr.shape}")
+    return arr
+
+
+def encode_block(block, stamp_ns: int, axes: Sequence[str] = ("x", "y"), frame_id: str = FRAME_ID) -> dict:
+    """Block [N, axes] (float64, SI) → the fields of a ``sensor_msgs/msg/PointCloud2``, as plain Python.
+
+    Returns ``{"header": {"stamp": {"sec", "nanosec"}, "frame_id"}, "height": 1, "width": N,
+    "fields": [{"name", "offset", "datatype": 8, "count": 1}, …], "is_bigendian": False, "point_step": 8·k,
+    "row_step": 8·k·N, "data": bytes, "is_dense": True}``.
+    """
+    axes = tuple(str(a) for a in axes)
+    if not axes or len(set(axes)) != len(axes):
+        raise ValueError(f"axes: need distinct axis names, got {axes!r}")
+    arr = _as_block(block, len(axes))
+    point_step = 8 * len(axes)
+    data = np.ascontiguousarray(arr, dtype="<f8").tobytes()
+    return {
+        "header": {"stamp": ns_to_stamp(stamp_ns), "frame_id": frame_id},
+        "height": 1,
+        "width": int(arr.shape[0]),
+        "fields": [{"name": a, "offset": 8 * i, "datatype": FLOAT64, "count": 1} for i, a in enumerate(axes)],
+        "is_bigendian": False,
+        "point_step": point_step,
+        "row_step": point_step * int(arr.shape[0]),
+        "data": data,
+        "is_dense": True,
+    }
+
+
+def _get(msg, name):
+    if isinstance(msg, Mapping):
+        return msg[name]
+    return getattr(msg, name)
+
+
+def block_axes(msg) -> tuple[str, ...]:
+    """Axis names of a block message (its field names, in offset order)."""
+    fields = sorted(_get(msg, "fields"), key=lambda f: int(_get(f, "offset")))
+    return tuple(str(_get(f, "name")) for f in fields)
+
+
+def _data_bytes(data) -> bytes | np.ndarray:
+    if isinstance(data, (bytes, bytearray, memoryview)):
+        return data
+    if isinstance(data, np.ndarray):
+        return data
+    # rclpy gives array.array('B') or a list of ints
+    try:
+        return memoryview(data)
+    except TypeError:
+        return bytes(data)
+
+
+def decode_block(msg, axes: Sequence[str] | None = None) -> tuple[int, np.ndarray]:
+    """PointCloud2 of the contract (dict or message-like) → ``(stamp_ns, block[N, axes])`` (float64, a copy).
+
+    ``axes``: wanted columns by field name, in that order (default: all fields in offset order).  Anything that
+    breaks the contract (not FLOAT64, big-endian, height ≠ 1, wrong strides, short data, unknown axis) raises
+    ``ValueError`` saying which field is wrong.
+    """
+    try:
+        header = _get(msg, "header")
+        stamp_ns = stamp_to_ns(_get(header, "stamp"))
+        height, width = int(_get(msg, "height")), int(_get(msg, "width"))
+        point_step, row_step = int(_get(msg, "point_step")), int(_get(msg, "row_step"))
+        big = bool(_get(msg, "is_bigendian"))
+        fields = list(_get(msg, "fields"))
+        data = _data_bytes(_get(msg, "data"))
+    except (KeyError, AttributeError, TypeError) as exc:
+        raise ValueError(f"block: not a PointCloud2-like message ({exc})") from None
+    if big:
+        raise ValueError("block.is_bigendian: must be false (little-endian float64)")
+    if height != 1 and width != 0:
+        raise ValueError(f"block.height: must be 1, got {height}")
+    offsets = {}
+    for f in fields:
+        name, off, dtype, count = str(_get(f, "name")), int(_get(f, "offset")), int(_get(f, "datatype")), \
+            int(_get(f, "count"))
+        if dtype != FLOAT64 or count != 1:
+            raise ValueError(f"block.fields[{name}]: must be FLOAT64 (8) with count 1, got datatype {dtype}, "
+                             f"count {count}")
+        if off % 8 or off + 8 > point_step:
+            raise ValueError(f"block.fields[{name}].offset: {off} does not fit point_step {point_step}")
+        offsets[name] = off
+    if not offsets:
+        raise ValueError("block.fields: empty")
+    if point_step % 8 or point_step < 8 * len(offsets):
+        raise ValueError(f"block.point_step: {point_step} too small for {len(offsets)} float64 fields")
+    if row_step != point_step * width:
+        raise ValueError(f"block.row_step: {row_step} != point_step·width = {point_step * width}")
+    nbytes = len(data) if not isinstance(data, np.ndarray) else data.nbytes
+    if nbytes != row_step * max(height, 1) and not (width == 0 and nbytes == 0):
+        raise ValueError(f"block.data: {nbytes} bytes, expected row_step·height = {row_step * height}")
+    table = np.frombuffer(data, dtype="<f8").reshape(width, point_step // 8)
+    if axes is None:
+        axes = sorted(offsets, key=offsets.get)
+    try:
+        cols = [offsets[a] // 8 for a in axes]
+    except KeyError as exc:
+        raise ValueError(f"block.fields: no field named {exc.args[0]!r} (fields: {sorted(offsets)})") from None
+    return stamp_ns, np.array(table[:, cols], dtype=np.float64)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# CDR (de)serialisation without ROS, via the rosbags type store
+
+@lru_cache(maxsize=1)
+def typestore():
+    """The ``rosbags`` type store of the standard ROS 2 (Kilted) message types."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_KILTED)
+
+
+def _build(ts, type_name: str, value):
+    """Nested dicts/lists → rosbags message objects of ``type_name``."""
+    if not isinstance(value, Mapping):
+        return value  # already a message object
+    cls = ts.types[type_name]
+    fields = ts.fielddefs[type_name][1]
+    kwargs = {}
+    for fname, (kind, spec) in fields:
+        if fname not in value:
+            raise ValueError(f"{type_name}.{fname}: missing")
+        v = value[fname]
+        kwargs[fname] = _build_field(ts, kind, spec, v)
+    return cls(**kwargs)
+
+
+def _build_field(ts, kind, spec, v):
+    from rosbags.typesys.base import Nodetype
+
+    if kind == Nodetype.NAME:
+        return _build(ts, spec, v)
+    if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+        (sub_kind, sub_spec) = spec[0]
+        if sub_kind == Nodetype.BASE and sub_spec[0] not in ("string", "bool"):
+            dtype = {"int8": np.int8, "uint8": np.uint8, "char": np.uint8, "byte": np.uint8, "int16": np.int16,
+                     "uint16": np.uint16, "int32": np.int32, "uint32": np.uint32, "int64": np.int64,
+                     "uint64": np.uint64, "float32": np.float32, "float64": np.float64}[sub_spec[0]]
+            if isinstance(v, (bytes, bytearray, memoryview)):
+                return np.frombuffer(v, dtype=dtype)
+            return np.asarray(v, dtype=dtype)
+        return [_build_field(ts, sub_kind, sub_spec, x) for x in v]
+    if kind == Nodetype.BASE and isinstance(v, (bytes, bytearray)) and len(v) == 1:
+        return v[0]  # a ROS 'byte' given the way rclpy gives it (b'\x00')
+    return v
+
+
+def serialize_message(value, type_name: str) -> bytes:
+    """A standard message given as nested dicts (or rosbags objects) → CDR bytes (little-endian, with header)."""
+    ts = typestore()
+    if type_name not in ts.types:
+        raise ValueError(f"{type_name}: unknown message type")
+    return bytes(ts.serialize_cdr(_build(ts, type_name, value), type_name))
+
+
+def deserialize_message(raw: bytes, type_name: str):
+    """CDR bytes → a rosbags message object (attributes as in the .msg; arrays of numbers as numpy arrays).
+
+    Raises ``ValueError`` for an unknown type or bytes that do not decode.
+    """
+    ts = typestore()
+    if type_name not in ts.types:
+        raise ValueError(f"{type_name}: unknown message type")
+    try:
+        return ts.deserialize_cdr(bytes(raw) if not isinstance(raw, (bytes, memoryview)) else raw, type_name)
+    except Exception as exc:  # rosbags raises assorted struct/index errors on corrupt data
+        raise ValueError(f"{type_name}: cannot decode CDR message ({type(exc).__name__}: {exc})") from None
+
+
+def serialize_block(block, stamp_ns: int, axes: Sequence[str] = ("x", "y"), frame_id: str = FRAME_ID) -> bytes:
+    """Block [N, axes] → CDR-serialised ``sensor_msgs/msg/PointCloud2`` of the contract (bytes as in MCAP)."""
+    return serialize_message(encode_block(block, stamp_ns, axes, frame_id), BLOCK_TYPE)
+
+
+def deserialize_block(raw: bytes, axes: Sequence[str] | None = None) -> tuple[int, np.ndarray, tuple[str, ...]]:
+    """CDR bytes of a block message → ``(stamp_ns, block[N, axes], axes)``; ``ValueError`` if malformed."""
+    msg = deserialize_message(raw, BLOCK_TYPE)
+    names = block_axes(msg) if axes is None else tuple(axes)
+    stamp_ns, block = decode_block(msg, names)
+    return stamp_ns, block, names
