@@ -1,0 +1,272 @@
+"""Performance figures exactly as the paper's Section VII-A defines them, plus tracking/settling figures.
+
+All functions take plain arrays (SI units, time in seconds) and return floats or small dictionaries; ratios are
+fractions (multiply by 100 for the paper's percentages).
+
+How the levels are read (the paper gives the definitions, not the windows — these are our choices, documented so
+that a replay of recorded signals gives the same numbers):
+
+* **Hysteresis** ``h/H`` (Fig. 4/6): over one full period of a periodic input, ``h`` is the largest vertical
+  distance between the ascending and the descending branch of the loop (output at the same input value, branches
+  interpolated on a common grid of 2001 input values), ``H`` the output's peak-to-peak range over that period.
+  :func:`hysteresis_ratio` uses the **last** full period of the record, so start-up (the virgin curve) is excluded.
+* **Creep** ``(A_m − A_f)/A_f`` (Fig. 7/10): displacements are taken relative to the mean level before the step.
+  ``A_f`` — "the displacement before the creep appears", i.e. just after the fast transient — is the mean over
+  ``[t_step + t_transient, t_step + t_transient + window]`` with ``t_transient = 0.2 s`` (the paper: the transient
+  lasts less than 200 ms) and ``window = 0.05 s``.  ``A_m`` — the displacement after the creep evaluation time — is
+  the mean over the last ``final_window = 1 s`` before ``t_step + t_creep`` (default: the end of the record).
+* **Overshoot** ``(A_m − A_f)/A_f`` (Fig. 11/14): relative to the pre-step level, ``A_m`` is the extreme
+  displacement after the step in the direction of the final value, ``A_f`` the final value: the mean over the last
+  ``final_window = 0.05 s`` of the record.  A response that never passes its final value gives ≈ 0.
+* **Cross-coupling** before compensation (Table II, left): ``H^xy/H^xx``, the peak-to-peak range of x when only y
+  is driven over the range of x when only x is driven (the Fig. 4 sines); after compensation (right):
+  ``A_f^xy/A_f^xx``, the final values of x after a step on y and after a step on x (Fig. 14).  Reported as
+  absolute ratios, as the paper does.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = [
+    "peak_to_peak", "last_period", "hysteresis_ratio", "step_levels", "creep_ratio", "overshoot_ratio",
+    "cross_coupling_range_ratio", "cross_coupling_final_ratio", "settling_time", "static_error", "tracking_errors",
+    "T_TRANSIENT", "AF_WINDOW", "CREEP_FINAL_WINDOW", "STEP_FINAL_WINDOW",
+]
+
+T_TRANSIENT = 0.2          #: [s] end of the fast transient after a step (creep A_f is read after it)
+AF_WINDOW = 0.05           #: [s] averaging window for the creep A_f
+CREEP_FINAL_WINDOW = 1.0   #: [s] averaging window for the creep A_m (end of the creep time)
+STEP_FINAL_WINDOW = 0.05   #: [s] averaging window for a step's final value A_f
+
+
+def _vec(x, name) -> np.ndarray:
+    a = np.asarray(x, dtype=float).reshape(-1)
+    if a.size == 0:
+        raise ValueError(f"{name}: empty signal")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name}: contains NaN or inf")
+    return a
+
+
+def _pair(t, y):
+    t = _vec(t, "t")
+    y = _vec(y, "y")
+    if t.shape != y.shape:
+        raise ValueError(f"t and y differ in length ({t.size} vs {y.size})")
+    return t, y
+
+
+def _window_mean(t, y, t0, t1, what):
+    sel = (t >= t0) & (t <= t1)
+    if not np.any(sel):
+        # a window shorter than the sample period: take the nearest sample
+        i = int(np.argmin(np.abs(t - 0.5 * (t0 + t1))))
+        if not (t[0] - 1e-12 <= 0.5 * (t0 + t1) <= t[-1] + 1e-12):
+            raise ValueError(f"{what}: window [{t0:g}, {t1:g}] s lies outside the record [{t[0]:g}, {t[-1]:g}] s")
+        return float(y[i])
+    return float(np.mean(y[sel]))
+
+
+def peak_to_peak(y) -> float:
+    """``max(y) − min(y)``."""
+    y = _vec(y, "y")
+    return float(y.max() - y.min())
+
+
+def last_period(t, period: float, *signals):
+    """Slice the last full ``period`` seconds of a record: returns the sliced ``signals`` (arrays along axis 0)."""
+    t = _vec(t, "t")
+    if period <= 0 or not math.isfinite(period):
+        raise ValueError(f"period must be a positive number of seconds, got {period}")
+    if t[-1] - t[0] < period * (1 - 1e-9):
+        raise ValueError(f"record ({t[-1] - t[0]:g} s) is shorter than one period ({period:g} s)")
+    start = t[-1] - period
+    # include the sample one period before the last one so the loop is closed
+    i0 = int(np.searchsorted(t, start - 1e-9 * max(1.0, abs(start))))
+    return tuple(np.asarray(s)[i0:] for s in signals)
+
+
+def hysteresis_ratio(u, y, period_t=None, period: float | None = None, grid: int = 2001) -> dict:
+    """Hysteresis amplitude ``h/H`` of an input/output loop (paper Fig. 4 and Section VII-A).
+
+    Parameters
+    ----------
+    u, y : array [N]
+        Periodic input (volts or metres) and the output [m].  Without ``period`` they must span exactly one
+        period; with ``period`` and ``period_t`` (sample times) the last full period is used.
+    period_t : array [N], optional
+        Sample times [s], needed with ``period``.
+    period : float, optional
+        Input period [s].
+    grid : int
+        Number of input values on which both branches are compared.
+
+    Returns
+    -------
+    dict
+        ``{"h": max vertical loop width, "H": output range, "ratio": h/H}`` (units of ``y`` for h and H).
+    """
+    u = _vec(u, "u")
+    y = _vec(y, "y")
+    if u.shape != y.shape:
+        raise ValueError(f"u and y differ in length ({u.size} vs {y.size})")
+    if period is not None:
+        if period_t is None:
+            raise ValueError("hysteresis_ratio: period needs the sample times period_t")
+        u, y = last_period(period_t, period, u, y)
+    du = np.diff(u)
+    up = du > 0
+    down = du < 0
+    if up.sum() < 2 or down.sum() < 2:
+        raise ValueError("hysteresis_ratio: the input must rise and fall (one full period of a periodic input)")
+    # branch samples: the later sample of each rising/falling step
+    ua, ya = u[1:][up], y[1:][up]
+    ud, yd = u[1:][down], y[1:][down]
+    ia, id_ = np.argsort(ua, kind="stable"), np.argsort(ud, kind="stable")
+    ua, ya, ud, yd = ua[ia], ya[ia], ud[id_], yd[id_]
+    lo = max(ua[0], ud[0])
+    hi = min(ua[-1], ud[-1])
+    if not hi > lo:
+        raise ValueError("hysteresis_ratio: rising and falling branches do not overlap in input")
+    g = np.linspace(lo, hi, grid)
+    width = np.abs(np.interp(g, ua, ya) - np.interp(g, ud, yd))
+    H = float(y.max() - y.min())
+    h = float(width.max())
+    return {"h": h, "H": H, "ratio": h / H if H > 0 else math.nan, "u_at_max": float(g[int(np.argmax(width))])}
+
+
+def step_levels(t, y, t_step: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Times and displacements relative to the step: ``(t − t_step, y − y_before, y_before)``.
+
+    ``y_before`` is the mean of the samples before the step (0 if the record starts at the step).
+    """
+    t, y = _pair(t, y)
+    before = t < t_step
+    y0 = float(np.mean(y[before])) if np.any(before) else 0.0
+    return t - t_step, y - y0, y0
+
+
+def creep_ratio(t, y, t_step: float = 0.0, t_creep: float | None = None, t_transient: float = T_TRANSIENT,
+                window: float = AF_WINDOW, final_window: float = CREEP_FINAL_WINDOW) -> dict:
+    """Creep ``(A_m − A_f)/A_f`` of a step response (paper Fig. 7/10, Section VII-A).
+
+    ``A_f``: mean displacement over ``[t_transient, t_transient + window]`` after the step (after the fast
+    transient, before the creep develops); ``A_m``: mean over the last ``final_window`` before ``t_creep`` after
+    the step (default: end of the record).  Displacements relative to the pre-step level.
+
+    Returns ``{"A_f", "A_m", "ratio", "ratio_over_Am"}`` (the last one divides by ``A_m`` instead of ``A_f``).
+    """
+    tr, yr, _ = step_levels(t, y, t_step)
+    t_end = tr[-1] if t_creep is None else float(t_creep)
+    if t_end > tr[-1] + 1e-9:
+        raise ValueError(f"creep_ratio: creep time {t_end:g} s is beyond the record ({tr[-1]:g} s after the step)")
+    if t_end < t_transient + window:
+        raise ValueError(f"creep_ratio: record too short ({t_end:g} s after the step; need > "
+                         f"{t_transient + window:g} s)")
+    A_f = _window_mean(tr, yr, t_transient, t_transient + window, "creep A_f")
+    A_m = _window_mean(tr, yr, max(t_end - final_window, t_transient + window), t_end, "creep A_m")
+    return {"A_f": A_f, "A_m": A_m, "ratio": (A_m - A_f) / A_f if A_f != 0 else math.nan,
+            "ratio_over_Am": (A_m - A_f) / A_m if A_m != 0 else math.nan}
+
+
+def overshoot_ratio(t, y, t_step: float = 0.0, final_window: float = STEP_FINAL_WINDOW) -> dict:
+    """Overshoot ``(A_m − A_f)/A_f`` of a step response (paper Fig. 11/14, Section VII-A).
+
+    ``A_f``: final value, mean over the last ``final_window`` seconds; ``A_m``: the extreme displacement after
+    the step in the direction of ``A_f``.  Both relative to the pre-step level.
+
+    Returns ``{"A_f", "A_m", "ratio", "t_peak"}`` (``t_peak`` after the step).
+    """
+    tr, yr, _ = step_levels(t, y, t_step)
+    after = tr >= 0
+    if after.sum() < 2:
+        raise ValueError("overshoot_ratio: no samples after the step")
+    A_f = _window_mean(tr, yr, tr[-1] - final_window, tr[-1], "step final value")
+    ya = yr[after]
+    i = int(np.argmax(ya)) if A_f >= 0 else int(np.argmin(ya))
+    A_m = float(ya[i])
+    return {"A_f": A_f, "A_m": A_m, "ratio": (A_m - A_f) / A_f if A_f != 0 else math.nan,
+            "t_peak": float(tr[after][i])}
+
+
+def cross_coupling_range_ratio(y_cross, y_direct) -> float:
+    """``H^xy / H^xx``: range of an axis when only the other axis is driven over its range when driven itself."""
+    H_direct = peak_to_peak(y_direct)
+    return peak_to_peak(y_cross) / H_direct if H_direct > 0 else math.nan
+
+
+def cross_coupling_final_ratio(A_f_cross: float, A_f_direct: float) -> float:
+    """``|A_f^xy / A_f^xx|``: final value of an axis after a step on the other axis over that after its own step."""
+    return abs(A_f_cross / A_f_direct) if A_f_direct != 0 else math.nan
+
+
+def settling_time(t, y, t_step: float = 0.0, band: float = 0.02, final: float | None = None,
+                  final_window: float = STEP_FINAL_WINDOW) -> float:
+    """Time after the step from which the response stays within ``band·|final|`` of its final value.
+
+    ``final`` defaults to the step's final value (mean of the last ``final_window`` s, relative to the pre-step
+    level).  Returns ``nan`` if the response is not settled at the end of the record.
+    """
+    tr, yr, _ = step_levels(t, y, t_step)
+    if final is None:
+        final = _window_mean(tr, yr, tr[-1] - final_window, tr[-1], "step final value")
+    after = tr >= 0
+    ta, ya = tr[after], yr[after]
+    outside = np.abs(ya - final) > band * abs(final)
+    if not np.any(outside):
+        return 0.0
+    last = int(np.nonzero(outside)[0][-1])
+    if last == len(ya) - 1:
+        return math.nan
+    return float(ta[last + 1])
+
+
+def static_error(t, y, reference, final_window: float = STEP_FINAL_WINDOW) -> dict:
+    """Steady-state error at the end of a record: ``{"error": mean(y − r), "relative": mean(y − r)/mean(r)}``.
+
+    Means over the last ``final_window`` seconds.
+    """
+    t, y = _pair(t, y)
+    r = _vec(reference, "reference")
+    if r.shape != y.shape:
+        raise ValueError(f"reference and y differ in length ({r.size} vs {y.size})")
+    sel = t >= t[-1] - final_window
+    e = float(np.mean(y[sel] - r[sel]))
+    rm = float(np.mean(r[sel]))
+    return {"error": e, "relative": e / rm if rm != 0 else math.nan}
+
+
+def tracking_errors(reference, y, mask=None) -> dict:
+    """RMS and maximum tracking error.
+
+    Parameters
+    ----------
+    reference, y : array [N, axes] (or [N])
+        Reference and measured output [m].
+    mask : bool array [N], optional
+        Samples to include (e.g. after the start-up transient).
+
+    Returns
+    -------
+    dict
+        ``{"rms": [per axis], "max": [per axis], "rms_norm": RMS of the Euclidean error,
+        "max_norm": maximum Euclidean error}``.
+    """
+    r = np.asarray(reference, float)
+    yy = np.asarray(y, float)
+    if r.ndim == 1:
+        r, yy = r[:, None], yy.reshape(-1, 1)
+    if r.shape != yy.shape:
+        raise ValueError(f"reference {r.shape} and output {yy.shape} differ in shape")
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(yy))):
+        raise ValueError("tracking_errors: signals contain NaN or inf")
+    e = yy - r
+    if mask is not None:
+        e = e[np.asarray(mask, bool)]
+    if len(e) == 0:
+        raise ValueError("tracking_errors: no samples selected")
+    norm = np.sqrt(np.sum(e * e, axis=1))
+    return {"rms": np.sqrt(np.mean(e * e, axis=0)).tolist(), "max": np.max(np.abs(e), axis=0).tolist(),
+            "rms_norm": float(np.sqrt(np.mean(norm * norm))), "max_norm": float(norm.max())}
