@@ -1,0 +1,279 @@
+"""Replay analysis of a recorded run (the ``piezo-ff analyze`` engine).
+
+Given a :class:`~piezo_ff_ros.core.recording.run.RunData` read from a recording of the topic contract, this module
+
+- cuts it into the segments announced on the ``experiment`` topic;
+- hands the complete segments to the shared paper evaluation (``evaluate(recorded)`` of
+  :mod:`piezo_ff_ros.core.experiments`, the same code ``piezo-ff reproduce`` uses), so that the result has the same
+  keys as ``reproduce --json``;
+- adds, under the key ``"replay"``, what only a recording can tell: tracking errors (RMS and max per axis, per
+  segment and overall), gaps / duplicates / missing blocks per topic, saturated voltage samples and the driver's
+  diagnostic counters, plus warnings.
+
+Runs without experiment markers (a user's own references) get the ``"replay"`` part only.
+No ROS import.
+"""
+from __future__ import annotations
+
+import importlib
+import math
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from . import metrics
+from .recording.run import RunData
+from .units import to_um
+
+__all__ = ["find_evaluate", "segment_signals", "tracking_summary", "analyze_run", "plot_run", "format_report"]
+
+DEFAULT_VOLTAGE_LIMIT = 200.0  #: [V] when the recording does not say (core.config LimitsConfig default)
+
+
+def find_evaluate() -> Callable | None:
+    """The shared paper evaluation ``evaluate(recorded) -> dict`` if it is installed, else ``None``."""
+    for mod_name in ("piezo_ff_ros.core.experiments", "piezo_ff_ros.core.reproduce"):
+        try:
+            mod = importlib.import_module(mod_name)
+        except ImportError:
+            continue
+        fn = getattr(mod, "evaluate", None)
+        if callable(fn):
+            return fn
+    return None
+
+
+def segment_signals(run: RunData, complete_only: bool = True) -> tuple[dict, list[str]]:
+    """``{name: (t, reference, u, y)}`` for the run's experiment segments (t starts at 0 in each segment).
+
+    Segments with gaps, cut off by the start/end of the recording, or without a reference are left out (listed
+    in the returned warnings) when ``complete_only``.  A segment name seen twice gets a ``#2`` suffix.
+    """
+    recorded, warnings = {}, []
+    for seg in run.meta.get("segments", []):
+        name = seg["name"]
+        a, b = seg["start"], seg["stop"]
+        if b - a < 2:
+            warnings.append(f"segment {name!r}: not in the recorded span; skipped")
+            continue
+        if complete_only and not seg.get("complete", True):
+            warnings.append(f"segment {name!r}: incomplete (gap or cut by the recording's start/end); skipped")
+            continue
+        ref = run.reference[a:b] if run.reference is not None else None
+        if ref is None and complete_only:
+            warnings.append(f"segment {name!r}: no reference recorded; skipped")
+            continue
+        key, i = name, 2
+        while key in recorded:
+            key, i = f"{name}#{i}", i + 1
+        t = run.t[a:b] - run.t[a]
+        recorded[key] = (t, ref, run.u[a:b], run.y[a:b])
+    return recorded, warnings
+
+
+def tracking_summary(reference, y) -> dict | None:
+    """Tracking errors [m] over the rows where both signals are finite (``None`` if there are none)."""
+    if reference is None:
+        return None
+    r, yy = np.asarray(reference, float), np.asarray(y, float)
+    ok = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(yy), axis=1)
+    if not ok.any():
+        return None
+    out = metrics.tracking_errors(r[ok], yy[ok])
+    out["samples"] = int(ok.sum())
+    return out
+
+
+def _voltage_limit(run: RunData) -> float:
+    md = run.meta.get("metadata", {})
+    for key in ("voltage_limit", "limits.voltage"):
+        if key in md:
+            try:
+                return float(md[key])
+            except ValueError:
+                pass
+    cfg_yaml = md.get("config_yaml")
+    if cfg_yaml:
+        try:
+            import yaml
+
+            limit = (yaml.safe_load(cfg_yaml) or {}).get("limits", {}).get("voltage")
+            if limit is not None:
+                return float(limit)
+        except Exception:  # a config we cannot parse: fall back to the default limit
+            pass
+    return DEFAULT_VOLTAGE_LIMIT
+
+
+def _driver_counters(diagnostics: dict) -> dict:
+    """Numeric diagnostic values (saturation, slew, dropped, late, rejected …), last value per status/key."""
+    out = {}
+    for name, st in diagnostics.get("status", {}).items():
+        for key, value in st.get("values", {}).items():
+            try:
+                out[f"{name}/{key}"] = float(value)
+            except (TypeError, ValueError):
+                continue
+    return out
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(float(x)) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+def analyze_run(run: RunData, evaluate: Callable | None = None) -> dict:
+    """Analyse a recorded run; returns a JSON-ready dict.
+
+    Parameters
+    ----------
+    run
+        From :func:`~piezo_ff_ros.core.recording.mcap_io.read_run` (its ``meta`` supplies segments, gaps, …).
+    evaluate
+        The paper evaluation ``evaluate({name: (t, reference, u, y)}) -> dict``; default
+        :func:`find_evaluate`.  Called only when the run has complete experiment segments.
+
+    Returns
+    -------
+    dict
+        The keys of ``evaluate`` (as ``reproduce --json``: the paper's tables), plus ``"replay"``:
+        ``{"source", "duration_s", "samples", "sample_rate", "axes", "tracking" (overall, m), "segments" [{name,
+        k0, k1, samples, complete, tracking}], "blocks" (per topic: count, gaps, missing, duplicates…),
+        "saturation" {limit_V, samples, fraction}, "diagnostics" {messages, counters}, "truncated",
+        "warnings"}``.
+    """
+    meta = run.meta
+    warnings = list(meta.get("warnings", []))
+    result: dict = {}
+    recorded, seg_warn = segment_signals(run)
+    warnings += seg_warn
+    if recorded:
+        evaluate = evaluate or find_evaluate()
+        if evaluate is None:
+            warnings.append("paper evaluation (core.experiments.evaluate) not available: tables skipped")
+        else:
+            try:
+                result.update(evaluate(recorded))
+            except ValueError as exc:
+                warnings.append(f"paper evaluation failed on this recording: {exc}")
+    elif meta.get("segments"):
+        warnings.append("no complete experiment segment: paper tables skipped")
+
+    segments = []
+    for seg in meta.get("segments", []):
+        a, b = seg["start"], seg["stop"]
+        ref = run.reference[a:b] if run.reference is not None else None
+        segments.append({"name": seg["name"], "k0": seg["k0"], "k1": seg["k1"], "samples": int(b - a),
+                         "complete": seg.get("complete", True), "stages": seg.get("stages"),
+                         "tracking": tracking_summary(ref, run.y[a:b]) if b > a else None})
+
+    limit = _voltage_limit(run)
+    u = np.asarray(run.u, float)
+    finite_u = np.all(np.isfinite(u), axis=1)
+    saturated = int(np.sum(np.any(np.abs(u[finite_u]) >= limit * (1 - 1e-9), axis=1)))
+    diag = meta.get("diagnostics", {})
+    blocks = {role: {k: v for k, v in info.items()} for role, info in meta.get("blocks", {}).items()}
+    result["replay"] = {
+        "source": meta.get("source"),
+        "duration_s": len(run) / run.sample_rate if len(run) > 1 else 0.0,
+        "samples": len(run),
+        "sample_rate": meta.get("sample_rate", run.sample_rate if len(run) > 1 else None),
+        "axes": list(run.axes),
+        "tracking": tracking_summary(run.reference, run.y),
+        "segments": segments,
+        "blocks": blocks,
+        "saturation": {"limit_V": limit, "samples": saturated,
+                       "fraction": saturated / max(int(finite_u.sum()), 1)},
+        "diagnostics": {"messages": diag.get("messages", 0), "counters": _driver_counters(diag)},
+        "truncated": bool(meta.get("truncated", False)),
+        "warnings": warnings,
+    }
+    return _jsonable(result)
+
+
+def plot_run(run: RunData, out_dir, max_points: int = 20000) -> list[Path]:
+    """PNG plots (Agg): one per segment (or one for the whole run without markers) — reference and displacement
+    per axis [µm] and the tracking error [µm] — and the voltages.  Returns the written paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    parts = [(s["name"], s["start"], s["stop"]) for s in run.meta.get("segments", []) if s["stop"] > s["start"]]
+    if not parts:
+        parts = [("run", 0, len(run))]
+    written = []
+    for i, (name, a, b) in enumerate(parts):
+        step = max(1, (b - a) // max_points)
+        sl = slice(a, b, step)
+        t = run.t[sl]
+        n_ax = len(run.axes)
+        fig, axs = plt.subplots(3, n_ax, figsize=(5 * n_ax, 8), sharex=True, squeeze=False)
+        for j, axis in enumerate(run.axes):
+            ax = axs[0][j]
+            if run.reference is not None:
+                ax.plot(t, to_um(run.reference[sl, j]), "k--", lw=1, label="reference")
+            ax.plot(t, to_um(run.y[sl, j]), lw=1, label="displacement")
+            ax.set_ylabel(f"{axis} [µm]")
+            ax.legend(loc="best", fontsize=8)
+            if run.reference is not None:
+                axs[1][j].plot(t, to_um(run.y[sl, j] - run.reference[sl, j]), lw=1, color="C3")
+            axs[1][j].set_ylabel(f"error {axis} [µm]")
+            axs[2][j].plot(t, run.u[sl, j], lw=1, color="C2")
+            axs[2][j].set_ylabel(f"u{axis} [V]")
+            axs[2][j].set_xlabel("t [s]")
+        fig.suptitle(f"{name}  ({Path(str(run.meta.get('source', ''))).name})")
+        fig.tight_layout()
+        safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
+        path = out / f"{i:02d}_{safe}.png"
+        fig.savefig(path, dpi=90)
+        plt.close(fig)
+        written.append(path)
+    return written
+
+
+def format_report(result: dict) -> str:
+    """Human-readable summary of :func:`analyze_run`'s result (tracking in µm, counts)."""
+    rp = result["replay"]
+    lines = [f"{rp['source']}: {rp['samples']} samples, {rp['duration_s']:.3f} s at {rp['sample_rate']:.0f} Hz, "
+             f"axes {','.join(rp['axes'])}" + ("  [TRUNCATED file: prefix only]" if rp["truncated"] else "")]
+    for role, b in rp["blocks"].items():
+        lines.append(f"  {role:<12} {b['topic']:<20} {b['count']:>7} blocks  gaps {len(b['gaps'])} "
+                     f"(missing {b['missing_samples']} samples ≈ {b['missing_blocks']} blocks)  "
+                     f"duplicates {b['duplicates']}  malformed {b['malformed']}")
+    sat = rp["saturation"]
+    lines.append(f"  saturated voltage samples (|u| ≥ {sat['limit_V']:g} V): {sat['samples']}")
+    if rp["diagnostics"]["messages"]:
+        counters = ", ".join(f"{k}={v:g}" for k, v in rp["diagnostics"]["counters"].items())
+        lines.append(f"  diagnostics: {rp['diagnostics']['messages']} messages; last counters: {counters or '-'}")
+
+    def fmt(tr):
+        if not tr:
+            return "n/a"
+        rms = "/".join(f"{to_um(v):.4g}" for v in tr["rms"])
+        mx = "/".join(f"{to_um(v):.4g}" for v in tr["max"])
+        return f"RMS {rms} µm, max {mx} µm"
+
+    lines.append(f"  tracking error (whole run, per axis): {fmt(rp['tracking'])}")
+    if rp["segments"]:
+        lines.append("  segments:")
+        for s in rp["segments"]:
+            flag = "" if s["complete"] else "  (incomplete)"
+            lines.append(f"    {s['name']:<28} k0={s['k0']:<9} {s['samples']:>8} samples  {fmt(s['tracking'])}{flag}")
+    for w in rp["warnings"]:
+        lines.append(f"  warning: {w}")
+    return "\n".join(lines)
