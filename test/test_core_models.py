@@ -318,3 +318,29 @@ def test_two_axis_kernel_gives_the_generic_kernels_numbers(paper_config, which):
     _bank_run(Ablk, offsets, ss.sizes, ss.B, ss.C, ss.D, np.zeros(ss.n_states), u, generic)
     assert np.array_equal(fast, generic)
     assert np.max(np.abs(fast)) > 0
+
+
+def _generalized(cfg):
+    from dataclasses import replace
+
+    return replace(cfg.hysteresis, Delta1=((0.002, 0.0003), (0.0, 0.002)), Delta2=((0.001, 0.0), (0.0002, 0.001)))
+
+
+@pytest.mark.parametrize("generalized", [False, True])
+def test_two_axis_bouc_wen_kernel_gives_the_generic_kernels_numbers(paper_config, generalized):
+    from piezo_ff_ros.core.models import bouc_wen
+
+    cfg = _generalized(paper_config) if generalized else paper_config.hysteresis
+    u = _signal(4000, seed=3, scale=150.0)
+    model = BoucWenModel(cfg)
+    fast, h_fast = model.process(u[:1500], return_h=True)
+    fast2, h_fast2 = model.process(u[1500:], return_h=True)
+    p = cfg.arrays()
+    st = bouc_wen.BoucWenState(2, 2)
+    y, hs = np.empty_like(u), np.empty_like(u)
+    bouc_wen._bw_model_run(p["Dp"], p["A"], p["B"], p["Gamma"], p["Delta1"], p["Delta2"], p["P"],
+                           st.h, st.u_prev, st.started, u, y, hs)
+    assert np.array_equal(np.vstack([fast, fast2]), y)
+    assert np.array_equal(np.vstack([h_fast, h_fast2]), hs)
+    assert np.array_equal(model.state.h, st.h) and np.array_equal(model.state.u_prev, st.u_prev)
+    assert np.max(np.abs(hs)) > 0

@@ -76,11 +76,16 @@ class HysteresisCompensator:
 
 
 @njit
-def _solve_small(M, r, x):  # pragma: no cover - compiled
-    """Gaussian elimination with partial pivoting for a small dense system; False if singular."""
+def _solve_small(M, r, x, a, b):  # pragma: no cover - compiled
+    """Gaussian elimination with partial pivoting for a small dense system; False if singular.
+
+    ``a`` (n×n) and ``b`` (n) are scratch for the factorisation: nothing is allocated per call.
+    """
     n = r.shape[0]
-    a = M.copy()
-    b = r.copy()
+    for i in range(n):
+        b[i] = r[i]
+        for j in range(n):
+            a[i, j] = M[i, j]
     for c in range(n):
         p = c
         for i in range(c + 1, n):
@@ -120,6 +125,9 @@ def _bw_comp_run(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exa
     M = np.zeros((n, n))
     W = np.zeros((n, n))
     s = np.zeros(n)
+    duh = np.zeros(n)
+    lu = np.zeros((n, n))
+    rhs = np.zeros(n)
     npat = 1 << n
     for t in range(N):
         if not started[0]:
@@ -162,7 +170,7 @@ def _bw_comp_run(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exa
                         for l in range(n):
                             acc += W[i, l] * P[l, j]
                         M[i, j] = acc
-                if not _solve_small(M, r, du):
+                if not _solve_small(M, r, du, lu, rhs):
                     continue
                 ok = True
                 for l in range(n):
@@ -190,7 +198,7 @@ def _bw_comp_run(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exa
             if un > ulim or un < -ulim:
                 du[j] = (ulim if un > 0 else -ulim) - u_prev[j]
                 counters[1] += 1
-        _bw_increment(A, B, G, D1, D2, P, h, du, dh)
+        _bw_increment(A, B, G, D1, D2, P, h, du, dh, duh)
         for i in range(n):
             h[i] += dh[i]
         for j in range(k):
