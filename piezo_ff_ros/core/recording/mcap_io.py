@@ -360,7 +360,7 @@ class McapRecorder:
         now = time.monotonic()
         if self._unflushed_since is None:
             self._unflushed_since = now
-        elif self._flush_interval is not None and now - self._unflushed_since >= self._flush_interval:
+        if self._flush_interval is not None and now - self._unflushed_since >= self._flush_interval:
             self._writer.flush()
             self._last_pos = self._file.tell()
             self._unflushed_since = None
