@@ -1,0 +1,293 @@
+"""The paper's experiments as data, and their simulation with the core cascade and a simulated plant (no ROS).
+
+Each :class:`Experiment` says which system it measures (S0, S_H, S_L, T of Fig. 3, or the open loop), which
+compensator stages are on, what drives it (a voltage applied directly, or a reference through the cascade), its
+trajectory, and which metric (Section VII-A) is read from it.  The same list drives
+
+* :func:`simulate_experiments` — core cascade + :class:`~piezo_ff_ros.core.models.plant.Plant`, in blocks;
+* the ROS demo (another package part) — :func:`experiment_sequence` gives a named :class:`Sequence` whose segment
+  ``meta`` carries everything a node needs (``Experiment.meta()``);
+* :func:`piezo_ff_ros.core.reproduce.evaluate` — the tables from recorded signals, whatever produced them.
+
+Recorded signals per experiment are ``Recorded(t, reference, u, y)``: ``t`` [s] from the experiment's start,
+``reference`` [N, axes] the trajectory (volts for ``input='voltage'`` experiments, metres otherwise), ``u`` [V]
+the voltage applied, ``y`` [m] the displacement.
+
+Experiment names (a contract with the demo and the analysis):
+
+==================  ======  ======  ============================================  ==========
+name                paper   system  drive                                          metric
+==================  ======  ======  ============================================  ==========
+hyst_S0_<a>         IV-A    S0      200 V, 0.1 Hz sine on U_a, no compensator      hysteresis
+hyst_SH_<a>         IV-C    S_H     20 µm, 0.1 Hz sine through hysteresis⁻¹        hysteresis
+creep_SH_<a>        V-A     S_H     20 µm step on axis a, ``creep_duration`` s     creep
+creep_SL_<a>        V-C     S_L     20 µm step through creep⁻¹ + hysteresis⁻¹      creep
+step_SL_<a>         VI-A    S_L     20 µm step, 0.5 s                              overshoot
+step_T_<a>          VI-C    T       20 µm step through the full cascade            overshoot
+circle<r>_T         VII-B   T       circle of radius r µm through the full cascade tracking
+circle<r>_open      VII-B   open    same circle, voltage = Dp⁻¹·reference          tracking
+==================  ======  ======  ============================================  ==========
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+from .compensators.cascade import CompensatorCascade
+from .config import PiezoConfig
+from .models.plant import Plant
+from .trajectories import Circle, Sequence, Sine, Step, Trajectory
+from .units import UM
+
+__all__ = ["Experiment", "Recorded", "paper_experiments", "experiment_sequence", "simulate_experiments",
+           "run_experiment", "STAGE_SETS"]
+
+#: compensator stages on, per system of Fig. 3 ("open": none, the cascade reduces to Dp⁻¹)
+STAGE_SETS = {"S0": (), "open": (), "S_H": ("hysteresis",), "S_L": ("hysteresis", "creep"),
+              "T": ("hysteresis", "creep", "vibration")}
+
+T_STEP = 0.05          #: [s] rest before each step (gives the pre-step level)
+STEP_HOLD = 0.5        #: [s] vibration step records (the transient lasts < 200 ms)
+HYST_FREQUENCY = 0.1   #: [Hz] paper IV-A / IV-C
+HYST_VOLTAGE = 200.0   #: [V] paper IV-A
+AMPLITUDE = 20 * UM    #: [m] steps and compensated sines (IV-C, V, VI)
+
+
+class Recorded(NamedTuple):
+    """One experiment's signals: ``t`` [N] s, ``reference`` [N, axes], ``u`` [N, axes] V, ``y`` [N, axes] m."""
+
+    t: np.ndarray
+    reference: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One experiment of the paper, as data.
+
+    Attributes
+    ----------
+    name : str
+        Unique name (see the module table).
+    section : str
+        Paper section (``"IV-A"`` …).
+    system : str
+        ``"S0"``, ``"S_H"``, ``"S_L"``, ``"T"`` (Fig. 3) or ``"open"`` (uncompensated, ``U = Dp⁻¹·Y_R``).
+    input : str
+        ``"voltage"`` — the trajectory is the voltage U itself (S0); ``"reference"`` — it goes through the
+        compensator cascade with ``stages`` on.
+    trajectory : Trajectory
+        What is played, from the experiment's own t = 0.
+    metric : str
+        ``"hysteresis"``, ``"creep"``, ``"overshoot"`` or ``"tracking"``.
+    axis : str or None
+        The driven axis (None: both, e.g. a circle).
+    params : dict
+        Metric parameters: ``period`` [s] (hysteresis), ``t_step`` [s] (creep/overshoot), ``t_creep`` [s],
+        ``skip`` [s] (tracking: start-up excluded), ``radius`` [m].
+    record_decimation : int
+        Keep every n-th sample when recording in simulation (long, slow experiments).
+    """
+
+    name: str
+    section: str
+    system: str
+    input: str
+    trajectory: Trajectory
+    metric: str
+    axis: str | None = None
+    params: dict = field(default_factory=dict)
+    record_decimation: int = 1
+    description: str = ""
+
+    @property
+    def stages(self) -> tuple:
+        """Compensator stages switched on (``()`` for S0 and the open loop)."""
+        return STAGE_SETS[self.system]
+
+    def meta(self) -> dict:
+        """Plain-dict description for a :class:`Sequence` segment / ROS parameters (no trajectory)."""
+        return {"experiment": self.name, "section": self.section, "system": self.system, "input": self.input,
+                "stages": list(self.stages), "metric": self.metric, "axis": self.axis,
+                "params": dict(self.params), "reset_before": True, "description": self.description}
+
+
+def paper_experiments(cfg: PiezoConfig | None = None, creep_duration: float = 600.0, hysteresis_periods: int = 2,
+                      circle_radii=(20 * UM, 30 * UM), circle_frequency: float = 1.0,
+                      circle_revolutions: float = 2.0, step_hold: float = STEP_HOLD) -> list[Experiment]:
+    """The paper's experiment list (Sections IV-A/C, V-A/C, VI-A/C, VII-B), in the paper's order.
+
+    Parameters
+    ----------
+    cfg : PiezoConfig, optional
+        Gives the axis names (default ``('x', 'y')``).
+    creep_duration : float
+        Creep observation time after the step [s] (paper: 600 s).
+    hysteresis_periods : int
+        Periods of the 0.1 Hz sines; the metric uses the last one (the first contains the virgin curve).
+    circle_radii, circle_frequency, circle_revolutions
+        VII-B circles (the paper does not give the frequency; 1 Hz by default).  Tracking is read over the last
+        revolution.
+    step_hold : float
+        Duration of the vibration step records after the step [s].
+    """
+    axes = tuple(cfg.axes) if cfg is not None else ("x", "y")
+    if not creep_duration > 1.0:
+        raise ValueError(f"creep_duration must be > 1 s (the creep A_f is read 0.2 s after the step), "
+                         f"got {creep_duration}")
+    if int(hysteresis_periods) < 1:
+        raise ValueError(f"hysteresis_periods must be >= 1, got {hysteresis_periods}")
+    period = 1.0 / HYST_FREQUENCY
+    hyst_T = period * int(hysteresis_periods)
+    exps: list[Experiment] = []
+
+    def step(a):  # step amplitude per axis: 20 µm on the driven axis, 0 on the others
+        return {a: AMPLITUDE}
+
+    for a in axes:
+        exps.append(Experiment(
+            f"hyst_S0_{a}", "IV-A", "S0", "voltage",
+            Sine(amplitude=HYST_VOLTAGE, frequency=HYST_FREQUENCY, axis=a, duration=hyst_T, axes=axes),
+            "hysteresis", a, {"period": period}, 10,
+            f"{HYST_VOLTAGE:g} V {HYST_FREQUENCY:g} Hz sine on U_{a}, no compensation (Fig. 4)"))
+    for a in axes:
+        exps.append(Experiment(
+            f"hyst_SH_{a}", "IV-C", "S_H", "reference",
+            Sine(amplitude=AMPLITUDE, frequency=HYST_FREQUENCY, axis=a, duration=hyst_T, axes=axes),
+            "hysteresis", a, {"period": period}, 10,
+            f"20 µm {HYST_FREQUENCY:g} Hz sine on {a}_h through the hysteresis compensator (Fig. 6)"))
+    for a in axes:
+        exps.append(Experiment(
+            f"creep_SH_{a}", "V-A", "S_H", "reference",
+            Step(amplitude=step(a), t_step=T_STEP, hold=creep_duration, axes=axes),
+            "creep", a, {"t_step": T_STEP, "t_creep": creep_duration}, 20,
+            f"20 µm step on {a}_h for {creep_duration:g} s, hysteresis compensated (Fig. 7)"))
+    for a in axes:
+        exps.append(Experiment(
+            f"creep_SL_{a}", "V-C", "S_L", "reference",
+            Step(amplitude=step(a), t_step=T_STEP, hold=creep_duration, axes=axes),
+            "creep", a, {"t_step": T_STEP, "t_creep": creep_duration}, 20,
+            f"20 µm step on {a}_l for {creep_duration:g} s through creep and hysteresis compensators (Fig. 10)"))
+    for a in axes:
+        exps.append(Experiment(
+            f"step_SL_{a}", "VI-A", "S_L", "reference",
+            Step(amplitude=step(a), t_step=T_STEP, hold=step_hold, axes=axes),
+            "overshoot", a, {"t_step": T_STEP}, 1,
+            f"20 µm step on {a}_l, hysteresis and creep compensated (Fig. 11)"))
+    for a in axes:
+        exps.append(Experiment(
+            f"step_T_{a}", "VI-C", "T", "reference",
+            Step(amplitude=step(a), t_step=T_STEP, hold=step_hold, axes=axes),
+            "overshoot", a, {"t_step": T_STEP}, 1,
+            f"20 µm step on {a}_r through the complete compensator (Fig. 14)"))
+    if len(axes) == 2:
+        for r in circle_radii:
+            tag = f"{r / UM:g}".replace(".", "p")
+            circle = Circle(radius=r, frequency=circle_frequency, revolutions=circle_revolutions, axes=axes)
+            skip = circle.duration - 1.0 / circle_frequency
+            for system in ("T", "open"):
+                exps.append(Experiment(
+                    f"circle{tag}_{system}", "VII-B", system, "reference", circle, "tracking", None,
+                    {"skip": skip, "radius": r}, 1,
+                    f"circle of radius {r / UM:g} µm at {circle_frequency:g} Hz, "
+                    + ("complete compensation" if system == "T" else "no compensation (U = Dp⁻¹·Y_R)")
+                    + " (Fig. 15)"))
+    return exps
+
+
+def experiment_sequence(experiments: list[Experiment]) -> Sequence:
+    """The experiments as one named :class:`Sequence` (segment meta = :meth:`Experiment.meta`)."""
+    return Sequence([(e.name, e.trajectory, e.meta()) for e in experiments])
+
+
+def _stage_config(cfg: PiezoConfig, exp: Experiment) -> PiezoConfig:
+    on = set(exp.stages)
+    cascade = dataclasses.replace(cfg.cascade, hysteresis="hysteresis" in on, creep="creep" in on,
+                                  vibration="vibration" in on)
+    return dataclasses.replace(cfg, cascade=cascade)
+
+
+def run_experiment(exp: Experiment, cfg: PiezoConfig, plant, design=None, block: int = 20000,
+                   cascade: CompensatorCascade | None = None) -> Recorded:
+    """Play one experiment from rest through its compensators into ``plant`` (reset first); return the record.
+
+    ``cfg`` is the compensators' (nominal) model; ``plant`` may be a different truth.  ``design`` (an
+    ``HinfDesign`` or ``(A, B, C, D)``) is the vibration compensator when the experiment uses it.
+    """
+    fs = cfg.sample_rate
+    n_total = exp.trajectory.n_samples(fs)
+    if math.isinf(n_total):
+        raise ValueError(f"{exp.name}: endless trajectory cannot be simulated")
+    dec = max(1, int(exp.record_decimation))
+    block = max(dec, (int(block) // dec) * dec)
+    if exp.input == "voltage":
+        comp = None
+    elif cascade is not None:
+        comp = cascade
+    else:
+        comp = CompensatorCascade(_stage_config(cfg, exp), controller=design if "vibration" in exp.stages else None)
+    plant.reset()
+    if comp is not None:
+        comp.reset()
+    n_keep = (n_total + dec - 1) // dec
+    n_ax = cfg.n_axes
+    R = np.empty((n_keep, n_ax))
+    U = np.empty((n_keep, n_ax))
+    Y = np.empty((n_keep, n_ax))
+    j = 0
+    for k0 in range(0, n_total, block):
+        n = min(block, n_total - k0)
+        r = exp.trajectory.block(k0, n, fs)
+        u = r if comp is None else comp.process(r)
+        y = plant.process(u)
+        m = len(r[::dec])
+        R[j:j + m], U[j:j + m], Y[j:j + m] = r[::dec], u[::dec], y[::dec]
+        j += m
+    t = np.arange(n_keep) * (dec / fs)
+    return Recorded(t, R, U, Y)
+
+
+def simulate_experiments(cfg: PiezoConfig, design=None, plant=None, experiments: list[Experiment] | None = None,
+                         creep_duration: float = 600.0, block: int = 20000,
+                         progress: Callable[[str], None] | None = None) -> dict[str, Recorded]:
+    """Run the paper's experiments on the core cascade + a simulated plant (no ROS).
+
+    Parameters
+    ----------
+    cfg : PiezoConfig
+        The compensators' model (and the nominal plant when ``plant`` is None), sample rate.
+    design : HinfDesign or (A, B, C, D), optional
+        Vibration compensator; synthesised once from ``cfg`` (``synthesize_hinf``) when an experiment needs it
+        and none is given (or ``cfg.vibration.controller`` holds one).
+    plant : Plant, optional
+        The truth (e.g. with sensor noise or asymmetric hysteresis); reset before every experiment.
+    experiments : list of Experiment, optional
+        Default: :func:`paper_experiments` with ``creep_duration``.
+    block : int
+        Samples per processing block.
+    progress : callable, optional
+        Called with each experiment's name before it runs.
+
+    Returns
+    -------
+    dict
+        ``{name: Recorded(t, reference, u, y)}`` in the experiments' order.
+    """
+    exps = experiments if experiments is not None else paper_experiments(cfg, creep_duration=creep_duration)
+    if plant is None:
+        plant = Plant(cfg)
+    if design is None and cfg.vibration.controller is None and any("vibration" in e.stages for e in exps):
+        from .synthesis.hinf import synthesize_hinf
+
+        design = synthesize_hinf(cfg.dynamics.G_L, cfg.vibration)
+    out: dict[str, Recorded] = {}
+    for exp in exps:
+        if progress is not None:
+            progress(exp.name)
+        out[exp.name] = run_experiment(exp, cfg, plant, design, block=block)
+    return out
