@@ -344,3 +344,26 @@ def test_two_axis_bouc_wen_kernel_gives_the_generic_kernels_numbers(paper_config
     assert np.array_equal(np.vstack([h_fast, h_fast2]), hs)
     assert np.array_equal(model.state.h, st.h) and np.array_equal(model.state.u_prev, st.u_prev)
     assert np.max(np.abs(hs)) > 0
+
+
+@pytest.mark.parametrize("generalized,loop,limit", [(False, "exact", None), (True, "exact", None),
+                                                    (False, "delayed", None), (False, "exact", 60.0)])
+def test_two_axis_hysteresis_compensator_kernel_gives_the_generic_kernels_numbers(paper_config, generalized,
+                                                                                   loop, limit):
+    from piezo_ff_ros.core.compensators import hysteresis as hc
+
+    cfg = _generalized(paper_config) if generalized else paper_config.hysteresis
+    yh = _signal(4000, seed=4, scale=15e-6)
+    comp = HysteresisCompensator(cfg, loop, voltage_limit=limit)
+    fast = np.vstack([comp.process(yh[:777]), comp.process(yh[777:])])
+    ref = HysteresisCompensator(cfg, loop, voltage_limit=limit)
+    st = ref.state
+    u = np.empty_like(yh)
+    counters = np.zeros(2, np.int64)
+    hc._bw_comp_run(ref._Dp, ref._Dp_pinv, ref._A, ref._B, ref._G, ref._D1, ref._D2, ref._P, st.h, st.u_prev,
+                    st.started, ref._signs, loop == "exact", ref.voltage_limit, yh, u, counters)
+    assert np.array_equal(fast, u)
+    assert np.array_equal(comp.state.h, st.h) and np.array_equal(comp._signs, ref._signs)
+    assert (comp.fallbacks, comp.saturated) == tuple(counters)
+    if limit is not None:
+        assert comp.saturated > 0

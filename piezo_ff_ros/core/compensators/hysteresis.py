@@ -64,8 +64,9 @@ class HysteresisCompensator:
         u = np.empty((yh.shape[0], self.n_out))
         s = self.state
         fb = np.zeros(2, np.int64)
-        _bw_comp_run(self._Dp, self._Dp_pinv, self._A, self._B, self._G, self._D1, self._D2, self._P,
-                     s.h, s.u_prev, s.started, self._signs, self.loop == "exact", self.voltage_limit, yh, u, fb)
+        run = _bw_comp_run_2x2 if self.n_in == 2 and self.n_out == 2 else _bw_comp_run
+        run(self._Dp, self._Dp_pinv, self._A, self._B, self._G, self._D1, self._D2, self._P,
+            s.h, s.u_prev, s.started, self._signs, self.loop == "exact", self.voltage_limit, yh, u, fb)
         self.fallbacks += int(fb[0])
         self.saturated += int(fb[1])
         return u
@@ -204,3 +205,146 @@ def _bw_comp_run(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exa
         for j in range(k):
             u_prev[j] = u_prev[j] + du[j]
             u[t, j] = u_prev[j]
+
+
+@njit
+def _bw_comp_run_2x2(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exact, ulim, yh, u,
+                     counters):  # pragma: no cover - compiled
+    """``_bw_comp_run`` unrolled for two axes: parameters, state and the 2×2 solves in registers.
+
+    Same algorithm step by step (previous sign pattern first, Gaussian elimination with partial pivoting, same
+    fallbacks and clamping) and the same order of operations in every expression, so the results are the same
+    numbers as the generic kernel's.
+    """
+    N = yh.shape[0]
+    if N == 0:
+        return
+    dp00, dp01, dp10, dp11 = Dp[0, 0], Dp[0, 1], Dp[1, 0], Dp[1, 1]
+    q00, q01, q10, q11 = Dp_pinv[0, 0], Dp_pinv[0, 1], Dp_pinv[1, 0], Dp_pinv[1, 1]
+    a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
+    b00, b01, b10, b11 = B[0, 0], B[0, 1], B[1, 0], B[1, 1]
+    g00, g01, g10, g11 = G[0, 0], G[0, 1], G[1, 0], G[1, 1]
+    e00, e01, e10, e11 = D1[0, 0], D1[0, 1], D1[1, 0], D1[1, 1]
+    f00, f01, f10, f11 = D2[0, 0], D2[0, 1], D2[1, 0], D2[1, 1]
+    p00, p01, p10, p11 = P[0, 0], P[0, 1], P[1, 0], P[1, 1]
+    # Dp − A, the constant part of the per-pattern matrix
+    c00 = dp00 - a00
+    c01 = dp01 - a01
+    c10 = dp10 - a10
+    c11 = dp11 - a11
+    n_fallback = 0
+    n_saturated = 0
+    t0 = 0
+    if not started[0]:
+        # first sample: h = 0 and dU = 0 by definition, U = Dp⁻¹·Y_H
+        v0 = 0.0 + q00 * yh[0, 0] + q01 * yh[0, 1]
+        if v0 > ulim or v0 < -ulim:
+            v0 = ulim if v0 > 0 else -ulim
+            n_saturated += 1
+        v1 = 0.0 + q10 * yh[0, 0] + q11 * yh[0, 1]
+        if v1 > ulim or v1 < -ulim:
+            v1 = ulim if v1 > 0 else -ulim
+            n_saturated += 1
+        u_prev[0] = v0
+        u_prev[1] = v1
+        u[0, 0] = v0
+        u[0, 1] = v1
+        started[0] = True
+        t0 = 1
+    h0 = h[0]
+    h1 = h[1]
+    up0 = u_prev[0]
+    up1 = u_prev[1]
+    sg0 = signs[0]
+    sg1 = signs[1]
+    du0 = 0.0
+    du1 = 0.0
+    for t in range(t0, N):
+        y0 = yh[t, 0]
+        y1 = yh[t, 1]
+        solved = False
+        if exact:
+            r0 = y0 + h0 - dp00 * up0 - dp01 * up1
+            r1 = y1 + h1 - dp10 * up0 - dp11 * up1
+            ah0 = abs(h0)
+            ah1 = abs(h1)
+            for q in range(5):
+                if q == 0:
+                    s0 = sg0
+                    s1 = sg1
+                else:
+                    s0 = 1.0 if (q - 1) & 1 else -1.0
+                    s1 = 1.0 if ((q - 1) >> 1) & 1 else -1.0
+                # W[i, l] = B s_l h_l + G |h_l| + D1 h_l + D2 s_l |h_l|;  (Dp − A + W·P)·dU = r
+                w00 = b00 * s0 * h0 + g00 * ah0 + e00 * h0 + f00 * s0 * ah0
+                w01 = b01 * s1 * h1 + g01 * ah1 + e01 * h1 + f01 * s1 * ah1
+                w10 = b10 * s0 * h0 + g10 * ah0 + e10 * h0 + f10 * s0 * ah0
+                w11 = b11 * s1 * h1 + g11 * ah1 + e11 * h1 + f11 * s1 * ah1
+                m00 = c00 + w00 * p00 + w01 * p10
+                m01 = c01 + w00 * p01 + w01 * p11
+                m10 = c10 + w10 * p00 + w11 * p10
+                m11 = c11 + w10 * p01 + w11 * p11
+                rr0 = r0
+                rr1 = r1
+                # Gaussian elimination with partial pivoting (as _solve_small)
+                if abs(m10) > abs(m00):
+                    m00, m10 = m10, m00
+                    m01, m11 = m11, m01
+                    rr0, rr1 = rr1, rr0
+                if abs(m00) < 1e-300:
+                    continue
+                fct = m10 / m00
+                m11 -= fct * m01
+                rr1 -= fct * rr0
+                if abs(m11) < 1e-300:
+                    continue
+                du1 = rr1 / m11
+                du0 = (rr0 - m01 * du1) / m00
+                if (0.0 + p00 * du0 + p01 * du1) * s0 < 0.0:
+                    continue
+                if (0.0 + p10 * du0 + p11 * du1) * s1 < 0.0:
+                    continue
+                solved = True
+                sg0 = s0
+                sg1 = s1
+                break
+            if not solved:
+                n_fallback += 1
+        if not solved:
+            du0 = 0.0 + q00 * (y0 + h0) + q01 * (y1 + h1) - up0
+            du1 = 0.0 + q10 * (y0 + h0) + q11 * (y1 + h1) - up1
+        un = up0 + du0
+        if un > ulim or un < -ulim:
+            du0 = (ulim if un > 0 else -ulim) - up0
+            n_saturated += 1
+        un = up1 + du1
+        if un > ulim or un < -ulim:
+            du1 = (ulim if un > 0 else -ulim) - up1
+            n_saturated += 1
+        # the model's increment (as _bw_increment)
+        duh0 = 0.0 + p00 * du0 + p01 * du1
+        duh1 = 0.0 + p10 * du0 + p11 * du1
+        ah0 = abs(h0)
+        ah1 = abs(h1)
+        ad0 = abs(duh0)
+        ad1 = abs(duh1)
+        dh0 = 0.0 + a00 * du0 + a01 * du1
+        dh0 -= b00 * ad0 * h0 + g00 * duh0 * ah0 + e00 * duh0 * h0 + f00 * ad0 * ah0
+        dh0 -= b01 * ad1 * h1 + g01 * duh1 * ah1 + e01 * duh1 * h1 + f01 * ad1 * ah1
+        dh1 = 0.0 + a10 * du0 + a11 * du1
+        dh1 -= b10 * ad0 * h0 + g10 * duh0 * ah0 + e10 * duh0 * h0 + f10 * ad0 * ah0
+        dh1 -= b11 * ad1 * h1 + g11 * duh1 * ah1 + e11 * duh1 * h1 + f11 * ad1 * ah1
+        h0 += dh0
+        h1 += dh1
+        up0 = up0 + du0
+        up1 = up1 + du1
+        u[t, 0] = up0
+        u[t, 1] = up1
+    h[0] = h0
+    h[1] = h1
+    u_prev[0] = up0
+    u_prev[1] = up1
+    signs[0] = sg0
+    signs[1] = sg1
+    counters[0] += n_fallback
+    counters[1] += n_saturated
