@@ -367,3 +367,18 @@ def test_two_axis_hysteresis_compensator_kernel_gives_the_generic_kernels_number
     assert (comp.fallbacks, comp.saturated) == tuple(counters)
     if limit is not None:
         assert comp.saturated > 0
+
+
+def test_two_axis_creep_compensator_kernel_gives_the_generic_kernels_numbers(paper_config):
+    from piezo_ff_ros.core.compensators import creep as cc
+
+    yl = _signal(4000, seed=6, scale=20e-6)
+    comp = CreepCompensator(paper_config.creep, paper_config.dt)
+    assert comp._two_axis
+    fast = np.vstack([comp.process(yl[:2500]), comp.process(yl[2500:])])
+    ss = comp.ss
+    Ablk, offsets = ss.packed()
+    x = np.zeros(ss.n_states)
+    ref = np.empty_like(yl)
+    cc._inverse_affine_run(comp.Kinv, Ablk, offsets, ss.sizes, ss.B, ss.C, x, yl, ref)
+    assert np.array_equal(fast, ref) and np.array_equal(comp.x, x)

@@ -36,6 +36,8 @@ class CreepCompensator:
         if not self.ss.strictly_proper:
             raise ValueError("creep.Cr must be strictly proper")
         self._Ablk, self._offsets = self.ss.packed()
+        self._two_axis = self.ss.n_in == 2 and self.ss.n_out == 2 and self.ss.small_blocks
+        self._io = self.ss.packed_io()
         self.x = np.zeros(self.ss.n_states)
 
     @property
@@ -52,7 +54,13 @@ class CreepCompensator:
     def process(self, yl: np.ndarray) -> np.ndarray:
         yl = np.ascontiguousarray(yl, dtype=float)
         yh = np.empty_like(yl)
-        _inverse_affine_run(self.Kinv, self._Ablk, self._offsets, self.ss.sizes, self.ss.B, self.ss.C, self.x, yl, yh)
+        if yl.ndim != 2 or yl.shape[1] != self.n_in:
+            raise ValueError(f"expected a block of shape [N, {self.n_in}], got {yl.shape}")
+        if self._two_axis:
+            _inverse_affine_run_2x2(self.Kinv, self._Ablk, self._offsets, self.ss.sizes, self._io, self.x, yl, yh)
+        else:
+            _inverse_affine_run(self.Kinv, self._Ablk, self._offsets, self.ss.sizes, self.ss.B, self.ss.C, self.x,
+                                yl, yh)
         return yh
 
 
@@ -87,3 +95,42 @@ def _inverse_affine_run(Kinv, Ablk, offsets, sizes, B, C, x, yl, yh):  # pragma:
                 xn[off + r] = acc
         for i in range(ns):
             x[i] = xn[i]
+
+
+@njit
+def _inverse_affine_run_2x2(Kinv, Ablk, offsets, sizes, io, x, yl, yh):  # pragma: no cover - compiled
+    """``_inverse_affine_run`` unrolled for two axes and 1×1 / 2×2 blocks (``io[i] = (B[i, :], C[:, i])``).
+
+    Sums run in the generic kernel's order, so the results are the same numbers.
+    """
+    N = yl.shape[0]
+    nb = sizes.shape[0]
+    k00, k01, k10, k11 = Kinv[0, 0], Kinv[0, 1], Kinv[1, 0], Kinv[1, 1]
+    for k in range(N):
+        # (Cr·Y_H)[k] from the state alone (Cr strictly proper)
+        s0 = 0.0
+        s1 = 0.0
+        for b in range(nb):
+            off = offsets[b]
+            x0 = x[off]
+            s0 += io[off, 2] * x0
+            s1 += io[off, 3] * x0
+            if sizes[b] == 2:
+                x1 = x[off + 1]
+                s0 += io[off + 1, 2] * x1
+                s1 += io[off + 1, 3] * x1
+        c0 = yl[k, 0] - s0
+        c1 = yl[k, 1] - s1
+        v0 = 0.0 + k00 * c0 + k01 * c1
+        v1 = 0.0 + k10 * c0 + k11 * c1
+        yh[k, 0] = v0
+        yh[k, 1] = v1
+        for b in range(nb):
+            off = offsets[b]
+            if sizes[b] == 1:
+                x[off] = Ablk[off, 0] * x[off] + io[off, 0] * v0 + io[off, 1] * v1
+            else:
+                x0 = x[off]
+                x1 = x[off + 1]
+                x[off] = Ablk[off, 0] * x0 + Ablk[off, 1] * x1 + io[off, 0] * v0 + io[off, 1] * v1
+                x[off + 1] = Ablk[off + 1, 0] * x0 + Ablk[off + 1, 1] * x1 + io[off + 1, 0] * v0 + io[off + 1, 1] * v1
