@@ -31,6 +31,14 @@ __all__ = ["find_evaluate", "segment_signals", "tracking_summary", "analyze_run"
 DEFAULT_VOLTAGE_LIMIT = 200.0  #: [V] when the recording does not say (core.config LimitsConfig default)
 
 
+try:  # the shared record type (a NamedTuple: also unpacks as (t, reference, u, y))
+    from .experiments import Recorded as _Recorded
+except ImportError:  # pragma: no cover - experiments module absent
+    from collections import namedtuple
+
+    _Recorded = namedtuple("Recorded", "t reference u y")
+
+
 def find_evaluate() -> Callable | None:
     """The shared paper evaluation ``evaluate(recorded) -> dict`` if it is installed, else ``None``."""
     for mod_name in ("piezo_ff_ros.core.experiments", "piezo_ff_ros.core.reproduce"):
@@ -68,7 +76,7 @@ def segment_signals(run: RunData, complete_only: bool = True) -> tuple[dict, lis
         while key in recorded:
             key, i = f"{name}#{i}", i + 1
         t = run.t[a:b] - run.t[a]
-        recorded[key] = (t, ref, run.u[a:b], run.y[a:b])
+        recorded[key] = _Recorded(t, ref, run.u[a:b], run.y[a:b])
     return recorded, warnings
 
 

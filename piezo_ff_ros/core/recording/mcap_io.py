@@ -585,7 +585,7 @@ def _experiment_markers(raw_msgs, t0_ns: int, dt_ns: int, warnings: list) -> lis
         else:
             warnings.append(f"experiment: marker {info.get('name')!r} has neither k0 nor stamp_ns; skipped")
             continue
-        key = (str(info.get("name", "")), k0)
+        key = (str(info.get("name", info.get("experiment", ""))), k0)  # Experiment.meta() says "experiment"
         if key in seen:  # transient-local redelivery or several publishers: one marker
             continue
         seen.add(key)
