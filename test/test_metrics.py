@@ -120,3 +120,24 @@ def test_bad_signals_are_clear_errors():
         M.overshoot_ratio([0, 1, 2], [0, np.nan, 1])
     with pytest.raises(ValueError, match="differ in length"):
         M.creep_ratio([0, 1, 2], [0, 1])
+
+
+def test_noise_robust_variants():
+    rng = np.random.default_rng(0)
+    th = np.linspace(0, 2 * np.pi, 20001)
+    a, b = 28e-6, 2e-6
+    y = a * np.cos(th) + b * np.sin(th)
+    noisy = y + 100e-9 * rng.standard_normal(th.size)
+    exact = b / math.hypot(a, b)
+    raw = M.hysteresis_ratio(200 * np.cos(th), noisy)["ratio"]
+    robust = M.hysteresis_ratio(200 * np.cos(th), noisy, bins=200)["ratio"]
+    assert abs(robust - exact) < 0.3 * abs(raw - exact)
+    assert robust == pytest.approx(exact, rel=0.02)
+    assert M.hysteresis_ratio(200 * np.cos(th), y, bins=200)["ratio"] == pytest.approx(exact, rel=1e-3)
+    t = np.arange(0, 0.5, 1 / FS)
+    step = np.where(t >= 0.05, 20e-6 * (1 - np.exp(-(t - 0.05) / 0.005)), 0.0)
+    step_noisy = step + 100e-9 * rng.standard_normal(t.size)
+    assert M.overshoot_ratio(t, step_noisy, 0.05)["ratio"] > 0.01
+    assert M.overshoot_ratio(t, step_noisy, 0.05, smooth=20)["ratio"] < 0.005
+    cross = 1e-6 * np.sin(th) + 100e-9 * rng.standard_normal(th.size)
+    assert M.cross_coupling_range_ratio(cross, y, smooth=50) == pytest.approx(2e-6 / (2 * a), rel=0.05)

@@ -88,7 +88,8 @@ def last_period(t, period: float, *signals):
     return tuple(np.asarray(s)[i0:] for s in signals)
 
 
-def hysteresis_ratio(u, y, period_t=None, period: float | None = None, grid: int = 2001) -> dict:
+def hysteresis_ratio(u, y, period_t=None, period: float | None = None, grid: int = 2001,
+                     bins: int | None = None) -> dict:
     """Hysteresis amplitude ``h/H`` of an input/output loop (paper Fig. 4 and Section VII-A).
 
     Parameters
@@ -102,6 +103,10 @@ def hysteresis_ratio(u, y, period_t=None, period: float | None = None, grid: int
         Input period [s].
     grid : int
         Number of input values on which both branches are compared.
+    bins : int, optional
+        Noise-robust variant for measured data: each branch is averaged in ``bins`` equal input bins (instead of
+        interpolated sample by sample) and ``H`` is the range of those bin means, so sensor noise does not
+        inflate ``h`` and ``H`` with its extremes.  ``None`` (default): the exact definition.
 
     Returns
     -------
@@ -130,11 +135,31 @@ def hysteresis_ratio(u, y, period_t=None, period: float | None = None, grid: int
     hi = min(ua[-1], ud[-1])
     if not hi > lo:
         raise ValueError("hysteresis_ratio: rising and falling branches do not overlap in input")
-    g = np.linspace(lo, hi, grid)
-    width = np.abs(np.interp(g, ua, ya) - np.interp(g, ud, yd))
-    H = float(y.max() - y.min())
+    if bins is None:
+        g = np.linspace(lo, hi, grid)
+        width = np.abs(np.interp(g, ua, ya) - np.interp(g, ud, yd))
+        H = float(y.max() - y.min())
+    else:
+        edges = np.linspace(min(ua[0], ud[0]), max(ua[-1], ud[-1]), int(bins) + 1)
+        ma, ca = _bin_means(ua, ya, edges)
+        md, cd = _bin_means(ud, yd, edges)
+        both = (ca > 0) & (cd > 0)
+        if not np.any(both):
+            raise ValueError("hysteresis_ratio: no input bin holds samples of both branches")
+        g = 0.5 * (edges[1:] + edges[:-1])[both]
+        width = np.abs(ma[both] - md[both])
+        means = np.concatenate([ma[ca > 0], md[cd > 0]])
+        H = float(means.max() - means.min())
     h = float(width.max())
     return {"h": h, "H": H, "ratio": h / H if H > 0 else math.nan, "u_at_max": float(g[int(np.argmax(width))])}
+
+
+def _bin_means(x, y, edges):
+    idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+    counts = np.bincount(idx, minlength=len(edges) - 1)
+    sums = np.bincount(idx, weights=y, minlength=len(edges) - 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return sums / np.maximum(counts, 1), counts
 
 
 def step_levels(t, y, t_step: float) -> tuple[np.ndarray, np.ndarray, float]:
@@ -171,11 +196,13 @@ def creep_ratio(t, y, t_step: float = 0.0, t_creep: float | None = None, t_trans
             "ratio_over_Am": (A_m - A_f) / A_m if A_m != 0 else math.nan}
 
 
-def overshoot_ratio(t, y, t_step: float = 0.0, final_window: float = STEP_FINAL_WINDOW) -> dict:
+def overshoot_ratio(t, y, t_step: float = 0.0, final_window: float = STEP_FINAL_WINDOW, smooth: int = 1) -> dict:
     """Overshoot ``(A_m − A_f)/A_f`` of a step response (paper Fig. 11/14, Section VII-A).
 
     ``A_f``: final value, mean over the last ``final_window`` seconds; ``A_m``: the extreme displacement after
-    the step in the direction of ``A_f``.  Both relative to the pre-step level.
+    the step in the direction of ``A_f``.  Both relative to the pre-step level.  ``smooth`` > 1 takes ``A_m`` on a
+    centred moving average of that many samples (measured data: noise would otherwise bias the peak upwards by
+    several standard deviations; the average also slightly flattens a fast oscillation's peak).
 
     Returns ``{"A_f", "A_m", "ratio", "t_peak"}`` (``t_peak`` after the step).
     """
@@ -185,16 +212,28 @@ def overshoot_ratio(t, y, t_step: float = 0.0, final_window: float = STEP_FINAL_
         raise ValueError("overshoot_ratio: no samples after the step")
     A_f = _window_mean(tr, yr, tr[-1] - final_window, tr[-1], "step final value")
     ya = yr[after]
+    if smooth > 1:
+        k = int(smooth)
+        ya = np.convolve(np.pad(ya, (k // 2, k - 1 - k // 2), mode="edge"), np.ones(k) / k, mode="valid")
     i = int(np.argmax(ya)) if A_f >= 0 else int(np.argmin(ya))
     A_m = float(ya[i])
     return {"A_f": A_f, "A_m": A_m, "ratio": (A_m - A_f) / A_f if A_f != 0 else math.nan,
             "t_peak": float(tr[after][i])}
 
 
-def cross_coupling_range_ratio(y_cross, y_direct) -> float:
-    """``H^xy / H^xx``: range of an axis when only the other axis is driven over its range when driven itself."""
-    H_direct = peak_to_peak(y_direct)
-    return peak_to_peak(y_cross) / H_direct if H_direct > 0 else math.nan
+def cross_coupling_range_ratio(y_cross, y_direct, smooth: int = 1) -> float:
+    """``H^xy / H^xx``: range of an axis when only the other axis is driven over its range when driven itself.
+
+    ``smooth`` > 1: ranges of centred moving averages of that many samples (noise-robust variant).
+    """
+    def rng(v):
+        v = _vec(v, "y")
+        if smooth > 1:
+            v = np.convolve(v, np.ones(int(smooth)) / int(smooth), mode="valid")
+        return float(v.max() - v.min())
+
+    H_direct = rng(y_direct)
+    return rng(y_cross) / H_direct if H_direct > 0 else math.nan
 
 
 def cross_coupling_final_ratio(A_f_cross: float, A_f_direct: float) -> float:
