@@ -89,8 +89,8 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
     design : HinfDesign or dict, optional
         The vibration compensator design, for the ``hinf`` section (``.as_dict()`` or a dict).
     robust : bool
-        Noise-robust readings for measured data: binned loop branches (200 bins), peaks on a 10-sample moving
-        average, cross-coupling ranges on a 0.1 s moving average.  Off: the exact definitions.
+        Noise-robust readings for measured data: binned loop branches (200 bins), step peaks on a zero-phase
+        3 kHz low-pass, cross-coupling ranges on a 0.1 s moving average.  Off: the exact definitions.
     conditions : dict, optional
         Free-form description of how the data were produced (copied into the result).
 
@@ -106,7 +106,7 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
         raise ValueError(f"unknown experiment names {sorted(unknown)}; expected some of {sorted(by_name)}")
     axes = _axis_names(recorded, exps)
     bins = 200 if robust else None
-    smooth = 10 if robust else 1
+    lowpass = 3000.0 if robust else None
     out = {"before": {k: {a: None for a in axes} for k in KEYS},
            "after": {k: {a: None for a in axes} for k in KEYS},
            "hinf": _hinf_section(design), "paper": PAPER, "independent": INDEPENDENT, "tracking": {},
@@ -183,7 +183,7 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
             if r is None:
                 continue
             t_step = by_name[name].params["t_step"]
-            res = M.overshoot_ratio(r.t, r.y[:, i], t_step=t_step, smooth=smooth)
+            res = M.overshoot_ratio(r.t, r.y[:, i], t_step=t_step, lowpass_hz=lowpass)
             out[phase]["overshoot_percent"][a] = _pct(res["ratio"])
             ts = M.settling_time(r.t, r.y[:, i], t_step=t_step, band=0.02)
             out["settling_time_s"][phase][a] = None if not math.isfinite(ts) else ts
