@@ -13,7 +13,9 @@ configuration.  Several parameters that are only valid together (e.g. ``….den`
 
 Other parameters: ``config_file`` and ``variant`` (read-only: the base configuration), ``crossfade`` [s] (output
 crossfade at a swap), ``block_size`` (samples per block generated from a held ``reference_point``),
-``hold_timeout`` [s] (the held point is played only while no ``reference`` block arrived for this long).
+``hold_timeout`` [s] (the held point is played only while no ``reference`` block arrived for this long),
+``bypass`` (bool: the reference blocks are voltages [V] forwarded unchanged, for open-loop characterisation such as
+the paper's S0 experiments; the cascade is not run).
 Service ``~/reset`` (std_srvs/Trigger): all compensator states back to rest.
 """
 from __future__ import annotations
@@ -76,6 +78,7 @@ class CompensatorNode(Node):
         self.crossfade = float(self.declare_parameter("crossfade", 0.01).value)
         self.block_size = int(self.declare_parameter("block_size", 200).value)
         self.hold_timeout = float(self.declare_parameter("hold_timeout", 0.2).value)
+        self.bypass = bool(self.declare_parameter("bypass", False).value)
         for name, value in config_to_params(self.base).items():
             desc = ParameterDescriptor(dynamic_typing=True, description=_describe(name))
             self._values[name] = self.declare_parameter(name, value, desc).value
@@ -119,6 +122,9 @@ class CompensatorNode(Node):
             if p.name in ("crossfade", "hold_timeout"):
                 if not isinstance(p.value, (int, float)) or isinstance(p.value, bool) or not p.value >= 0:
                     return SetParametersResult(successful=False, reason=f"{p.name}: must be a number ≥ 0")
+            elif p.name == "bypass":
+                if not isinstance(p.value, bool):
+                    return SetParametersResult(successful=False, reason="bypass: must be true or false")
             elif p.name == "block_size":
                 if not isinstance(p.value, int) or p.value < 1:
                     return SetParametersResult(successful=False, reason="block_size: must be an integer ≥ 1")
@@ -151,6 +157,8 @@ class CompensatorNode(Node):
                 self.block_size = int(p.value)
             elif p.name == "hold_timeout":
                 self.hold_timeout = float(p.value)
+            elif p.name == "bypass":
+                self.bypass = bool(p.value)
         if self._candidate is None:
             return
         updates, cand = self._candidate
@@ -204,7 +212,7 @@ class CompensatorNode(Node):
 
     def _process_and_publish(self, block, stamp) -> None:
         with self._lock:
-            u = self.hs.process(block)
+            u = block if self.bypass else self.hs.process(block)
         self.blocks += 1
         self._next_stamp = stamp + block.shape[0] * self.period_ns
         self.pub_u.publish(pack_block(u, self.axes, stamp))
@@ -250,7 +258,7 @@ class CompensatorNode(Node):
 
     # -- diagnostics -----------------------------------------------------------------------------------------------
     def status(self) -> dict:
-        st = {**self.hs.status(), "blocks": self.blocks, "rejected_blocks": self.rejected_blocks,
+        st = {**self.hs.status(), "bypass": self.bypass, "blocks": self.blocks, "rejected_blocks": self.rejected_blocks,
               "stages": ",".join(k for k in ("vibration", "creep", "hysteresis") if getattr(self.hs.cfg.cascade, k)),
               "order": self.hs.cfg.cascade.order}
         if self.last_error:
@@ -285,8 +293,8 @@ def _short(d: dict) -> str:
 
 def main(argv=None) -> int:
     args = sys.argv if argv is None else [sys.argv[0], *argv]
-    rclpy.init(args=args)
     try:
+        rclpy.init(args=args)
         node = CompensatorNode()
     except Exception as exc:  # noqa: BLE001 - bad config/parameter: one clear line, no traceback
         print(f"compensator: error: {exc}", file=sys.stderr)

@@ -190,8 +190,8 @@ class DriverNode(Node):
 
 def main(argv=None) -> int:
     args = sys.argv if argv is None else [sys.argv[0], *argv]
-    rclpy.init(args=args)
     try:
+        rclpy.init(args=args)
         node = DriverNode()
     except Exception as exc:  # noqa: BLE001 - bad config/parameter/backend: one clear line, no traceback
         print(f"driver: error: {exc}", file=sys.stderr)

@@ -1,0 +1,171 @@
+"""Python launcher for the node graph (``ros2 launch`` is not available from pip; see launch/piezo_ff.launch.py).
+
+Starts driver, compensator, trajectory and recorder as subprocesses (``python -m piezo_ff_ros.nodes.<name>``) with
+the safe ROS environment (:func:`piezo_ff_ros.ros_env.apply_ros_env_defaults`: localhost discovery, own domain,
+logs in a temp dir), waits until each node has logged that it is ready, and stops them with SIGINT (trajectory
+first, recorder last, so that the recording holds everything).  No ROS import here.
+
+Command line::
+
+    python -m piezo_ff_ros.launcher [--out DIR] [--mode realtime|lockstep] [--duration S] [--trajectory SPEC]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from .ros_env import apply_ros_env_defaults
+
+NODES = ("driver", "compensator", "trajectory", "recorder")
+READY_MARKERS = {"driver": "driver ready", "compensator": "compensator ready", "trajectory": "trajectory ready",
+                 "recorder": "recording "}
+STOP_ORDER = ("trajectory", "compensator", "driver", "recorder")
+
+
+class NodeProcess:
+    """One node subprocess with its log file."""
+
+    def __init__(self, name: str, args: list[str], env: dict, log_dir: Path):
+        self.name = name
+        self.log_path = log_dir / f"{name}.log"
+        self._log = open(self.log_path, "wb")
+        repo = str(Path(__file__).resolve().parents[1])
+        env = dict(env)
+        env["PYTHONPATH"] = repo + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+        env.setdefault("PYTHONUNBUFFERED", "1")
+        self.proc = subprocess.Popen([sys.executable, "-m", f"piezo_ff_ros.nodes.{name}", "--ros-args", *args],
+                                     env=env, stdout=self._log, stderr=subprocess.STDOUT)
+
+    def log(self) -> str:
+        try:
+            return self.log_path.read_text(errors="replace")
+        except OSError:
+            return ""
+
+    @property
+    def ready(self) -> bool:
+        return READY_MARKERS.get(self.name, "ready") in self.log()
+
+    def stop(self, timeout: float = 10.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.terminate()
+                try:
+                    self.proc.wait(3)
+                except subprocess.TimeoutExpired:
+                    self.proc.kill()
+                    self.proc.wait()
+        self._log.close()
+        return self.proc.returncode
+
+
+class GraphLauncher:
+    """Start/stop the node graph.
+
+    Parameters
+    ----------
+    node_args : dict
+        ``{node: [ros args after --ros-args]}``, e.g. ``{"trajectory": ["-p", "mode:=lockstep"]}``; nodes not
+        listed are not started.
+    log_dir : path, optional
+        Where each node's output goes (``<node>.log``); default a temp dir.
+    domain_id : int, optional
+        ROS_DOMAIN_ID for the graph (default: the caller's, else derived from the PID).
+    """
+
+    def __init__(self, node_args: dict, log_dir=None, domain_id: int | None = None, env: dict | None = None):
+        self.env = apply_ros_env_defaults(domain_id=domain_id, env=dict(os.environ if env is None else env),
+                                          force_domain=domain_id is not None)
+        self.node_args = {n: list(a) for n, a in node_args.items()}
+        self.log_dir = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix="piezo_ff_graph_"))
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.procs: dict[str, NodeProcess] = {}
+
+    def start(self, timeout: float = 90.0) -> None:
+        """Start every node and wait until all logged ready; RuntimeError (with the node's log tail) otherwise."""
+        for name in NODES:
+            if name in self.node_args:
+                self.procs[name] = NodeProcess(name, self.node_args[name], self.env, self.log_dir)
+        deadline = time.monotonic() + timeout
+        pending = set(self.procs)
+        while pending:
+            for name in list(pending):
+                p = self.procs[name]
+                if p.ready:
+                    pending.discard(name)
+                elif p.proc.poll() is not None:
+                    self.stop()
+                    raise RuntimeError(f"node {name} exited with code {p.proc.returncode}:\n{_tail(p.log())}")
+            if time.monotonic() > deadline:
+                self.stop()
+                raise RuntimeError(f"nodes not ready after {timeout} s: {sorted(pending)}")
+            time.sleep(0.1)
+
+    def check_alive(self) -> None:
+        for name, p in self.procs.items():
+            if p.proc.poll() is not None:
+                raise RuntimeError(f"node {name} exited with code {p.proc.returncode}:\n{_tail(p.log())}")
+
+    def stop(self, timeout: float = 15.0) -> dict:
+        """SIGINT in :data:`STOP_ORDER`; returns ``{node: exit code}``."""
+        codes = {}
+        for name in STOP_ORDER:
+            if name in self.procs:
+                codes[name] = self.procs[name].stop(timeout)
+        return codes
+
+    def __enter__(self):
+        self.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()
+        return False
+
+
+def _tail(text: str, n: int = 15) -> str:
+    return "\n".join(text.strip().splitlines()[-n:])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m piezo_ff_ros.launcher", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", default=".", help="directory for run.mcap and the node logs")
+    ap.add_argument("--mode", choices=("realtime", "lockstep"), default="realtime")
+    ap.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: on Ctrl-C)")
+    ap.add_argument("--trajectory", default="", help="trajectory spec (JSON/YAML), default: the node's circle")
+    ap.add_argument("--params-file", default="", help="compensator params file")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    traj = ["-p", f"mode:={args.mode}", "-p", "autostart:=true"]
+    if args.trajectory:
+        traj += ["-p", f"trajectory:='{args.trajectory}'"]  # quoted: a YAML string, not a mapping
+    comp = ["--params-file", args.params_file] if args.params_file else []
+    g = GraphLauncher({"recorder": ["-p", f"output:={out / 'run.mcap'}"], "driver": [], "compensator": comp,
+                       "trajectory": traj}, log_dir=out / "logs")
+    g.start()
+    print(f"graph running (ROS_DOMAIN_ID={g.env['ROS_DOMAIN_ID']}), logs in {g.log_dir}; Ctrl-C to stop")
+    try:
+        t_end = time.monotonic() + args.duration if args.duration > 0 else float("inf")
+        while time.monotonic() < t_end:
+            g.check_alive()
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        codes = g.stop()
+    print(f"stopped: {codes}; recording {out / 'run.mcap'}")
+    return 0 if all(c == 0 for c in codes.values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,159 @@
+"""Recorder node: raw (CDR) subscriptions to chosen topics written to MCAP in the rosbag2 format.
+
+Uses :class:`piezo_ff_ros.core.recording.mcap_io.McapRecorder` (profile ``ros2``, ``ros2msg`` schemas with full
+definitions, ``cdr`` messages, ``offered_qos_profiles`` + ``topic_type_hash`` per channel, Statistics, and a
+``piezo_ff_ros`` Metadata record with the run configuration).  SIGINT/SIGTERM finish the file cleanly; a killed
+recorder leaves a file readable up to its last flushed chunk (flushed at least every ``flush_interval`` s).
+
+Parameters: ``output`` (file, default ``run_<UTC time>.mcap``), ``topics`` (default reference, voltage,
+displacement, experiment, /diagnostics, /parameter_events; relative names resolve in the node's namespace),
+``config_file``/``variant`` (the PiezoConfig stored in the metadata), ``metadata`` (extra JSON object),
+``flush_interval`` [s], ``discovery_period`` [s] (how often topics of unknown type are looked up in the graph).
+Topic ``~/status`` (std_msgs/String, transient-local JSON: ``{"recording": path, "topics": {...}}``) says which
+topics are subscribed (so that a launcher can wait until recording has started).
+"""
+from __future__ import annotations
+
+import importlib
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import rclpy
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
+
+from ..core.config import load_config
+from ..core.recording.mcap_io import McapRecorder
+from .common import LATCHED_QOS, RECORD_QOS, spin_node
+
+DEFAULT_TOPICS = ["reference", "voltage", "displacement", "experiment", "/diagnostics", "/parameter_events"]
+KNOWN_TYPES = {"reference": "sensor_msgs/msg/PointCloud2", "voltage": "sensor_msgs/msg/PointCloud2",
+               "displacement": "sensor_msgs/msg/PointCloud2", "experiment": "std_msgs/msg/String",
+               "joint_states": "sensor_msgs/msg/JointState", "reference_point": "geometry_msgs/msg/PointStamped",
+               "diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
+               "parameter_events": "rcl_interfaces/msg/ParameterEvent"}
+#: the experiment markers are transient-local: a recorder started late still gets the current segment
+_LATCHED = {"experiment"}
+_EVENTS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+
+
+def message_class(type_name: str):
+    """``pkg/msg/Type`` → the Python message class."""
+    pkg, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+
+
+def git_rev() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent, timeout=2,
+                              capture_output=True, text=True).stdout.strip() or "unknown"
+    except Exception:  # noqa: BLE001 - not a checkout
+        return "unknown"
+
+
+class RecorderNode(Node):
+    """See the module docstring."""
+
+    def __init__(self, **kwargs):
+        super().__init__("recorder", **kwargs)
+        default_out = time.strftime("run_%Y%m%dT%H%M%SZ.mcap", time.gmtime())
+        out = self.declare_parameter("output", default_out).value
+        topics = list(self.declare_parameter("topics", DEFAULT_TOPICS).value)
+        cfg_file = self.declare_parameter("config_file", "").value
+        variant = self.declare_parameter("variant", "").value
+        extra = self.declare_parameter("metadata", "{}").value
+        flush = float(self.declare_parameter("flush_interval", 1.0).value)
+        period = float(self.declare_parameter("discovery_period", 0.5).value)
+        try:
+            extra = json.loads(extra) if extra else {}
+            if not isinstance(extra, dict):
+                raise ValueError("not an object")
+        except ValueError as exc:
+            raise ValueError(f"metadata: expected a JSON object ({exc})") from None
+        cfg = load_config(cfg_file or None, variant or None)
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        self.rec = McapRecorder(out, flush_interval=flush)
+        self.rec.set_metadata({"sample_rate": cfg.sample_rate, "axes": list(cfg.axes), "config_yaml": cfg.to_yaml(),
+                               "config_name": cfg.name, "variant": cfg.variant, "git_rev": git_rev(),
+                               "recorder": {"topics": topics, "started_ns": time.time_ns()}, **extra})
+        self.topics = {self.resolve_topic_name(t): t for t in topics}
+        self.types: dict[str, str] = {}
+        self.subs = {}
+        self.counts: dict[str, int] = {}
+        self.pub_status = self.create_publisher(String, "~/status", LATCHED_QOS)
+        self._subscribe_known()
+        self.create_timer(period, self._discover)
+        self.get_logger().info(f"recording {sorted(self.topics)} to {out}")
+
+    def _subscribe_known(self):
+        for full, given in self.topics.items():
+            tn = KNOWN_TYPES.get(full.rsplit("/", 1)[-1])
+            if tn is not None:
+                self._subscribe(full, tn)
+        self._status()
+
+    def _discover(self):
+        missing = [t for t in self.topics if t not in self.subs]
+        if not missing:
+            return
+        graph = dict(self.get_topic_names_and_types())
+        for t in missing:
+            if graph.get(t):
+                self._subscribe(t, graph[t][0])
+                self._status()
+
+    def _subscribe(self, topic: str, type_name: str):
+        try:
+            cls = message_class(type_name)
+        except (ImportError, AttributeError, ValueError) as exc:
+            self.get_logger().error(f"{topic}: cannot record type {type_name} ({exc})")
+            self.subs[topic] = None
+            return
+        last = topic.rsplit("/", 1)[-1]
+        qos = LATCHED_QOS if last in _LATCHED else (_EVENTS_QOS if last == "parameter_events" else RECORD_QOS)
+        self.types[topic] = type_name
+        self.counts[topic] = 0
+        self.subs[topic] = self.create_subscription(
+            cls, topic, lambda data, info, t=topic: self._on_message(t, data, info), qos, raw=True)
+
+    def _on_message(self, topic: str, data: bytes, info) -> None:
+        now = time.time_ns()
+        if topic not in self.rec.topics:
+            offered = [p.qos_profile for p in self.get_publishers_info_by_topic(topic)]
+            self.rec.register_topic(topic, self.types[topic], offered)
+        src = info.get("source_timestamp") if isinstance(info, dict) else getattr(info, "source_timestamp", None)
+        self.rec.write(topic, data, log_time_ns=now, publish_time_ns=src or now)
+        self.counts[topic] += 1
+
+    def _status(self):
+        self.pub_status.publish(String(data=json.dumps({"recording": str(self.rec.path),
+                                                        "topics": {t: self.types.get(t) for t in self.topics},
+                                                        "subscribed": sorted(t for t, s in self.subs.items() if s)})))
+
+    def finish(self):
+        if not self.rec.closed:
+            self.rec.close()
+            size = self.rec.path.stat().st_size if self.rec.path.exists() else 0
+            print(f"recorder: wrote {self.rec.message_count} messages ({size} bytes) to {self.rec.path}: "
+                  + ", ".join(f"{t} {n}" for t, n in sorted(self.counts.items())), file=sys.stderr)
+
+
+def main(argv=None) -> int:
+    args = sys.argv if argv is None else [sys.argv[0], *argv]
+    try:
+        rclpy.init(args=args)
+        node = RecorderNode()
+    except Exception as exc:  # noqa: BLE001 - bad parameter/output path: one clear line, no traceback
+        print(f"recorder: error: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    return spin_node(node, on_exit=node.finish)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,286 @@
+"""Trajectory node: plays a :mod:`piezo_ff_ros.core.trajectories` trajectory as ``reference`` blocks [m].
+
+Parameters (all reloadable; a new trajectory is validated in the on-set callback — rejected with the ConfigError
+text naming the field — and used from the next start):
+
+- ``trajectory``: the trajectory as JSON or YAML text (``core.trajectories.from_dict`` spec, e.g.
+  ``{type: circle, radius: 2.0e-5, frequency: 1.0, revolutions: 3}``; a ``sequence`` of named segments publishes
+  an ``experiment`` marker at each segment start); ``trajectory_file``: the same from a YAML/JSON file (wins when set);
+- ``mode``: ``realtime`` (paced by the wall clock with sleep-until, stamps follow the wall clock) or ``lockstep`` (as
+  fast as the graph answers, deterministic and lossless: at most ``window`` blocks in flight, the next block is
+  sent when the ``displacement`` for an earlier one came back);
+- ``block_size`` (samples, default 200), ``window`` (lockstep blocks in flight, default 4), ``sample_rate`` [Hz],
+  ``autostart`` (bool), ``loop`` (bool), ``lockstep_timeout`` [s] (no displacement for this long → stop with an
+  error), ``t0_ns`` (stamp of sample index 0; 0 = the wall clock at start-up), ``min_subscribers`` (playing starts
+  once ``reference``, ``voltage`` and ``displacement`` each have that many readers: 2 with a recorder).
+
+Services: ``~/start`` and ``~/stop`` (std_srvs/Trigger).  Topics: ``reference`` (blocks), ``experiment``
+(std_msgs/String, transient-local: JSON ``{"name", "k0", "stamp_ns", "stages", …segment meta}``), ``~/state``
+(std_msgs/String, transient-local: JSON ``{"state": idle|playing|finished|stopped|failed, "k", "blocks", …}``).
+"""
+from __future__ import annotations
+
+import json
+import math
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+import rclpy
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from ..core.config import ConfigError
+from ..core.trajectories import Sequence, Trajectory, from_dict
+from .common import BLOCK_QOS, LATCHED_QOS, dt_ns, pack_block, spin_node, stamp_to_ns
+
+DEFAULT_TRAJECTORY = json.dumps({"type": "circle", "radius": 2.0e-5, "frequency": 1.0, "revolutions": 5})
+
+
+def parse_trajectory(text: str = "", file: str = "") -> Trajectory:
+    """Trajectory from spec text (JSON/YAML) or a file; ConfigError naming the field otherwise."""
+    if file:
+        p = Path(file)
+        if not p.is_file():
+            raise ConfigError("trajectory_file", f"{file}: no such file")
+        text = p.read_text()
+    try:
+        spec = yaml.safe_load(text) if text.strip() else None
+    except yaml.YAMLError as exc:
+        raise ConfigError("trajectory", f"not valid JSON/YAML ({exc})") from None
+    if spec is None:
+        raise ConfigError("trajectory", "empty")
+    return from_dict(spec, prefix="trajectory")
+
+
+class TrajectoryNode(Node):
+    """See the module docstring."""
+
+    def __init__(self, **kwargs):
+        super().__init__("trajectory", **kwargs)
+        self._ready = False
+        self.add_on_set_parameters_callback(self._on_set)
+        self.traj = None
+        p = {
+            "trajectory": self.declare_parameter("trajectory", DEFAULT_TRAJECTORY).value,
+            "trajectory_file": self.declare_parameter("trajectory_file", "").value,
+            "mode": self.declare_parameter("mode", "realtime").value,
+            "block_size": self.declare_parameter("block_size", 200).value,
+            "window": self.declare_parameter("window", 4).value,
+            "sample_rate": self.declare_parameter("sample_rate", 20000.0).value,
+            "autostart": self.declare_parameter("autostart", False).value,
+            "loop": self.declare_parameter("loop", False).value,
+            "lockstep_timeout": self.declare_parameter("lockstep_timeout", 10.0).value,
+            "t0_ns": self.declare_parameter("t0_ns", 0).value,
+            "min_subscribers": self.declare_parameter("min_subscribers", 1).value,
+        }
+        self.traj = parse_trajectory(p["trajectory"], p["trajectory_file"])
+        self.fs = float(p["sample_rate"])
+        self.period_ns = dt_ns(self.fs)
+        t0 = int(p["t0_ns"]) or time.time_ns()
+        self.t0_ns = t0 // self.period_ns * self.period_ns
+        self.k_stream = 0            # stream sample index of the next block (never goes back)
+        self._cv = threading.Condition()
+        self._inflight: set[int] = set()
+        self._last_ack = time.monotonic()
+        self._play_thread = None
+        self._stop = threading.Event()
+        self.state = {"state": "idle"}
+        self.pub_ref = self.create_publisher(PointCloud2, "reference", BLOCK_QOS)
+        self.pub_exp = self.create_publisher(String, "experiment", LATCHED_QOS)
+        self.pub_state = self.create_publisher(String, "~/state", LATCHED_QOS)
+        self.create_subscription(PointCloud2, "displacement", self.on_displacement, BLOCK_QOS)
+        self.create_service(Trigger, "~/start", self.on_start)
+        self.create_service(Trigger, "~/stop", self.on_stop)
+        self._ready = True
+        self._set_state("idle")
+        self.get_logger().info(f"trajectory ready: {type(self.traj).__name__}, mode {self.param('mode')}, "
+                               f"t0_ns {self.t0_ns}")
+        if p["autostart"]:
+            self.start()
+
+    def param(self, name):
+        return self.get_parameter(name).value
+
+    # -- parameters ------------------------------------------------------------------------------------------------
+    def _on_set(self, params) -> SetParametersResult:
+        values = {p.name: p.value for p in params}
+        try:
+            if "mode" in values and values["mode"] not in ("realtime", "lockstep"):
+                raise ConfigError("mode", f"must be 'realtime' or 'lockstep', got {values['mode']!r}")
+            for name in ("block_size", "window"):
+                if name in values and (not isinstance(values[name], int) or values[name] < 1):
+                    raise ConfigError(name, f"must be an integer ≥ 1, got {values[name]!r}")
+            if "block_size" in values and values["block_size"] > 20000:
+                raise ConfigError("block_size", "must be ≤ 20000 (the driver's default max_block)")
+            for name in ("sample_rate", "lockstep_timeout"):
+                if name in values and (isinstance(values[name], bool) or not isinstance(values[name], (int, float))
+                                       or not values[name] > 0):
+                    raise ConfigError(name, f"must be a number > 0, got {values[name]!r}")
+            if self._ready and "sample_rate" in values:
+                raise ConfigError("sample_rate", "read-only after start-up")
+            if "trajectory" in values or "trajectory_file" in values:
+                text = values.get("trajectory", self.param("trajectory") if self._ready else "")
+                file = values.get("trajectory_file", self.param("trajectory_file") if self._ready else "")
+                if text or file:
+                    traj = parse_trajectory(text, file)
+                    if self._ready:
+                        self.traj = traj
+        except ConfigError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    # -- play ------------------------------------------------------------------------------------------------------
+    def on_start(self, request, response):
+        response.success, response.message = self.start()
+        return response
+
+    def on_stop(self, request, response):
+        was = self._play_thread is not None and self._play_thread.is_alive()
+        self.stop()
+        response.success, response.message = True, ("stopped" if was else "was not playing")
+        return response
+
+    def start(self):
+        if self._play_thread is not None and self._play_thread.is_alive():
+            return False, "already playing (call ~/stop first)"
+        self._stop.clear()
+        self._play_thread = threading.Thread(target=self._play, name="trajectory-play", daemon=True)
+        self._play_thread.start()
+        return True, f"playing {type(self.traj).__name__} from sample {self.k_stream}"
+
+    def stop(self, join=True):
+        self._stop.set()
+        with self._cv:
+            self._cv.notify_all()
+        if join and self._play_thread is not None:
+            self._play_thread.join(timeout=5.0)
+
+    def on_displacement(self, msg: PointCloud2) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        end_k = (stamp - self.t0_ns) // self.period_ns + int(msg.width)
+        with self._cv:
+            self._inflight.discard(stamp)
+            self._last_ack = time.monotonic()
+            # the driver may have published samples of its own (stale ramp): never reuse their indices
+            self.k_stream = max(self.k_stream, end_k) if end_k > 0 else self.k_stream
+            self._cv.notify_all()
+
+    def _wait_graph(self, timeout: float) -> None:
+        """Before playing: every block topic has ``min_subscribers`` readers (e.g. 2 = next node + recorder)."""
+        need = int(self.param("min_subscribers"))
+        deadline = time.monotonic() + timeout
+        settle = False
+        while not self._stop.is_set():
+            counts = {"reference": self.count_subscribers("reference"), "voltage": self.count_subscribers("voltage"),
+                      "displacement": self.count_subscribers("displacement")}  # includes our own
+            if all(c >= need for c in counts.values()):
+                break
+            settle = True
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"graph not ready after {timeout} s: subscribers {counts}, need {need} each")
+            time.sleep(0.05)
+        if settle:
+            time.sleep(0.3)  # graph discovery precedes endpoint matching by a little
+
+    def _set_state(self, state, **extra):
+        self.state = {"state": state, "k": int(self.k_stream), **extra}
+        self.pub_state.publish(String(data=json.dumps(self.state)))
+
+    def _marker(self, name, k0, meta):
+        info = {"name": name, "k0": int(k0), "stamp_ns": int(self.t0_ns + k0 * self.period_ns),
+                "stages": meta.get("stages"), **{k: v for k, v in meta.items() if k != "stages"}}
+        self.pub_exp.publish(String(data=json.dumps(info, default=str)))
+
+    def _play(self):
+        traj, fs = self.traj, self.fs
+        mode, n_blk, window = self.param("mode"), int(self.param("block_size")), int(self.param("window"))
+        loop, timeout = bool(self.param("loop")), float(self.param("lockstep_timeout"))
+        total = traj.n_samples(fs)
+        segs = traj.segments(fs) if isinstance(traj, Sequence) else []
+        axes = list(traj.axes)
+        blocks = 0
+        try:
+            self._wait_graph(timeout)
+            while True:
+                with self._cv:
+                    if mode == "realtime":  # stamps follow the wall clock (exact latency measurement)
+                        self.k_stream = max(self.k_stream, (time.time_ns() - self.t0_ns) // self.period_ns)
+                    start = self.k_stream
+                self._set_state("playing", start=int(start), total=None if math.isinf(total) else int(total))
+                k = 0
+                next_wall = time.monotonic()
+                seg_i = 0
+                while (math.isinf(total) or k < total) and not self._stop.is_set():
+                    n = n_blk if math.isinf(total) else int(min(n_blk, total - k))
+                    while seg_i < len(segs) and segs[seg_i].start < k + n:
+                        s = segs[seg_i]
+                        self._marker(s.name, start + s.start, s.meta)
+                        seg_i += 1
+                    block = traj.block(k, n, fs)
+                    kk = start + k
+                    stamp = self.t0_ns + kk * self.period_ns
+                    if mode == "realtime":
+                        delay = next_wall - time.monotonic()
+                        if delay > 0:
+                            time.sleep(delay)
+                        next_wall += n / fs
+                    else:
+                        with self._cv:
+                            self._last_ack = time.monotonic()
+                            while len(self._inflight) >= window and not self._stop.is_set():
+                                self._cv.wait(0.1)
+                                if time.monotonic() - self._last_ack > timeout:
+                                    raise TimeoutError(f"lockstep: no displacement for {timeout} s "
+                                                       "(is the driver running?)")
+                            self._inflight.add(stamp)
+                    self.pub_ref.publish(pack_block(block, axes, stamp))
+                    with self._cv:
+                        self.k_stream = max(self.k_stream, kk + n)
+                    k += n
+                    blocks += 1
+                if mode == "lockstep":  # the run is finished when its last displacement came back
+                    with self._cv:
+                        self._last_ack = time.monotonic()
+                        while self._inflight and not self._stop.is_set():
+                            self._cv.wait(0.1)
+                            if time.monotonic() - self._last_ack > timeout:
+                                raise TimeoutError(f"lockstep: {len(self._inflight)} block(s) never answered")
+                if self._stop.is_set() or not loop:
+                    break
+            self._set_state("stopped" if self._stop.is_set() else "finished", blocks=blocks)
+        except TimeoutError as exc:
+            self.get_logger().error(str(exc))
+            with self._cv:
+                self._inflight.clear()
+            self._set_state("failed", error=str(exc), blocks=blocks)
+        except Exception as exc:  # noqa: BLE001 - context shut down while stopping, or a bad trajectory
+            if not self._stop.is_set():
+                self.get_logger().error(f"trajectory: {exc}")
+                try:
+                    self._set_state("failed", error=str(exc), blocks=blocks)
+                except Exception:  # noqa: BLE001
+                    pass
+
+
+def main(argv=None) -> int:
+    args = sys.argv if argv is None else [sys.argv[0], *argv]
+    try:
+        rclpy.init(args=args)
+        node = TrajectoryNode()
+    except Exception as exc:  # noqa: BLE001 - bad trajectory/parameter: one clear line, no traceback
+        print(f"trajectory: error: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    return spin_node(node, on_exit=lambda: node.stop())
+
+
+if __name__ == "__main__":
+    sys.exit(main())
