@@ -1,0 +1,322 @@
+"""The nodes as separate processes over real DDS (isolated ROS_DOMAIN_ID from conftest, localhost discovery).
+
+- the four nodes end to end in lockstep, the MCAP read back with the ``mcap`` and ``rosbags`` readers: sample-exact
+  against the core computed offline, no lost block;
+- runtime parameter changes of the compensator from this process through its ``set_parameters`` service;
+- driver safety: out-of-range, NaN, wrong-shape, oversized and stale input.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+
+from piezo_ff_ros.core.compensators.cascade import CompensatorCascade  # noqa: E402
+from piezo_ff_ros.core.config import load_config  # noqa: E402
+from piezo_ff_ros.core.models.plant import Plant  # noqa: E402
+from piezo_ff_ros.core.safety import VoltageGuard  # noqa: E402
+from piezo_ff_ros.core.trajectories import from_dict  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+FS = 20000.0
+DT_NS = 50_000
+AXES = ["x", "y"]
+
+
+def child_env() -> dict:
+    env = dict(os.environ)  # parent env unchanged (keeps the wheels' bootstrap consistent), plus the repo
+    env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    return env
+
+
+def start_node(name: str, *ros_args: str, log_dir: Path) -> subprocess.Popen:
+    log = open(log_dir / f"{name}.log", "wb")
+    return subprocess.Popen([sys.executable, "-m", f"piezo_ff_ros.nodes.{name}", "--ros-args", *ros_args],
+                            env=child_env(), stdout=log, stderr=subprocess.STDOUT)
+
+
+def stop_node(p: subprocess.Popen, timeout: float = 15.0) -> int:
+    if p.poll() is None:
+        p.send_signal(signal.SIGINT)
+        try:
+            return p.wait(timeout)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+            return -9
+    return p.returncode
+
+
+class Probe:
+    """An in-test rclpy node with its own context."""
+
+    def __init__(self, name="probe"):
+        from rclpy.context import Context
+
+        self.ctx = Context()
+        rclpy.init(context=self.ctx)
+        self.node = rclpy.create_node(name, context=self.ctx)
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.node)
+
+    def spin_until(self, cond, timeout: float, what: str = "condition"):
+        deadline = time.monotonic() + timeout
+        while not cond():
+            if time.monotonic() > deadline:
+                raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+            self.ex.spin_once(timeout_sec=0.02)
+
+    def spin_for(self, seconds: float):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.ex.spin_once(timeout_sec=0.02)
+
+    def call(self, client, request, timeout=10.0):
+        assert client.wait_for_service(timeout_sec=timeout), f"service {client.srv_name} not available"
+        fut = client.call_async(request)
+        self.spin_until(fut.done, timeout, f"reply of {client.srv_name}")
+        return fut.result()
+
+    def close(self):
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.ctx)
+
+
+@pytest.fixture()
+def probe():
+    p = Probe()
+    yield p
+    p.close()
+
+
+@pytest.fixture(scope="module")
+def cfg_novib():
+    cfg = load_config(ROOT / "config" / "pt230_94.yaml")
+    return replace(cfg, cascade=replace(cfg.cascade, vibration=False)).validate()
+
+
+def block_io(probe):
+    from sensor_msgs.msg import PointCloud2
+
+    from piezo_ff_ros.nodes.common import BLOCK_QOS, pack_block, stamp_to_ns, unpack_block
+
+    got = {}
+    probe.node.create_subscription(PointCloud2, "displacement",
+                                   lambda m: got.__setitem__(stamp_to_ns(m.header.stamp), unpack_block(m)), BLOCK_QOS)
+    return got, pack_block, BLOCK_QOS
+
+
+# ----------------------------------------------------------------------------------------------------------------
+def test_graph_end_to_end_lockstep_recorded_sample_exact(tmp_path, probe, cfg_novib):
+    from std_msgs.msg import String
+
+    from piezo_ff_ros.nodes.common import LATCHED_QOS
+
+    spec = {"type": "sequence", "segments": [
+        {"name": "circle_a", "trajectory": {"type": "circle", "radius": 1e-5, "frequency": 20.0, "revolutions": 1},
+         "meta": {"stages": ["hysteresis", "creep"]}},
+        {"name": "circle_b", "trajectory": {"type": "circle", "radius": 2e-5, "frequency": 40.0, "revolutions": 2},
+         "meta": {"stages": ["hysteresis", "creep"]}}]}
+    traj = from_dict(spec)
+    n_total = traj.n_samples(FS)
+    t0 = 1_000_000_000_000
+    out = tmp_path / "run.mcap"
+    states = []
+    probe.node.create_subscription(String, "/trajectory/state", lambda m: states.append(json.loads(m.data)),
+                                   LATCHED_QOS)
+    procs = [start_node("recorder", "-p", f"output:={out}", log_dir=tmp_path),
+             start_node("driver", log_dir=tmp_path),
+             start_node("compensator", "-p", "cascade.vibration:=false", log_dir=tmp_path),
+             start_node("trajectory", "-p", "mode:=lockstep", "-p", "block_size:=250", "-p", "window:=3",
+                        "-p", f"t0_ns:={t0}", "-p", f"trajectory:='{json.dumps(spec)}'", "-p", "autostart:=true",
+                        "-p", "min_subscribers:=2", log_dir=tmp_path)]
+    try:
+        probe.spin_until(lambda: states and states[-1]["state"] in ("finished", "failed"), 60, "trajectory end")
+        assert states[-1]["state"] == "finished", states[-1]
+        probe.spin_for(0.5)
+    finally:
+        codes = [stop_node(p) for p in reversed(procs)]
+    assert codes == [0, 0, 0, 0], [(p.args[2], c) for p, c in zip(reversed(procs), codes)]
+
+    # expected, computed offline by the core: reference → cascade → guard (slew from 0 V) → plant
+    ref = traj.block(0, n_total, FS)
+    u_cmd = CompensatorCascade(cfg_novib).process(ref)
+    u_applied = VoltageGuard(cfg_novib.limits, 2, FS, max_block=20000).apply(u_cmd)
+    assert np.any(u_applied != u_cmd)  # the circle starts off-centre: the slew limit acted on the first samples
+    y = Plant(cfg_novib).process(u_applied)
+
+    # reader 1: mcap + mcap_ros2 decoder
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    blocks = {"/reference": {}, "/voltage": {}, "/displacement": {}}
+    markers = []
+    with open(out, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        assert reader.get_header().profile == "ros2"
+        for schema, channel, _, msg in reader.iter_decoded_messages():
+            if channel.topic in blocks:
+                assert schema.encoding == "ros2msg" and channel.message_encoding == "cdr"
+                assert "offered_qos_profiles" in channel.metadata and "topic_type_hash" in channel.metadata
+                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                blocks[channel.topic][stamp] = np.frombuffer(bytes(msg.data), "<f8").reshape(msg.width, 2)
+            elif channel.topic == "/experiment":
+                markers.append(json.loads(msg.data))
+    assert [m["name"] for m in markers] == ["circle_a", "circle_b"]
+    assert [m["k0"] for m in markers] == [0, traj.segments(FS)[1].start]
+
+    def assemble(d, n):
+        ks = sorted((s - t0) // DT_NS for s in d)
+        parts = [d[t0 + k * DT_NS] for k in ks]
+        ends = np.cumsum([0] + [len(p) for p in parts])
+        assert list(ends[:-1]) == ks, "lost or overlapping block"
+        return np.vstack(parts)[:n]
+
+    ref_rec = assemble(blocks["/reference"], n_total)
+    assert len(blocks["/reference"]) == int(np.ceil(n_total / 250))
+    np.testing.assert_array_equal(ref_rec, ref)
+    np.testing.assert_array_equal(assemble(blocks["/voltage"], n_total), u_cmd)
+    y_rec = assemble(blocks["/displacement"], n_total)
+    np.testing.assert_allclose(y_rec, y, rtol=0, atol=1e-15)
+
+    # reader 2: rosbags opens the bare file as a rosbag2 bag
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([out]) as r:
+        conns = [c for c in r.connections if c.topic == "/displacement"]
+        ys = {}
+        for conn, _, raw in r.messages(connections=conns):
+            m = r.deserialize(raw, conn.msgtype)
+            ys[m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec] = \
+                np.frombuffer(bytes(m.data), "<f8").reshape(m.width, 2)
+    np.testing.assert_allclose(assemble(ys, n_total), y, rtol=0, atol=1e-15)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+def test_runtime_parameter_change_through_set_parameters_service(tmp_path, probe, cfg_novib):
+    from rcl_interfaces.srv import GetParameters, SetParameters
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import PointCloud2
+
+    from piezo_ff_ros.nodes.common import BLOCK_QOS, pack_block, stamp_to_ns, unpack_block
+
+    volts = {}
+    probe.node.create_subscription(PointCloud2, "voltage",
+                                   lambda m: volts.__setitem__(stamp_to_ns(m.header.stamp), unpack_block(m)),
+                                   BLOCK_QOS)
+    pub = probe.node.create_publisher(PointCloud2, "reference", BLOCK_QOS)
+    setp = probe.node.create_client(SetParameters, "/compensator/set_parameters")
+    getp = probe.node.create_client(GetParameters, "/compensator/get_parameters")
+    comp = start_node("compensator", "-p", "cascade.vibration:=false", "-p", "crossfade:=0.02", log_dir=tmp_path)
+    try:
+        probe.spin_until(lambda: pub.get_subscription_count() > 0, 30, "compensator subscription")
+        assert setp.wait_for_service(timeout_sec=10)
+        n_blk, n_blocks = 200, 40
+        t = np.arange(n_blk * n_blocks) / FS
+        ref = np.column_stack([10e-6 + 8e-6 * np.sin(2 * np.pi * 5 * t), 5e-6 * np.cos(2 * np.pi * 3 * t)])
+
+        def send(i):
+            pub.publish(pack_block(ref[i * n_blk:(i + 1) * n_blk], AXES, i * n_blk * DT_NS))
+            probe.spin_until(lambda: i * n_blk * DT_NS in volts, 10, f"voltage block {i}")
+
+        for i in range(20):
+            send(i)
+        # rejected: singular Dp → reason names the field, old value kept
+        bad = Parameter("hysteresis.Dp", value=[1e-7, 2e-7, 2e-7, 4e-7]).to_parameter_msg()
+        res = probe.call(setp, SetParameters.Request(parameters=[bad])).results[0]
+        assert not res.successful and res.reason.startswith("hysteresis.Dp"), res.reason
+        got = probe.call(getp, GetParameters.Request(names=["hysteresis.Dp"])).values[0].double_array_value
+        np.testing.assert_allclose(list(got), [0.1663e-6, 0.0054e-6, -0.0048e-6, 0.1803e-6], rtol=1e-12)
+        # rejected: wrong type
+        res = probe.call(setp, SetParameters.Request(
+            parameters=[Parameter("cascade.creep", value="no").to_parameter_msg()])).results[0]
+        assert not res.successful and res.reason.startswith("cascade.creep")
+        # accepted: creep compensation off, applied at a block boundary, bumplessly
+        ok = Parameter("cascade.creep", value=False).to_parameter_msg()
+        assert probe.call(setp, SetParameters.Request(parameters=[ok])).results[0].successful
+        got = probe.call(getp, GetParameters.Request(names=["cascade.creep"])).values[0].bool_value
+        assert got is False
+        for i in range(20, n_blocks):
+            send(i)
+    finally:
+        assert stop_node(comp) == 0
+    u = np.vstack([volts[i * n_blk * DT_NS] for i in range(n_blocks)])
+    u_old = CompensatorCascade(cfg_novib).process(ref)
+    np.testing.assert_array_equal(u[:20 * n_blk], u_old[:20 * n_blk])     # before the change: old config
+    assert np.max(np.abs(u[-n_blk:] - u_old[-n_blk:])) > 0.5              # after: the new one (creep off)
+    du = np.abs(np.diff(u, axis=0))
+    normal = du[100:20 * n_blk - 1].max()
+    assert du[20 * n_blk - 1:].max() < 1.5 * normal, (du[20 * n_blk - 1:].max(), normal)  # no jump
+
+
+# ----------------------------------------------------------------------------------------------------------------
+def test_driver_safety_limits_rejection_and_stale_ramp(tmp_path, probe, cfg_novib):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import PointCloud2
+
+    from piezo_ff_ros.nodes.common import BLOCK_QOS, pack_block
+
+    got, _, _ = block_io(probe)
+    diags = []
+    probe.node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diags.extend(
+        {kv.key: kv.value for kv in s.values} for s in m.status if s.name.endswith("driver")), 10)
+    pub = probe.node.create_publisher(PointCloud2, "voltage", BLOCK_QOS)
+    drv = start_node("driver", "-p", "max_block:=1000", "-p", "limits.stale_timeout:=0.3",
+                     "-p", "diagnostics_period:=0.2", log_dir=tmp_path)
+    n = 100
+    guard = VoltageGuard(cfg_novib.limits, 2, FS, max_block=1000)
+    plant = Plant(cfg_novib)
+    expected = {}
+    try:
+        probe.spin_until(lambda: pub.get_subscription_count() > 0, 30, "driver subscription")
+        k = 0
+
+        def send(block, expect):
+            nonlocal k
+            stamp = k * DT_NS
+            msg = pack_block(block, AXES[:block.shape[1]] if block.shape[1] <= 2 else ["x", "y", "z"], stamp)
+            pub.publish(msg)
+            if expect == "hold":
+                expected[stamp] = plant.process(guard.hold(block.shape[0]))
+            elif expect == "apply":
+                expected[stamp] = plant.process(guard.apply(block))
+            if expect is not None:
+                probe.spin_until(lambda: stamp in got, 10, f"displacement for stamp {stamp}")
+            k += block.shape[0]
+
+        send(np.full((n, 2), 50.0), "apply")                        # normal, ramped up at the slew limit
+        send(np.full((n, 2), 1000.0) * [1, -1], "apply")            # out of range: clamped to ±200 V, slewed
+        nan = np.full((n, 2), 20.0)
+        nan[7, 1] = np.nan
+        send(nan, "hold")                                           # NaN: rejected, last voltage held
+        send(np.full((n, 3), 10.0), "hold")                         # wrong shape (3 fields): rejected, held
+        send(np.full((1500, 2), 10.0), None)                        # oversized (> max_block): nothing applied
+        probe.spin_for(0.1)
+        assert (k - 1500) * DT_NS not in got  # nothing published for the oversized block
+        for stamp, y in expected.items():
+            np.testing.assert_allclose(got[stamp], y, rtol=0, atol=1e-15)
+        # stale input: ramp to 0 V at the slew limit, published after the last applied block
+        probe.spin_until(lambda: any(d.get("state") == "safe" for d in diags), 5, "driver safe state")
+        last = diags[-1]
+        assert json.loads(last["applied_voltage"]) == [0.0, 0.0]
+        assert int(last["rejected_blocks"]) == 3 and int(last["saturated_samples"]) == n
+        assert int(last["safe_ramps"]) == 1 and int(last["slew_limited_samples"]) > 0
+        ramp_stamp = (k - 1500) * DT_NS
+        assert ramp_stamp in got  # the ramp continues the sample stream (the oversized block took no indices)
+        ramp = guard.ramp_to_safe()
+        assert ramp.shape[0] == 20  # 200 V at 10 V/sample
+        np.testing.assert_allclose(got[ramp_stamp], plant.process(ramp), rtol=0, atol=1e-15)
+    finally:
+        assert stop_node(drv) == 0
