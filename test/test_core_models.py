@@ -300,9 +300,10 @@ def _mimo_modal_ss(dt):
                                        rng.standard_normal((2, 2)), dt)
 
 
+@pytest.mark.parametrize("padded", [False, True])
 @pytest.mark.parametrize("which", ["dynamics", "creep", "mimo_modal"])
-def test_two_axis_kernel_gives_the_generic_kernels_numbers(paper_config, which):
-    from piezo_ff_ros.core.lti import _bank_run
+def test_two_axis_kernel_gives_the_generic_kernels_numbers(paper_config, which, padded):
+    from piezo_ff_ros.core.lti import _bank_run, _pad_to_2x2
 
     dt = paper_config.dt
     ss = {"dynamics": lambda: DiscreteModalSS.zoh_from_tf_matrix(paper_config.dynamics.G_L, dt),
@@ -312,6 +313,9 @@ def test_two_axis_kernel_gives_the_generic_kernels_numbers(paper_config, which):
     u = _signal(3000, seed=2, scale=1e-5)
     filt = LTIFilter(ss)
     assert filt._two_axis
+    assert filt._padded == (which == "dynamics")  # chosen when 2×2 blocks dominate
+    filt._padded = padded  # run both unrolled kernels whatever the choice
+    filt._Ablk_pad, filt._io_pad = _pad_to_2x2(filt._Ablk, filt._io, filt._offsets, ss.sizes)
     fast = np.vstack([filt.process(u[:1234]), filt.process(u[1234:])])
     generic = np.empty_like(fast)
     Ablk, offsets = ss.packed()

@@ -390,6 +390,10 @@ class LTIFilter:
         # two inputs, two outputs and 1×1/2×2 blocks (every 2-axis modal filter): the unrolled kernel
         self._two_axis = ss.n_in == 2 and ss.n_out == 2 and ss.small_blocks
         self._io = ss.packed_io()
+        # mostly 2×2 blocks: run every block as 2×2 (1×1 blocks padded with a state that stays 0), no branch
+        self._padded = self._two_axis and 2 * len(ss.sizes) <= 1.25 * ss.n_states
+        if self._padded:
+            self._Ablk_pad, self._io_pad = _pad_to_2x2(self._Ablk, self._io, self._offsets, ss.sizes)
         self.x = np.zeros(ss.n_states)
 
     @property
@@ -408,7 +412,9 @@ class LTIFilter:
         y = np.empty((u.shape[0], self.ss.n_out))
         if u.ndim != 2 or u.shape[1] != self.ss.n_in:
             raise ValueError(f"expected a block of shape [N, {self.ss.n_in}], got {u.shape}")
-        if self._two_axis:
+        if self._padded:
+            _bank_run_2x2_padded(self._Ablk_pad, self._offsets, self.ss.sizes, self._io_pad, self.ss.D, self.x, u, y)
+        elif self._two_axis:
             _bank_run_2x2(self._Ablk, self._offsets, self.ss.sizes, self._io, self.ss.D, self.x, u, y)
         else:
             _bank_run(self._Ablk, self._offsets, self.ss.sizes, self.ss.B, self.ss.C, self.ss.D, self.x, u, y)
@@ -423,6 +429,57 @@ class LTIFilter:
         n = self.ss.n_states
         if n:
             self.x[:] = np.linalg.solve(np.eye(n) - self.ss.A, self.ss.B @ np.asarray(u_const, float))
+
+
+def _pad_to_2x2(Ablk, io, offsets, sizes):
+    """Block b's A and io rows at 2b, 2b+1; a 1×1 block gets a second state with all-zero coefficients."""
+    nb = len(sizes)
+    A_pad = np.zeros((2 * nb, 2))
+    io_pad = np.zeros((2 * nb, io.shape[1]))
+    for b, (off, s) in enumerate(zip(offsets, sizes)):
+        A_pad[2 * b:2 * b + s, :s] = Ablk[off:off + s, :s]
+        io_pad[2 * b:2 * b + s] = io[off:off + s]
+    return A_pad, io_pad
+
+
+@njit(cache=True)
+def _bank_run_2x2_padded(A_pad, offsets, sizes, io_pad, D, x, u, y):  # pragma: no cover - compiled
+    """``_bank_run_2x2`` with every block 2×2 (padded by :func:`_pad_to_2x2`): no branch in the loop.
+
+    The state is gathered into the padded layout for the call and scattered back after it (``x`` stays the
+    public, unpadded state).  The padding state stays exactly 0 and adds exact zeros, so the sums and the
+    results are those of ``_bank_run_2x2``.
+    """
+    N = u.shape[0]
+    nb = sizes.shape[0]
+    xp = np.zeros(2 * nb)
+    for b in range(nb):
+        for r in range(sizes[b]):
+            xp[2 * b + r] = x[offsets[b] + r]
+    d00 = D[0, 0]
+    d01 = D[0, 1]
+    d10 = D[1, 0]
+    d11 = D[1, 1]
+    for k in range(N):
+        u0 = u[k, 0]
+        u1 = u[k, 1]
+        y0 = 0.0
+        y1 = 0.0
+        for b in range(nb):
+            i = 2 * b
+            x0 = xp[i]
+            x1 = xp[i + 1]
+            y0 += io_pad[i, 2] * x0
+            y1 += io_pad[i, 3] * x0
+            y0 += io_pad[i + 1, 2] * x1
+            y1 += io_pad[i + 1, 3] * x1
+            xp[i] = A_pad[i, 0] * x0 + A_pad[i, 1] * x1 + io_pad[i, 0] * u0 + io_pad[i, 1] * u1
+            xp[i + 1] = A_pad[i + 1, 0] * x0 + A_pad[i + 1, 1] * x1 + io_pad[i + 1, 0] * u0 + io_pad[i + 1, 1] * u1
+        y[k, 0] = y0 + d00 * u0 + d01 * u1
+        y[k, 1] = y1 + d10 * u0 + d11 * u1
+    for b in range(nb):
+        for r in range(sizes[b]):
+            x[offsets[b] + r] = xp[2 * b + r]
 
 
 @njit(cache=True)
