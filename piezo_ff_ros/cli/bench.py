@@ -337,6 +337,7 @@ def _kernels():
     from ..core.models import bouc_wen
 
     return {"lti._bank_run": lti._bank_run, "lti._bank_run_2x2": lti._bank_run_2x2,
+            "lti._bank_run_2x2_padded": lti._bank_run_2x2_padded,
             "bouc_wen._bw_model_run": bouc_wen._bw_model_run,
             "bouc_wen._bw_model_run_2x2": bouc_wen._bw_model_run_2x2,
             "hysteresis._bw_comp_run": hcomp._bw_comp_run, "hysteresis._bw_comp_run_2x2": hcomp._bw_comp_run_2x2,
