@@ -91,7 +91,8 @@ class Experiment:
         Metric parameters: ``period`` [s] (hysteresis), ``t_step`` [s] (creep/overshoot), ``t_creep`` [s],
         ``skip`` [s] (tracking: start-up excluded), ``radius`` [m].
     record_decimation : int
-        Keep every n-th sample when recording in simulation (long, slow experiments).
+        In simulation, record one sample per ``record_decimation`` samples — their mean, stamped at the centre
+        of the block (long, slow experiments; the mean is what a block-averaging recorder would keep).
     """
 
     name: str
@@ -239,17 +240,29 @@ def run_experiment(exp: Experiment, cfg: PiezoConfig, plant, design=None, block:
     R = np.empty((n_keep, n_ax))
     U = np.empty((n_keep, n_ax))
     Y = np.empty((n_keep, n_ax))
+    T = np.empty(n_keep)
     j = 0
     for k0 in range(0, n_total, block):
         n = min(block, n_total - k0)
         r = exp.trajectory.block(k0, n, fs)
         u = r if comp is None else comp.process(r)
         y = plant.process(u)
-        m = len(r[::dec])
-        R[j:j + m], U[j:j + m], Y[j:j + m] = r[::dec], u[::dec], y[::dec]
+        if dec == 1:
+            m = n
+            R[j:j + m], U[j:j + m], Y[j:j + m] = r, u, y
+            T[j:j + m] = (k0 + np.arange(n)) / fs
+        else:
+            # one averaged sample per `dec` samples (a recorder's block average: sensor noise averages out),
+            # stamped at the centre of its block
+            starts = np.arange(0, n, dec)
+            counts = np.minimum(dec, n - starts)[:, None]
+            m = len(starts)
+            R[j:j + m] = np.add.reduceat(r, starts, axis=0) / counts
+            U[j:j + m] = np.add.reduceat(u, starts, axis=0) / counts
+            Y[j:j + m] = np.add.reduceat(y, starts, axis=0) / counts
+            T[j:j + m] = (k0 + starts + 0.5 * (counts[:, 0] - 1)) / fs
         j += m
-    t = np.arange(n_keep) * (dec / fs)
-    return Recorded(t, R, U, Y)
+    return Recorded(T, R, U, Y)
 
 
 def simulate_experiments(cfg: PiezoConfig, design=None, plant=None, experiments: list[Experiment] | None = None,
