@@ -169,6 +169,7 @@ class CompensatorNode(Node):
             v = self.hs.request(cand, background=bg)
         self.get_logger().info(f"configuration v{v} requested ({', '.join(sorted(updates))})" +
                                ("; building in the background" if bg else ""))
+        self.publish_diagnostics()
 
     def poll(self) -> None:
         """Timer: swap in a finished build even when no block flows; report swaps and failed builds."""
