@@ -60,8 +60,8 @@ INDEPENDENT = {
     "hinf": {"gamma": 0.948, "order_full": 40},
 }
 
-#: generalized Bouc-Wen terms of the asymmetric truth plant: diag Δ1, Δ2 [1/V] per axis (≈ 30 % / 20 % of Γ_ii
-#: and B_ii's asymmetric share — enough to leave a visible residual after the symmetric compensator)
+#: generalized Bouc-Wen terms of the asymmetric truth plant: diag Δ1, Δ2 [1/V] per axis (Δ1 = ½Γ_ii, Δ2 ≈ ¼Γ_ii;
+#: a mild asymmetry: h/H before moves by ~0.15 pp, the symmetric compensator's residual roughly doubles)
 ASYMMETRIC_DELTA = {"Delta1": (0.0008, 0.0005), "Delta2": (0.0004, 0.0003)}
 
 
