@@ -315,7 +315,9 @@ def test_two_axis_kernel_gives_the_generic_kernels_numbers(paper_config, which, 
     assert filt._two_axis
     assert filt._padded == (which == "dynamics")  # chosen when 2×2 blocks dominate
     filt._padded = padded  # run both unrolled kernels whatever the choice
-    filt._Ablk_pad, filt._io_pad = _pad_to_2x2(filt._Ablk, filt._io, filt._offsets, ss.sizes)
+    filt._Ablk_pad, filt._io_pad, filt._feeds = _pad_to_2x2(filt._Ablk, filt._io, filt._offsets, ss.sizes)
+    if which != "mimo_modal":  # SISO-derived: every block reaches exactly one output
+        assert set(filt._feeds.tolist()) == {1, 2}
     fast = np.vstack([filt.process(u[:1234]), filt.process(u[1234:])])
     generic = np.empty_like(fast)
     Ablk, offsets = ss.packed()

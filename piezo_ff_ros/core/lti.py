@@ -393,7 +393,7 @@ class LTIFilter:
         # mostly 2×2 blocks: run every block as 2×2 (1×1 blocks padded with a state that stays 0), no branch
         self._padded = self._two_axis and 2 * len(ss.sizes) <= 1.25 * ss.n_states
         if self._padded:
-            self._Ablk_pad, self._io_pad = _pad_to_2x2(self._Ablk, self._io, self._offsets, ss.sizes)
+            self._Ablk_pad, self._io_pad, self._feeds = _pad_to_2x2(self._Ablk, self._io, self._offsets, ss.sizes)
         self.x = np.zeros(ss.n_states)
 
     @property
@@ -413,7 +413,8 @@ class LTIFilter:
         if u.ndim != 2 or u.shape[1] != self.ss.n_in:
             raise ValueError(f"expected a block of shape [N, {self.ss.n_in}], got {u.shape}")
         if self._padded:
-            _bank_run_2x2_padded(self._Ablk_pad, self._offsets, self.ss.sizes, self._io_pad, self.ss.D, self.x, u, y)
+            _bank_run_2x2_padded(self._Ablk_pad, self._offsets, self.ss.sizes, self._io_pad, self._feeds, self.ss.D,
+                                 self.x, u, y)
         elif self._two_axis:
             _bank_run_2x2(self._Ablk, self._offsets, self.ss.sizes, self._io, self.ss.D, self.x, u, y)
         else:
@@ -432,23 +433,30 @@ class LTIFilter:
 
 
 def _pad_to_2x2(Ablk, io, offsets, sizes):
-    """Block b's A and io rows at 2b, 2b+1; a 1×1 block gets a second state with all-zero coefficients."""
+    """Block b's A and io rows at 2b, 2b+1; a 1×1 block gets a second state with all-zero coefficients.
+
+    Also returns ``feeds[b]``: bit 0 set if block b reaches output 0 (a non-zero in its C row), bit 1 for output 1
+    — a block from a SISO entry reaches only one.
+    """
     nb = len(sizes)
     A_pad = np.zeros((2 * nb, 2))
     io_pad = np.zeros((2 * nb, io.shape[1]))
     for b, (off, s) in enumerate(zip(offsets, sizes)):
         A_pad[2 * b:2 * b + s, :s] = Ablk[off:off + s, :s]
         io_pad[2 * b:2 * b + s] = io[off:off + s]
-    return A_pad, io_pad
+    feeds = np.array([(1 if np.any(io_pad[2 * b:2 * b + 2, 2]) else 0) | (2 if np.any(io_pad[2 * b:2 * b + 2, 3]) else 0)
+                      for b in range(nb)], np.int64)
+    return A_pad, io_pad, feeds
 
 
 @njit(cache=True)
-def _bank_run_2x2_padded(A_pad, offsets, sizes, io_pad, D, x, u, y):  # pragma: no cover - compiled
-    """``_bank_run_2x2`` with every block 2×2 (padded by :func:`_pad_to_2x2`): no branch in the loop.
+def _bank_run_2x2_padded(A_pad, offsets, sizes, io_pad, feeds, D, x, u, y):  # pragma: no cover - compiled
+    """``_bank_run_2x2`` with every block 2×2 (padded by :func:`_pad_to_2x2`): no size branch in the loop.
 
     The state is gathered into the padded layout for the call and scattered back after it (``x`` stays the
-    public, unpadded state).  The padding state stays exactly 0 and adds exact zeros, so the sums and the
-    results are those of ``_bank_run_2x2``.
+    public, unpadded state).  The padding state stays exactly 0, and a block adds to an output only if it
+    reaches it (``feeds``): the terms left out are exact zeros, so the sums and the results are those of
+    ``_bank_run_2x2``, while each output's chain of dependent additions is about halved for SISO-derived banks.
     """
     N = u.shape[0]
     nb = sizes.shape[0]
@@ -469,10 +477,13 @@ def _bank_run_2x2_padded(A_pad, offsets, sizes, io_pad, D, x, u, y):  # pragma: 
             i = 2 * b
             x0 = xp[i]
             x1 = xp[i + 1]
-            y0 += io_pad[i, 2] * x0
-            y1 += io_pad[i, 3] * x0
-            y0 += io_pad[i + 1, 2] * x1
-            y1 += io_pad[i + 1, 3] * x1
+            f = feeds[b]
+            if f & 1:
+                y0 += io_pad[i, 2] * x0
+                y0 += io_pad[i + 1, 2] * x1
+            if f & 2:
+                y1 += io_pad[i, 3] * x0
+                y1 += io_pad[i + 1, 3] * x1
             xp[i] = A_pad[i, 0] * x0 + A_pad[i, 1] * x1 + io_pad[i, 0] * u0 + io_pad[i, 1] * u1
             xp[i + 1] = A_pad[i + 1, 0] * x0 + A_pad[i + 1, 1] * x1 + io_pad[i + 1, 0] * u0 + io_pad[i + 1, 1] * u1
         y[k, 0] = y0 + d00 * u0 + d01 * u1
