@@ -137,7 +137,7 @@ def test_graph_end_to_end_lockstep_recorded_sample_exact(tmp_path, probe, cfg_no
     probe.node.create_subscription(String, "/trajectory/state", lambda m: states.append(json.loads(m.data)),
                                    LATCHED_QOS)
     procs = [start_node("recorder", "-p", f"output:={out}", log_dir=tmp_path),
-             start_node("driver", log_dir=tmp_path),
+             start_node("driver", "-p", "limits.stale_timeout:=5.0", log_dir=tmp_path),  # lockstep: no wall clock
              start_node("compensator", "-p", "cascade.vibration:=false", log_dir=tmp_path),
              start_node("trajectory", "-p", "mode:=lockstep", "-p", "block_size:=250", "-p", "window:=3",
                         "-p", f"t0_ns:={t0}", "-p", f"trajectory:='{json.dumps(spec)}'", "-p", "autostart:=true",
@@ -318,5 +318,11 @@ def test_driver_safety_limits_rejection_and_stale_ramp(tmp_path, probe, cfg_novi
         ramp = guard.ramp_to_safe()
         assert ramp.shape[0] == 20  # 200 V at 10 V/sample
         np.testing.assert_allclose(got[ramp_stamp], plant.process(ramp), rtol=0, atol=1e-15)
+        # a block for sample instants already past (here: the very first) is dropped, never re-applied
+        n_diag = len(diags)
+        pub.publish(pack_block(np.full((n, 2), 5.0), AXES, 0))
+        probe.spin_until(lambda: len(diags) > n_diag + 1, 5, "diagnostics after a late block")
+        assert int(diags[-1]["late_blocks"]) == 1
+        np.testing.assert_allclose(got[0], expected[0], rtol=0, atol=1e-15)
     finally:
         assert stop_node(drv) == 0

@@ -168,7 +168,10 @@ def run(args) -> int:
     graph = GraphLauncher({
         "recorder": ["-p", f"output:={mcap_path.resolve()}", "-p", f"metadata:='{meta}'", *cfg_args],
         "driver": [*cfg_args, "-p", f"limits.voltage:={float(args.voltage_limit)}",
-                   "-p", f"limits.slew:={float(args.slew_limit)}"],
+                   "-p", f"limits.slew:={float(args.slew_limit)}",
+                   # lockstep: the simulated time stands still while the graph waits (H∞ synthesis, a busy CPU),
+                   # so a wall-clock stale timeout only needs to catch a dead compensator
+                   "-p", "limits.stale_timeout:=5.0"],
         "compensator": [*cfg_args, "-p", "cascade.vibration:=false"],
         "trajectory": ["-p", "mode:=lockstep", "-p", f"block_size:={args.block_size}", "-p", f"window:={args.window}",
                        "-p", "min_subscribers:=2", "-p", f"sample_rate:={fs}", "-p", "lockstep_timeout:=30.0"],

@@ -85,12 +85,13 @@ class DriverNode(Node):
     # -- data path -------------------------------------------------------------------------------------------------
     def on_voltage(self, msg: PointCloud2) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
-        if self.state == "active" and self.next_stamp_ns is not None and stamp < self.next_stamp_ns:
+        if self.next_stamp_ns is not None and stamp < self.next_stamp_ns:
+            # those sample instants are past (applied by an earlier block or by the stale ramp): never rewrite them
             self.late_blocks += 1
             self._error(f"late block dropped: stamp {stamp} overlaps samples already applied "
-                        f"(next expected {self.next_stamp_ns})")
+                        f"(next expected {self.next_stamp_ns}; ~/reset starts a new stream)")
             return
-        if self.state == "active" and self.next_stamp_ns is not None and stamp > self.next_stamp_ns:
+        if self.next_stamp_ns is not None and stamp > self.next_stamp_ns:
             self.gap_samples += (stamp - self.next_stamp_ns) // self.period_ns
         self.last_block_wall = time.monotonic()
         try:
