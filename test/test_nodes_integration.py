@@ -273,11 +273,13 @@ def test_driver_safety_limits_rejection_and_stale_ramp(tmp_path, probe, cfg_novi
     probe.node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diags.extend(
         {kv.key: kv.value for kv in s.values} for s in m.status if s.name.endswith("driver")), 10)
     pub = probe.node.create_publisher(PointCloud2, "voltage", BLOCK_QOS)
-    drv = start_node("driver", "-p", "max_block:=1000", "-p", "limits.stale_timeout:=0.3",
+    drv = start_node("driver", "-p", "max_block:=1000", "-p", "limits.stale_timeout:=1.0",
                      "-p", "diagnostics_period:=0.2", log_dir=tmp_path)
     n = 100
     guard = VoltageGuard(cfg_novib.limits, 2, FS, max_block=1000)
     plant = Plant(cfg_novib)
+    plant.process(np.zeros((1, 2)))  # compile before the timed part (blocks must come < stale_timeout apart)
+    plant.reset()
     expected = {}
     try:
         probe.spin_until(lambda: pub.get_subscription_count() > 0, 30, "driver subscription")
