@@ -24,7 +24,7 @@ def _stable_or_raise(sys, what: str) -> None:
                              "needs a stable system and an open-loop feedforward controller must be stable")
 
 
-def _ab09ad(sys, nr: int):
+def _ab09ad(sys, nr: int | None):
     """SLICOT AB09AD (square-root balance & truncate) — the routine ``control.balred(method='truncate')`` calls
     for stable systems; called directly because it also returns the Hankel singular values."""
     from slycot import ab09ad
@@ -46,7 +46,8 @@ def hankel_singular_values(sys) -> np.ndarray:
     _stable_or_raise(sys, "system")
     if sys.nstates == 0:
         return np.zeros(0)
-    return np.asarray(_ab09ad(sys, sys.nstates)[4], float).copy()
+    # nr=None: AB09AD picks the minimal order itself (no warning when it is below n) and still returns all σ_i
+    return np.asarray(_ab09ad(sys, None)[4], float).copy()
 
 
 def balanced_truncation(sys, order: int):
