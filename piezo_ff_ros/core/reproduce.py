@@ -12,7 +12,7 @@ Result keys (a contract — the JSON of ``piezo-ff reproduce``)::
     paper:          the paper's Table I/II figures and its γ / orders (same layout)
     independent:    the figures of the issue's independent reading of the printed models
     tracking:       {circle<r>_<T|open>: {radius_m, rms_error_m, max_error_m, rms_error_percent, …}}
-    settling_time_s, static_error_percent, creep_over_Am_percent, details, conditions
+    settling_time_s, static_error_percent {S_L, T}, creep_over_Am_percent, details, conditions
 
 Before/after mapping (paper Section VII-A, Tables I–II):
 
@@ -77,7 +77,8 @@ def _pct(v):
 
 
 def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None = None, design=None,
-             robust: bool = False, conditions: dict | None = None) -> dict:
+             robust: bool = False, conditions: dict | None = None,
+             reference_model_tau: float | None = None) -> dict:
     """Compute the paper's tables from recorded signals.
 
     Parameters
@@ -93,6 +94,10 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
         3 kHz low-pass, cross-coupling ranges on a 0.1 s moving average.  Off: the exact definitions.
     conditions : dict, optional
         Free-form description of how the data were produced (copied into the result).
+    reference_model_tau : float, optional
+        Time constant [s] of the designed response Wr = 1/(τs + 1) (τ = t_r/3).  When given, circle tracking
+        also reports the error against the reference filtered by Wr (ZOH, from rest): the part of the error the
+        compensator was not designed to remove is the lag of Wr itself.
 
     Returns
     -------
@@ -111,7 +116,7 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
            "after": {k: {a: None for a in axes} for k in KEYS},
            "hinf": _hinf_section(design), "paper": PAPER, "independent": INDEPENDENT, "tracking": {},
            "settling_time_s": {"before": {a: None for a in axes}, "after": {a: None for a in axes}},
-           "static_error_percent": {"after_creep": {a: None for a in axes}, "after_step": {a: None for a in axes}},
+           "static_error_percent": {"S_L": {a: None for a in axes}, "T": {a: None for a in axes}},
            "creep_over_Am_percent": {"before": {a: None for a in axes}, "after": {a: None for a in axes}},
            "details": {}, "conditions": dict(conditions or {}), "robust_readings": bool(robust)}
 
@@ -172,7 +177,7 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
                                     "cross_A_m_m": {b: c["A_m"] for b, c in cross.items()}}
             if phase == "after":
                 ref_final = float(r.reference[-1, i])
-                out["static_error_percent"]["after_creep"][a] = _pct((res["A_m"] - ref_final) / ref_final)
+                out["static_error_percent"]["S_L"][a] = _pct((res["A_m"] - ref_final) / ref_final)
 
     # overshoot (VI-A before, VI-C after), settling, static error, final-value cross-coupling (Table II after)
     finals = {}
@@ -195,7 +200,7 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
                                     "peak_voltage_V": float(np.abs(r.u).max())}
             if phase == "after":
                 ref_final = float(r.reference[-1, i])
-                out["static_error_percent"]["after_step"][a] = _pct((res["A_f"] - ref_final) / ref_final)
+                out["static_error_percent"]["T"][a] = _pct((res["A_f"] - ref_final) / ref_final)
     for a in axes:
         for b in axes:
             if b != a and ("T", a, a) in finals and ("T", a, b) in finals:
@@ -217,7 +222,20 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
             "rms_error_percent": _pct(te["rms_norm"] / radius), "max_error_percent": _pct(te["max_norm"] / radius),
             "rms_error_per_axis_m": dict(zip(axes, te["rms"])), "max_error_per_axis_m": dict(zip(axes, te["max"])),
             "peak_voltage_V": float(np.abs(r.u).max())}
+        if reference_model_tau:
+            rw = _first_order_zoh(r.t, r.reference, float(reference_model_tau))
+            tw = M.tracking_errors(rw, r.y, mask=mask)
+            out["tracking"][e.name].update({"rms_error_vs_Wr_m": tw["rms_norm"], "max_error_vs_Wr_m": tw["max_norm"]})
     return out
+
+
+def _first_order_zoh(t, x, tau):
+    """1/(τs + 1) after exact zero-order hold at the record's sample period, from rest (output lags one sample)."""
+    from scipy import signal
+
+    dt = float(np.median(np.diff(t)))
+    a = math.exp(-dt / tau)
+    return signal.lfilter([0.0, 1.0 - a], [1.0, -a], np.asarray(x, float), axis=0)
 
 
 def _hinf_section(design) -> dict:
@@ -277,7 +295,8 @@ def reproduce(cfg: PiezoConfig, design=None, truth: str = "nominal", noise_std: 
         robust = noise_std > 0
     cond = {"config": cfg.name, "sample_rate_hz": cfg.sample_rate, "truth": truth, "noise_std_m": noise_std,
             "creep_duration_s": creep_duration}
-    return evaluate(recorded, exps, design=design, robust=robust, conditions=cond), recorded
+    return evaluate(recorded, exps, design=design, robust=robust, conditions=cond,
+                    reference_model_tau=cfg.vibration.t_r / 3.0), recorded
 
 
 def _f(v, width=8, digits=2):
@@ -333,9 +352,9 @@ def format_tables(result: dict, label: str = "this run", axes=("x", "y")) -> str
             f"{a} {_f(None if st['after'].get(a) is None else 1e3 * st['after'][a], 0, 1).strip()}" for a in axes))
     se = result.get("static_error_percent", {})
     if se:
-        lines.append("static error after compensation [%]: creep run " + ", ".join(
-            f"{a} {_f(se['after_creep'].get(a), 0, 3).strip()}" for a in axes) + "; step run " + ", ".join(
-            f"{a} {_f(se['after_step'].get(a), 0, 3).strip()}" for a in axes))
+        lines.append("static error [%]: S_L creep run (no C(s), = G_L(0) − 1) " + ", ".join(
+            f"{a} {_f(se['S_L'].get(a), 0, 3).strip()}" for a in axes) + "; T step run " + ", ".join(
+            f"{a} {_f(se['T'].get(a), 0, 3).strip()}" for a in axes))
     co = result.get("creep_over_Am_percent", {}).get("before", {})
     if co:
         lines.append("creep before, divided by A_m instead of A_f [%]: " + ", ".join(
@@ -343,9 +362,11 @@ def format_tables(result: dict, label: str = "this run", axes=("x", "y")) -> str
     tr = result.get("tracking", {})
     if tr:
         lines.append("")
-        lines.append("Circle tracking (Fig. 15, last revolution)   RMS error        max error")
+        lines.append("Circle tracking (Fig. 15, last revolution)   RMS error        max error"
+                     "            RMS vs Wr·ref")
         for name, d in tr.items():
+            vs_wr = f"   {d['rms_error_vs_Wr_m'] / UM:7.3f} µm" if "rms_error_vs_Wr_m" in d else ""
             lines.append(f"  {name:<16} r = {d['radius_m'] / UM:4.0f} µm   {d['rms_error_m'] / UM:7.3f} µm "
                          f"({d['rms_error_percent']:5.2f} %)  {d['max_error_m'] / UM:7.3f} µm "
-                         f"({d['max_error_percent']:5.2f} %)   |U|max {d['peak_voltage_V']:.0f} V")
+                         f"({d['max_error_percent']:5.2f} %){vs_wr}   |U|max {d['peak_voltage_V']:.0f} V")
     return "\n".join(lines)
