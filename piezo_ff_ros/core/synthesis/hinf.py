@@ -111,6 +111,7 @@ def weights(cfg: HinfConfig, n_axes: int):
     """
     import control
 
+    cfg.validate(tuple(range(n_axes)))
     a, b = _weight_coefficients(cfg)
     eye = np.eye(n_axes)
     Wr = control.ss(-a * eye, a * eye, eye, 0 * eye)
