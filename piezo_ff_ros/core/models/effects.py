@@ -21,7 +21,6 @@ import numpy as np
 
 from .._jit import njit
 from ..config import BoucWenConfig, PiezoConfig
-from .bouc_wen import _bw_increment
 from .plant import Plant
 
 __all__ = [
@@ -30,7 +29,7 @@ __all__ = [
     "EFFECT_NAMES", "build_plant", "RATE_REF", "CREEP_TAUS", "CREEP_YREF",
 ]
 
-#: reference voltage rate of the rate-dependent hysteresis [V/s]: the loop's A grows by ``alpha`` at this rate
+#: reference voltage rate of the rate-dependent hysteresis [V/s]: A grows by ``alpha·tanh(|dU/dt|/RATE_REF)``
 RATE_REF = 1.0e4
 #: time constant of the smoothing of |dU/dt| in the rate-dependent hysteresis [s] (measured voltages are noisy)
 RATE_SMOOTHING = 1.0e-3
@@ -336,6 +335,29 @@ class UnmodelledMode:
 # --------------------------------------------------------------------------------------------------------------
 
 @njit
+def _bw_increment(A, B, G, D1, D2, P, h, du, dh):  # pragma: no cover - compiled
+    """``dh`` of the generalized Bouc-Wen for the voltage step ``du`` (own copy: the core kernel's signature is
+    free to change for speed)."""
+    n = h.shape[0]
+    k = du.shape[0]
+    duh = np.zeros(n)
+    for i in range(n):
+        acc = 0.0
+        for j in range(k):
+            acc += P[i, j] * du[j]
+        duh[i] = acc
+    for i in range(n):
+        acc = 0.0
+        for j in range(k):
+            acc += A[i, j] * du[j]
+        for j in range(n):
+            ah = abs(h[j])
+            ad = abs(duh[j])
+            acc -= B[i, j] * ad * h[j] + G[i, j] * duh[j] * ah + D1[i, j] * duh[j] * h[j] + D2[i, j] * ad * ah
+        dh[i] = acc
+
+
+@njit
 def _bw_rate_run(Dp, A, B, G, D1, D2, P, alpha, rate_ref, a_smooth, dt,
                  h, u_prev, rate, started, u, y):  # pragma: no cover - compiled
     N = u.shape[0]
@@ -353,9 +375,9 @@ def _bw_rate_run(Dp, A, B, G, D1, D2, P, alpha, rate_ref, a_smooth, dt,
             du[j] = u[t, j] - u_prev[j]
             rate[j] = a_smooth * rate[j] + (1.0 - a_smooth) * abs(du[j]) / dt
         if alpha != 0.0:
-            # A·dU with A scaled by (1 + α·|u̇|/rate_ref): the loop widens with the rate
+            # A·dU with A scaled by (1 + α·tanh(|u̇|/rate_ref)): the loop widens with the rate, up to (1 + α)
             for j in range(k):
-                dus[j] = du[j] * (1.0 + alpha * rate[j] / rate_ref)
+                dus[j] = du[j] * (1.0 + alpha * math.tanh(rate[j] / rate_ref))
             # the rate only enlarges the A term: add it separately so B/Γ/Δ still see the true dU
             _bw_increment(A, B, G, D1, D2, P, h, du, dh)
             for i in range(n):
@@ -379,7 +401,7 @@ def _bw_rate_run(Dp, A, B, G, D1, D2, P, alpha, rate_ref, a_smooth, dt,
 class HysteresisStage:
     """Bouc-Wen hysteresis with the generalized (asymmetric) terms and an optional rate dependence.
 
-    Replaces the nominal hysteresis part: ``Y_H = Dp·U − h``, ``dh = A·(1 + α·r/r_ref)∘dU − B(|dÛ|∘h) − Γ(dÛ∘|h|)
+    Replaces the nominal hysteresis part: ``Y_H = Dp·U − h``, ``dh = A·(1 + α·tanh(r/r_ref))∘dU − B(|dÛ|∘h) − Γ(dÛ∘|h|)
     − Δ1(dÛ∘h) − Δ2(|dÛ|∘|h|)`` where r is |dU/dt| smoothed over :data:`RATE_SMOOTHING` and r_ref =
     :data:`RATE_REF`.  ``alpha = 0`` and zero Δ give exactly the nominal :class:`BoucWenModel`.
     """
@@ -432,7 +454,7 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                "generalized Bouc-Wen: ascending and descending branches not point-symmetric",
                "even harmonics in the residual (error correlates with U², not U)"),
     EffectSpec("hysteresis_rate_dependence", "hysteresis", {"alpha": ("-", False)},
-               f"loop width grows with the voltage rate (A·(1 + α·|dU/dt|/{RATE_REF:g} V/s))",
+               f"loop width grows with the voltage rate (A·(1 + α·tanh(|dU/dt|/{RATE_REF:g} V/s)))",
                "loop-width error grows with frequency (error correlates with sign(dU/dt)·|dU/dt|)"),
     EffectSpec("creep_nonlinearity", "post", {"gamma": ("-", True), "beta": ("-", False)},
                "logarithmic-in-time creep growing with the level (γ per decade, β at 10 µm)",

@@ -1,0 +1,125 @@
+"""Replay: drive a model with the measured voltages and compare with the measured displacements.
+
+The residual is ``measured − simulated`` with one constant offset per axis removed (the sensor zero is not part of
+any model; it is a nuisance estimated on each run).  Long runs are simulated on a few windows spread over the run,
+each preceded by a warm-up; :class:`Windows` keeps the bookkeeping so that every candidate model is compared on
+exactly the same samples.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ..config import PiezoConfig
+from ..models.effects import build_plant
+from ..recording.run import RunData
+
+__all__ = ["nrmse_percent", "noise_floor", "Windows", "simulate", "residual", "check_run", "model_for_run"]
+
+
+def nrmse_percent(y: np.ndarray, y_hat: np.ndarray, axis=None) -> float | np.ndarray:
+    """``100·‖y − ŷ‖/‖y − ȳ‖`` (over all axes, or per axis with ``axis=0``)."""
+    y = np.asarray(y, float)
+    e = y - y_hat
+    if axis is None:
+        den = np.sqrt(np.sum((y - y.mean(axis=0)) ** 2))
+        return float(100.0 * np.sqrt(np.sum(e ** 2)) / max(den, 1e-300))
+    den = np.sqrt(np.sum((y - y.mean(axis=0)) ** 2, axis=0))
+    return 100.0 * np.sqrt(np.sum(e ** 2, axis=0)) / np.maximum(den, 1e-300)
+
+
+def noise_floor(r: np.ndarray) -> np.ndarray:
+    """White-noise standard deviation per axis from the second difference of the residual.
+
+    A smooth model error has almost no energy in the second difference at the sample rate, white sensor noise
+    has ``6σ²``: ``σ ≈ std(Δ²r)/√6`` (robust: median absolute deviation).
+    """
+    d2 = np.diff(np.asarray(r, float), n=2, axis=0)
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return 1.4826 * mad / np.sqrt(6.0)
+
+
+def check_run(run: RunData, name: str) -> None:
+    """Raise ``ValueError`` naming the problem when a run cannot be diagnosed."""
+    if run.u.ndim != 2 or run.y.ndim != 2 or run.u.shape[0] != run.y.shape[0] or run.u.shape[0] != len(run.t):
+        raise ValueError(f"{name}: u, y and t must have the same number of samples (got u {run.u.shape}, "
+                         f"y {run.y.shape}, t {np.shape(run.t)})")
+    if len(run) < 200:
+        raise ValueError(f"{name}: only {len(run)} samples; need at least 200 to diagnose")
+    for arr, what in ((run.u, "u"), (run.y, "y"), (run.t, "t")):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            idx = np.argwhere(bad)[0]
+            raise ValueError(f"{name}: {what} has NaN/Inf (first at sample {int(idx[0])})")
+    dt = np.diff(run.t)
+    if np.any(dt <= 0) or np.ptp(dt) > 1e-3 * np.median(dt):
+        raise ValueError(f"{name}: time is not uniformly increasing (dt from {dt.min():g} to {dt.max():g} s)")
+
+
+def model_for_run(cfg: PiezoConfig, run: RunData) -> PiezoConfig:
+    """The model config at the run's sample rate, after checking the axes agree."""
+    if run.u.shape[1] != cfg.n_axes or run.y.shape[1] != cfg.n_axes:
+        raise ValueError(f"model '{cfg.name}' has {cfg.n_axes} axes {list(cfg.axes)} but the run has "
+                         f"{run.u.shape[1]} input(s) and {run.y.shape[1]} output(s)")
+    fs = run.sample_rate
+    if abs(fs - cfg.sample_rate) > 1e-6 * fs:
+        cfg = cfg.with_sample_rate(fs)
+    return cfg
+
+
+@dataclass
+class Windows:
+    """Simulation windows ``(warm_start, start, stop)``: the model runs from ``warm_start`` and is scored on
+    ``start:stop``.  One window ``(0, 0, N)`` means the whole run."""
+
+    spans: list
+
+    @staticmethod
+    def whole(n: int) -> "Windows":
+        return Windows([(0, 0, n)])
+
+    @staticmethod
+    def spread(n: int, max_samples: int, n_windows: int = 8, warmup: int = 0) -> "Windows":
+        """The whole run if it fits in ``max_samples``, else ``n_windows`` windows spread evenly, each with a
+        warm-up of ``warmup`` samples (the first window starts at 0 without warm-up)."""
+        if n <= max_samples:
+            return Windows.whole(n)
+        per = max(max_samples // n_windows, 100)
+        starts = np.linspace(0, n - per, n_windows).astype(int)
+        spans = []
+        for s in starts:
+            w = max(0, s - warmup)
+            spans.append((int(w), int(s), int(s + per)))
+        return Windows(spans)
+
+    @property
+    def n(self) -> int:
+        return sum(stop - start for _, start, stop in self.spans)
+
+    def take(self, x: np.ndarray) -> np.ndarray:
+        return np.concatenate([x[start:stop] for _, start, stop in self.spans])
+
+    @property
+    def is_whole(self) -> bool:
+        return len(self.spans) == 1 and self.spans[0][0] == 0 and self.spans[0][1] == 0
+
+
+def simulate(cfg: PiezoConfig, u: np.ndarray, effects: Sequence[tuple[str, Mapping]] = (),
+             windows: Windows | None = None) -> np.ndarray:
+    """Model output for the voltages ``u`` on ``windows`` (default: the whole run), concatenated."""
+    if windows is None or windows.is_whole:
+        return build_plant(cfg, effects).process(u)
+    plant = build_plant(cfg, effects)
+    outs = []
+    for w, s, e in windows.spans:
+        plant.reset()
+        outs.append(plant.process(u[w:e])[s - w:])
+    return np.concatenate(outs)
+
+
+def residual(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
+    """``y − ŷ`` with each axis' mean removed (the sensor zero)."""
+    r = np.asarray(y, float) - y_hat
+    return r - r.mean(axis=0)
