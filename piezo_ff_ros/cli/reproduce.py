@@ -64,7 +64,7 @@ def run(args) -> int:
     design = _design(cfg, log)
     t_design = time.perf_counter() - t0
     exps = paper_experiments(cfg, creep_duration=args.creep_duration)
-    label = args.truth + (f" + {args.noise_nm:g} nm noise" if args.noise_nm > 0 else "")
+    label = "sim " + args.truth + (f" + {args.noise_nm:g} nm noise" if args.noise_nm > 0 else "")
     log(f"simulating {len(exps)} experiments on the {label} plant (creep runs {args.creep_duration:g} s) …")
     result, recorded = R.reproduce(cfg, design=design, truth=args.truth, noise_std=args.noise_nm * 1e-9,
                                    creep_duration=args.creep_duration, experiments=exps, progress=lambda n: log(f"  {n}"))
