@@ -1,0 +1,89 @@
+"""``piezo-ff identify``: recorded characterisation runs → a complete config the compensator loads.
+
+Runs come from MCAP (recorded by the node graph), CSV or MATLAB .mat.  Each file (or each run inside it) must be
+tagged with its stage (hysteresis / creep / dynamics) — from the recording's metadata, or from the file name
+(``*hyst*``, ``*creep*``, ``*dyn*``; ``*val*`` or ``*held*`` marks a held-out run), or with ``--stage``.
+For creep and dynamics runs the input of the characterised system (Y_H / Y_L) must be recorded as the reference
+(CSV columns ``r_<axis>``, .mat variable ``r``).
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+
+def add_parser(subparsers):
+    p = subparsers.add_parser("identify", help="identify hysteresis, creep, G_L (+ H∞) from recorded runs",
+                              description=__doc__)
+    p.add_argument("--data", nargs="+", required=True, metavar="FILE", help=".mcap, .csv or .mat files")
+    p.add_argument("--out", required=True, help="config YAML to write")
+    p.add_argument("--json", default=None, metavar="F", help="write held-out fits and timings as JSON")
+    p.add_argument("--stage", nargs="*", default=None,
+                   help="stage of each --data file (hysteresis|creep|dynamics[:validation]), same order")
+    p.add_argument("--base", default=None, help="config whose H∞ weights, cascade and limits are kept "
+                                                "(default: the paper's)")
+    p.add_argument("--generalized", action="store_true", help="generalized (asymmetric) Bouc-Wen")
+    p.add_argument("--creep-order", default="auto", help="creep order per entry (int) or 'auto'")
+    p.add_argument("--dynamics-order", default="auto", help="G_L order per entry (int) or 'auto'")
+    p.add_argument("--no-hinf", action="store_true", help="skip the H∞ synthesis")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=run)
+    return p
+
+
+def _tag_from_name(path: Path):
+    name = path.name.lower()
+    stage = "hysteresis" if "hyst" in name else "creep" if "creep" in name else "dynamics" if "dyn" in name else None
+    role = "validation" if ("val" in name or "held" in name) else "fit"
+    return stage, role
+
+
+def _order(v):
+    return v if v == "auto" else int(v)
+
+
+def run(args) -> int:
+    from ..core.config import load_config
+    from ..core.identification.pipeline import identify_all
+    from ..core.recording.run import load_run
+
+    t_start = time.perf_counter()
+
+    def say(msg):
+        if not args.quiet:
+            print(f"[{time.perf_counter() - t_start:7.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    if args.stage is not None and len(args.stage) != len(args.data):
+        raise ValueError(f"--stage: {len(args.stage)} value(s) for {len(args.data)} file(s)")
+    runs = []
+    for i, f in enumerate(args.data):
+        p = Path(f)
+        say(f"loading {p}")
+        loaded = load_run(p)
+        items = loaded if isinstance(loaded, list) else [loaded]
+        for r in items:
+            if args.stage is not None:
+                st, _, role = args.stage[i].partition(":")
+                r.meta["stage"], r.meta["role"] = st, (role or "fit")
+            elif "stage" not in r.meta:
+                st, role = _tag_from_name(p)
+                if st is None:
+                    raise ValueError(f"{p}: cannot tell its stage (name it *hyst*/*creep*/*dyn* or use --stage)")
+                r.meta["stage"] = st
+                r.meta.setdefault("role", role)
+            runs.append(r)
+    base = load_config(args.base) if args.base else load_config()
+    cfg, report = identify_all(runs, base=base, generalized=args.generalized, creep_order=_order(args.creep_order),
+                               dynamics_order=_order(args.dynamics_order), synthesize=not args.no_hinf, progress=say)
+    report.pop("_design", None)
+    cfg.to_yaml(args.out)
+    say(f"wrote {args.out}")
+    fits = report["fit_percent"]
+    print("held-out fit [%] (MATLAB compare):")
+    for stage, d in fits.items():
+        print(f"  {stage:10s} " + "  ".join(f"{k}: {v:.2f}" if v is not None else f"{k}: n/a" for k, v in d.items()))
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=2))
+    return 0

@@ -1,0 +1,167 @@
+"""The whole identification (paper Fig. 3): hysteresis on S0 → creep on S_H → G_L on S_L → H∞ compensator.
+
+- :func:`identify_all` identifies from recorded runs (tagged ``meta['stage']`` ∈ {hysteresis, creep, dynamics}
+  and ``meta['role']`` ∈ {fit, validation}; the characterisation and ``piezo-ff identify`` tag them).
+- :func:`commission_sim` runs the characterisation stage by stage on a core sim plant (no ROS), each stage through
+  the compensators identified before it, and identifies as it goes.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..config import PiezoConfig, load_config
+from ..recording.run import RunData
+from .bouc_wen import identify_bouc_wen
+from .creep import identify_creep
+from .dynamics import identify_dynamics
+
+__all__ = ["identify_all", "commission_sim", "split_runs", "build_config"]
+
+
+def split_runs(runs: Sequence[RunData]) -> dict:
+    out = {s: {"fit": [], "validation": []} for s in ("hysteresis", "creep", "dynamics")}
+    for r in runs:
+        st = r.meta.get("stage")
+        role = r.meta.get("role", "fit")
+        if st not in out:
+            raise ValueError(f"run {r.meta.get('experiment', '?')}: meta['stage'] must be hysteresis, creep or "
+                             f"dynamics, got {st!r}")
+        out[st]["validation" if role == "validation" else "fit"].append(r)
+    return out
+
+
+def build_config(base: PiezoConfig, hyst, creep, dyn, sample_rate: float, axes) -> PiezoConfig:
+    """A complete config from identified stages (weights, cascade and limits kept from ``base``)."""
+    return replace(base, name=f"{base.name}_identified", axes=tuple(axes), sample_rate=float(sample_rate),
+                   hysteresis=hyst.config, creep=creep.config, dynamics=dyn.config,
+                   vibration=replace(base.vibration, controller=None),
+                   source="identified by piezo-ff identify (Habineza et al. 2018 procedure)", variant="printed"
+                   ).validate()
+
+
+def _fits_report(hf, cf, df, axes):
+    def clean(d):
+        return {k: (None if v is None or not np.isfinite(v) else round(float(v), 3)) for k, v in d.items()}
+
+    hv = hf.fit_validation if hf.fit_validation is not None else hf.fit_train
+    return {"hysteresis": clean({a: float(v) for a, v in zip(axes, hv)}),
+            "creep": clean(cf.fit_validation or cf.fit_train),
+            "dynamics": clean(df.fit_validation or df.fit_train)}
+
+
+def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, generalized: bool = False,
+                 creep_order="auto", dynamics_order="auto", synthesize: bool = True,
+                 progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, dict]:
+    """Identify every stage from tagged runs; returns the complete config and a report (held-out fits, timings).
+
+    The H∞ compensator is synthesised from the identified G_L (``core.synthesis.hinf``) and stored in the config
+    (``vibration.controller``) so the compensator node loads it without re-synthesising.
+    """
+    say = progress or (lambda s: None)
+    base = base or load_config()
+    groups = split_runs(runs)
+    for st, g in groups.items():
+        if not g["fit"]:
+            raise ValueError(f"no '{st}' fitting run among the data (tag runs with meta stage/role)")
+    axes = groups["hysteresis"]["fit"][0].axes
+    fs = groups["hysteresis"]["fit"][0].sample_rate
+    timing = {}
+    t0 = time.perf_counter()
+    hf = identify_bouc_wen(groups["hysteresis"]["fit"], groups["hysteresis"]["validation"], generalized=generalized,
+                           progress=say)
+    timing["hysteresis"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    cf = identify_creep(groups["creep"]["fit"], groups["creep"]["validation"], order=creep_order, axes=axes,
+                        progress=say)
+    timing["creep"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    df = identify_dynamics(groups["dynamics"]["fit"], groups["dynamics"]["validation"], order=dynamics_order,
+                           axes=axes, progress=say)
+    timing["dynamics"] = time.perf_counter() - t0
+    cfg = build_config(base, hf, cf, df, fs, axes)
+    report = {"fit_percent": _fits_report(hf, cf, df, axes),
+              "orders": {"creep": cf.orders, "dynamics": df.orders}, "timing_s": timing}
+    if synthesize and cfg.cascade.vibration:
+        t0 = time.perf_counter()
+        say("vibration: H∞ synthesis on the identified G_L")
+        from ..synthesis.hinf import synthesize_hinf
+
+        design = synthesize_hinf(cfg.dynamics.G_L, cfg.vibration)
+        A, B, C, D = design.controller_matrices()
+        cfg = replace(cfg, vibration=replace(cfg.vibration, controller={
+            "A": np.asarray(A).tolist(), "B": np.asarray(B).tolist(), "C": np.asarray(C).tolist(),
+            "D": np.asarray(D).tolist()})).validate()
+        timing["hinf"] = time.perf_counter() - t0
+        report["hinf"] = {"gamma": float(design.gamma)}
+        report["_design"] = design
+    timing["total"] = sum(v for k, v in timing.items() if k != "total")
+    return cfg, report
+
+
+def commission_sim(plant, fs: float, axes=("x", "y"), settings=None, base: PiezoConfig | None = None,
+                   generalized: bool = False, creep_order="auto", dynamics_order="auto",
+                   progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, dict, list]:
+    """Characterise and identify stage by stage on a sim plant (``process``/``reset``), as in Fig. 3.
+
+    Returns ``(config, report, runs)``; ``runs`` are tagged so :func:`identify_all` can redo the identification.
+    """
+    from ..characterisation import (CharacterisationSettings, creep_trajectories, dynamics_trajectories,
+                                    hysteresis_trajectories, run_open_loop)
+    from ..compensators.creep import CreepCompensator
+    from ..compensators.hysteresis import HysteresisCompensator
+
+    say = progress or (lambda s: None)
+    s = settings or CharacterisationSettings()
+    base = base or load_config()
+    runs: list[RunData] = []
+    t_all = time.perf_counter()
+
+    say("characterise hysteresis on S0 (sines)")
+    ht = hysteresis_trajectories(s, axes)
+    for role in ("fit", "validation"):
+        for name, tr in ht[role]:
+            r = run_open_loop(plant, tr, fs, name, axes)
+            r.u = r.reference.copy()
+            r.meta.update(stage="hysteresis", role=role)
+            runs.append(r)
+    hyst_runs = [r for r in runs if r.meta["stage"] == "hysteresis"]
+    hf = identify_bouc_wen([r for r in hyst_runs if r.meta["role"] == "fit"],
+                           [r for r in hyst_runs if r.meta["role"] == "validation"], generalized=generalized,
+                           progress=say)
+
+    say(f"characterise creep on S_H ({s.creep_duration:g} s steps up and down per axis)")
+    hcomp = HysteresisCompensator(hf.config)
+    for name, tr, score_t in creep_trajectories(s, axes):
+        r = run_open_loop(plant, tr, fs, name, axes, chain=[hcomp])
+        k = int(round(score_t * fs))
+        fit = r.slice(0, k)
+        fit.meta.update(stage="creep", role="fit")
+        r.meta.update(stage="creep", role="validation", score_start=k)
+        runs += [fit, r]
+        say(f"  {name}: {len(r)} samples")
+    creep_runs = [r for r in runs if r.meta["stage"] == "creep"]
+    cf = identify_creep([r for r in creep_runs if r.meta["role"] == "fit"],
+                        [r for r in creep_runs if r.meta["role"] == "validation"], order=creep_order, axes=axes,
+                        progress=say)
+
+    say("characterise dynamics on S_L (steps up and down per axis)")
+    ccomp = CreepCompensator(cf.config, 1.0 / fs)
+    for name, tr, score_t in dynamics_trajectories(s, axes):
+        r = run_open_loop(plant, tr, fs, name, axes, chain=[ccomp, hcomp])
+        k = int(round(score_t * fs))
+        fit = r.slice(0, k)
+        fit.meta.update(stage="dynamics", role="fit")
+        r.meta.update(stage="dynamics", role="validation", score_start=k)
+        runs += [fit, r]
+    dyn_runs = [r for r in runs if r.meta["stage"] == "dynamics"]
+    df = identify_dynamics([r for r in dyn_runs if r.meta["role"] == "fit"],
+                           [r for r in dyn_runs if r.meta["role"] == "validation"], order=dynamics_order, axes=axes,
+                           progress=say)
+    cfg = build_config(base, hf, cf, df, fs, axes)
+    report = {"fit_percent": _fits_report(hf, cf, df, axes), "orders": {"creep": cf.orders, "dynamics": df.orders},
+              "timing_s": {"total": time.perf_counter() - t_all}}
+    return cfg, report, runs
