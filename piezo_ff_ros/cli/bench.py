@@ -106,7 +106,8 @@ def main(argv=None) -> int:
 # ----------------------------------------------------------------------------------------------------------------
 
 class _NaiveBoucWen:
-    """``h ← h + A dU − B(|dÛ|∘h) − Γ(dÛ∘|h|) − Δ1(dÛ∘h) − Δ2(|dÛ|∘|h|)``, ``Y = Dp U − h``, per sample."""
+    """``h ← h + A dU − B(|dÛ|∘h) − Γ(dÛ∘|h|) − Δ1(dÛ∘h) − Δ2(|dÛ|∘|h|)``, ``Y = Dp U − h``, sample by
+    sample."""
 
     def __init__(self, p):
         self.p = p
@@ -441,7 +442,8 @@ def run_benchmark(duration=600.0, repeats=3, block=20000, small_block=200, basel
     ci_d = control.ss(cr_d.A - cr_d.B @ Kinv @ cr_d.C, cr_d.B @ Kinv, -Kinv @ cr_d.C, Kinv, dt)
 
     def naive_cascade():
-        return _Series(_NaiveLTI(k_d), _NaiveCreepCompensator(cr_d, K), _NaiveHysteresisCompensator(hp, loop == "exact"))
+        return _Series(_NaiveLTI(k_d), _NaiveCreepCompensator(cr_d, K),
+                       _NaiveHysteresisCompensator(hp, loop == "exact"))
 
     def naive_plant():
         return _Series(_NaiveBoucWen(hp), _NaiveLTI(cr_d, feedthrough=K), _NaiveLTI(gl_d))
@@ -458,8 +460,9 @@ def run_benchmark(duration=600.0, repeats=3, block=20000, small_block=200, basel
     stages = [
         _Stage("bouc_wen", "Bouc-Wen model", lambda: BoucWenModel(cfg.hysteresis), "voltage",
                naive=lambda: _NaiveBoucWen(hp)),
-        _Stage("hysteresis_comp", f"hysteresis compensator ({loop})", lambda: HysteresisCompensator(cfg.hysteresis, loop),
-               "length", naive=lambda: _NaiveHysteresisCompensator(hp, loop == "exact")),
+        _Stage("hysteresis_comp", f"hysteresis compensator ({loop})",
+               lambda: HysteresisCompensator(cfg.hysteresis, loop), "length",
+               naive=lambda: _NaiveHysteresisCompensator(hp, loop == "exact")),
         _Stage("creep_model", "creep model", lambda: CreepModel(cfg.creep, dt), "length",
                naive=lambda: _NaiveLTI(cr_d, feedthrough=K), forced=lambda: _ForcedResponse(cr_d, feedthrough=K)),
         _Stage("creep_comp", "creep compensator", lambda: CreepCompensator(cfg.creep, dt), "length",
@@ -583,10 +586,12 @@ def format_report(res: dict) -> str:
         f" {'speed-up':>8s} | {'forced_resp.':>11s} {'RT×':>6s} | {'max rel diff':>12s}",
     ]
     for name, r in res["stages"].items():
-        row = f"{r['label'][:38]:38s} {_fmt_rate(r['samples_per_s'])}/s {r['rt_factor']:8.0f} {r['cpu_rt_factor']:8.0f} |"
+        row = (f"{r['label'][:38]:38s} {_fmt_rate(r['samples_per_s'])}/s {r['rt_factor']:8.0f} "
+               f"{r['cpu_rt_factor']:8.0f} |")
         nv = r.get("naive")
         fr = r.get("forced_response")
-        row += (f" {_fmt_rate(nv['samples_per_s'])}/s {nv['rt_factor']:6.2f} {r['samples_per_s'] / nv['samples_per_s']:7.0f}× |"
+        row += (f" {_fmt_rate(nv['samples_per_s'])}/s {nv['rt_factor']:6.2f} "
+                f"{r['samples_per_s'] / nv['samples_per_s']:7.0f}× |"
                 if nv else f" {'':11s} {'':6s} {'':8s} |")
         row += f" {_fmt_rate(fr['samples_per_s'])}/s {fr['rt_factor']:6.2f} |" if fr else f" {'':11s} {'':6s} |"
         diffs = [x["max_rel_diff"] for x in (nv, fr) if x]
@@ -598,7 +603,8 @@ def format_report(res: dict) -> str:
         f"full chain: {res['full_chain_rt_factor']:.0f}× real time → a 600 s experiment in "
         f"{res['full_chain_s_per_600s']:.2f} s (target ≥ 250×, ≤ 2.5 s); naive per-sample Python loop "
         f"{res['baseline_rt_factor']:.2f}×, with forced_response for the linear parts "
-        f"{res['baseline_forced_response_rt_factor']:.2f}× (baselines on {res['baseline_duration_s']:g} s, extrapolated)",
+        f"{res['baseline_forced_response_rt_factor']:.2f}× "
+        f"(baselines on {res['baseline_duration_s']:g} s, extrapolated)",
         f"H∞ synthesis + reduction: "
         + (f"{res['hinf_synthesis_s']:.2f} s (target ≤ 10 s; wall {res['controller']['hinf_wall_s']:.2f} s "
            f"including the design's own frequency-grid verification; "

@@ -444,8 +444,8 @@ def _pad_to_2x2(Ablk, io, offsets, sizes):
     for b, (off, s) in enumerate(zip(offsets, sizes)):
         A_pad[2 * b:2 * b + s, :s] = Ablk[off:off + s, :s]
         io_pad[2 * b:2 * b + s] = io[off:off + s]
-    feeds = np.array([(1 if np.any(io_pad[2 * b:2 * b + 2, 2]) else 0) | (2 if np.any(io_pad[2 * b:2 * b + 2, 3]) else 0)
-                      for b in range(nb)], np.int64)
+    reach = io_pad[:, 2:4].reshape(nb, 2, 2) != 0.0  # [block, state, output]
+    feeds = (np.any(reach[:, :, 0], axis=1) * 1 + np.any(reach[:, :, 1], axis=1) * 2).astype(np.int64)
     return A_pad, io_pad, feeds
 
 
