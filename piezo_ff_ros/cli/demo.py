@@ -77,6 +77,7 @@ class _GraphClient:
         self.node = rclpy.create_node("piezo_ff_demo")
         self.states: list[dict] = []
         self.comp_diag: dict = {}
+        self.hinf: dict | None = None    # γ/orders of the compensator's H∞ design, from its diagnostics
         self.node.create_subscription(String, "/trajectory/state", lambda m: self.states.append(json.loads(m.data)),
                                       LATCHED_QOS)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 50)
@@ -93,6 +94,8 @@ class _GraphClient:
             if st.name.endswith("compensator"):
                 self.comp_diag = {kv.key: kv.value for kv in st.values}
                 self.comp_diag["_t"] = time.monotonic()
+                if "hinf" in self.comp_diag:
+                    self.hinf = json.loads(self.comp_diag["hinf"])
 
     def spin_until(self, cond, timeout, what):
         deadline = time.monotonic() + timeout
@@ -181,6 +184,7 @@ def run(args) -> int:
     graph.start()
     client = None
     skipped = []
+    hinf = None
     try:
         client = _GraphClient()
         for i, exp in enumerate(exps):
@@ -226,6 +230,7 @@ def run(args) -> int:
             log(f"  compensator: {client.comp_diag.get('last_error', '')}")
     finally:
         if client is not None:
+            hinf = client.hinf
             client.close()
         codes = graph.stop()
     t_graph = time.perf_counter() - t_start
@@ -239,7 +244,8 @@ def run(args) -> int:
     data = read_run(mcap_path)
     conditions = {"source": "piezo-ff demo (ROS 2 graph, lockstep, sim driver)",
                   "creep_duration_s": args.creep_duration, "config": cfg.name, "variant": args.variant}
-    result = analyze_run(data, evaluate=lambda rec: evaluate(rec, experiments=exps, conditions=conditions))
+    result = analyze_run(data, evaluate=lambda rec: evaluate(rec, experiments=exps, design=hinf,
+                                                                  conditions=conditions))
     print(format_report(result))
     if any(k != "replay" for k in result):
         print()

@@ -20,6 +20,7 @@ Service ``~/reset`` (std_srvs/Trigger): all compensator states back to rest.
 """
 from __future__ import annotations
 
+import json
 import sys
 import threading
 import time
@@ -267,6 +268,11 @@ class CompensatorNode(Node):
         h = self.hs.active.hysteresis
         if h is not None:
             st["hysteresis_fallbacks"] = h.fallbacks
+        design = getattr(self.hs.active, "design", None)
+        if design is not None and hasattr(design, "as_dict"):
+            d = design.as_dict()  # γ and orders of the H∞ design in use (recorded with /diagnostics)
+            st["hinf"] = json.dumps({k: d.get(k) for k in ("gamma", "order_full", "order_reduced",
+                                                             "gamma_reduced_achieved", "synthesis_s")})
         return st
 
     def publish_diagnostics(self) -> None:
