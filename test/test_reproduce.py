@@ -176,3 +176,17 @@ def test_simulated_recording_is_block_invariant_and_block_averaged(paper_config)
     # the block holding the step (at sample 1000 = 0.05 s) is a mean: here the step falls on a block edge
     k = int(0.05 * fs) // dec
     assert a.reference[k - 1, 0] == 0.0 and a.reference[k, 0] == pytest.approx(20e-6)
+
+
+def test_evaluate_keeps_what_it_can_read(short_run):
+    res, rec = short_run
+    t, r, u, y = rec["hyst_S0_x"]
+    cut = len(t) // 3  # shorter than one 10 s period
+    partial = dict(rec)
+    partial["hyst_S0_x"] = (t[:cut], r[:cut], u[:cut], y[:cut])
+    out = R.evaluate(partial, E.paper_experiments(creep_duration=60.0))
+    assert out["before"]["hysteresis_percent"]["x"] is None and "hyst_S0_x" in out["errors"]
+    assert "shorter than one period" in out["errors"]["hyst_S0_x"]
+    assert out["before"]["hysteresis_percent"]["y"] == res["before"]["hysteresis_percent"]["y"]
+    assert out["after"]["overshoot_percent"] == res["after"]["overshoot_percent"]
+    assert "could not read" in R.format_tables(out)

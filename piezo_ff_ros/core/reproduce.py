@@ -12,7 +12,8 @@ Result keys (a contract — the JSON of ``piezo-ff reproduce``)::
     paper:          the paper's Table I/II figures and its γ / orders (same layout)
     independent:    the figures of the issue's independent reading of the printed models
     tracking:       {circle<r>_<T|open>: {radius_m, rms_error_m, max_error_m, rms_error_percent, …}}
-    settling_time_s, static_error_percent {S_L, T}, creep_over_Am_percent, details, conditions
+    settling_time_s, static_error_percent {S_L, T}, creep_over_Am_percent, details, conditions,
+    errors:         {experiment name: why its figures could not be read (e.g. record shorter than a period)}
 
 Before/after mapping (paper Section VII-A, Tables I–II):
 
@@ -118,7 +119,7 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
            "settling_time_s": {"before": {a: None for a in axes}, "after": {a: None for a in axes}},
            "static_error_percent": {"S_L": {a: None for a in axes}, "T": {a: None for a in axes}},
            "creep_over_Am_percent": {"before": {a: None for a in axes}, "after": {a: None for a in axes}},
-           "details": {}, "conditions": dict(conditions or {}), "robust_readings": bool(robust)}
+           "details": {}, "errors": {}, "conditions": dict(conditions or {}), "robust_readings": bool(robust)}
 
     def rec(name) -> Recorded | None:
         if name not in recorded:
@@ -142,14 +143,17 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
             r = rec(name)
             if r is None:
                 continue
-            period = by_name[name].params["period"]
-            res = M.hysteresis_ratio(r.reference[:, i], r.y[:, i], period_t=r.t, period=period, bins=bins)
-            out[phase]["hysteresis_percent"][a] = _pct(res["ratio"])
-            last = M.last_period(r.t, period, r.y)[0]
-            ranges[(system, a)] = last
-            out["details"][name] = {"h_m": res["h"], "H_m": res["H"], "u_at_max_width": res["u_at_max"],
-                                    "output_range_m": {b: float(np.ptp(last[:, j])) for j, b in enumerate(axes)},
-                                    "peak_voltage_V": float(np.abs(r.u).max())}
+            try:
+                period = by_name[name].params["period"]
+                res = M.hysteresis_ratio(r.reference[:, i], r.y[:, i], period_t=r.t, period=period, bins=bins)
+                out[phase]["hysteresis_percent"][a] = _pct(res["ratio"])
+                last = M.last_period(r.t, period, r.y)[0]
+                ranges[(system, a)] = last
+                out["details"][name] = {"h_m": res["h"], "H_m": res["H"], "u_at_max_width": res["u_at_max"],
+                                        "output_range_m": {b: float(np.ptp(last[:, j])) for j, b in enumerate(axes)},
+                                        "peak_voltage_V": float(np.abs(r.u).max())}
+            except ValueError as exc:  # one unreadable experiment must not lose the others
+                out["errors"][name] = str(exc)
     for i, a in enumerate(axes):
         for b in axes:
             if b == a or ("S0", a) not in ranges or ("S0", b) not in ranges:
@@ -167,17 +171,20 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
             r = rec(name)
             if r is None:
                 continue
-            t_step = by_name[name].params["t_step"]
-            res = M.creep_ratio(r.t, r.y[:, i], t_step=t_step)
-            out[phase]["creep_percent"][a] = _pct(res["ratio"])
-            out["creep_over_Am_percent"][phase][a] = _pct(res["ratio_over_Am"])
-            cross = {b: M.creep_ratio(r.t, r.y[:, j], t_step=t_step) for j, b in enumerate(axes) if b != a}
-            out["details"][name] = {"A_f_m": res["A_f"], "A_m_m": res["A_m"], "creep_time_s": float(r.t[-1] - t_step),
-                                    "cross_A_f_m": {b: c["A_f"] for b, c in cross.items()},
-                                    "cross_A_m_m": {b: c["A_m"] for b, c in cross.items()}}
-            if phase == "after":
-                ref_final = float(r.reference[-1, i])
-                out["static_error_percent"]["S_L"][a] = _pct((res["A_m"] - ref_final) / ref_final)
+            try:
+                t_step = by_name[name].params["t_step"]
+                res = M.creep_ratio(r.t, r.y[:, i], t_step=t_step)
+                out[phase]["creep_percent"][a] = _pct(res["ratio"])
+                out["creep_over_Am_percent"][phase][a] = _pct(res["ratio_over_Am"])
+                cross = {b: M.creep_ratio(r.t, r.y[:, j], t_step=t_step) for j, b in enumerate(axes) if b != a}
+                out["details"][name] = {"A_f_m": res["A_f"], "A_m_m": res["A_m"], "creep_time_s": float(r.t[-1] - t_step),
+                                        "cross_A_f_m": {b: c["A_f"] for b, c in cross.items()},
+                                        "cross_A_m_m": {b: c["A_m"] for b, c in cross.items()}}
+                if phase == "after":
+                    ref_final = float(r.reference[-1, i])
+                    out["static_error_percent"]["S_L"][a] = _pct(_rel(res["A_m"] - ref_final, ref_final))
+            except ValueError as exc:  # one unreadable experiment must not lose the others
+                out["errors"][name] = str(exc)
 
     # overshoot (VI-A before, VI-C after), settling, static error, final-value cross-coupling (Table II after)
     finals = {}
@@ -187,20 +194,23 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
             r = rec(name)
             if r is None:
                 continue
-            t_step = by_name[name].params["t_step"]
-            res = M.overshoot_ratio(r.t, r.y[:, i], t_step=t_step, lowpass_hz=lowpass)
-            out[phase]["overshoot_percent"][a] = _pct(res["ratio"])
-            ts = M.settling_time(r.t, r.y[:, i], t_step=t_step, band=0.02)
-            out["settling_time_s"][phase][a] = None if not math.isfinite(ts) else ts
-            for j, b in enumerate(axes):
-                finals[(system, b, a)] = M.overshoot_ratio(r.t, r.y[:, j], t_step=t_step)["A_f"]
-            out["details"][name] = {"A_f_m": res["A_f"], "A_m_m": res["A_m"], "t_peak_s": res["t_peak"],
-                                    "settling_time_2pct_s": out["settling_time_s"][phase][a],
-                                    "final_values_m": {b: finals[(system, b, a)] for b in axes},
-                                    "peak_voltage_V": float(np.abs(r.u).max())}
-            if phase == "after":
-                ref_final = float(r.reference[-1, i])
-                out["static_error_percent"]["T"][a] = _pct((res["A_f"] - ref_final) / ref_final)
+            try:
+                t_step = by_name[name].params["t_step"]
+                res = M.overshoot_ratio(r.t, r.y[:, i], t_step=t_step, lowpass_hz=lowpass)
+                out[phase]["overshoot_percent"][a] = _pct(res["ratio"])
+                ts = M.settling_time(r.t, r.y[:, i], t_step=t_step, band=0.02)
+                out["settling_time_s"][phase][a] = None if not math.isfinite(ts) else ts
+                for j, b in enumerate(axes):
+                    finals[(system, b, a)] = M.overshoot_ratio(r.t, r.y[:, j], t_step=t_step)["A_f"]
+                out["details"][name] = {"A_f_m": res["A_f"], "A_m_m": res["A_m"], "t_peak_s": res["t_peak"],
+                                        "settling_time_2pct_s": out["settling_time_s"][phase][a],
+                                        "final_values_m": {b: finals[(system, b, a)] for b in axes},
+                                        "peak_voltage_V": float(np.abs(r.u).max())}
+                if phase == "after":
+                    ref_final = float(r.reference[-1, i])
+                    out["static_error_percent"]["T"][a] = _pct(_rel(res["A_f"] - ref_final, ref_final))
+            except ValueError as exc:  # one unreadable experiment must not lose the others
+                out["errors"][name] = str(exc)
     for a in axes:
         for b in axes:
             if b != a and ("T", a, a) in finals and ("T", a, b) in finals:
@@ -214,19 +224,26 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
         r = rec(e.name)
         if r is None:
             continue
-        mask = r.t >= e.params.get("skip", 0.0) - 1e-12
-        te = M.tracking_errors(r.reference, r.y, mask=mask)
-        radius = float(e.params.get("radius", np.nan))
-        out["tracking"][e.name] = {
-            "system": e.system, "radius_m": radius, "rms_error_m": te["rms_norm"], "max_error_m": te["max_norm"],
-            "rms_error_percent": _pct(te["rms_norm"] / radius), "max_error_percent": _pct(te["max_norm"] / radius),
-            "rms_error_per_axis_m": dict(zip(axes, te["rms"])), "max_error_per_axis_m": dict(zip(axes, te["max"])),
-            "peak_voltage_V": float(np.abs(r.u).max())}
-        if reference_model_tau:
-            rw = _first_order_zoh(r.t, r.reference, float(reference_model_tau))
-            tw = M.tracking_errors(rw, r.y, mask=mask)
-            out["tracking"][e.name].update({"rms_error_vs_Wr_m": tw["rms_norm"], "max_error_vs_Wr_m": tw["max_norm"]})
+        try:
+            mask = r.t >= e.params.get("skip", 0.0) - 1e-12
+            te = M.tracking_errors(r.reference, r.y, mask=mask)
+            radius = float(e.params.get("radius", np.nan))
+            out["tracking"][e.name] = {
+                "system": e.system, "radius_m": radius, "rms_error_m": te["rms_norm"], "max_error_m": te["max_norm"],
+                "rms_error_percent": _pct(te["rms_norm"] / radius), "max_error_percent": _pct(te["max_norm"] / radius),
+                "rms_error_per_axis_m": dict(zip(axes, te["rms"])), "max_error_per_axis_m": dict(zip(axes, te["max"])),
+                "peak_voltage_V": float(np.abs(r.u).max())}
+            if reference_model_tau:
+                rw = _first_order_zoh(r.t, r.reference, float(reference_model_tau))
+                tw = M.tracking_errors(rw, r.y, mask=mask)
+                out["tracking"][e.name].update({"rms_error_vs_Wr_m": tw["rms_norm"], "max_error_vs_Wr_m": tw["max_norm"]})
+        except ValueError as exc:  # one unreadable experiment must not lose the others
+            out["errors"][e.name] = str(exc)
     return out
+
+
+def _rel(num, den):
+    return num / den if den != 0 else None
 
 
 def _first_order_zoh(t, x, tau):
@@ -369,4 +386,9 @@ def format_tables(result: dict, label: str = "this run", axes=("x", "y")) -> str
             lines.append(f"  {name:<16} r = {d['radius_m'] / UM:4.0f} µm   {d['rms_error_m'] / UM:7.3f} µm "
                          f"({d['rms_error_percent']:5.2f} %)  {d['max_error_m'] / UM:7.3f} µm "
                          f"({d['max_error_percent']:5.2f} %){vs_wr}   |U|max {d['peak_voltage_V']:.0f} V")
+    errs = result.get("errors", {})
+    if errs:
+        lines.append("")
+        lines.append("could not read:")
+        lines.extend(f"  {name}: {msg}" for name, msg in errs.items())
     return "\n".join(lines)
