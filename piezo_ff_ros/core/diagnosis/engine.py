@@ -7,8 +7,8 @@ noise can explain, i.e. its drop in residual energy must exceed both
   noise floor and ``N_eff`` the effective number of independent samples of the correlated residual), and
 * :data:`MIN_EXCESS_SHRINK` of the gap's excess over the noise floor;
 
-and the gap itself must stand above the noise floor (RMS > :data:`NOISE_MARGIN`·σ).  Candidates are ranked by
-their penalised held-out residual energy.
+and the gap's excess over the noise floor must be positive.  Candidates are ranked by their penalised held-out
+residual energy.  Greedy stacking stops when the rest is within :data:`STACK_STOP`·σ of the noise floor.
 """
 from __future__ import annotations
 
@@ -29,7 +29,8 @@ from .where import localise
 __all__ = ["DiagnosisOptions", "diagnose", "signatures", "MIN_EXCESS_SHRINK", "NOISE_MARGIN"]
 
 MIN_EXCESS_SHRINK = 0.2
-NOISE_MARGIN = 1.1
+NOISE_MARGIN = 1.05
+STACK_STOP = 1.01
 
 
 @dataclass
@@ -268,10 +269,11 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
     score_win = Windows.spread(len(test), opts.score_samples, opts.n_windows, int(opts.warmup_s * fs))
     held = _Held(cfg, test, [], score_win, y_test_nom)
     N = held.r_before.size
+    # informational: whether the gap is within NOISE_MARGIN of the noise floor (acceptance itself is the test)
     at_floor = math.sqrt(float(np.mean(held.r_before ** 2))) <= NOISE_MARGIN * math.sqrt(sigma2)
     log("candidates (fitted on train, scored on test):")
     scored = _fit_all(cfg, train, y_train_nom, [], list(opts.candidates), held, sigma2, opts, log)
-    accepted = [s for s in scored if s.accepted] if not at_floor else []
+    accepted = [s for s in scored if s.accepted]
     verdict = accepted[0] if accepted else None
     # 4. greedy stacking
     stack = []
@@ -284,7 +286,7 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
         while len(stack) < opts.max_stack and pool:
             held_k = _Held(cfg, test, base, score_win,
                            simulate(cfg, test.u, base) if not score_win.is_whole else None)
-            if math.sqrt(float(np.mean(held_k.r_before ** 2))) <= NOISE_MARGIN * math.sqrt(sigma2):
+            if math.sqrt(float(np.mean(held_k.r_before ** 2))) <= STACK_STOP * math.sqrt(sigma2):
                 break
             log(f"stacking on {[e for e, _ in base]}:")
             y_tr = simulate(cfg, train.u, base)
@@ -305,7 +307,7 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
     if verdict is not None:
         conf, why = _confidence(verdict, runner, sigma2, N)
     elif at_floor:
-        why = "the held-out gap is already at the measured noise floor"
+        why = "the held-out gap is at the measured noise floor and no candidate removes a significant part of it"
     else:
         why = ("no candidate removes more of the held-out gap than noise and its number of parameters explain"
                + (f" (best: {scored[0].fit.effect}, {scored[0].before_nrmse:.3g} % -> {scored[0].after_nrmse:.3g} %)"

@@ -87,8 +87,8 @@ def truth_cases() -> list[dict]:
         ("amplifier_slew_limit", {"rate": 1.5e4}, {"rate": 6e4}),
         ("amplifier_saturation", {"limit": 110.0}, {"limit": 135.0}),
         ("amplifier_bandwidth", {"cutoff": 150.0}, {"cutoff": 600.0}),
-        ("unmodelled_mode", {"freq": 700.0, "damping": 0.02, "gains": [0.3, 0.2]},
-         {"freq": 700.0, "damping": 0.02, "gains": [0.08, 0.05]}),
+        ("unmodelled_mode", {"freq": 300.0, "damping": 0.03, "gains": [1.0, 0.6]},
+         {"freq": 300.0, "damping": 0.03, "gains": [0.3, 0.2]}),
         ("gain_mismatch", {"gains": [1.05, 0.97]}, {"gains": [1.015, 0.99]}),
     ]
     cases = []

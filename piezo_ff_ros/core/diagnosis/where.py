@@ -180,7 +180,7 @@ def localise(u: np.ndarray, y: np.ndarray, y_hat: np.ndarray, dt: float, axes, s
 
 def _sentence(w: dict, axes) -> str:
     tot = w["total"]
-    if tot["rms_um"] <= 1.1 * tot["noise_floor_rms_um"]:
+    if tot["rms_um"] <= 1.02 * tot["noise_floor_rms_um"]:
         return (f"The gap ({tot['rms_um']:.3g} µm RMS) is at the sensor noise floor "
                 f"({tot['noise_floor_rms_um']:.3g} µm): nothing left to localise.")
     ax = max(w["axis"].items(), key=lambda kv: kv[1]["energy_share"])
