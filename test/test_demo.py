@@ -15,9 +15,10 @@ def test_demo_short_subset(tmp_path):
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     r = subprocess.run([sys.executable, "-m", "piezo_ff_ros", "demo", "--out", str(tmp_path), "--quiet",
-                        "--only", "hyst_S0_x,step_SL_x,circle20_open", "--creep-duration", "2"],
+                        "--only", "hyst_S0_x,step_SL_x,circle20_open", "--creep-duration", "2",
+                        "--domain-id", os.environ["ROS_DOMAIN_ID"]],  # the session's isolated domain (conftest)
                        env=env, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert r.returncode == 0, r.stderr[-3000:] + "\n--- stdout:\n" + r.stdout[-2000:]
     assert "TABLE I" in r.stdout and "creep runs 2 s" in r.stdout
     assert (tmp_path / "run.mcap").stat().st_size > 0
     result = json.loads((tmp_path / "analysis.json").read_text())

@@ -41,6 +41,8 @@ def add_parser(subparsers):
                    help="driver slew limit for the demo (default 1e7 V/s: the compensator steps in one sample; the "
                         "config's 2e5 V/s spreads the step over ~20 samples, which the discrete Bouc-Wen "
                         "inverse does not expect)")
+    p.add_argument("--domain-id", type=int, metavar="ID",
+                   help="ROS_DOMAIN_ID of the demo's graph (default: a private one derived from the process id)")
     p.add_argument("--only", metavar="NAMES", help="comma-separated experiment names (default: all)")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
     p.set_defaults(func=run)
@@ -56,6 +58,8 @@ def _check(args):
         v = getattr(args, name)
         if not (math.isfinite(v) and v > 0):
             raise ValueError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
+    if args.domain_id is not None and not 0 <= args.domain_id <= 232:
+        raise ValueError(f"--domain-id must be in 0..232, got {args.domain_id}")
     if not 1 <= args.window <= 50:
         raise ValueError(f"--window must be in 1..50, got {args.window}")
 
@@ -131,9 +135,18 @@ class _GraphClient:
 
 def run(args) -> int:
     _check(args)
+    try:
+        return _run(args)
+    except (RuntimeError, TimeoutError) as exc:  # a node died, a service timed out…: one clear message
+        print(f"piezo-ff demo: error: {exc}", file=sys.stderr)
+        return 1
+
+
+def _run(args) -> int:
     from ..ros_env import apply_ros_env_defaults
 
-    apply_ros_env_defaults(force_domain=True)  # before rclpy is imported: a private domain, localhost only
+    # before rclpy is imported: a private domain, localhost discovery only
+    apply_ros_env_defaults(domain_id=args.domain_id, force_domain=True)
     from ..core.analysis import analyze_run, format_report
     from ..core.config import load_config
     from ..core.experiments import paper_experiments
