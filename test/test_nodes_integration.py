@@ -328,3 +328,61 @@ def test_driver_safety_limits_rejection_and_stale_ramp(tmp_path, probe, cfg_novi
         np.testing.assert_allclose(got[0], expected[0], rtol=0, atol=1e-15)
     finally:
         assert stop_node(drv) == 0
+
+
+# ----------------------------------------------------------------------------------------------------------------
+def test_realtime_pacing_held_point_and_recorder_sigterm(tmp_path, probe):
+    """realtime mode is paced by the wall clock; reference_point is played as blocks; SIGTERM finishes the MCAP."""
+    from geometry_msgs.msg import PointStamped
+    from sensor_msgs.msg import PointCloud2
+    from std_msgs.msg import String
+
+    from piezo_ff_ros.nodes.common import BLOCK_QOS, LATCHED_QOS, stamp_to_ns, unpack_block
+
+    states, volts = [], {}
+    probe.node.create_subscription(String, "/trajectory/state", lambda m: states.append((time.monotonic(),
+                                                                                         json.loads(m.data))),
+                                   LATCHED_QOS)
+    probe.node.create_subscription(PointCloud2, "voltage",
+                                   lambda m: volts.__setitem__(stamp_to_ns(m.header.stamp), unpack_block(m)),
+                                   BLOCK_QOS)
+    out = tmp_path / "rt.mcap"
+    spec = {"type": "circle", "radius": 1e-5, "frequency": 4.0, "revolutions": 4}  # 1 s
+    procs = {"recorder": start_node("recorder", "-p", f"output:={out}", log_dir=tmp_path),
+             "compensator": start_node("compensator", "-p", "cascade.vibration:=false", log_dir=tmp_path),
+             "trajectory": start_node("trajectory", "-p", "mode:=realtime", "-p", "autostart:=true",
+                                      "-p", "min_subscribers:=2", "-p", f"trajectory:='{json.dumps(spec)}'",
+                                      "-p", "block_size:=200", log_dir=tmp_path)}
+    try:
+        # no driver: in realtime nothing waits for displacement
+        probe.spin_until(lambda: any(s["state"] in ("finished", "failed") for _, s in states), 60, "trajectory end")
+        t_play = next(t for t, s in states if s["state"] == "playing")
+        t_end, end = next((t, s) for t, s in states if s["state"] in ("finished", "failed"))
+        assert end["state"] == "finished" and end["blocks"] == 100
+        assert t_end - t_play >= 0.95  # paced: 1 s of signal never plays faster than 1 s
+        probe.spin_until(lambda: len(volts) >= 100, 10, "the voltage blocks")
+        stamps = sorted(volts)
+        assert all(b - a == 200 * DT_NS for a, b in zip(stamps, stamps[1:]))  # contiguous, no gap
+        # a held set-point, once the reference stream has stopped for hold_timeout
+        n0 = len(volts)
+        pub = probe.node.create_publisher(PointStamped, "reference_point", 10)
+        probe.spin_until(lambda: pub.get_subscription_count() > 0, 10, "reference_point subscriber")
+        msg = PointStamped()
+        msg.point.x, msg.point.y = 5e-6, -3e-6
+        pub.publish(msg)
+        probe.spin_until(lambda: len(volts) >= n0 + 10, 10, "voltage blocks from the held point")
+        held = [volts[s] for s in sorted(volts)[n0:]]
+        assert all(np.all(np.isfinite(b)) and b.shape == (200, 2) for b in held)
+        assert held[-1][-1, 0] > 0 > held[-1][-1, 1]  # voltages of the held point's signs
+        assert sorted(volts)[n0] == stamps[-1] + 200 * DT_NS  # the held blocks continue the sample stream
+    finally:
+        codes = {n: stop_node(p) for n, p in procs.items() if n != "recorder"}
+        rec = procs["recorder"]
+        rec.send_signal(signal.SIGTERM)
+        codes["recorder"] = rec.wait(15)
+    assert codes == {"compensator": 0, "trajectory": 0, "recorder": 0}
+    from mcap.reader import make_reader
+
+    with open(out, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics.message_count > 200  # finished file: summary + statistics
