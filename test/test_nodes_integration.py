@@ -94,6 +94,19 @@ class Probe:
         rclpy.try_shutdown(context=self.ctx)
 
 
+def wait_recorder_connected(probe, topics, timeout=30.0):
+    """Until the recorder reports a matched publisher on each topic (its ~/status), so that no block is missed."""
+    from std_msgs.msg import String
+
+    from piezo_ff_ros.nodes.common import LATCHED_QOS
+
+    last = {}
+    probe.node.create_subscription(String, "/recorder/status", lambda m: last.update(json.loads(m.data)),
+                                   LATCHED_QOS)
+    probe.spin_until(lambda: all(last.get("publishers", {}).get(t, 0) >= 1 for t in topics), timeout,
+                     f"recorder connected to {topics}")
+
+
 @pytest.fixture()
 def probe():
     p = Probe()
@@ -140,9 +153,13 @@ def test_graph_end_to_end_lockstep_recorded_sample_exact(tmp_path, probe, cfg_no
              start_node("driver", "-p", "limits.stale_timeout:=5.0", log_dir=tmp_path),  # lockstep: no wall clock
              start_node("compensator", "-p", "cascade.vibration:=false", log_dir=tmp_path),
              start_node("trajectory", "-p", "mode:=lockstep", "-p", "block_size:=250", "-p", "window:=3",
-                        "-p", f"t0_ns:={t0}", "-p", f"trajectory:='{json.dumps(spec)}'", "-p", "autostart:=true",
+                        "-p", f"t0_ns:={t0}", "-p", f"trajectory:='{json.dumps(spec)}'",
                         "-p", "min_subscribers:=2", log_dir=tmp_path)]
     try:
+        from std_srvs.srv import Trigger
+
+        wait_recorder_connected(probe, ["/reference", "/voltage", "/displacement"], timeout=60)
+        assert probe.call(probe.node.create_client(Trigger, "/trajectory/start"), Trigger.Request()).success
         probe.spin_until(lambda: states and states[-1]["state"] in ("finished", "failed"), 60, "trajectory end")
         assert states[-1]["state"] == "finished", states[-1]
         probe.spin_for(0.5)
@@ -343,18 +360,24 @@ def test_realtime_pacing_held_point_and_recorder_sigterm(tmp_path, probe):
     probe.node.create_subscription(String, "/trajectory/state", lambda m: states.append((time.monotonic(),
                                                                                          json.loads(m.data))),
                                    LATCHED_QOS)
-    probe.node.create_subscription(PointCloud2, "voltage",
-                                   lambda m: volts.__setitem__(stamp_to_ns(m.header.stamp), unpack_block(m)),
-                                   BLOCK_QOS)
+    vsub = probe.node.create_subscription(PointCloud2, "voltage",
+                                          lambda m: volts.__setitem__(stamp_to_ns(m.header.stamp), unpack_block(m)),
+                                          BLOCK_QOS)
+    from std_srvs.srv import Trigger
+
+    start = probe.node.create_client(Trigger, "/trajectory/start")
     out = tmp_path / "rt.mcap"
     spec = {"type": "circle", "radius": 1e-5, "frequency": 4.0, "revolutions": 4}  # 1 s
     procs = {"recorder": start_node("recorder", "-p", f"output:={out}", log_dir=tmp_path),
              "compensator": start_node("compensator", "-p", "cascade.vibration:=false", log_dir=tmp_path),
-             "trajectory": start_node("trajectory", "-p", "mode:=realtime", "-p", "autostart:=true",
+             "trajectory": start_node("trajectory", "-p", "mode:=realtime",
                                       "-p", "min_subscribers:=2", "-p", f"trajectory:='{json.dumps(spec)}'",
                                       "-p", "block_size:=200", log_dir=tmp_path)}
     try:
-        # no driver: in realtime nothing waits for displacement
+        # no driver: in realtime nothing waits for displacement; start once this probe hears the compensator
+        probe.spin_until(lambda: vsub.get_publisher_count() > 0, 30, "compensator's voltage publisher")
+        wait_recorder_connected(probe, ["/reference", "/voltage"], timeout=60)
+        assert probe.call(start, Trigger.Request()).success
         probe.spin_until(lambda: any(s["state"] in ("finished", "failed") for _, s in states), 60, "trajectory end")
         t_play = next(t for t, s in states if s["state"] == "playing")
         t_end, end = next((t, s) for t, s in states if s["state"] in ("finished", "failed"))

@@ -85,6 +85,9 @@ class _GraphClient:
         self.node.create_subscription(String, "/trajectory/state", lambda m: self.states.append(json.loads(m.data)),
                                       LATCHED_QOS)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 50)
+        self.recorder: dict = {}
+        self.node.create_subscription(String, "/recorder/status", lambda m: self.recorder.update(json.loads(m.data)),
+                                      LATCHED_QOS)
         self.set_comp = self.node.create_client(SetParametersAtomically, "/compensator/set_parameters_atomically")
         self.set_traj = self.node.create_client(SetParametersAtomically, "/trajectory/set_parameters_atomically")
         self.reset_comp = self.node.create_client(Trigger, "/compensator/reset")
@@ -200,6 +203,10 @@ def _run(args) -> int:
     hinf = None
     try:
         client = _GraphClient()
+        # the recorder must be connected to every block publisher before the first sample is sent
+        topics = ("/reference", "/voltage", "/displacement")
+        client.spin_until(lambda: all(client.recorder.get("publishers", {}).get(t, 0) >= 1 for t in topics), 120,
+                          "the recorder to connect to the block topics")
         for i, exp in enumerate(exps):
             graph.check_alive()
             stages = set(exp.stages)

@@ -9,8 +9,9 @@ Parameters: ``output`` (file, default ``run_<UTC time>.mcap``), ``topics`` (defa
 displacement, experiment, /diagnostics, /parameter_events; relative names resolve in the node's namespace),
 ``config_file``/``variant`` (the PiezoConfig stored in the metadata), ``metadata`` (extra JSON object),
 ``flush_interval`` [s], ``discovery_period`` [s] (how often topics of unknown type are looked up in the graph).
-Topic ``~/status`` (std_msgs/String, transient-local JSON: ``{"recording": path, "topics": {...}}``) says which
-topics are subscribed (so that a launcher can wait until recording has started).
+Topic ``~/status`` (std_msgs/String, transient-local JSON: ``{"recording": path, "topics": {...}, "subscribed": [...],
+"publishers": {topic: matched publisher count}}``, republished when a count changes) lets a launcher wait until the
+recorder is actually connected to the publishers before a run starts.
 """
 from __future__ import annotations
 
@@ -85,6 +86,7 @@ class RecorderNode(Node):
         self.types: dict[str, str] = {}
         self.subs = {}
         self.counts: dict[str, int] = {}
+        self._matched: dict[str, int] = {}
         self.pub_status = self.create_publisher(String, "~/status", LATCHED_QOS)
         self._subscribe_known()
         self.create_timer(period, self._discover)
@@ -98,6 +100,10 @@ class RecorderNode(Node):
         self._status()
 
     def _discover(self):
+        matched = {t: s.get_publisher_count() for t, s in self.subs.items() if s is not None}
+        if matched != self._matched:
+            self._matched = matched
+            self._status()
         missing = [t for t in self.topics if t not in self.subs]
         if not missing:
             return
@@ -133,7 +139,8 @@ class RecorderNode(Node):
     def _status(self):
         self.pub_status.publish(String(data=json.dumps({"recording": str(self.rec.path),
                                                         "topics": {t: self.types.get(t) for t in self.topics},
-                                                        "subscribed": sorted(t for t, s in self.subs.items() if s)})))
+                                                        "subscribed": sorted(t for t, s in self.subs.items() if s),
+                                                        "publishers": self._matched})))
 
     def finish(self):
         if not self.rec.closed:
