@@ -15,14 +15,17 @@ Every setting is a field of :class:`CharacterisationSettings` with the paper's v
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
+from .config import ConfigError
 from .recording.run import RunData
-from .trajectories import Hold, Sequence, Sine, Step
+from .trajectories import Hold, Sequence, Sine, Trajectory
 
-__all__ = ["CharacterisationSettings", "hysteresis_trajectories", "creep_trajectories", "dynamics_trajectories",
+__all__ = ["CharacterisationSettings", "Ramp", "Sum", "hysteresis_trajectories", "creep_trajectories", "dynamics_trajectories",
            "run_open_loop"]
 
 
@@ -38,6 +41,22 @@ class CharacterisationSettings:
     dynamics_step: float = 20e-6         #: m (paper §VI-A)
     dynamics_duration: float = 0.2       #: s, each of step up / step down
     dynamics_lead: float = 0.01          #: s
+    step_ramp: float = 2e-3              #: s, rise/fall time of every step (an amplifier's slew limit: 200 V/ms)
+
+    def __post_init__(self):
+        for name in ("sine_amplitude", "sine_frequency", "validation_fraction", "creep_step", "creep_duration",
+                     "dynamics_step", "dynamics_duration"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ConfigError(name, f"must be a positive number, got {v!r}")
+        for name in ("creep_lead", "dynamics_lead", "step_ramp"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ConfigError(name, f"must be a non-negative number, got {v!r}")
+        if int(self.sine_periods) < 1:
+            raise ConfigError("sine_periods", f"must be >= 1, got {self.sine_periods!r}")
+        if self.step_ramp >= min(self.creep_duration, self.dynamics_duration):
+            raise ConfigError("step_ramp", "must be shorter than the step durations")
 
 
 def hysteresis_trajectories(s: CharacterisationSettings, axes=("x", "y")) -> dict:
@@ -54,45 +73,88 @@ def hysteresis_trajectories(s: CharacterisationSettings, axes=("x", "y")) -> dic
     return {"fit": fit, "validation": [("sine_validation", val)]}
 
 
-class _Sum:
-    """Sum of trajectories with the same axes (a minimal adapter; trajectories are linear in value)."""
+@dataclass(frozen=True)
+class Sum(Trajectory):
+    """Sum of trajectories with the same axes, each held at its last value after its own end."""
 
-    def __init__(self, axes, parts):
-        self.axes = tuple(axes)
-        self.parts = parts
-        self.duration = max(p.duration for p in parts)
+    parts: tuple = ()
 
-    def n_samples(self, fs):
-        return max(p.n_samples(fs) for p in self.parts)
+    kind = "sum"
 
-    def sample(self, fs):
+    def __post_init__(self):
+        super().__post_init__()
+        parts = tuple(self.parts)
+        if not parts:
+            raise ConfigError("parts", "a sum needs at least one trajectory")
+        for i, p in enumerate(parts):
+            if not isinstance(p, Trajectory) or p.axes != self.axes:
+                raise ConfigError(f"parts[{i}]", f"expected a trajectory on axes {list(self.axes)}")
+        object.__setattr__(self, "parts", parts)
+
+    @property
+    def duration(self) -> float:
+        return max(p.duration for p in self.parts)
+
+    def _values(self, k, fs):
+        return sum(p.at_index(k, fs) for p in self.parts)
+
+
+@dataclass(frozen=True)
+class Ramp(Trajectory):
+    """Linear move from ``start`` to ``end`` (per axis) over ``duration`` seconds (a slew-limited step edge)."""
+
+    start: Any = 0.0
+    end: Any = 0.0
+    duration: float = 1e-3
+
+    kind = "ramp"
+    length_fields = ("start", "end")
+
+    def __post_init__(self):
+        super().__post_init__()
+        n = self.n_axes
+        object.__setattr__(self, "start", tuple(np.broadcast_to(np.asarray(self.start, float), (n,)).tolist()))
+        object.__setattr__(self, "end", tuple(np.broadcast_to(np.asarray(self.end, float), (n,)).tolist()))
+        if not (math.isfinite(self.duration) and self.duration > 0):
+            raise ConfigError("duration", f"must be a positive finite number, got {self.duration!r}")
+
+    def _values(self, k, fs):
         n = self.n_samples(fs)
-        return np.arange(n) / fs, sum(p.block(0, n, fs) for p in self.parts)
-
-    def block(self, k0, n, fs):
-        return sum(p.block(k0, n, fs) for p in self.parts)
+        frac = np.clip((np.asarray(k, float) + 1.0) / n, 0.0, 1.0)[:, None]  # last sample reaches `end`
+        a, b = np.array(self.start), np.array(self.end)
+        return a[None, :] + frac * (b - a)[None, :]
 
 
 def _sum(axes, parts):
-    return _Sum(axes, parts)
+    return Sum(parts=tuple(parts), axes=tuple(axes))
 
 
-def _up_down(step, duration, lead, axes, a):
+def _up_down(step, duration, lead, axes, a, ramp):
+    """Rest ``lead`` s, ramp up to ``step`` on axis ``a``, hold, ramp down, rest: ``(sequence, down_start_s)``."""
     amp = tuple(step if b == a else 0.0 for b in axes)
-    return Sequence([("up", Step(amplitude=amp, t_step=lead, hold=duration, axes=axes)),
-                     ("down", Hold(value=0.0, duration=duration, axes=axes))], axes=axes)
+    zero = tuple(0.0 for _ in axes)
+    segs = []
+    if lead > 0:
+        segs.append(("lead", Hold(value=zero, duration=lead, axes=axes)))
+    if ramp > 0:
+        segs.append(("up", Ramp(start=zero, end=amp, duration=ramp, axes=axes)))
+    segs.append(("hold_up", Hold(value=amp, duration=duration - ramp, axes=axes)))
+    if ramp > 0:
+        segs.append(("down", Ramp(start=amp, end=zero, duration=ramp, axes=axes)))
+    segs.append(("hold_down", Hold(value=zero, duration=duration - ramp, axes=axes)))
+    return Sequence(segs, axes=axes), lead + duration
 
 
 def creep_trajectories(s: CharacterisationSettings, axes=("x", "y")) -> list:
     """Step up/down per axis [m] for S_H: ``[(name, traj, score_start_seconds)]``."""
-    return [(f"creep_step_{a}", _up_down(s.creep_step, s.creep_duration, s.creep_lead, axes, a),
-             s.creep_lead + s.creep_duration) for a in axes]
+    return [(f"creep_step_{a}",) + _up_down(s.creep_step, s.creep_duration, s.creep_lead, axes, a, s.step_ramp)
+            for a in axes]
 
 
 def dynamics_trajectories(s: CharacterisationSettings, axes=("x", "y")) -> list:
     """Step up/down per axis [m] for S_L: ``[(name, traj, score_start_seconds)]``."""
-    return [(f"dynamics_step_{a}", _up_down(s.dynamics_step, s.dynamics_duration, s.dynamics_lead, axes, a),
-             s.dynamics_lead + s.dynamics_duration) for a in axes]
+    return [(f"dynamics_step_{a}",) + _up_down(s.dynamics_step, s.dynamics_duration, s.dynamics_lead, axes, a,
+                                                s.step_ramp) for a in axes]
 
 
 def run_open_loop(system, traj, fs: float, name: str, axes, block: int = 200_000, reference_is_input=True,
