@@ -146,7 +146,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    traj = ["-p", f"mode:={args.mode}", "-p", "autostart:=true"]
+    traj = ["-p", f"mode:={args.mode}", "-p", "autostart:=true", "-p", "min_subscribers:=2"]  # + the recorder
     if args.trajectory:
         traj += ["-p", f"trajectory:='{args.trajectory}'"]  # quoted: a YAML string, not a mapping
     comp = ["--params-file", args.params_file] if args.params_file else []

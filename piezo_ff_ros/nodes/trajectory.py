@@ -12,7 +12,8 @@ text naming the field — and used from the next start):
 - ``block_size`` (samples, default 200), ``window`` (lockstep blocks in flight, default 4), ``sample_rate`` [Hz],
   ``autostart`` (bool), ``loop`` (bool), ``lockstep_timeout`` [s] (no displacement for this long → stop with an
   error), ``t0_ns`` (stamp of sample index 0; 0 = the wall clock at start-up), ``min_subscribers`` (playing starts
-  once ``reference``, ``voltage`` and ``displacement`` each have that many readers: 2 with a recorder).
+  once ``reference``, ``voltage`` and ``displacement`` each have that many readers — 2 with a recorder — and
+  ``voltage`` and ``displacement`` a writer).
 
 Services: ``~/start`` and ``~/stop`` (std_srvs/Trigger).  Topics: ``reference`` (blocks), ``experiment``
 (std_msgs/String, transient-local: JSON ``{"name", "k0", "stamp_ns", "stages", …segment meta}``), ``~/state``
@@ -181,14 +182,16 @@ class TrajectoryNode(Node):
         while not self._stop.is_set():
             counts = {"reference": self.count_subscribers("reference"), "voltage": self.count_subscribers("voltage"),
                       "displacement": self.count_subscribers("displacement")}  # includes our own
-            if all(c >= need for c in counts.values()):
+            writers = {"voltage": self.count_publishers("voltage"), "displacement": self.count_publishers("displacement")}
+            if all(c >= need for c in counts.values()) and all(w >= 1 for w in writers.values()):
                 break
             settle = True
             if time.monotonic() > deadline:
-                raise TimeoutError(f"graph not ready after {timeout} s: subscribers {counts}, need {need} each")
+                raise TimeoutError(f"graph not ready after {timeout} s: subscribers {counts} (need {need} each), "
+                                   f"publishers {writers} (need 1 each)")
             time.sleep(0.05)
         if settle:
-            time.sleep(0.3)  # graph discovery precedes endpoint matching by a little
+            time.sleep(0.5)  # graph discovery precedes endpoint matching by a little
 
     def _set_state(self, state, **extra):
         self.state = {"state": state, "k": int(self.k_stream), **extra}
