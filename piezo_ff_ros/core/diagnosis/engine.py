@@ -299,8 +299,9 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
             stack.append({"effect": best.fit.effect, "params": _fmt_params(best.fit),
                           "heldout_nrmse_percent": best.after_nrmse})
             pool = [p for p in pool if p != best.fit.effect]
-    # final stacked residual on the whole test run
-    y_test_final = simulate(cfg, test.u, base) if base else y_test_nom
+    # the verdict alone and the final stack on the whole test run (one simulation when they are the same)
+    y_test_verdict = simulate(cfg, test.u, verdict.fit.effects) if verdict is not None else y_test_nom
+    y_test_final = y_test_verdict if len(stack) <= 1 else simulate(cfg, test.u, base)
     r_final = residual(test.y, y_test_final)
     runner = next((s for s in scored if verdict is not None and s is not verdict), None)
     conf, why = ("n/a", "")
@@ -335,9 +336,7 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
         "confidence_reason": why,
         "heldout": {
             "before_nrmse_percent": nrmse_percent(test.y - test.y.mean(0), y_test_nom - y_test_nom.mean(0)),
-            "after_nrmse_percent": (verdict.after_nrmse if verdict is not None and score_win.is_whole else
-                                    _whole_nrmse(cfg, test, verdict) if verdict is not None else
-                                    nrmse_percent(test.y - test.y.mean(0), y_test_nom - y_test_nom.mean(0))),
+            "after_nrmse_percent": nrmse_percent(test.y - test.y.mean(0), y_test_verdict - y_test_verdict.mean(0)),
             "stacked_after_nrmse_percent": stacked_nrmse,
             "noise_floor_nrmse_percent": noise_nrmse,
             "scored_on_samples": int(held.r_before.shape[0]),
@@ -359,11 +358,6 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
         f"{result['heldout']['after_nrmse_percent']:.3f} % (stacked {stacked_nrmse:.3f} %, noise "
         f"{noise_nrmse:.3f} %) in {result['seconds']:.1f} s")
     return result
-
-
-def _whole_nrmse(cfg, test: RunData, verdict: _Scored) -> float:
-    y = simulate(cfg, test.u, verdict.fit.effects)
-    return nrmse_percent(test.y - test.y.mean(0), y - y.mean(0))
 
 
 def json_ready(result: dict) -> dict:

@@ -124,6 +124,8 @@ def localise(u: np.ndarray, y: np.ndarray, y_hat: np.ndarray, dt: float, axes, s
     bands = {}
     band_e = {}
     for name, lo, hi in BANDS:
+        if lo >= fs / 2:
+            continue  # the band lies above Nyquist at this sample rate
         sel = (f >= lo) & (f < hi) if lo > 0 else (f < hi)
         e = float(np.sum(P[sel]) * df)  # variance in the band, summed over axes
         width = float(min(hi, fs / 2) - lo) if sel.any() else 0.0
