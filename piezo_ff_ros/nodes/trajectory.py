@@ -12,8 +12,8 @@ text naming the field — and used from the next start):
 - ``block_size`` (samples, default 200), ``window`` (lockstep blocks in flight, default 4), ``sample_rate`` [Hz],
   ``autostart`` (bool), ``loop`` (bool), ``lockstep_timeout`` [s] (no displacement for this long → stop with an
   error), ``t0_ns`` (stamp of sample index 0; 0 = the wall clock at start-up), ``min_subscribers`` (playing starts
-  once ``reference``, ``voltage`` and ``displacement`` each have that many readers — 2 with a recorder — and
-  ``voltage`` and ``displacement`` a writer).
+  once ``reference``, ``voltage`` and ``displacement`` each have that many readers — 2 with a recorder — and, in
+  lockstep, ``voltage`` and ``displacement`` a writer).
 
 Services: ``~/start`` and ``~/stop`` (std_srvs/Trigger).  Topics: ``reference`` (blocks), ``experiment``
 (std_msgs/String, transient-local: JSON ``{"name", "k0", "stamp_ns", "stages", …segment meta}``), ``~/state``
@@ -174,7 +174,7 @@ class TrajectoryNode(Node):
             self.k_stream = max(self.k_stream, end_k) if end_k > 0 else self.k_stream
             self._cv.notify_all()
 
-    def _wait_graph(self, timeout: float) -> None:
+    def _wait_graph(self, timeout: float, lockstep: bool) -> None:
         """Before playing: every block topic has ``min_subscribers`` readers (e.g. 2 = next node + recorder)."""
         need = int(self.param("min_subscribers"))
         deadline = time.monotonic() + timeout
@@ -182,7 +182,9 @@ class TrajectoryNode(Node):
         while not self._stop.is_set():
             counts = {"reference": self.count_subscribers("reference"), "voltage": self.count_subscribers("voltage"),
                       "displacement": self.count_subscribers("displacement")}  # includes our own
-            writers = {"voltage": self.count_publishers("voltage"), "displacement": self.count_publishers("displacement")}
+            # lockstep needs the whole chain; realtime may feed a compensator (or any reader) alone
+            writers = {"voltage": self.count_publishers("voltage"),
+                       "displacement": self.count_publishers("displacement")} if lockstep else {}
             if all(c >= need for c in counts.values()) and all(w >= 1 for w in writers.values()):
                 break
             settle = True
@@ -211,7 +213,7 @@ class TrajectoryNode(Node):
         axes = list(traj.axes)
         blocks = 0
         try:
-            self._wait_graph(timeout)
+            self._wait_graph(timeout, mode == "lockstep")
             while True:
                 with self._cv:
                     if mode == "realtime":  # stamps follow the wall clock (exact latency measurement)
