@@ -43,18 +43,21 @@ class CreepFit:
     info: dict = field(default_factory=dict)
 
 
-def step_events(u: np.ndarray, rel: float = 0.02) -> list[int]:
-    """Sample indices where some input jumps by more than ``rel`` of its range in one sample."""
+def step_events(u: np.ndarray, rel: float = 0.005, gap: int = 400) -> list[int]:
+    """Sample indices where some input starts a step: a move by more than ``rel`` of its range in one sample.
+
+    Moves less than ``gap`` samples after the previous one belong to the same step (a slew-limited, ramped edge).
+    """
     du = np.abs(np.diff(u, axis=0))
     rng = np.max(np.abs(u), axis=0)
     rng[rng == 0] = np.inf
     hit = np.any(du > rel * rng, axis=1)
     idx = np.nonzero(hit)[0] + 1
-    # merge consecutive samples of one ramp-like step
-    out = []
+    out, last = [], None
     for i in idx:
-        if not out or i - out[-1] > 1:
+        if last is None or i - last > gap:
             out.append(int(i))
+        last = int(i)
     return out
 
 

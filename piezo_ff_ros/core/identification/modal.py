@@ -164,7 +164,7 @@ def fit_row(y_records, u_records, structs, theta0s, dt, mask_records=None, max_n
     else:
         th = th0
         cost = float(0.5 * np.sum(y[w] ** 2))
-    thetas = _split(th, structs)
+    thetas = [_separate(t, st) for t, st in zip(_split(th, structs), structs)]
     Phi = _row_basis(thetas, structs, u_records, dt)
     c = _solve_coef(Phi, y, w) * y_scale if Phi.shape[1] else np.zeros(0)
     cost *= y_scale ** 2
@@ -173,6 +173,23 @@ def fit_row(y_records, u_records, structs, theta0s, dt, mask_records=None, max_n
         models.append(EntryModel(st, np.asarray(t), c[i:i + st.n_coef]))
         i += st.n_coef
     return models, cost
+
+
+def _separate(theta, st: Structure, rel: float = 1e-4) -> np.ndarray:
+    """Nudge coinciding poles of one entry apart (the modal realisation needs distinct poles).
+
+    Two modes that converged onto the same pole carry the same basis column; moving one by ``rel`` (relative)
+    changes the response by far less than the fit resolves and the residues are re-solved afterwards.
+    """
+    th = np.array(theta, float)
+    p = theta_to_poles(th, st)
+    for a in range(len(p)):
+        for b in range(a):
+            if abs(p[a] - p[b]) <= rel * max(abs(p[a]), 1e-300):
+                k = a if a < st.n_real else st.n_real + 2 * (a - st.n_real)
+                th[k] += 5 * rel
+                p = theta_to_poles(th, st)
+    return th
 
 
 def simulate_row(models, u_inputs, dt) -> np.ndarray:

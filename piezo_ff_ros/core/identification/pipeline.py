@@ -91,10 +91,7 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
         from ..synthesis.hinf import synthesize_hinf
 
         design = synthesize_hinf(cfg.dynamics.G_L, cfg.vibration)
-        A, B, C, D = design.controller_matrices()
-        cfg = replace(cfg, vibration=replace(cfg.vibration, controller={
-            "A": np.asarray(A).tolist(), "B": np.asarray(B).tolist(), "C": np.asarray(C).tolist(),
-            "D": np.asarray(D).tolist()})).validate()
+        cfg = replace(cfg, vibration=replace(cfg.vibration, controller=design.controller_matrices())).validate()
         timing["hinf"] = time.perf_counter() - t0
         report["hinf"] = {"gamma": float(design.gamma)}
         report["_design"] = design
