@@ -149,6 +149,10 @@ def test_graph_end_to_end_lockstep_recorded_sample_exact(tmp_path, probe, cfg_no
     states = []
     probe.node.create_subscription(String, "/trajectory/state", lambda m: states.append(json.loads(m.data)),
                                    LATCHED_QOS)
+    from sensor_msgs.msg import JointState
+
+    joints = []
+    jsub = probe.node.create_subscription(JointState, "joint_states", joints.append, 100)
     procs = [start_node("recorder", "-p", f"output:={out}", log_dir=tmp_path),
              start_node("driver", "-p", "limits.stale_timeout:=5.0", log_dir=tmp_path),  # lockstep: no wall clock
              start_node("compensator", "-p", "cascade.vibration:=false", log_dir=tmp_path),
@@ -159,6 +163,7 @@ def test_graph_end_to_end_lockstep_recorded_sample_exact(tmp_path, probe, cfg_no
         from std_srvs.srv import Trigger
 
         wait_recorder_connected(probe, ["/reference", "/voltage", "/displacement"], timeout=60)
+        probe.spin_until(lambda: jsub.get_publisher_count() > 0, 30, "the driver's joint_states")
         assert probe.call(probe.node.create_client(Trigger, "/trajectory/start"), Trigger.Request()).success
         probe.spin_until(lambda: states and states[-1]["state"] in ("finished", "failed"), 60, "trajectory end")
         assert states[-1]["state"] == "finished", states[-1]
@@ -166,6 +171,9 @@ def test_graph_end_to_end_lockstep_recorded_sample_exact(tmp_path, probe, cfg_no
     finally:
         codes = [stop_node(p) for p in reversed(procs)]
     assert codes == [0, 0, 0, 0], [(p.args[2], c) for p, c in zip(reversed(procs), codes)]
+    # decimated joint_states for live plots: 100 Hz of sample time = one per 200 samples
+    assert len(joints) >= n_total // 200 - 2
+    assert list(joints[0].name) == AXES and all(np.all(np.isfinite(j.position)) for j in joints)
 
     # expected, computed offline by the core: reference → cascade → guard (slew from 0 V) → plant
     ref = traj.block(0, n_total, FS)
