@@ -255,8 +255,10 @@ def fit_unmodelled_mode(ctx: FitContext) -> FitResult:
 # ----------------------------------------------------------------------------------------------------------------
 
 def _fit_scalar(ctx: FitContext, name: str, pname: str, make: Callable[[float], dict], grid: np.ndarray,
-                to_value: Callable[[float], float], dvalue: Callable[[float], float]) -> FitResult:
-    """Grid over a transformed parameter ``z`` then a bounded refinement around the best grid point."""
+                to_value: Callable[[float], float], dvalue: Callable[[float], float],
+                fine: Callable[[float], np.ndarray] | None = None) -> FitResult:
+    """Grid over a transformed parameter ``z``, optionally a finer grid ``fine(best)`` around the best point (for
+    costs that are not unimodal between grid points), then a bounded refinement around the best point."""
     cache = {}
 
     def sse(z):
@@ -268,6 +270,10 @@ def _fit_scalar(ctx: FitContext, name: str, pname: str, make: Callable[[float], 
 
     vals = [sse(z) for z in grid]
     k = int(np.argmin(vals))
+    if fine is not None:
+        grid = np.unique(np.r_[grid, fine(float(grid[k]))])
+        vals = [sse(z) for z in grid]
+        k = int(np.argmin(vals))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
     if hi > lo:
         sol = optimize.minimize_scalar(sse, bounds=(lo, hi), method="bounded",
@@ -296,8 +302,14 @@ def fit_input_delay(ctx: FitContext) -> FitResult:
     d0 = float(-np.sum(r0 * dy) / max(np.sum(dy * dy), 1e-300))
     dmax = max(50 * ctx.dt, 4 * abs(d0))
     grid = np.unique(np.r_[0.0, np.geomspace(0.25 * ctx.dt, dmax, 11), max(d0, 0.0)])
+    dt = ctx.dt
+
+    def fine(best):
+        # linear interpolation makes the cost wiggle between whole samples: quarter-sample steps around the best
+        return np.clip(best + dt * np.arange(-3.0, 3.01, 0.25), 0.0, None)
+
     return _fit_scalar(ctx, "input_delay", "delay", lambda z: {"delay": max(z, 0.0)}, grid,
-                       lambda z: max(z, 0.0), lambda z: 1.0)
+                       lambda z: max(z, 0.0), lambda z: 1.0, fine=fine)
 
 
 def fit_amplifier_slew_limit(ctx: FitContext) -> FitResult:

@@ -8,7 +8,8 @@ noise can explain, i.e. its drop in residual energy must exceed both
 * :data:`MIN_EXCESS_SHRINK` of the gap's excess over the noise floor;
 
 and the gap's excess over the noise floor must be positive.  Candidates are ranked by their penalised held-out
-residual energy.  Greedy stacking stops when the rest is within :data:`STACK_STOP`·σ of the noise floor.
+residual energy.  Greedy stacking (each new effect followed by one backfitting pass over the earlier ones) stops
+when the rest is within :data:`STACK_STOP`·σ of the noise floor, when nothing more is accepted, or at ``max_stack``.
 """
 from __future__ import annotations
 
@@ -280,6 +281,7 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
     base = []
     if verdict is not None:
         base = list(verdict.fit.effects)
+        fits = [verdict.fit]
         stack.append({"effect": verdict.fit.effect, "params": _fmt_params(verdict.fit),
                       "heldout_nrmse_percent": verdict.after_nrmse})
         pool = [s.fit.effect for s in scored if s.fit.effect != verdict.fit.effect][:opts.stack_pool]
@@ -295,9 +297,24 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
             if not acc:
                 break
             best = acc[0]
-            base = base + list(best.fit.effects)
-            stack.append({"effect": best.fit.effect, "params": _fmt_params(best.fit),
-                          "heldout_nrmse_percent": best.after_nrmse})
+            fits.append(best.fit)
+            # one backfitting pass: each earlier effect refitted with the others in place, since an effect fitted
+            # alone absorbs part of the ones found later (a delay fitted under a gain error is biased, etc.)
+            win = Windows.spread(len(train), opts.fit_samples, opts.n_windows, int(opts.warmup_s * fs))
+            for i in range(len(fits) - 1):
+                others = [e for j, f in enumerate(fits) if j != i for e in f.effects]
+                try:
+                    ctx = FitContext(cfg, others, train.u, train.y, simulate(cfg, train.u, others), win)
+                    fits[i] = fit_candidate(fits[i].effect, ctx)
+                except (ValueError, np.linalg.LinAlgError) as exc:  # keep the earlier fit
+                    log(f"  backfit of {fits[i].effect} failed ({exc})")
+            base = [e for f in fits for e in f.effects]
+            after = held.nrmse(held.score(base))
+            log(f"  added {best.fit.effect}; after backfitting the stack leaves {after:.3f} %")
+            stack = [{"effect": f.effect, "params": _fmt_params(f), "heldout_nrmse_percent": e["heldout_nrmse_percent"]}
+                     for f, e in zip(fits, stack)]
+            stack.append({"effect": best.fit.effect, "params": _fmt_params(fits[-1]),
+                          "heldout_nrmse_percent": after})
             pool = [p for p in pool if p != best.fit.effect]
     # the verdict alone and the final stack on the whole test run (one simulation when they are the same)
     y_test_verdict = simulate(cfg, test.u, verdict.fit.effects) if verdict is not None else y_test_nom
