@@ -143,6 +143,8 @@ def identify_dynamics(runs: Sequence[RunData], validation: Sequence[RunData] = (
         return out
 
     fit_recs = recs(runs, False)
+    # slowest pole the records can determine: its response must settle (e^-3) within the shortest record
+    pole_min = 3.0 / (min(len(r) for r in runs) * dt)
     val_recs = recs(validation, True) if validation else []
 
     def init(i, j, o):
@@ -162,7 +164,7 @@ def identify_dynamics(runs: Sequence[RunData], validation: Sequence[RunData] = (
             structs, th0 = [Structure(0, 0)] * n, [np.zeros(0)] * n
             th0[j], structs[j] = init(i, j, o)
             models, _ = fit_row([r["y"][:, i] for r in rs], [[r["u"][:, jj] for r in rs] for jj in range(n)],
-                                structs, th0, dt, max_nfev=max_nfev)
+                                structs, th0, dt, max_nfev=max_nfev, pole_min=pole_min)
             cache[(i, j, o)] = models[j]
         return cache[(i, j, o)]
 
@@ -177,7 +179,7 @@ def identify_dynamics(runs: Sequence[RunData], validation: Sequence[RunData] = (
             structs.append(st)
             th0.append(th)
         models, _ = fit_row([r["y"][:, i] for r in fit_recs], [[r["u"][:, j] for r in fit_recs] for j in range(n)],
-                            structs, th0, dt, max_nfev=max_nfev)
+                            structs, th0, dt, max_nfev=max_nfev, pole_min=pole_min)
         return models
 
     def entry_fits(models_by_row, rs):

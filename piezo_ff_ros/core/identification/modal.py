@@ -121,7 +121,7 @@ def _solve_coef(Phi, y, w):
     return c / scale
 
 
-def fit_row(y_records, u_records, structs, theta0s, dt, mask_records=None, max_nfev=200):
+def fit_row(y_records, u_records, structs, theta0s, dt, mask_records=None, max_nfev=200, pole_min=1e-7):
     """Fit one output row ``y_i = Σ_j G_ij u_j``.
 
     Parameters
@@ -134,6 +134,9 @@ def fit_row(y_records, u_records, structs, theta0s, dt, mask_records=None, max_n
         Pole structure and initial θ (order-0 structures mean "no entry").
     mask_records : list of bool [N_r], optional
         Samples that enter the cost (e.g. excluding fast transients).
+    pole_min : float
+        Smallest pole magnitude (real part of pairs) allowed [rad/s]: poles much slower than the records are long
+        are not determined by the data and would set the DC gain arbitrarily.
 
     Returns
     -------
@@ -155,8 +158,8 @@ def fit_row(y_records, u_records, structs, theta0s, dt, mask_records=None, max_n
         return r if np.all(np.isfinite(r)) else np.full(r.shape, 1e6 * (np.std(y[w]) + 1.0))
 
     if th0.size:
-        # keep poles within a sane band: |p| from 1e-7 to 1e3/dt
-        lo, hi = np.log(1e-7), np.log(1e3 / dt)
+        # keep poles within a sane band: |p| from pole_min to 1e3/dt
+        lo, hi = np.log(pole_min), np.log(1e3 / dt)
         sol = least_squares(resid, np.clip(th0, lo + 1e-6, hi - 1e-6), bounds=(lo, hi), method="trf",
                             x_scale=1.0, max_nfev=max_nfev, xtol=1e-10, ftol=1e-12)
         th = sol.x
@@ -240,17 +243,21 @@ def entry_to_factored(poles, coef, st: Structure) -> FactoredTF:
         # basis: 2Re(x), −2Im(x) with x' = p x + u  →  y = c1·2Re x − c2·2Im x
         blocks_A.append(np.array([[pm.real, -pm.imag], [pm.imag, pm.real]]))
         Bs += [1.0, 0.0]
-        Cs += [2 * c1, 2 * c2]
+        Cs += [2 * c1, -2 * c2]
     A = scipy.linalg.block_diag(*blocks_A)
     B = np.array(Bs, float)[:, None]
     C = np.array(Cs, float)[None, :]
     n = A.shape[0]
-    # transmission zeros: finite generalized eigenvalues of the Rosenbrock pencil
-    M = np.block([[A, B], [C, np.zeros((1, 1))]])
-    Nm = np.zeros((n + 1, n + 1))
-    Nm[:n, :n] = np.eye(n)
-    ev = scipy.linalg.eigvals(M, Nm)
-    z = ev[np.isfinite(ev)]
+    # zeros: numerator polynomial det(sI − A + BC) − det(sI − A) (= C·adj(sI − A)·B), computed with s scaled by
+    # the poles' geometric mean so that the coefficients stay O(1) (unscaled they span (10⁴)ⁿ)
+    sigma = float(np.exp(np.mean(np.log(np.abs(p) + 1e-300))))
+    As, Cs = A / sigma, C / sigma
+    num_s = np.poly(As - B @ Cs) - np.poly(As)
+    num_s = num_s[1:]                                   # strictly proper: the sⁿ terms cancel exactly
+    big = np.max(np.abs(num_s))
+    lead = np.nonzero(np.abs(num_s) > 1e-9 * big)[0]
+    num_s = num_s[lead[0]:] if len(lead) else num_s[-1:]
+    z = np.roots(num_s) * sigma if len(num_s) > 1 else np.zeros(0, complex)
     scale = max(1.0, float(np.max(np.abs(p))))
     z = z[np.abs(z) < 1e6 * scale]
     z = _conj_close(z)
