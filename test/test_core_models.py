@@ -352,27 +352,49 @@ def test_two_axis_bouc_wen_kernel_gives_the_generic_kernels_numbers(paper_config
     assert np.max(np.abs(hs)) > 0
 
 
-@pytest.mark.parametrize("generalized,loop,limit", [(False, "exact", None), (True, "exact", None),
-                                                    (False, "delayed", None), (False, "exact", 60.0)])
+@pytest.mark.parametrize("generalized,loop,limit,slew", [(False, "exact", None, None), (True, "exact", None, None),
+                                                         (False, "delayed", None, None), (False, "exact", 60.0, None),
+                                                         (False, "exact", None, 0.05), (True, "exact", 60.0, 0.05)])
 def test_two_axis_hysteresis_compensator_kernel_gives_the_generic_kernels_numbers(paper_config, generalized,
-                                                                                   loop, limit):
+                                                                                   loop, limit, slew):
     from piezo_ff_ros.core.compensators import hysteresis as hc
 
     cfg = _generalized(paper_config) if generalized else paper_config.hysteresis
     yh = _signal(4000, seed=4, scale=15e-6)
-    comp = HysteresisCompensator(cfg, loop, voltage_limit=limit)
+    comp = HysteresisCompensator(cfg, loop, voltage_limit=limit, slew_per_sample=slew)
     fast = np.vstack([comp.process(yh[:777]), comp.process(yh[777:])])
-    ref = HysteresisCompensator(cfg, loop, voltage_limit=limit)
+    ref = HysteresisCompensator(cfg, loop, voltage_limit=limit, slew_per_sample=slew)
     st = ref.state
     u = np.empty_like(yh)
     counters = np.zeros(2, np.int64)
     hc._bw_comp_run(ref._Dp, ref._Dp_pinv, ref._A, ref._B, ref._G, ref._D1, ref._D2, ref._P, st.h, st.u_prev,
-                    st.started, ref._signs, loop == "exact", ref.voltage_limit, yh, u, counters)
+                    st.started, ref._signs, loop == "exact", ref.voltage_limit, ref.slew_per_sample, yh, u, counters)
     assert np.array_equal(fast, u)
     assert np.array_equal(comp.state.h, st.h) and np.array_equal(comp._signs, ref._signs)
     assert (comp.fallbacks, comp.saturated) == tuple(counters)
-    if limit is not None:
+    if limit is not None or slew is not None:
         assert comp.saturated > 0
+    if slew is not None:
+        assert np.max(np.abs(np.diff(fast, axis=0))) <= slew * (1 + 1e-12)
+
+
+def test_compensator_limited_like_the_driver_keeps_the_plants_state(paper_config):
+    """Clamped and slew-limited exactly as the driver's guard does, the compensator's h stays the plant's h."""
+    from piezo_ff_ros.core.config import LimitsConfig
+    from piezo_ff_ros.core.safety import VoltageGuard
+
+    limits = LimitsConfig(voltage=150.0, slew=2.0e5)
+    comp = HysteresisCompensator(paper_config.hysteresis, voltage_limit=limits.voltage,
+                                 slew_per_sample=limits.slew / FS)
+    yh = np.zeros((4000, 2))
+    yh[100:, 0] = 30e-6                                   # a step asking ~190 V at once
+    yh[2000:, 1] = -20e-6
+    u = comp.process(yh)
+    guard = VoltageGuard(limits, 2, FS)
+    applied = guard.apply(u)
+    assert np.array_equal(applied, u)                     # the driver has nothing left to clip
+    _, h = BoucWenModel(paper_config.hysteresis).process(applied, return_h=True)
+    assert np.allclose(h[-1], comp.h, rtol=0, atol=1e-18)
 
 
 def test_two_axis_creep_compensator_kernel_gives_the_generic_kernels_numbers(paper_config):

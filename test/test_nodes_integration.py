@@ -107,6 +107,16 @@ def wait_recorder_connected(probe, topics, timeout=30.0):
                      f"recorder connected to {topics}")
 
 
+#: the driver runs with a slower slew limit than the config's 1e7 V/s, so that it visibly acts (10 V per sample)
+DRIVER_SLEW = 2.0e5
+
+
+def DRIVER_LIMITS(cfg):  # noqa: N802 - reads like the constant it stands for
+    import dataclasses
+
+    return dataclasses.replace(cfg.limits, slew=DRIVER_SLEW)
+
+
 @pytest.fixture()
 def probe():
     p = Probe()
@@ -115,7 +125,7 @@ def probe():
 
 
 @pytest.fixture(scope="module")
-def cfg_novib():
+def cfg_novib():  # noqa: D103
     cfg = load_config(ROOT / "config" / "pt230_94.yaml")
     return replace(cfg, cascade=replace(cfg.cascade, vibration=False)).validate()
 
@@ -154,7 +164,8 @@ def test_graph_end_to_end_lockstep_recorded_sample_exact(tmp_path, probe, cfg_no
     joints = []
     jsub = probe.node.create_subscription(JointState, "joint_states", joints.append, 100)
     procs = [start_node("recorder", "-p", f"output:={out}", log_dir=tmp_path),
-             start_node("driver", "-p", "limits.stale_timeout:=5.0", log_dir=tmp_path),  # lockstep: no wall clock
+             start_node("driver", "-p", "limits.stale_timeout:=5.0", "-p", f"limits.slew:={DRIVER_SLEW}",
+                        log_dir=tmp_path),  # lockstep: no wall clock; a slower amplifier than the compensator assumes
              start_node("compensator", "-p", "cascade.vibration:=false", log_dir=tmp_path),
              start_node("trajectory", "-p", "mode:=lockstep", "-p", "block_size:=250", "-p", "window:=3",
                         "-p", f"t0_ns:={t0}", "-p", f"trajectory:='{json.dumps(spec)}'",
@@ -178,7 +189,7 @@ def test_graph_end_to_end_lockstep_recorded_sample_exact(tmp_path, probe, cfg_no
     # expected, computed offline by the core: reference → cascade → guard (slew from 0 V) → plant
     ref = traj.block(0, n_total, FS)
     u_cmd = CompensatorCascade(cfg_novib).process(ref)
-    u_applied = VoltageGuard(cfg_novib.limits, 2, FS, max_block=20000).apply(u_cmd)
+    u_applied = VoltageGuard(DRIVER_LIMITS(cfg_novib), 2, FS, max_block=20000).apply(u_cmd)
     assert np.any(u_applied != u_cmd)  # the circle starts off-centre: the slew limit acted on the first samples
     y = Plant(cfg_novib).process(u_applied)
 
@@ -299,9 +310,10 @@ def test_driver_safety_limits_rejection_and_stale_ramp(tmp_path, probe, cfg_novi
         {kv.key: kv.value for kv in s.values} for s in m.status if s.name.endswith("driver")), 10)
     pub = probe.node.create_publisher(PointCloud2, "voltage", BLOCK_QOS)
     drv = start_node("driver", "-p", "max_block:=1000", "-p", "limits.stale_timeout:=1.0",
+                     "-p", f"limits.slew:={DRIVER_SLEW}",
                      "-p", "diagnostics_period:=0.2", log_dir=tmp_path)
     n = 100
-    guard = VoltageGuard(cfg_novib.limits, 2, FS, max_block=1000)
+    guard = VoltageGuard(DRIVER_LIMITS(cfg_novib), 2, FS, max_block=1000)
     plant = Plant(cfg_novib)
     plant.process(np.zeros((1, 2)))  # compile before the timed part (blocks must come < stale_timeout apart)
     plant.reset()

@@ -75,14 +75,22 @@ def test_decomposition_matches_the_independent_reading(paper_config):
 
 def test_creep_600s_on_S_H(paper_config):
     """The full 600 s creep runs on S_H (at 2 kHz, exact-ZOH, to keep the test short)."""
+    import dataclasses
+
     cfg = paper_config.with_sample_rate(2000.0)
+    ideal = dataclasses.replace(cfg, cascade=dataclasses.replace(cfg.cascade, respect_limits=False))
     exps = [e for e in E.paper_experiments(cfg, creep_duration=600.0) if e.name.startswith("creep_")]
-    res = R.evaluate(E.simulate_experiments(cfg, experiments=exps), exps)
+    res = R.evaluate(E.simulate_experiments(ideal, experiments=exps), exps)
     assert res["before"]["creep_percent"]["x"] == pytest.approx(4.59, abs=0.03)
     assert res["before"]["creep_percent"]["y"] == pytest.approx(5.97, abs=0.03)
     assert res["creep_over_Am_percent"]["before"]["y"] == pytest.approx(5.64, abs=0.03)
     assert abs(res["after"]["creep_percent"]["x"]) < 1e-3 and abs(res["after"]["creep_percent"]["y"]) < 1e-3
     assert res["before"]["overshoot_percent"]["x"] is None  # not run here
+    # with the paper's ±200 V amplifier the x step (K⁻¹·20 µm needs ≈ 202 V at first) is clamped until the creep
+    # compensator has lowered Y_H: an apparent creep after compensation on x only — the paper's x/y asymmetry
+    # (0.31 % vs 0.04 %) has this shape
+    lim = R.evaluate(E.simulate_experiments(cfg, experiments=exps), exps)
+    assert 0.3 < lim["after"]["creep_percent"]["x"] < 2.0 and abs(lim["after"]["creep_percent"]["y"]) < 1e-3
 
 
 def test_evaluate_is_a_pure_function_of_the_signals(short_run):

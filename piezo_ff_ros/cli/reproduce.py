@@ -33,10 +33,14 @@ def add_parser(subparsers):
                    help="sensor noise (standard deviation, nm) of the main run's truth plant (default 0)")
     p.add_argument("--truth", choices=("nominal", "asymmetric"), default="nominal",
                    help="main run's truth plant: the compensators' model, or generalized (asymmetric) Bouc-Wen")
+    p.add_argument("--amplifier", choices=("ideal", "limited"), default="ideal",
+                   help="main run: 'ideal' (model = plant) or 'limited' (the config's ±V and slew limits, applied "
+                        "by the compensator exactly as the driver does)")
     p.add_argument("--creep-duration", type=float, default=600.0, metavar="S",
                    help="creep observation time after the steps, seconds (paper: 600)")
     p.add_argument("--no-robustness", action="store_true",
-                   help="skip the extra runs against a 100 nm noisy plant and an asymmetric-hysteresis truth")
+                   help="skip the extra runs against a 100 nm noisy plant, an asymmetric-hysteresis truth and "
+                        "a limited (±200 V) amplifier")
     p.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     p.set_defaults(func=run)
     return p
@@ -64,10 +68,12 @@ def run(args) -> int:
     design = _design(cfg, log)
     t_design = time.perf_counter() - t0
     exps = paper_experiments(cfg, creep_duration=args.creep_duration)
-    label = "sim " + args.truth + (f" + {args.noise_nm:g} nm noise" if args.noise_nm > 0 else "")
+    label = "sim " + args.truth + (f" + {args.noise_nm:g} nm noise" if args.noise_nm > 0 else "") \
+        + (f" ±{cfg.limits.voltage:g} V" if args.amplifier == "limited" else "")
     log(f"simulating {len(exps)} experiments on the {label} plant (creep runs {args.creep_duration:g} s) …")
     result, recorded = R.reproduce(cfg, design=design, truth=args.truth, noise_std=args.noise_nm * 1e-9,
-                                   creep_duration=args.creep_duration, experiments=exps, progress=lambda n: log(f"  {n}"))
+                                   creep_duration=args.creep_duration, experiments=exps, progress=lambda n: log(f"  {n}"),
+                                   amplifier=args.amplifier)
     result["conditions"]["variant"] = args.variant
     result["conditions"]["hinf_synthesis_s"] = round(t_design, 3)
     print(f"Reproduction of Habineza et al. 2018 (IEEE TASE), config {cfg.name}"
@@ -84,14 +90,16 @@ def run(args) -> int:
         result["robustness"] = {}
         runs = []
         if not (args.truth == "nominal" and args.noise_nm == NOISE_NM_ROBUSTNESS):
-            runs.append((f"noise_{NOISE_NM_ROBUSTNESS:g}nm", "nominal", NOISE_NM_ROBUSTNESS))
+            runs.append((f"noise_{NOISE_NM_ROBUSTNESS:g}nm", "nominal", NOISE_NM_ROBUSTNESS, "ideal"))
         if args.truth != "asymmetric":
-            runs.append(("asymmetric", "asymmetric", 0.0))
-        for key, truth, noise_nm in runs:
+            runs.append(("asymmetric", "asymmetric", 0.0, "ideal"))
+        if args.amplifier != "limited":
+            runs.append((f"amplifier_{cfg.limits.voltage:g}V", "nominal", 0.0, "limited"))
+        for key, truth, noise_nm, amplifier in runs:
             log(f"robustness run: {key} …")
             res, _ = R.reproduce(cfg, design=design, truth=truth, noise_std=noise_nm * 1e-9,
                                  creep_duration=args.creep_duration, experiments=exps,
-                                 progress=lambda n: log(f"  {n}"))
+                                 progress=lambda n: log(f"  {n}"), amplifier=amplifier)
             result["robustness"][key] = {k: res[k] for k in ("before", "after", "tracking", "settling_time_s",
                                                                 "static_error_percent", "conditions",
                                                                 "robust_readings")}

@@ -321,13 +321,16 @@ class CascadeConfig:
     vibration: bool = True
     order: str = "paper"
     hysteresis_loop: str = "exact"
+    #: clamp and slew-limit the output exactly as the driver will (``limits``), so that the hysteresis
+    #: compensator's internal state stays the plant's when a reference asks for more than the amplifier gives
+    respect_limits: bool = True
 
     def validate(self, prefix: str = "cascade") -> "CascadeConfig":
         if self.order not in ("paper", "commuted"):
             raise ConfigError(f"{prefix}.order", f"must be 'paper' or 'commuted', got {self.order!r}")
         if self.hysteresis_loop not in ("exact", "delayed"):
             raise ConfigError(f"{prefix}.hysteresis_loop", f"must be 'exact' or 'delayed', got {self.hysteresis_loop!r}")
-        for name in ("hysteresis", "creep", "vibration"):
+        for name in ("hysteresis", "creep", "vibration", "respect_limits"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{prefix}.{name}", "must be true or false")
         return self
@@ -457,7 +460,8 @@ class PiezoConfig:
             "vibration": vib,
             "cascade": {"hysteresis": self.cascade.hysteresis, "creep": self.cascade.creep,
                         "vibration": self.cascade.vibration, "order": self.cascade.order,
-                        "hysteresis_loop": self.cascade.hysteresis_loop},
+                        "hysteresis_loop": self.cascade.hysteresis_loop,
+                        "respect_limits": self.cascade.respect_limits},
             "limits": {"voltage": self.limits.voltage, "slew": self.limits.slew,
                        "stale_timeout": self.limits.stale_timeout, "safe_voltage": self.limits.safe_voltage},
         }

@@ -74,7 +74,7 @@ def config_to_params(cfg: PiezoConfig) -> dict[str, Any]:
     for name in ("A", "B", "C", "D"):
         out[f"vibration.controller.{name}"] = _flat(ctrl[name]) if name in ctrl else []
     c = d["cascade"]
-    for name in ("hysteresis", "creep", "vibration"):
+    for name in ("hysteresis", "creep", "vibration", "respect_limits"):
         out[f"cascade.{name}"] = bool(c[name])
     out["cascade.order"] = str(c["order"])
     out["cascade.hysteresis_loop"] = str(c["hysteresis_loop"])
@@ -201,7 +201,7 @@ def params_to_config(params: Mapping[str, Any], base: PiezoConfig) -> PiezoConfi
                 ctrl[m] = a.tolist()
             vib["controller"] = ctrl
     casc = d["cascade"]
-    for name in ("hysteresis", "creep", "vibration"):
+    for name in ("hysteresis", "creep", "vibration", "respect_limits"):
         key = f"cascade.{name}"
         if key in p:
             if not isinstance(p[key], bool):

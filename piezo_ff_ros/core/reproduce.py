@@ -296,11 +296,16 @@ def truth_plant(cfg: PiezoConfig, truth: str = "nominal", noise_std: float = 0.0
 
 def reproduce(cfg: PiezoConfig, design=None, truth: str = "nominal", noise_std: float = 0.0,
               creep_duration: float = 600.0, experiments: list[Experiment] | None = None, progress=None,
-              robust: bool | None = None) -> tuple[dict, dict]:
+              robust: bool | None = None, amplifier: str = "ideal") -> tuple[dict, dict]:
     """Simulate the paper's experiments on a truth plant and evaluate them: ``(result, recorded)``.
 
-    ``robust`` defaults to True when there is sensor noise (see :func:`evaluate`).
+    ``robust`` defaults to True when there is sensor noise (see :func:`evaluate`).  ``amplifier``: ``'ideal'``
+    (model = plant, any voltage the compensator asks is applied) or ``'limited'`` (the config's ``limits``:
+    ±voltage and slew, clamped by the compensator exactly as the driver would — the paper's ±200 V amplifier).
     """
+    if amplifier not in ("ideal", "limited"):
+        raise ValueError(f"unknown amplifier {amplifier!r}; use 'ideal' or 'limited'")
+    cfg = dataclasses.replace(cfg, cascade=dataclasses.replace(cfg.cascade, respect_limits=amplifier == "limited"))
     exps = experiments if experiments is not None else paper_experiments(cfg, creep_duration=creep_duration)
     if design is None and cfg.vibration.controller is None and any("vibration" in e.stages for e in exps):
         from .synthesis.hinf import synthesize_hinf
@@ -311,7 +316,10 @@ def reproduce(cfg: PiezoConfig, design=None, truth: str = "nominal", noise_std: 
     if robust is None:
         robust = noise_std > 0
     cond = {"config": cfg.name, "sample_rate_hz": cfg.sample_rate, "truth": truth, "noise_std_m": noise_std,
-            "creep_duration_s": creep_duration}
+            "creep_duration_s": creep_duration, "amplifier": amplifier}
+    if amplifier == "limited":
+        cond["voltage_limit_v"] = cfg.limits.voltage
+        cond["slew_limit_v_per_s"] = cfg.limits.slew
     return evaluate(recorded, exps, design=design, robust=robust, conditions=cond,
                     reference_model_tau=cfg.vibration.t_r / 3.0), recorded
 

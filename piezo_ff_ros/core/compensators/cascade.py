@@ -65,7 +65,8 @@ class CompensatorCascade:
             A, B, C, D = self._controller_matrices(cfg, controller)
             self.vibration = VibrationCompensator(A, B, C, D, dt)
         self.creep = CreepCompensator(cfg.creep, dt) if cc.creep else None
-        self.hysteresis = HysteresisCompensator(cfg.hysteresis, cc.hysteresis_loop) if cc.hysteresis else None
+        lim = dict(voltage_limit=cfg.limits.voltage, slew_per_sample=cfg.limits.slew * dt) if cc.respect_limits else {}
+        self.hysteresis = HysteresisCompensator(cfg.hysteresis, cc.hysteresis_loop, **lim) if cc.hysteresis else None
         Dp_pinv = np.linalg.pinv(np.array(cfg.hysteresis.Dp, float))
         if cc.order == "paper":
             chain = [self.vibration, self.creep, self.hysteresis if self.hysteresis else _Gain(Dp_pinv)]

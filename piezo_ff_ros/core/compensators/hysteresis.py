@@ -24,7 +24,8 @@ __all__ = ["HysteresisCompensator"]
 class HysteresisCompensator:
     """Streaming ``Y_H [m] → U [V]``; ``process(block[N, n]) -> block[N, k]``."""
 
-    def __init__(self, cfg: BoucWenConfig, loop: str = "exact", voltage_limit: float | None = None):
+    def __init__(self, cfg: BoucWenConfig, loop: str = "exact", voltage_limit: float | None = None,
+                 slew_per_sample: float | None = None):
         if loop not in ("exact", "delayed"):
             raise ValueError("loop must be 'exact' or 'delayed'")
         if loop == "exact" and cfg.n_in != cfg.n_out:
@@ -41,7 +42,9 @@ class HysteresisCompensator:
         # Saturating here (as the amplifier will) keeps the internal h equal to the plant's even when a reference
         # asks for more than the actuator can give.
         self.voltage_limit = float(voltage_limit) if voltage_limit is not None else np.inf
-        self.saturated = 0  #: samples clamped to the voltage limit
+        self.saturated = 0  #: samples clamped to the voltage limit or held back by the slew limit
+        # Same order as the driver's guard (core/safety.py): clamp to ±limit, then at most this many volts per sample.
+        self.slew_per_sample = float(slew_per_sample) if slew_per_sample is not None else np.inf
 
     @property
     def n_in(self) -> int:
@@ -66,7 +69,7 @@ class HysteresisCompensator:
         fb = np.zeros(2, np.int64)
         run = _bw_comp_run_2x2 if self.n_in == 2 and self.n_out == 2 else _bw_comp_run
         run(self._Dp, self._Dp_pinv, self._A, self._B, self._G, self._D1, self._D2, self._P,
-            s.h, s.u_prev, s.started, self._signs, self.loop == "exact", self.voltage_limit, yh, u, fb)
+            s.h, s.u_prev, s.started, self._signs, self.loop == "exact", self.voltage_limit, self.slew_per_sample, yh, u, fb)
         self.fallbacks += int(fb[0])
         self.saturated += int(fb[1])
         return u
@@ -116,7 +119,7 @@ def _solve_small(M, r, x, a, b):  # pragma: no cover - compiled
 
 
 @njit
-def _bw_comp_run(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exact, ulim, yh, u, counters):  # pragma: no cover
+def _bw_comp_run(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exact, ulim, dulim, yh, u, counters):  # pragma: no cover
     N = yh.shape[0]
     n = h.shape[0]
     k = u_prev.shape[0]
@@ -199,6 +202,9 @@ def _bw_comp_run(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exa
             if un > ulim or un < -ulim:
                 du[j] = (ulim if un > 0 else -ulim) - u_prev[j]
                 counters[1] += 1
+            if du[j] > dulim or du[j] < -dulim:
+                du[j] = dulim if du[j] > 0 else -dulim
+                counters[1] += 1
         _bw_increment(A, B, G, D1, D2, P, h, du, dh, duh)
         for i in range(n):
             h[i] += dh[i]
@@ -208,7 +214,7 @@ def _bw_comp_run(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exa
 
 
 @njit
-def _bw_comp_run_2x2(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exact, ulim, yh, u,
+def _bw_comp_run_2x2(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exact, ulim, dulim, yh, u,
                      counters):  # pragma: no cover - compiled
     """``_bw_comp_run`` unrolled for two axes: parameters, state and the 2×2 solves in registers.
 
@@ -317,9 +323,15 @@ def _bw_comp_run_2x2(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs,
         if un > ulim or un < -ulim:
             du0 = (ulim if un > 0 else -ulim) - up0
             n_saturated += 1
+        if du0 > dulim or du0 < -dulim:
+            du0 = dulim if du0 > 0 else -dulim
+            n_saturated += 1
         un = up1 + du1
         if un > ulim or un < -ulim:
             du1 = (ulim if un > 0 else -ulim) - up1
+            n_saturated += 1
+        if du1 > dulim or du1 < -dulim:
+            du1 = dulim if du1 > 0 else -dulim
             n_saturated += 1
         # the model's increment (as _bw_increment)
         duh0 = 0.0 + p00 * du0 + p01 * du1
