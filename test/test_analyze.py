@@ -29,8 +29,9 @@ def _record(path, ref, u, y, markers=(), skip=(), diag_values=None, metadata=Non
         for k0 in range(0, len(ref), N):
             stamp = T0 + k0 * DT_NS
             if k0 in marks:
+                mark = marks[k0] if isinstance(marks[k0], dict) else {"name": marks[k0]}
                 rec.write("/experiment", B.serialize_message(
-                    {"data": json.dumps({"name": marks[k0], "k0": k0, "stages": []})}, "std_msgs/msg/String"), stamp)
+                    {"data": json.dumps({"k0": k0, "stages": [], **mark})}, "std_msgs/msg/String"), stamp)
             for role, sig in (("reference", ref), ("voltage", u), ("displacement", y)):
                 if (role, k0) not in skip:
                     rec.write(f"/{role}", B.serialize_block(sig[k0:k0 + N], stamp), stamp)
@@ -116,6 +117,23 @@ def test_run_without_markers_reports_tracking_only(tmp_path):
     result = analyze_run(read_run(path), evaluate=lambda rec: pytest.fail("no segments: not evaluated"))
     assert set(result) == {"replay"} and result["replay"]["segments"] == []
     assert result["replay"]["tracking"]["max"] == pytest.approx([0.5 * UM, 0.5 * UM])
+
+
+def test_voltage_driven_segments_have_no_tracking_error(tmp_path):
+    """The paper's S0 experiments put volts on `reference`: they must not pollute the tracking figures."""
+    n = 8 * N
+    ref = np.full((n, 2), 1 * UM)
+    ref[: n // 2] = 100.0                       # volts: the voltage-driven segment
+    y = ref + 0.5 * UM
+    y[: n // 2] = 10 * UM
+    path = _record(tmp_path / "mixed.mcap", ref, ref, y,
+                   markers={0: {"name": "hyst_S0_x", "input": "voltage"}, n // 2: {"name": "step", "input": "displacement"}})
+    result = analyze_run(read_run(path), evaluate=lambda rec: {})
+    segs = {s["name"]: s for s in result["replay"]["segments"]}
+    assert segs["hyst_S0_x"]["tracking"] is None and segs["hyst_S0_x"]["input"] == "voltage"
+    assert segs["step"]["tracking"]["max"] == pytest.approx([0.5 * UM, 0.5 * UM])
+    assert result["replay"]["tracking"]["max"] == pytest.approx([0.5 * UM, 0.5 * UM])
+    assert result["replay"]["tracking"]["samples"] == n // 2
 
 
 def test_cli_analyze_json_plots_and_clean_errors(known_run, tmp_path, capsys):

@@ -180,12 +180,22 @@ def analyze_run(run: RunData, evaluate: Callable | None = None) -> dict:
         warnings.append("no complete experiment segment: paper tables skipped")
 
     segments = []
+    # Segments driven by voltage (the paper's S0 experiments: the "reference" topic then carries volts) have no
+    # displacement reference: no tracking error for them, and they are left out of the whole-run figure.
+    length_ref = np.ones(len(run), bool)
     for seg in meta.get("segments", []):
         a, b = seg["start"], seg["stop"]
+        by_voltage = (seg.get("info") or {}).get("input") == "voltage"
+        if by_voltage:
+            length_ref[a:b] = False
         ref = run.reference[a:b] if run.reference is not None else None
         segments.append({"name": seg["name"], "k0": seg["k0"], "k1": seg["k1"], "samples": int(b - a),
                          "complete": seg.get("complete", True), "stages": seg.get("stages"),
-                         "tracking": tracking_summary(ref, run.y[a:b]) if b > a else None})
+                         "input": "voltage" if by_voltage else "displacement",
+                         "tracking": tracking_summary(ref, run.y[a:b]) if b > a and not by_voltage else None})
+    whole_ref = None
+    if run.reference is not None:
+        whole_ref = np.where(length_ref[:, None], run.reference, np.nan)
 
     limit = _voltage_limit(run)
     u = np.asarray(run.u, float)
@@ -199,7 +209,7 @@ def analyze_run(run: RunData, evaluate: Callable | None = None) -> dict:
         "samples": len(run),
         "sample_rate": meta.get("sample_rate", run.sample_rate if len(run) > 1 else None),
         "axes": list(run.axes),
-        "tracking": tracking_summary(run.reference, run.y),
+        "tracking": tracking_summary(whole_ref, run.y),
         "segments": segments,
         "blocks": blocks,
         "saturation": {"limit_V": limit, "samples": saturated,
