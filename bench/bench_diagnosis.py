@@ -148,7 +148,7 @@ def speed_run(minutes: float = 10.0, fs: float = 20000.0) -> dict:
     gen = time.perf_counter() - t0
     train, test = run.split(0.5)
     t1 = time.perf_counter()
-    res = diagnose(cfg, train, test, DiagnosisOptions(verbose=True))
+    res = diagnose(cfg, train, test, DiagnosisOptions(verbose=True), test_history=train)
     secs = time.perf_counter() - t1
     print(f"10-minute 20 kHz run ({len(u)} samples, generated in {gen:.1f} s): verdict {res['verdict']} "
           f"(delay {next(r for r in res['ranking'] if r['effect'] == 'input_delay')['params']['delay']['value']:.4g}"

@@ -4,8 +4,8 @@
    run (``core.identification.bouc_wen``, offset fitted, no delay), as a 1-axis config (no creep, a 1 kHz
    first-order G_L, i.e. the one-sample lag ZOH gives at 200 Hz); diagnosed with TRAIN = the model run, TEST = the
    held-out ``Test_Vi_Do_Di`` run.
-2. fsm_cubespec_piezo (3×3, 6400 Hz): a *linear* model (``core.identification.dynamics``, order 6 per entry) trained
-   on the 100 mV level; diagnosed on the 200 mV and the 300 mV level (TRAIN = one training realization of that level,
+2. fsm_cubespec_piezo (3×3, 6400 Hz): a *linear* model (36 common poles, vector fitting of the FRF) trained on the
+   100 mV level; diagnosed on the 200 mV and the 300 mV level (TRAIN = one training realization of that level,
    TEST = one test realization), where the published linear model's error grows from 0.114 to 0.555/1.319 µm.
 
     cd /work/main && PYTHONPATH=. .venv/bin/python bench/diagnose_real_data.py [--out DIR]
@@ -82,33 +82,140 @@ def _linear_config(G: TFMatrix, axes, fs: float) -> PiezoConfig:
                        vibration=HinfConfig(W2=(1.0,) * n), cascade=CascadeConfig(vibration=False)).validate()
 
 
-def fsm_cases(out: Path) -> dict:
+# -- a linear 3x3 model of the FSM from its 100 mV FRF: vector fitting (common poles), strictly proper ----------------
+# (core.identification.dynamics, order 4 per entry, took ~8 min here and fitted only 6-19 % of the 100 mV test run:
+#  the FSM's broadband dynamics need ~36 poles, which a frequency-domain fit gets in a minute)
+
+def frf(level):
+    """MIMO FRF at the excited lines from the steady-state period of the 6 training realizations (G = Y·U⁺)."""
     from piezo_ff_ros.core.datasets import load_fsm
-    from piezo_ff_ros.core.identification.dynamics import identify_dynamics
 
-    def asref(r):
-        return RunData(r.t, r.u, r.y, r.axes, reference=r.u, meta=dict(r.meta))
+    L = load_fsm(level)
+    u = L.u_train[:, :, :, 1]; y = L.y_train[:, :, :, 1]     # steady-state period [8192, 3, R]
+    U = np.fft.rfft(u, axis=0); Y = np.fft.rfft(y, axis=0)   # [nf, 3, R]
+    f = np.fft.rfftfreq(u.shape[0], 1/6400.0)
+    sel = (np.abs(U).sum(axis=(1, 2)) > 1e-3 * np.abs(U).sum(axis=(1, 2)).max()) & (f > 0)
+    G = np.zeros((sel.sum(), 3, 3), complex)
+    for k, i in enumerate(np.flatnonzero(sel)):
+        Uk, Yk = U[i], Y[i]                                   # [3, R]
+        G[k] = Yk @ np.linalg.pinv(Uk)
+    return f[sel], G
 
-    L100 = load_fsm(100)
+def basis(s, poles):
+    cols = []
+    for p in poles:
+        if abs(p.imag) < 1e-9:
+            cols.append(1 / (s - p.real))
+        else:
+            cols.append(1 / (s - p) + 1 / (s - np.conj(p)))
+            cols.append(1j / (s - p) - 1j / (s - np.conj(p)))
+    return np.column_stack(cols)
+
+def vf(f, G, n_pairs=14, iters=6):
+    s = 2j * np.pi * f
+    w = 2 * np.pi * np.geomspace(20, 3000, n_pairs)
+    poles = -w / 100 + 1j * w
+    H = G.reshape(len(f), -1)                                  # [nf, 9]
+    ne = H.shape[1]
+    for it in range(iters):
+        Phi = basis(s, poles)                                  # [nf, m]
+        m = Phi.shape[1]
+        # unknowns: residues per entry (m each) + sigma residues (m): rows per entry
+        rows, rhs = [], []
+        A = np.zeros((len(f) * ne, m * ne + m), complex)
+        b = np.zeros(len(f) * ne, complex)
+        for e in range(ne):
+            sl = slice(e * len(f), (e + 1) * len(f))
+            A[sl, e * m:(e + 1) * m] = Phi
+            A[sl, ne * m:] = -H[:, e:e + 1] * Phi
+            b[sl] = H[:, e]
+        Ar = np.vstack([A.real, A.imag]); br = np.r_[b.real, b.imag]
+        scale = np.linalg.norm(Ar, axis=0); scale[scale == 0] = 1
+        x = np.linalg.lstsq(Ar / scale, br, rcond=None)[0] / scale
+        ct = x[ne * m:]
+        # zeros of sigma: eig(A - b c^T) in real form
+        Am = np.zeros((m, m)); bm = np.zeros(m); k = 0
+        for p in poles:
+            if abs(p.imag) < 1e-9:
+                Am[k, k] = p.real; bm[k] = 1; k += 1
+            else:
+                Am[k:k + 2, k:k + 2] = [[p.real, p.imag], [-p.imag, p.real]]; bm[k] = 2; k += 2
+        z = np.linalg.eigvals(Am - np.outer(bm, ct))
+        z = np.where(z.real > 0, -z.real + 1j * z.imag, z)      # flip unstable
+        poles = z[z.imag >= 0]
+        poles = np.where(np.abs(poles.imag) < 1e-6 * np.abs(poles), poles.real + 0j, poles)
+    Phi = basis(s, poles)
+    res = []
+    fit = np.zeros_like(H)
+    for e in range(ne):
+        Ar = np.vstack([Phi.real, Phi.imag]); br = np.r_[H[:, e].real, H[:, e].imag]
+        c = np.linalg.lstsq(Ar, br, rcond=None)[0]
+        res.append(c); fit[:, e] = Phi @ c
+    err = np.linalg.norm(fit - H) / np.linalg.norm(H)
+    return poles, res, err
+
+def to_factored(poles, c, w0=1e4):
+    # H(s) = sum over basis with real coeffs -> complex residues per pole
+    ps, rs = [], []
+    k = 0
+    for p in poles:
+        if abs(p.imag) < 1e-9:
+            ps.append(p.real); rs.append(c[k]); k += 1
+        else:
+            r = c[k] + 1j * c[k + 1]
+            ps += [p, np.conj(p)]; rs += [r, np.conj(r)]; k += 2
+    ps = np.array(ps, complex) / w0; rs = np.array(rs, complex) / w0
+    num = np.zeros(1, complex)
+    for i in range(len(ps)):
+        num = np.polyadd(num, rs[i] * np.poly(np.delete(ps, i)))
+    num = np.real_if_close(num, tol=1e6).real
+    num = np.trim_zeros(num, 'f')
+    lead = num[0]
+    zs = np.roots(num) * w0
+    n, m = len(ps), len(num) - 1
+    gain = lead * w0 ** (n - m)
+    def factors(roots):
+        out, used = [], np.zeros(len(roots), bool)
+        for i, r in enumerate(roots):
+            if used[i]: continue
+            used[i] = True
+            if abs(r.imag) < 1e-9 * max(1, abs(r)):
+                out.append([1.0, -r.real])
+            else:
+                j = np.argmin(np.abs(roots - np.conj(r)) + used * 1e300); used[j] = True
+                out.append([1.0, -2 * r.real, abs(r) ** 2])
+        return out
+    return FactoredTF(float(gain), tuple(map(tuple, factors(zs))), tuple(map(tuple, factors(ps * w0))))
+
+
+
+def fsm_cases(out: Path, n_pairs: int = 18) -> dict:
+    from piezo_ff_ros.core.datasets import load_fsm
+
     t0 = time.perf_counter()
-    fit = identify_dynamics([asref(r) for r in L100.runs("train")[:2]], [asref(L100.runs("test")[0])], order=6)
+    f, G = frf(100)
+    poles, res, err = vf(f, G, n_pairs=n_pairs)
+    tfm = TFMatrix.from_nested([[to_factored(poles, res[i * 3 + j]) for j in range(3)] for i in range(3)])
+    L100 = load_fsm(100)
     axes = L100.runs("train")[0].axes
-    cfg = _linear_config(fit.config.G_L, axes, L100.runs("train")[0].sample_rate)
-    print(f"fsm: linear model (order 6 per entry) identified at 100 mV in {time.perf_counter() - t0:.0f} s; "
-          f"held-out fit at 100 mV {fit.fit_validation}")
+    cfg = _linear_config(tfm, axes, 6400.0)
+    print(f"fsm: linear model ({2 * n_pairs} common poles, vector fitting on the 100 mV FRF of the 6 training "
+          f"realizations) in {time.perf_counter() - t0:.0f} s; relative FRF error {100 * err:.1f} %")
     results = {}
     for level in (100, 200, 300):
         Lv = load_fsm(level)
         train, test = Lv.runs("train")[0], Lv.runs("test")[0]
-        res = diagnose(cfg, train, test, DiagnosisOptions())
-        rms = math.sqrt(float(np.mean((res["_arrays"]["test"].y - res["_arrays"]["y_test_nom"]
-                                       - (res["_arrays"]["test"].y - res["_arrays"]["y_test_nom"]).mean(0)) ** 2)))
-        print(f"fsm {level} mV: linear-100mV model held-out RMS error {rms * 1e6:.3f} µm "
-              f"(published BLA trained at 100 mV: 0.114/0.555/1.319 µm at 100/200/300 mV)")
-        _print(res, f"fsm_cubespec_piezo {level} mV")
-        write_report(res, out / f"fsm_{level}mV")
-        (out / f"fsm_{level}mV" / "diagnosis.json").write_text(json.dumps(json_ready(res), indent=1))
-        results[level] = res
+        res_ = diagnose(cfg, train, test, DiagnosisOptions())
+        A = res_["_arrays"]
+        r = test.y - A["y_test_nom"]
+        half = len(r) // 2  # the published metric skips the first (transient) period
+        r2 = r[half:] - r[half:].mean(0)
+        print(f"fsm {level} mV: 100 mV linear model, held-out RMS error (2nd period) {np.sqrt(np.mean(r2 ** 2)) * 1e6:.3f} µm "
+              f"(published 28th-order BLA trained at 100 mV: 0.114/0.555/1.319 µm at 100/200/300 mV)")
+        _print(res_, f"fsm_cubespec_piezo {level} mV")
+        write_report(res_, out / f"fsm_{level}mV")
+        (out / f"fsm_{level}mV" / "diagnosis.json").write_text(json.dumps(json_ready(res_), indent=1))
+        results[level] = res_
     return results
 
 

@@ -65,7 +65,8 @@ def run(args) -> int:
         if bad:
             raise ValueError(f"--candidates: unknown effect(s) {bad}; known: {', '.join(EFFECT_NAMES)}")
         opts.candidates = names
-    res = diagnose(cfg, train, test, opts)
+    # a held-out part split from one file is replayed after the training part (its start state is not at rest)
+    res = diagnose(cfg, train, test, opts, test_history=train if args.data else None)
     A = res["_arrays"]
     apply_notes, tracking = None, None
     if args.apply:

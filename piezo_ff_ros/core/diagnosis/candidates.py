@@ -92,6 +92,15 @@ def _stderr(J: np.ndarray, r: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(np.diag(cov), 0.0))
 
 
+#: regressions of displacement-side effects use at most this many rows (every k-th sample of a long run): the
+#: regressors are computed on the whole run, only the least-squares rows are thinned
+MAX_REGRESSION_ROWS = 400_000
+
+
+def _stride(n: int) -> int:
+    return max(1, -(-n // MAX_REGRESSION_ROWS))
+
+
 def _rms(r) -> float:
     return float(np.sqrt(np.mean(np.asarray(r) ** 2)))
 
@@ -118,8 +127,9 @@ def _lin_per_axis(y: np.ndarray, regs: list[np.ndarray]):
 
 
 def fit_gain_mismatch(ctx: FitContext) -> FitResult:
-    r0 = residual(ctx.y, ctx.y_base)
-    coef, res, se = _lin_per_axis(r0, [ctx.y_base])
+    k = _stride(len(ctx.y))
+    r0 = residual(ctx.y[::k], ctx.y_base[::k])
+    coef, res, se = _lin_per_axis(r0, [ctx.y_base[::k]])
     g = 1.0 + coef[0]
     return FitResult("gain_mismatch", {"gains": g.tolist()}, {"gains": se[0].tolist()},
                      [("gain_mismatch", {"gains": g.tolist()})], ctx.cfg.n_axes, _rms(res))
@@ -136,8 +146,10 @@ def _creep_regs(y_base: np.ndarray, dt: float, beta: float | None = None):
 
 
 def fit_creep_nonlinearity(ctx: FitContext) -> FitResult:
-    r0 = residual(ctx.y, ctx.y_base)
+    k = _stride(len(ctx.y))
+    r0 = residual(ctx.y[::k], ctx.y_base[::k])
     S1, S2 = _creep_regs(ctx.y_base, ctx.dt)
+    S1, S2 = S1[::k], S2[::k]
     coef, _, _ = _lin_per_axis(r0, [S1, S2])
     g1, g2 = coef
     beta = float(np.sum(g1 * g2) / max(np.sum(g1 * g1), 1e-300))
@@ -161,13 +173,15 @@ def fit_creep_nonlinearity(ctx: FitContext) -> FitResult:
 
 
 def fit_thermal_drift(ctx: FitContext) -> FitResult:
-    r0 = residual(ctx.y, ctx.y_base)
+    k = _stride(len(ctx.y))
+    r0 = residual(ctx.y[::k], ctx.y_base[::k])
     N = len(r0)
-    T = N * ctx.dt
+    T = len(ctx.y) * ctx.dt
     n = ctx.cfg.n_axes
+    tk = np.arange(N) * ctx.dt * k  # times of the kept rows
 
     def sse(log_tau):
-        shape = -np.expm1(-np.arange(N) * ctx.dt / math.exp(log_tau))[:, None] * np.ones(n)
+        shape = -np.expm1(-tk / math.exp(log_tau))[:, None] * np.ones(n)
         _, res, _ = _lin_per_axis(r0, [shape])
         return float(np.sum(res ** 2))
 
@@ -178,11 +192,11 @@ def fit_thermal_drift(ctx: FitContext) -> FitResult:
     z = optimize.minimize_scalar(sse, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3}).x if hi > lo \
         else grid[k]
     tau = math.exp(z)
-    shape = -np.expm1(-np.arange(N) * ctx.dt / tau)
+    shape = -np.expm1(-tk / tau)
     coef, res, _ = _lin_per_axis(r0, [shape[:, None] * np.ones(n)])
     a = coef[0]
     # Jacobian over (a_1..a_n, log τ) for the uncertainties
-    dshape = -np.exp(-np.arange(N) * ctx.dt / tau) * (np.arange(N) * ctx.dt / tau)
+    dshape = -np.exp(-tk / tau) * (tk / tau)
     cols = []
     for i in range(n):
         col = np.zeros_like(r0)

@@ -234,8 +234,12 @@ def _confidence(best: _Scored, runner: _Scored | None, sigma2: float, N: int) ->
 
 
 def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: DiagnosisOptions | None = None,
-             log=None) -> dict:
+             log=None, test_history: RunData | None = None) -> dict:
     """Diagnose the gap between ``cfg`` and the measured runs; returns the JSON-ready result (issue 5 §5).
+
+    ``test_history``: the part of the same record that precedes ``test`` (``--data`` split: the training part).
+    Its voltages drive the model before the held-out part so that the held-out part does not start from an
+    unknown state (creep has time constants of minutes); only the held-out samples are scored.
 
     The result also carries, under the key ``"_arrays"`` (not JSON), the arrays the report plots.
     """
@@ -253,9 +257,22 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
         raise ValueError(f"unknown candidate effect(s) {unknown}; known: {list(CANDIDATES)}")
     fs = cfg.sample_rate
     axes = tuple(cfg.axes)
+    # the held-out run, extended by its history when it was split from a longer record
+    H = 0
+    test_ext = test
+    if test_history is not None:
+        check_run(test_history, "test history")
+        H = len(test_history)
+        test_ext = RunData(np.arange(H + len(test)) * cfg.dt, np.vstack([test_history.u, test.u]),
+                           np.vstack([test_history.y, test.y]), test.axes)
+
+    def sim_test(effects):
+        return simulate(cfg, test_ext.u, effects)[H:]
+
     # 1. replay
-    y_train_nom = simulate(cfg, train.u, [])
-    y_test_nom = simulate(cfg, test.u, [])
+    y_ext_nom = simulate(cfg, test_ext.u, [])
+    y_test_nom = y_ext_nom[H:]
+    y_train_nom = y_ext_nom[:H] if test_history is train else simulate(cfg, train.u, [])
     r_test = residual(test.y, y_test_nom)
     sigma = noise_floor(r_test)
     sigma2 = float(np.mean(sigma ** 2))
@@ -267,8 +284,8 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
     where["train_nrmse_percent"] = nrmse_percent(train.y - train.y.mean(0), y_train_nom - y_train_nom.mean(0))
     sig = signatures(test.u, y_test_nom, r_test, cfg.dt, sigma)
     # 3. which: fit on TRAIN, score on TEST
-    score_win = Windows.spread(len(test), opts.score_samples, opts.n_windows, int(opts.warmup_s * fs))
-    held = _Held(cfg, test, [], score_win, y_test_nom)
+    score_win = Windows.spread(len(test), opts.score_samples, opts.n_windows, int(opts.warmup_s * fs), offset=H)
+    held = _Held(cfg, test_ext, [], score_win, y_ext_nom)
     N = held.r_before.size
     # informational: whether the gap is within NOISE_MARGIN of the noise floor (acceptance itself is the test)
     at_floor = math.sqrt(float(np.mean(held.r_before ** 2))) <= NOISE_MARGIN * math.sqrt(sigma2)
@@ -286,8 +303,8 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
                       "heldout_nrmse_percent": verdict.after_nrmse})
         pool = [s.fit.effect for s in scored if s.fit.effect != verdict.fit.effect][:opts.stack_pool]
         while len(stack) < opts.max_stack and pool:
-            held_k = _Held(cfg, test, base, score_win,
-                           simulate(cfg, test.u, base) if not score_win.is_whole else None)
+            held_k = _Held(cfg, test_ext, base, score_win,
+                           simulate(cfg, test_ext.u, base) if not score_win.is_whole else None)
             if math.sqrt(float(np.mean(held_k.r_before ** 2))) <= STACK_STOP * math.sqrt(sigma2):
                 break
             log(f"stacking on {[e for e, _ in base]}:")
@@ -317,8 +334,8 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
                           "heldout_nrmse_percent": after})
             pool = [p for p in pool if p != best.fit.effect]
     # the verdict alone and the final stack on the whole test run (one simulation when they are the same)
-    y_test_verdict = simulate(cfg, test.u, verdict.fit.effects) if verdict is not None else y_test_nom
-    y_test_final = y_test_verdict if len(stack) <= 1 else simulate(cfg, test.u, base)
+    y_test_verdict = sim_test(verdict.fit.effects) if verdict is not None else y_test_nom
+    y_test_final = y_test_verdict if len(stack) <= 1 else sim_test(base)
     r_final = residual(test.y, y_test_final)
     runner = next((s for s in scored if verdict is not None and s is not verdict), None)
     conf, why = ("n/a", "")

@@ -81,13 +81,19 @@ class Windows:
         return Windows([(0, 0, n)])
 
     @staticmethod
-    def spread(n: int, max_samples: int, n_windows: int = 8, warmup: int = 0) -> "Windows":
+    def spread(n: int, max_samples: int, n_windows: int = 8, warmup: int = 0, offset: int = 0) -> "Windows":
         """The whole run if it fits in ``max_samples``, else ``n_windows`` windows spread evenly, each with a
-        warm-up of ``warmup`` samples (the first window starts at 0 without warm-up)."""
+        warm-up of ``warmup`` samples (the first window starts at 0 without warm-up).
+
+        ``offset``: the run starts at sample ``offset`` of a longer record whose earlier voltages are known (a
+        held-out part split from one file); windows then warm up on those earlier samples too.
+        """
         if n <= max_samples:
-            return Windows.whole(n)
+            if offset == 0:
+                return Windows.whole(n)
+            return Windows([(max(0, offset - warmup), offset, offset + n)])
         per = max(max_samples // n_windows, 100)
-        starts = np.linspace(0, n - per, n_windows).astype(int)
+        starts = offset + np.linspace(0, n - per, n_windows).astype(int)
         spans = []
         for s in starts:
             w = max(0, s - warmup)
