@@ -34,13 +34,11 @@ def add_parser(subparsers):
     p.add_argument("--variant", metavar="NAME", help="named variant of the config (e.g. gyx_gain_div10)")
     p.add_argument("--block-size", type=int, default=2000, metavar="N", help="samples per block (default 2000)")
     p.add_argument("--window", type=int, default=4, metavar="W", help="lockstep blocks in flight (default 4)")
-    p.add_argument("--voltage-limit", type=float, default=250.0, metavar="V",
-                   help="driver voltage limit for the demo (default 250 V: the exact-inverse compensator asks "
-                        "~202 V for the paper's 20 µm x step; the config's 200 V would clamp it)")
-    p.add_argument("--slew-limit", type=float, default=1e7, metavar="V/S",
-                   help="driver slew limit for the demo (default 1e7 V/s: the compensator steps in one sample; the "
-                        "config's 2e5 V/s spreads the step over ~20 samples, which the discrete Bouc-Wen "
-                        "inverse does not expect)")
+    p.add_argument("--voltage-limit", type=float, default=None, metavar="V",
+                   help="driver (and compensator) voltage limit (default: the config's limits.voltage, 200 V — the "
+                        "paper's amplifier; the 20 µm x step asks ≈ 202 V at first, so it is clamped)")
+    p.add_argument("--slew-limit", type=float, default=None, metavar="V/S",
+                   help="driver (and compensator) slew limit (default: the config's limits.slew)")
     p.add_argument("--domain-id", type=int, metavar="ID",
                    help="ROS_DOMAIN_ID of the demo's graph (default: a private one derived from the process id)")
     p.add_argument("--only", metavar="NAMES", help="comma-separated experiment names (default: all)")
@@ -56,7 +54,7 @@ def _check(args):
         raise ValueError(f"--block-size must be in 1..20000, got {args.block_size}")
     for name in ("voltage_limit", "slew_limit"):
         v = getattr(args, name)
-        if not (math.isfinite(v) and v > 0):
+        if v is not None and not (math.isfinite(v) and v > 0):
             raise ValueError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         raise ValueError(f"--domain-id must be in 0..232, got {args.domain_id}")
@@ -160,6 +158,11 @@ def _run(args) -> int:
 
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     cfg = load_config(args.config, variant=args.variant)
+    # the driver enforces the config's limits unless told otherwise; the compensator clamps to the same ones
+    if args.voltage_limit is None:
+        args.voltage_limit = cfg.limits.voltage
+    if args.slew_limit is None:
+        args.slew_limit = cfg.limits.slew
     exps = paper_experiments(cfg, creep_duration=args.creep_duration)
     if args.only:
         wanted = [s.strip() for s in args.only.split(",") if s.strip()]
