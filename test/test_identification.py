@@ -100,18 +100,40 @@ def test_step_events_merge_a_ramped_edge():
     assert step_events(u) == [100]
 
 
-@pytest.mark.parametrize("noise, floor", [(0.0, 99.0), (100e-9, 95.0)])
-def test_dynamics_recovers_G_L(cfg, noise, floor):
+def test_dynamics_recovers_G_L(cfg):
+    """Noise-free steps: held-out fit ≥ 99 %, and the exported (factored) G_L has the plant's DC gains."""
     fs = cfg.sample_rate
-    plant = Plant(cfg, stages=("dynamics",), noise_std=noise, seed=1)
+    plant = Plant(cfg, stages=("dynamics",))
     fit, val = _split_runs(plant, dynamics_trajectories(CharacterisationSettings(), AXES), fs)
     res = identify_dynamics(fit, val, order=8)
-    for key in ("xx", "yy"):
-        assert res.fit_validation[key] >= floor, res.fit_validation
-    # DC gains of the direct transfers within 2 %
-    got = res.config.G_L.dc_gain()
-    true = cfg.dynamics.G_L.dc_gain()
-    np.testing.assert_allclose(np.diag(got), np.diag(true), rtol=0.02)
+    for key in ("xx", "yy", "yx"):
+        assert res.fit_validation[key] >= 99.0, res.fit_validation
+    np.testing.assert_allclose(res.config.G_L.dc_gain(), cfg.dynamics.G_L.dc_gain(), rtol=0.02, atol=2e-3)
+
+
+def test_dynamics_with_100nm_noise_reproduces_the_plant(cfg):
+    """100 nm white noise at 20 kHz on 20 µm steps: the identified G_L (as exported in the config and simulated by
+    the core) reproduces the noise-free plant on the held-out steps with fit ≥ 95 %; against the noisy record it
+    reaches the noise floor (the fit the true model itself gets there, ~92–94 %)."""
+    from piezo_ff_ros.core.identification.metrics import fit_percent
+    from piezo_ff_ros.core.models.dynamics import DynamicsModel
+
+    fs = cfg.sample_rate
+    plant = Plant(cfg, stages=("dynamics",), noise_std=100e-9, seed=1)
+    fit, val = _split_runs(plant, dynamics_trajectories(CharacterisationSettings(), AXES), fs)
+    res = identify_dynamics(fit, val, order=8)
+    clean = Plant(cfg, stages=("dynamics",))
+    model = DynamicsModel(res.config, 1.0 / fs)
+    for j, r in enumerate(val):
+        k = r.meta["score_start"]
+        clean.reset()
+        model.reset()
+        y_true = clean.process(r.u)
+        y_model = model.process(r.u)
+        f = fit_percent(y_true[k:] - y_true[k - 1], y_model[k:] - y_model[k - 1])
+        assert f[j] >= 95.0, (j, f)
+        floor = fit_percent(r.y[k:] - r.y[k - 20:k].mean(0), y_true[k:] - y_true[k - 20:k].mean(0))[j]
+        assert res.fit_validation[AXES[j] * 2] >= floor - 1.0, (res.fit_validation, floor)
 
 
 def _write_csv(path, run, with_reference):

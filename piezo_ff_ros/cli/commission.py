@@ -94,10 +94,13 @@ def run(args) -> int:
                                         dynamics_order=_order(args.dynamics_order), progress=say)
     t0 = time.perf_counter()
     say("vibration: H∞ synthesis on the identified G_L")
-    from ..core.synthesis.hinf import synthesize_hinf
+    from ..core.identification.pipeline import synthesize_for
 
-    design = synthesize_hinf(cfg.dynamics.G_L, cfg.vibration)
+    design, note = synthesize_for(cfg, say)
     report["timing_s"]["hinf"] = time.perf_counter() - t0
+    if note:
+        cfg = dataclasses.replace(cfg, vibration=dataclasses.replace(cfg.vibration,
+                                                                     gamma_max=1.05 * float(design.gamma)))
     cfg = dataclasses.replace(cfg, vibration=dataclasses.replace(
         cfg.vibration, controller=design.controller_matrices())).validate()
     cfg_path = out / "config.yaml"
@@ -113,7 +116,7 @@ def run(args) -> int:
               "static_error_percent": res["static_error_percent"], "errors": res["errors"],
               "conditions": {"truth": args.truth, "noise_std_m": noise, "creep_duration_s": args.creep_duration,
                              "sample_rate_hz": printed.sample_rate, "generalized": bool(args.generalized)},
-              "config": str(cfg_path)}
+              "config": str(cfg_path), "hinf_note": note}
     print(format_tables(res, label="identified cascade", axes=printed.axes))
     if not args.no_compare:
         t0 = time.perf_counter()

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
+import scipy.signal
 
 from ..config import DynamicsConfig
 from ..lti import FactoredTF, TFMatrix
@@ -55,7 +56,7 @@ def _baseline(r: RunData) -> np.ndarray:
     return r.y[:max(k, 1)].mean(axis=0) if np.allclose(u[0], 0) else np.zeros(r.y.shape[1])
 
 
-def _impulse_estimates(runs, n, L):
+def _impulse_estimates(runs, n, L, smooth=0):
     """h[i][j]: impulse response estimates (length L+1) per entry."""
     h = [[None] * n for _ in range(n)]
     for r in runs:
@@ -70,7 +71,10 @@ def _impulse_estimates(runs, n, L):
             seg = y[e - 1:e + L] / amp          # y[e-1] = before the step; strictly proper: y[e] first to move
             for i in range(n):
                 if h[i][j] is None:
-                    h[i][j] = np.diff(np.concatenate([[0.0], seg[:, i] - seg[0, i]]))[:L + 1]
+                    # smoothed before differencing: sensor noise would otherwise dominate the impulse estimate
+                    # (it only seeds ERA's poles; the output-error fit uses the raw data)
+                    sm = scipy.signal.savgol_filter(seg[:, i] - seg[0, i], smooth, 3) if smooth else seg[:, i] - seg[0, i]
+                    h[i][j] = np.diff(np.concatenate([[0.0], sm]))[:L + 1]
     for i in range(n):
         for j in range(n):
             if h[i][j] is None:  # FIR least squares over all records
@@ -123,7 +127,10 @@ def identify_dynamics(runs: Sequence[RunData], validation: Sequence[RunData] = (
     n = len(axes)
     dt = runs[0].dt
     L = max(20, int(round(era_length / dt)))
-    h = _impulse_estimates(runs, n, L)
+    # noise level from the pre-step rest: decides whether the step responses are smoothed for ERA
+    noisy = any(float(np.std(np.diff(r.y[:max(8, step_events(_inp(r))[0] if step_events(_inp(r)) else 8)], axis=0)))
+                > 1e-4 * float(np.max(np.abs(r.y))) for r in runs)
+    h = _impulse_estimates(runs, n, L, smooth=15 if noisy else 0)
     excited = sorted({j for r in runs for j in range(n) if np.ptp(_inp(r)[:, j]) > 0})
 
     def recs(rs, scored):
@@ -189,7 +196,9 @@ def identify_dynamics(runs: Sequence[RunData], validation: Sequence[RunData] = (
                 yhat = simulate_row(models, [rec["u"][:, j] for j in range(n)], dt)
                 w = rec["score"]
                 a = rec["anchor"]
-                y0, yh0 = (rec["y"][a, i], yhat[a]) if a is not None else (0.0, 0.0)
+                # level before the held-out step: mean of the last 20 samples (one noisy sample would bias it)
+                y0, yh0 = ((rec["y"][max(0, a - 19):a + 1, i].mean(), yhat[max(0, a - 19):a + 1].mean())
+                           if a is not None else (0.0, 0.0))
                 key = (i, rec["moving"][0]) if len(rec["moving"]) == 1 else (i, None)
                 acc.setdefault(key, ([], []))
                 acc[key][0].append(rec["y"][w, i] - y0)
