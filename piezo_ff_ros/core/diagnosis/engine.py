@@ -24,7 +24,8 @@ from ..config import PiezoConfig
 from ..models.effects import EFFECTS
 from ..recording.run import RunData
 from .candidates import CANDIDATES, FitContext, FitResult, fit_candidate, n_eff_ratio
-from .replay import Windows, check_run, model_for_run, noise_floor, nrmse_percent, residual, simulate
+from .replay import (Windows, check_run, input_period, model_for_run, noise_floor, noise_floor_periodic,
+                     nrmse_percent, residual, simulate)
 from .where import localise
 
 __all__ = ["DiagnosisOptions", "diagnose", "signatures", "MIN_EXCESS_SHRINK", "NOISE_MARGIN"]
@@ -47,7 +48,7 @@ class DiagnosisOptions:
     fit_samples: int = 240_000
     score_samples: int = 480_000
     n_windows: int = 8
-    warmup_s: float = 2.0
+    warmup_s: float = 0.5
     max_stack: int = 3
     stack_pool: int = 4
     verbose: bool = False
@@ -274,11 +275,14 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
     y_test_nom = y_ext_nom[H:]
     y_train_nom = y_ext_nom[:H] if test_history is train else simulate(cfg, train.u, [])
     r_test = residual(test.y, y_test_nom)
-    sigma = noise_floor(r_test)
+    period = input_period(test.u)
+    # periodic excitation: the noise is what differs between periods; else the residual's second difference
+    sigma = noise_floor_periodic(test.y, period) if period else noise_floor(r_test)
+    noise_method = f"period-to-period difference (period {period} samples)" if period else "second difference"
     sigma2 = float(np.mean(sigma ** 2))
     log(f"replay: train {nrmse_percent(train.y - train.y.mean(0), y_train_nom - y_train_nom.mean(0)):.3f} %, "
         f"test {nrmse_percent(test.y - test.y.mean(0), y_test_nom - y_test_nom.mean(0)):.3f} % NRMSE; "
-        f"noise floor {np.round(sigma * 1e9, 1).tolist()} nm ({time.perf_counter() - t_start:.1f} s)")
+        f"noise floor {np.round(sigma * 1e9, 1).tolist()} nm by {noise_method} ({time.perf_counter() - t_start:.1f} s)")
     # 2. where
     where = localise(test.u, test.y, y_test_nom, cfg.dt, axes, sigma)
     where["train_nrmse_percent"] = nrmse_percent(train.y - train.y.mean(0), y_train_nom - y_train_nom.mean(0))
@@ -373,6 +377,7 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
             "after_nrmse_percent": nrmse_percent(test.y - test.y.mean(0), y_test_verdict - y_test_verdict.mean(0)),
             "stacked_after_nrmse_percent": stacked_nrmse,
             "noise_floor_nrmse_percent": noise_nrmse,
+            "noise_floor_method": noise_method,
             "scored_on_samples": int(held.r_before.shape[0]),
         },
         "ranking": ranking,

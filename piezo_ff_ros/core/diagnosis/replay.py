@@ -16,7 +16,7 @@ from ..config import PiezoConfig
 from ..models.effects import build_plant
 from ..recording.run import RunData
 
-__all__ = ["nrmse_percent", "noise_floor", "Windows", "simulate", "residual", "check_run", "model_for_run"]
+__all__ = ["nrmse_percent", "noise_floor", "noise_floor_periodic", "input_period", "Windows", "simulate", "residual", "check_run", "model_for_run"]
 
 
 def nrmse_percent(y: np.ndarray, y_hat: np.ndarray, axis=None) -> float | np.ndarray:
@@ -39,6 +39,29 @@ def noise_floor(r: np.ndarray) -> np.ndarray:
     d2 = np.diff(np.asarray(r, float), n=2, axis=0)
     mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
     return 1.4826 * mad / np.sqrt(6.0)
+
+
+def input_period(u: np.ndarray, max_periods: int = 8, rtol: float = 1e-6) -> int | None:
+    """The period (samples) of a voltage record made of ≥ 2 identical periods (periodic multisines), else None."""
+    u = np.asarray(u, float)
+    N = len(u)
+    scale = float(np.max(np.abs(u))) or 1.0
+    for k in range(max_periods, 1, -1):
+        if N % k:
+            continue
+        P = N // k
+        if np.max(np.abs(u[P:] - u[:-P])) <= rtol * scale:
+            return P
+    return None
+
+
+def noise_floor_periodic(y: np.ndarray, period: int) -> np.ndarray:
+    """Sensor noise per axis from the difference of the last two periods of the *measured* output (the excitation
+    repeats exactly, so whatever differs is noise — valid even when the model error reaches Nyquist)."""
+    y = np.asarray(y, float)
+    d = y[-period:] - y[-2 * period:-period]
+    d = d - d.mean(axis=0)
+    return np.sqrt(np.mean(d ** 2, axis=0) / 2.0)
 
 
 def check_run(run: RunData, name: str) -> None:
