@@ -41,16 +41,22 @@ def noise_floor(r: np.ndarray) -> np.ndarray:
     return 1.4826 * mad / np.sqrt(6.0)
 
 
-def input_period(u: np.ndarray, max_periods: int = 8, rtol: float = 1e-6) -> int | None:
-    """The period (samples) of a voltage record made of ≥ 2 identical periods (periodic multisines), else None."""
+def input_period(u: np.ndarray, max_periods: int = 8, rtol: float = 1e-3) -> int | None:
+    """The period (samples) of a voltage record made of ≥ 2 repeated periods (periodic multisines), else None.
+
+    Measured voltages carry noise: periods count as equal when the RMS of their difference is below ``rtol`` of
+    the voltage's RMS.
+    """
     u = np.asarray(u, float)
     N = len(u)
-    scale = float(np.max(np.abs(u))) or 1.0
+    scale = float(np.std(u))
+    if not scale > 0:
+        return None
     for k in range(max_periods, 1, -1):
         if N % k:
             continue
         P = N // k
-        if np.max(np.abs(u[P:] - u[:-P])) <= rtol * scale:
+        if P >= 64 and float(np.std(u[P:] - u[:-P])) <= rtol * scale:
             return P
     return None
 
