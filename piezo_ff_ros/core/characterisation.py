@@ -10,13 +10,20 @@ Each stage is characterised on the system the previous identified compensators l
 - **dynamics** on S_L (hysteresis + creep compensators): a 20 µm step per axis held ``dynamics_duration`` (paper:
   < 200 ms of transient), then back down (held out).
 
+Every step rises and falls in ``step_ramp`` (2 ms: an amplifier's slew limit, 200 V/ms).  Why: the model is the
+explicit discrete Bouc-Wen; a one-sample jump of several hundred volts *down from a loaded state* makes that
+discrete form (plant and compensator alike) jump far outside the continuous model (B·|ΔU| > 1), so an identified
+compensator that is 1 % off lands microns away; a real amplifier cannot do it anyway.
+
 Every setting is a field of :class:`CharacterisationSettings` with the paper's value as default.  The signals are
-:mod:`~piezo_ff_ros.core.trajectories` objects (``Sine``, ``Step``, ``Sequence``) so the node graph can play them.
+:mod:`~piezo_ff_ros.core.trajectories` objects (``Sine``, ``Hold``, ``Sequence``) plus two small ones defined here
+(:class:`Sum` of trajectories, :class:`Ramp`); they are not in ``trajectories.TRAJECTORY_TYPES``, so the node graph
+cannot build them from a parameter dict yet (they play through any code that calls ``block``/``sample``).
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
