@@ -62,78 +62,6 @@ def _check(args):
         raise ValueError(f"--window must be in 1..50, got {args.window}")
 
 
-class _GraphClient:
-    """The demo's own rclpy node: parameter/Trigger service calls, trajectory state and compensator diagnostics."""
-
-    def __init__(self):
-        import rclpy
-        from diagnostic_msgs.msg import DiagnosticArray
-        from rcl_interfaces.srv import SetParametersAtomically
-        from std_msgs.msg import String
-        from std_srvs.srv import Trigger
-
-        from ..nodes.common import LATCHED_QOS
-
-        self.rclpy = rclpy
-        rclpy.init()
-        self.node = rclpy.create_node("piezo_ff_demo")
-        self.states: list[dict] = []
-        self.comp_diag: dict = {}
-        self.hinf: dict | None = None    # γ/orders of the compensator's H∞ design, from its diagnostics
-        self.node.create_subscription(String, "/trajectory/state", lambda m: self.states.append(json.loads(m.data)),
-                                      LATCHED_QOS)
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 50)
-        self.recorder: dict = {}
-        self.node.create_subscription(String, "/recorder/status", lambda m: self.recorder.update(json.loads(m.data)),
-                                      LATCHED_QOS)
-        self.set_comp = self.node.create_client(SetParametersAtomically, "/compensator/set_parameters_atomically")
-        self.set_traj = self.node.create_client(SetParametersAtomically, "/trajectory/set_parameters_atomically")
-        self.reset_comp = self.node.create_client(Trigger, "/compensator/reset")
-        self.reset_drv = self.node.create_client(Trigger, "/driver/reset")
-        self.start = self.node.create_client(Trigger, "/trajectory/start")
-        self.Trigger = Trigger
-        self.SetAtomic = SetParametersAtomically
-
-    def _on_diag(self, msg):
-        for st in msg.status:
-            if st.name.endswith("compensator"):
-                self.comp_diag = {kv.key: kv.value for kv in st.values}
-                self.comp_diag["_t"] = time.monotonic()
-                if "hinf" in self.comp_diag:
-                    self.hinf = json.loads(self.comp_diag["hinf"])
-
-    def spin_until(self, cond, timeout, what):
-        deadline = time.monotonic() + timeout
-        while not cond():
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"timed out after {timeout:g} s waiting for {what}")
-            self.rclpy.spin_once(self.node, timeout_sec=0.02)
-
-    def call(self, client, request, timeout=30.0):
-        if not client.wait_for_service(timeout_sec=timeout):
-            raise RuntimeError(f"service {client.srv_name} not available")
-        fut = client.call_async(request)
-        self.spin_until(fut.done, timeout, f"reply of {client.srv_name}")
-        return fut.result()
-
-    def set_params(self, client, values: dict):
-        from rclpy.parameter import Parameter
-
-        req = self.SetAtomic.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
-        res = self.call(client, req).result
-        if not res.successful:
-            raise RuntimeError(f"{client.srv_name} rejected {sorted(values)}: {res.reason}")
-
-    def trigger(self, client):
-        res = self.call(client, self.Trigger.Request())
-        if not res.success:
-            raise RuntimeError(f"{client.srv_name}: {res.message}")
-
-    def close(self):
-        self.node.destroy_node()
-        self.rclpy.try_shutdown()
-
-
 def run(args) -> int:
     _check(args)
     try:
@@ -153,8 +81,7 @@ def _run(args) -> int:
     from ..core.experiments import paper_experiments
     from ..core.recording.mcap_io import read_run
     from ..core.reproduce import evaluate, format_tables
-    from ..core.trajectories import Sequence
-    from ..launcher import GraphLauncher
+    from ..graph_session import GraphClient, sim_graph
 
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     cfg = load_config(args.config, variant=args.variant)
@@ -180,24 +107,11 @@ def _run(args) -> int:
           + (" (the paper's 600 s: --creep-duration 600)" if args.creep_duration != 600 else "")
           + f"; driver limits ±{args.voltage_limit:g} V, {args.slew_limit:g} V/s", flush=True)
 
-    cfg_args = []
-    if args.config:
-        cfg_args += ["-p", f"config_file:={Path(args.config).resolve()}"]
-    if args.variant:
-        cfg_args += ["-p", f"variant:={args.variant}"]
-    meta = json.dumps({"demo": {"creep_duration": args.creep_duration, "experiments": [e.name for e in exps],
-                                "block_size": args.block_size, "mode": "lockstep"}})
-    graph = GraphLauncher({
-        "recorder": ["-p", f"output:={mcap_path.resolve()}", "-p", f"metadata:='{meta}'", *cfg_args],
-        "driver": [*cfg_args, "-p", f"limits.voltage:={float(args.voltage_limit)}",
-                   "-p", f"limits.slew:={float(args.slew_limit)}",
-                   # lockstep: the simulated time stands still while the graph waits (H∞ synthesis, a busy CPU),
-                   # so a wall-clock stale timeout only needs to catch a dead compensator
-                   "-p", "limits.stale_timeout:=5.0"],
-        "compensator": [*cfg_args, "-p", "cascade.vibration:=false"],
-        "trajectory": ["-p", "mode:=lockstep", "-p", f"block_size:={args.block_size}", "-p", f"window:={args.window}",
-                       "-p", "min_subscribers:=2", "-p", f"sample_rate:={fs}", "-p", "lockstep_timeout:=30.0"],
-    }, log_dir=out / "logs", env=os.environ)
+    graph = sim_graph(out, mcap_path, fs=fs, voltage_limit=args.voltage_limit, slew_limit=args.slew_limit,
+                      block_size=args.block_size, window=args.window, config=args.config, variant=args.variant,
+                      metadata={"demo": {"creep_duration": args.creep_duration,
+                                         "experiments": [e.name for e in exps], "block_size": args.block_size,
+                                         "mode": "lockstep"}})
     t_start = time.perf_counter()
     log(f"starting the nodes (ROS_DOMAIN_ID={graph.env['ROS_DOMAIN_ID']}, logs in {graph.log_dir}) …")
     graph.start()
@@ -205,47 +119,16 @@ def _run(args) -> int:
     skipped = []
     hinf = None
     try:
-        client = _GraphClient()
-        # the recorder must be connected to every block publisher before the first sample is sent
-        topics = ("/reference", "/voltage", "/displacement")
-        client.spin_until(lambda: all(client.recorder.get("publishers", {}).get(t, 0) >= 1 for t in topics), 120,
-                          "the recorder to connect to the block topics")
+        client = GraphClient("piezo_ff_demo")
+        client.wait_recorder_connected()
         for i, exp in enumerate(exps):
             graph.check_alive()
-            stages = set(exp.stages)
-            want = {"cascade.hysteresis": "hysteresis" in stages, "cascade.creep": "creep" in stages,
-                    "cascade.vibration": "vibration" in stages}
             bypass = exp.input == "voltage"
-            if not bypass:
-                stage_str = ",".join(k for k in ("vibration", "creep", "hysteresis") if f"cascade.{k}" in want
-                                     and want[f"cascade.{k}"])
-                failed_before = client.comp_diag.get("failed_builds", "0")
-                client.set_params(client.set_comp, {"bypass": False, **want})
-                if "vibration" in stages and client.comp_diag.get("stages") != stage_str:
-                    log("  (the compensator synthesises the H∞ vibration compensator in the background …)")
-                client.spin_until(lambda: (client.comp_diag.get("stages") == stage_str
-                                           and client.comp_diag.get("pending_version") == "None")
-                                  or client.comp_diag.get("failed_builds", "0") != failed_before, 900,
-                                  f"compensator configuration {stage_str or 'none'}")
-                if client.comp_diag.get("stages") != stage_str:
-                    log(f"  {exp.name}: skipped: {client.comp_diag.get('last_error', 'configuration not built')}")
-                    skipped.append(exp.name)
-                    continue
-            else:
-                client.set_params(client.set_comp, {"bypass": True})
-            client.trigger(client.reset_drv)
-            client.trigger(client.reset_comp)
-            seq = Sequence([(exp.name, exp.trajectory, exp.meta())])
-            client.set_params(client.set_traj, {"trajectory": json.dumps(seq.to_dict())})
-            n_before = len(client.states)
-            t0 = time.perf_counter()
-            client.trigger(client.start)
-            client.spin_until(lambda: any(s["state"] in ("finished", "failed", "stopped")
-                                          for s in client.states[n_before:]), 3600, f"experiment {exp.name}")
-            end = [s for s in client.states[n_before:] if s["state"] in ("finished", "failed", "stopped")][0]
-            if end["state"] != "finished":
-                raise RuntimeError(f"experiment {exp.name}: trajectory {end['state']}: {end.get('error', '')}")
-            dt = time.perf_counter() - t0
+            if not client.configure(exp.stages, bypass=bypass, say=log):
+                log(f"  {exp.name}: skipped: {client.comp_diag.get('last_error', 'configuration not built')}")
+                skipped.append(exp.name)
+                continue
+            dt = client.play(exp.name, exp.trajectory, exp.meta())
             n = exp.trajectory.n_samples(fs)
             log(f"  [{i + 1}/{len(exps)}] {exp.name:<16} {n / fs:7.2f} s of signal in {dt:6.2f} s "
                 f"(real-time factor {n / fs / max(dt, 1e-9):.1f})")

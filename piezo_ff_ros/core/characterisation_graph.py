@@ -1,0 +1,92 @@
+"""Characterisation presets that the node graph's trajectory node can play (only ``trajectories.TRAJECTORY_TYPES``).
+
+:mod:`~piezo_ff_ros.core.characterisation` builds its signals with two local types (``Sum``, ``Ramp``) that the
+trajectory node cannot parse from a parameter.  Here the same experiments are expressed with graph types only:
+
+- a ``Ramp`` (slew-limited step edge) becomes a ``Staircase`` with one level per sample — the same samples;
+- the two-axis sine ``Sum`` with a quarter period between the axes is a ``Circle`` (the paper's circle is exactly
+  that); the held-out hysteresis run is a smaller circle at another phase (both axes, another amplitude and phase);
+- every run that would start away from 0 V gets a short ramp from rest first (the driver is reset to rest before
+  each run; a one-sample jump of hundreds of volts is what the discrete Bouc-Wen form cannot represent).
+
+Pure: no ROS import.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .characterisation import (CharacterisationSettings, Ramp, Sum, creep_trajectories, dynamics_trajectories,
+                               hysteresis_trajectories)
+from .trajectories import TRAJECTORY_TYPES, Circle, Hold, Sequence, Sine, Staircase, Trajectory
+
+__all__ = ["graph_playable", "graph_characterisation"]
+
+
+def _ramp_staircase(start, end, n: int, fs: float, axes) -> Staircase:
+    a, b = np.asarray(start, float), np.asarray(end, float)
+    levels = [tuple((a + (k + 1) / n * (b - a)).tolist()) for k in range(n)]
+    return Staircase(levels=levels, dwell=1.0 / fs, axes=axes)
+
+
+def graph_playable(traj: Trajectory, fs: float) -> Trajectory:
+    """The same samples at rate ``fs`` as a trajectory the trajectory node can build (``to_dict``/``from_dict``).
+
+    Raises ``ValueError`` for a ``Sum`` that is not a quarter-period two-axis sine pair.
+    """
+    if isinstance(traj, Sequence):
+        return Sequence([(n, graph_playable(t, fs), m) for n, t, m in traj.segments_], axes=traj.axes)
+    if isinstance(traj, Ramp):
+        return _ramp_staircase(traj.start, traj.end, traj.n_samples(fs), fs, traj.axes)
+    if isinstance(traj, Sum):
+        parts = traj.parts
+        if (len(traj.axes) == 2 and len(parts) == 2 and all(isinstance(p, Sine) for p in parts)
+                and [p.axis for p in parts] == list(traj.axes)
+                and parts[0].amplitude == parts[1].amplitude and parts[0].frequency == parts[1].frequency
+                and parts[0].duration == parts[1].duration and parts[0].offset == parts[1].offset == 0
+                and math.isclose(parts[1].phase - parts[0].phase, math.pi / 2)):
+            p = parts[0]
+            return Circle(radius=p.amplitude, frequency=p.frequency, phase=p.phase,
+                          revolutions=p.duration * p.frequency, axes=traj.axes)
+        raise ValueError("graph_playable: only a quarter-period two-axis sine sum maps to a graph trajectory")
+    if traj.kind in TRAJECTORY_TYPES:
+        return traj
+    raise ValueError(f"graph_playable: trajectory type {traj.kind!r} has no graph equivalent")
+
+
+def _from_rest(name: str, traj: Trajectory, fs: float, ramp: float) -> Trajectory:
+    """``traj`` preceded by a ramp from 0 to its first sample when that is not 0."""
+    first = traj.block(0, 1, fs)[0]
+    if not np.any(first) or ramp <= 0:
+        return traj
+    n = max(1, int(round(ramp * fs)))
+    zero = tuple(0.0 for _ in traj.axes)
+    return Sequence([("from_rest", _ramp_staircase(zero, first, n, fs, traj.axes)), (name, traj)], axes=traj.axes)
+
+
+def graph_characterisation(s: CharacterisationSettings, fs: float, axes=("x", "y")) -> dict:
+    """The characterisation runs per stage, graph-playable.
+
+    Returns ``{stage: [(name, trajectory, role, score_start_s)]}`` for stage ∈ hysteresis (voltages [V], role fit
+    or validation, score_start 0), creep and dynamics (positions [m]; role ``split``: fit on ``[0, score_start)``,
+    score the whole run from ``score_start`` on, as :func:`~piezo_ff_ros.core.identification.pipeline.commission_sim`).
+    """
+    axes = tuple(axes)
+    ramp = max(s.step_ramp, 1.0 / fs)
+    out = {"hysteresis": [], "creep": [], "dynamics": []}
+    ht = hysteresis_trajectories(s, axes)
+    for name, tr in ht["fit"]:
+        out["hysteresis"].append((name, _from_rest(name, graph_playable(tr, fs), fs, ramp), "fit", 0.0))
+    if len(axes) == 2:
+        # held out: both axes at once at another amplitude and phase (a circle: the graph has no sine sum)
+        val = Circle(radius=s.validation_fraction * s.sine_amplitude, frequency=s.sine_frequency, phase=0.4,
+                     revolutions=1.0, axes=axes)
+    else:
+        val = Sine(amplitude=s.validation_fraction * s.sine_amplitude, frequency=s.sine_frequency, axis=axes[0],
+                   phase=0.4, duration=1.0 / s.sine_frequency, axes=axes)
+    out["hysteresis"].append(("sine_validation", _from_rest("sine_validation", val, fs, ramp), "validation", 0.0))
+    for stage, fn in (("creep", creep_trajectories), ("dynamics", dynamics_trajectories)):
+        for name, tr, score_t in fn(s, axes):
+            out[stage].append((name, graph_playable(tr, fs), "split", float(score_t)))
+    return out

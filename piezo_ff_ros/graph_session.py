@@ -1,0 +1,204 @@
+"""Driving the node graph from a command (``piezo-ff demo``, ``piezo-ff commission``): one rclpy client node.
+
+- :func:`sim_graph` — a :class:`~piezo_ff_ros.launcher.GraphLauncher` for driver (simulated PT230.94),
+  compensator, trajectory (lockstep) and recorder, with the driver and compensator enforcing the same limits;
+- :class:`GraphClient` — parameter pushes (``set_parameters_atomically``), Trigger services, the trajectory's state,
+  the compensator's diagnostics and the recorder's status; :meth:`GraphClient.configure` switches the compensator's
+  stages (or bypass) and waits until the new configuration runs; :meth:`GraphClient.play` resets driver and
+  compensator to rest and plays one named experiment to its end;
+- :func:`driver_present` — is a driver already on the domain?
+
+Import this module only after the ROS environment is set (:func:`piezo_ff_ros.ros_env.apply_ros_env_defaults`).
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+STAGE_ORDER = ("vibration", "creep", "hysteresis")
+BLOCK_TOPICS = ("/reference", "/voltage", "/displacement")
+
+
+def stage_string(stages) -> str:
+    """The compensator's diagnostics spelling of a stage set (e.g. ``'creep,hysteresis'``)."""
+    return ",".join(k for k in STAGE_ORDER if k in set(stages))
+
+
+def sim_graph(out_dir: Path, mcap_path: Path, *, fs: float, voltage_limit: float, slew_limit: float,
+              block_size: int = 2000, window: int = 4, config=None, variant=None, metadata: dict | None = None,
+              nodes=("driver", "compensator", "trajectory", "recorder"), env=None):
+    """A launcher for the lockstep sim graph recording to ``mcap_path`` (not started)."""
+    from .launcher import GraphLauncher
+
+    cfg_args = []
+    if config:
+        cfg_args += ["-p", f"config_file:={Path(config).resolve()}"]
+    if variant:
+        cfg_args += ["-p", f"variant:={variant}"]
+    meta = json.dumps(metadata or {})
+    args = {
+        "recorder": ["-p", f"output:={Path(mcap_path).resolve()}", "-p", f"metadata:='{meta}'", *cfg_args],
+        "driver": [*cfg_args, "-p", f"limits.voltage:={float(voltage_limit)}",
+                   "-p", f"limits.slew:={float(slew_limit)}",
+                   # lockstep: the simulated time stands still while the graph waits (H∞ synthesis, a busy CPU),
+                   # so a wall-clock stale timeout only needs to catch a dead compensator
+                   "-p", "limits.stale_timeout:=5.0"],
+        "compensator": [*cfg_args, "-p", "cascade.vibration:=false"],
+        "trajectory": ["-p", "mode:=lockstep", "-p", f"block_size:={block_size}", "-p", f"window:={window}",
+                       "-p", "min_subscribers:=2", "-p", f"sample_rate:={fs}", "-p", "lockstep_timeout:=30.0"],
+    }
+    return GraphLauncher({n: a for n, a in args.items() if n in nodes}, log_dir=Path(out_dir) / "logs",
+                         env=os.environ if env is None else env)
+
+
+class GraphClient:
+    """The command's own rclpy node (own context): services, trajectory state, diagnostics, recorder status."""
+
+    def __init__(self, name: str = "piezo_ff_client", domain_id: int | None = None):
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rcl_interfaces.srv import SetParametersAtomically
+        from rclpy.executors import SingleThreadedExecutor
+        from std_msgs.msg import String
+        from std_srvs.srv import Trigger
+
+        from .nodes.common import LATCHED_QOS
+
+        self.rclpy = rclpy
+        self.context = rclpy.Context()
+        kw = {} if domain_id is None else {"domain_id": int(domain_id)}
+        rclpy.init(context=self.context, **kw)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.states: list[dict] = []
+        self.comp_diag: dict = {}
+        self.hinf: dict | None = None    # γ/orders of the compensator's H∞ design, from its diagnostics
+        self.recorder: dict = {}
+        self.node.create_subscription(String, "/trajectory/state", lambda m: self.states.append(json.loads(m.data)),
+                                      LATCHED_QOS)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 50)
+        self.node.create_subscription(String, "/recorder/status", lambda m: self.recorder.update(json.loads(m.data)),
+                                      LATCHED_QOS)
+        self.set_comp = self.node.create_client(SetParametersAtomically, "/compensator/set_parameters_atomically")
+        self.set_traj = self.node.create_client(SetParametersAtomically, "/trajectory/set_parameters_atomically")
+        self.reset_comp = self.node.create_client(Trigger, "/compensator/reset")
+        self.reset_drv = self.node.create_client(Trigger, "/driver/reset")
+        self.start = self.node.create_client(Trigger, "/trajectory/start")
+        self.Trigger = Trigger
+        self.SetAtomic = SetParametersAtomically
+
+    def _on_diag(self, msg):
+        for st in msg.status:
+            if st.name.endswith("compensator"):
+                self.comp_diag = {kv.key: kv.value for kv in st.values}
+                self.comp_diag["_t"] = time.monotonic()
+                if "hinf" in self.comp_diag:
+                    self.hinf = json.loads(self.comp_diag["hinf"])
+
+    # -- plumbing --------------------------------------------------------------------------------------------------
+    def spin_until(self, cond, timeout, what):
+        deadline = time.monotonic() + timeout
+        while not cond():
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"timed out after {timeout:g} s waiting for {what}")
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def spin_for(self, seconds: float):
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def call(self, client, request, timeout=30.0):
+        if not client.wait_for_service(timeout_sec=timeout):
+            raise RuntimeError(f"service {client.srv_name} not available")
+        fut = client.call_async(request)
+        self.spin_until(fut.done, timeout, f"reply of {client.srv_name}")
+        return fut.result()
+
+    def set_params(self, client, values: dict):
+        from rclpy.parameter import Parameter
+
+        req = self.SetAtomic.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
+        res = self.call(client, req).result
+        if not res.successful:
+            raise RuntimeError(f"{client.srv_name} rejected {sorted(values)[:6]}…: {res.reason}")
+
+    def trigger(self, client):
+        res = self.call(client, self.Trigger.Request())
+        if not res.success:
+            raise RuntimeError(f"{client.srv_name}: {res.message}")
+
+    def node_names(self) -> set:
+        return {(ns.rstrip("/") + "/" + n) for n, ns in self.node.get_node_names_and_namespaces()}
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.rclpy.try_shutdown(context=self.context)
+
+    # -- graph operations ------------------------------------------------------------------------------------------
+    def wait_recorder_connected(self, timeout=120.0):
+        """The recorder must be connected to every block publisher before the first sample is sent."""
+        self.spin_until(lambda: all(self.recorder.get("publishers", {}).get(t, 0) >= 1 for t in BLOCK_TOPICS),
+                        timeout, "the recorder to connect to the block topics")
+
+    def configure(self, stages=(), bypass: bool = False, params: dict | None = None, timeout: float = 900.0,
+                  say=lambda m: None) -> bool:
+        """Push ``params`` (flat config parameters) and the stage switches atomically; wait until they run.
+
+        ``bypass``: reference blocks are voltages, forwarded unchanged (S0).  Returns False when the compensator
+        could not build the configuration (its last error is in ``comp_diag['last_error']``).
+        """
+        if bypass:
+            self.set_params(self.set_comp, {**(params or {}), "bypass": True})
+            return True
+        want = {f"cascade.{k}": k in set(stages) for k in STAGE_ORDER}
+        stage_str = stage_string(stages)
+        failed_before = self.comp_diag.get("failed_builds", "0")
+        version_before = self.comp_diag.get("config_version")
+        self.set_params(self.set_comp, {**(params or {}), "bypass": False, **want})
+        if "vibration" in stages and self.comp_diag.get("stages") != stage_str:
+            say("  (the compensator builds the vibration compensator in the background …)")
+        changed = bool(params)
+
+        def done():
+            d = self.comp_diag
+            if d.get("failed_builds", "0") != failed_before:
+                return True
+            return (d.get("stages") == stage_str and d.get("pending_version") == "None"
+                    and (not changed or d.get("config_version") != version_before))
+
+        self.spin_until(done, timeout, f"compensator configuration {stage_str or 'none'}")
+        return self.comp_diag.get("stages") == stage_str and self.comp_diag.get("failed_builds", "0") == failed_before
+
+    def play(self, name: str, trajectory, meta: dict, timeout: float = 3600.0) -> float:
+        """Reset driver and compensator to rest, play ``trajectory`` as segment ``name``; returns the wall time."""
+        from .core.trajectories import Sequence
+
+        self.trigger(self.reset_drv)
+        self.trigger(self.reset_comp)
+        seq = Sequence([(name, trajectory, meta)])
+        self.set_params(self.set_traj, {"trajectory": json.dumps(seq.to_dict())})
+        n_before = len(self.states)
+        t0 = time.perf_counter()
+        self.trigger(self.start)
+        ends = ("finished", "failed", "stopped")
+        self.spin_until(lambda: any(s["state"] in ends for s in self.states[n_before:]), timeout,
+                        f"experiment {name}")
+        end = [s for s in self.states[n_before:] if s["state"] in ends][0]
+        if end["state"] != "finished":
+            raise RuntimeError(f"experiment {name}: trajectory {end['state']}: {end.get('error', '')}")
+        return time.perf_counter() - t0
+
+
+def driver_present(client: GraphClient, timeout: float = 3.0) -> bool:
+    """True if a node named ``driver`` or a subscriber of ``/voltage`` shows up within ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if any(n.endswith("/driver") for n in client.node_names()) or client.node.count_subscribers("/voltage"):
+            return True
+        client.spin_for(0.2)
+    return False
