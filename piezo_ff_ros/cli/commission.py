@@ -9,9 +9,10 @@ through the cascade built from the identified parameters, and Tables I/II are pr
 held-out data.  Writes ``DIR/config.yaml`` (loadable by the compensator node), ``DIR/commission.json`` and, with
 ``--json F``, the same JSON to F.
 
-Against the ROS node graph (a running driver, recording to MCAP and pushing the parameters live to the compensator
-node) commissioning is not implemented yet: use ``--sim-only``, or record the characterisation runs and use
-``piezo-ff identify``.
+Without ``--sim-only`` the same sequence runs through the ROS 2 node graph (:mod:`piezo_ff_ros.commission_graph`):
+against a running driver, or — with none on the domain — a sim graph it starts itself; each identified stage is
+pushed live to the compensator node before the next is characterised, everything is recorded to
+``DIR/commission.mcap``, then the paper's tests are played through the graph with the identified cascade.
 """
 from __future__ import annotations
 
@@ -31,9 +32,9 @@ def add_parser(subparsers):
     p.add_argument("--out", default="commission_out", metavar="DIR",
                    help="directory for config.yaml and commission.json (default ./commission_out)")
     p.add_argument("--json", default=None, metavar="F", help="also write the JSON result to F")
-    p.add_argument("--creep-duration", type=float, default=600.0, metavar="S",
+    p.add_argument("--creep-duration", type=float, default=None, metavar="S",
                    help="creep step duration, up and down, in the characterisation and the verification "
-                        "(paper: 600 s; 60–120 s for a quick run)")
+                        "(paper: 600 s; default 600 with --sim-only, 60 through the ROS graph)")
     p.add_argument("--noise-nm", type=float, default=0.0, metavar="NM", help="sensor noise of the simulated truth")
     p.add_argument("--truth", choices=("nominal", "asymmetric"), default="nominal",
                    help="simulated truth: the printed models, or with generalized (asymmetric) hysteresis")
@@ -44,6 +45,24 @@ def add_parser(subparsers):
                    help="skip the verification of the cascade built from the printed parameters")
     p.add_argument("--seed", type=int, default=0, help="noise seed of the simulated truth")
     p.add_argument("--quiet", action="store_true")
+    g = p.add_argument_group("ROS graph (without --sim-only)")
+    g.add_argument("--domain-id", type=int, metavar="ID",
+                   help="ROS_DOMAIN_ID to look for a driver on and to start the sim graph on (default: look on the "
+                        "caller's domain; start the sim graph on a private one)")
+    g.add_argument("--probe-timeout", type=float, default=3.0, metavar="S",
+                   help="how long to look for a running driver (default 3 s)")
+    g.add_argument("--step-um", type=float, default=15.0, metavar="UM",
+                   help="creep/dynamics characterisation step, µm (default 15: the paper's 20 µm asks ≈ 202 V on x, "
+                        "beyond the ±200 V amplifier, and a clamped step biases the creep fit)")
+    g.add_argument("--sine-frequency", type=float, default=0.1, metavar="HZ",
+                   help="hysteresis characterisation sine frequency (paper 0.1 Hz)")
+    g.add_argument("--sine-periods", type=int, default=2, metavar="N", help="periods per hysteresis sine (2)")
+    g.add_argument("--only", metavar="NAMES", help="verification: comma-separated experiment names (default: all)")
+    g.add_argument("--block-size", type=int, default=2000, metavar="N", help="samples per block (default 2000)")
+    g.add_argument("--voltage-limit", type=float, default=None, metavar="V",
+                   help="driver/compensator voltage limit (default: the config's limits.voltage)")
+    g.add_argument("--config", metavar="YAML", help="starting config (default: the paper's printed values)")
+    g.add_argument("--variant", metavar="NAME", help="named variant of the starting config")
     p.set_defaults(func=run)
     return p
 
@@ -70,9 +89,8 @@ def run(args) -> int:
     from ..core.identification.pipeline import commission_sim
     from ..core.reproduce import format_tables, truth_plant
 
-    if not args.sim_only:
-        raise ValueError("commissioning through the ROS node graph is not implemented yet; use --sim-only "
-                         "(core simulator), or record the characterisation runs and run 'piezo-ff identify'")
+    if args.creep_duration is None:
+        args.creep_duration = 600.0 if args.sim_only else 60.0
     if not (math.isfinite(args.creep_duration) and args.creep_duration > 1.0):
         raise ValueError(f"--creep-duration must be > 1 s, got {args.creep_duration}")
     if not (math.isfinite(args.noise_nm) and args.noise_nm >= 0):
@@ -82,6 +100,16 @@ def run(args) -> int:
     def say(msg):
         if not args.quiet:
             print(f"[{time.perf_counter() - t_start:7.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    if not args.sim_only:
+        _check_graph_args(args)
+        from ..commission_graph import run_graph
+
+        try:
+            return run_graph(args, say)
+        except (RuntimeError, TimeoutError) as exc:   # a node died, a service timed out…: one clear message
+            print(f"piezo-ff commission: error: {exc}", file=sys.stderr)
+            return 1
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -141,6 +169,21 @@ def run(args) -> int:
         Path(args.json).write_text(text)
     say(f"done in {time.perf_counter() - t_start:.1f} s")
     return 0
+
+
+def _check_graph_args(args):
+    if args.domain_id is not None and not 0 <= args.domain_id <= 232:
+        raise ValueError(f"--domain-id must be in 0..232, got {args.domain_id}")
+    for name in ("probe_timeout", "step_um", "sine_frequency"):
+        v = getattr(args, name)
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
+    if args.sine_periods < 1:
+        raise ValueError(f"--sine-periods must be >= 1, got {args.sine_periods}")
+    if not 1 <= args.block_size <= 20000:
+        raise ValueError(f"--block-size must be in 1..20000, got {args.block_size}")
+    if args.voltage_limit is not None and not (math.isfinite(args.voltage_limit) and args.voltage_limit > 0):
+        raise ValueError(f"--voltage-limit must be a positive number, got {args.voltage_limit}")
 
 
 def _f(v):
