@@ -22,6 +22,7 @@ import numpy as np
 from .._jit import njit
 from ..config import BoucWenConfig, PiezoConfig
 from .plant import Plant
+from .bouc_wen import _bw_increment  # the core increment (same maths, no per-sample allocation)
 
 __all__ = [
     "InputDelay", "AmplifierSlewLimit", "AmplifierSaturation", "AmplifierBandwidth", "GainMismatch",
@@ -335,29 +336,6 @@ class UnmodelledMode:
 # --------------------------------------------------------------------------------------------------------------
 
 @njit
-def _bw_increment(A, B, G, D1, D2, P, h, du, dh):  # pragma: no cover - compiled
-    """``dh`` of the generalized Bouc-Wen for the voltage step ``du`` (own copy: the core kernel's signature is
-    free to change for speed)."""
-    n = h.shape[0]
-    k = du.shape[0]
-    duh = np.zeros(n)
-    for i in range(n):
-        acc = 0.0
-        for j in range(k):
-            acc += P[i, j] * du[j]
-        duh[i] = acc
-    for i in range(n):
-        acc = 0.0
-        for j in range(k):
-            acc += A[i, j] * du[j]
-        for j in range(n):
-            ah = abs(h[j])
-            ad = abs(duh[j])
-            acc -= B[i, j] * ad * h[j] + G[i, j] * duh[j] * ah + D1[i, j] * duh[j] * h[j] + D2[i, j] * ad * ah
-        dh[i] = acc
-
-
-@njit
 def _bw_rate_run(Dp, A, B, G, D1, D2, P, alpha, rate_ref, a_smooth, dt,
                  h, u_prev, rate, started, u, y):  # pragma: no cover - compiled
     N = u.shape[0]
@@ -366,6 +344,7 @@ def _bw_rate_run(Dp, A, B, G, D1, D2, P, alpha, rate_ref, a_smooth, dt,
     du = np.zeros(k)
     dus = np.zeros(k)
     dh = np.zeros(n)
+    duh = np.zeros(n)  # scratch of the core increment
     for t in range(N):
         if not started[0]:
             for j in range(k):
@@ -379,14 +358,14 @@ def _bw_rate_run(Dp, A, B, G, D1, D2, P, alpha, rate_ref, a_smooth, dt,
             for j in range(k):
                 dus[j] = du[j] * (1.0 + alpha * math.tanh(rate[j] / rate_ref))
             # the rate only enlarges the A term: add it separately so B/Γ/Δ still see the true dU
-            _bw_increment(A, B, G, D1, D2, P, h, du, dh)
+            _bw_increment(A, B, G, D1, D2, P, h, du, dh, duh)
             for i in range(n):
                 acc = 0.0
                 for j in range(k):
                     acc += A[i, j] * (dus[j] - du[j])
                 dh[i] += acc
         else:
-            _bw_increment(A, B, G, D1, D2, P, h, du, dh)
+            _bw_increment(A, B, G, D1, D2, P, h, du, dh, duh)
         for i in range(n):
             h[i] += dh[i]
         for j in range(k):
