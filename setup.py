@@ -23,7 +23,6 @@ setup(
     maintainer_email="piezo_ff_ros@example.com",
     description="Sensorless multivariable feedforward compensation of piezoelectric positioners (ROS 2)",
     license="Apache-2.0",
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [f"{e} = {package_name}.entry_points:{e}" for e in executables]
         + [f"piezo-ff = {package_name}.entry_points:piezo_ff"],

@@ -13,9 +13,10 @@ want=$(sha256sum requirements.txt | cut -d' ' -f1)
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   echo "[setup] installing pinned requirements (one-off, ~1-2 min)"
   .venv/bin/python -m pip install -q --upgrade pip >/dev/null 2>&1 || true
-  .venv/bin/python -m pip install -q -r requirements.txt
+  # (this machine's pip.conf lists extra local indexes that may not exist: drop pip's warnings about them)
+  .venv/bin/python -m pip install -q -r requirements.txt 2> >(grep -v "^WARNING: Location" >&2)
   echo "$want" > "$stamp"
 fi
 # the package itself (registers it in the venv's ament index, installs console scripts and ros2-run shims)
-.venv/bin/python -m pip install -q --no-deps . >/dev/null
+.venv/bin/python -m pip install -q --no-deps . >/dev/null 2> >(grep -v "^WARNING: Location" >&2)
 echo "[setup] ready: $(.venv/bin/python -c 'import piezo_ff_ros, sys; print("piezo_ff_ros", piezo_ff_ros.__version__, "python", sys.version.split()[0])')"
