@@ -383,16 +383,21 @@ def test_realtime_pacing_held_point_and_recorder_sigterm(tmp_path, probe):
     vsub = probe.node.create_subscription(PointCloud2, "voltage",
                                           lambda m: volts.__setitem__(stamp_to_ns(m.header.stamp), unpack_block(m)),
                                           BLOCK_QOS)
+    refs = {}
+    probe.node.create_subscription(PointCloud2, "reference",
+                                   lambda m: refs.__setitem__(stamp_to_ns(m.header.stamp), unpack_block(m)), BLOCK_QOS)
     from std_srvs.srv import Trigger
 
     start = probe.node.create_client(Trigger, "/trajectory/start")
     out = tmp_path / "rt.mcap"
+    preview = 50  # samples: the trajectory plays 2.5 ms ahead (reference preview for an input delay)
     spec = {"type": "circle", "radius": 1e-5, "frequency": 4.0, "revolutions": 4}  # 1 s
     procs = {"recorder": start_node("recorder", "-p", f"output:={out}", log_dir=tmp_path),
              "compensator": start_node("compensator", "-p", "cascade.vibration:=false", log_dir=tmp_path),
              "trajectory": start_node("trajectory", "-p", "mode:=realtime",
                                       "-p", "min_subscribers:=2", "-p", f"trajectory:='{json.dumps(spec)}'",
-                                      "-p", "block_size:=200", log_dir=tmp_path)}
+                                      "-p", "block_size:=200", "-p", f"preview_s:={preview / FS}",
+                                      log_dir=tmp_path)}
     try:
         # no driver: in realtime nothing waits for displacement; start once this probe hears the compensator
         probe.spin_until(lambda: vsub.get_publisher_count() > 0, 30, "compensator's voltage publisher")
@@ -406,6 +411,11 @@ def test_realtime_pacing_held_point_and_recorder_sigterm(tmp_path, probe):
         probe.spin_until(lambda: len(volts) >= 100, 10, "the voltage blocks")
         stamps = sorted(volts)
         assert all(b - a == 200 * DT_NS for a, b in zip(stamps, stamps[1:]))  # contiguous, no gap
+        from piezo_ff_ros.core.trajectories import from_dict
+
+        probe.spin_until(lambda: len(refs) >= 100, 10, "the reference blocks")
+        first = refs[min(refs)]
+        np.testing.assert_array_equal(first, from_dict(spec).block(preview, 200, FS))  # played ahead, exactly
         # a held set-point, once the reference stream has stopped for hold_timeout
         n0 = len(volts)
         pub = probe.node.create_publisher(PointStamped, "reference_point", 10)

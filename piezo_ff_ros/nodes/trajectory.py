@@ -81,6 +81,10 @@ class TrajectoryNode(Node):
             "lockstep_timeout": self.declare_parameter("lockstep_timeout", 10.0).value,
             "t0_ns": self.declare_parameter("t0_ns", 0).value,
             "min_subscribers": self.declare_parameter("min_subscribers", 1).value,
+            # reference preview [s]: play the trajectory this far ahead, so that a plant with an input delay (e.g.
+            # `piezo-ff diagnose --apply` → reference_preview.delay_s) lands on time; trajectories are pure
+            # functions of the sample index, so the preview is exact
+            "preview_s": self.declare_parameter("preview_s", 0.0).value,
         }
         self.traj = parse_trajectory(p["trajectory"], p["trajectory_file"])
         self.fs = float(p["sample_rate"])
@@ -121,6 +125,10 @@ class TrajectoryNode(Node):
                     raise ConfigError(name, f"must be an integer ≥ 1, got {values[name]!r}")
             if "block_size" in values and values["block_size"] > 20000:
                 raise ConfigError("block_size", "must be ≤ 20000 (the driver's default max_block)")
+            if "preview_s" in values and (isinstance(values["preview_s"], bool)
+                                          or not isinstance(values["preview_s"], (int, float))
+                                          or not 0.0 <= values["preview_s"] <= 1.0):
+                raise ConfigError("preview_s", f"must be a number of seconds in [0, 1], got {values['preview_s']!r}")
             for name in ("sample_rate", "lockstep_timeout"):
                 if name in values and (isinstance(values[name], bool) or not isinstance(values[name], (int, float))
                                        or not values[name] > 0):
@@ -207,6 +215,7 @@ class TrajectoryNode(Node):
     def _play(self):
         traj, fs = self.traj, self.fs
         mode, n_blk, window = self.param("mode"), int(self.param("block_size")), int(self.param("window"))
+        preview = int(round(float(self.param("preview_s")) * self.fs))  # samples played ahead
         loop, timeout = bool(self.param("loop")), float(self.param("lockstep_timeout"))
         total = traj.n_samples(fs)
         segs = traj.segments(fs) if isinstance(traj, Sequence) else []
@@ -229,7 +238,7 @@ class TrajectoryNode(Node):
                         s = segs[seg_i]
                         self._marker(s.name, start + s.start, s.meta)
                         seg_i += 1
-                    block = traj.block(k, n, fs)
+                    block = traj.block(k + preview, n, fs)
                     kk = start + k
                     stamp = self.t0_ns + kk * self.period_ns
                     if mode == "realtime":
