@@ -175,6 +175,9 @@ def test_graph_end_to_end_lockstep_recorded_sample_exact(tmp_path, probe, cfg_no
 
         wait_recorder_connected(probe, ["/reference", "/voltage", "/displacement"], timeout=60)
         probe.spin_until(lambda: jsub.get_publisher_count() > 0, 30, "the driver's joint_states")
+        # that is the reader's side of discovery; the driver's writer learns of this reader separately (a volatile
+        # writer drops what it publishes before): give it time, the lockstep run itself lasts only ~0.1 s
+        probe.spin_for(1.5)
         assert probe.call(probe.node.create_client(Trigger, "/trajectory/start"), Trigger.Request()).success
         probe.spin_until(lambda: states and states[-1]["state"] in ("finished", "failed"), 60, "trajectory end")
         assert states[-1]["state"] == "finished", states[-1]
