@@ -9,6 +9,9 @@ Each stage is characterised on the system the previous identified compensators l
   then back to 0 for as long — fitted on the step up, scored on the step down;
 - **dynamics** on S_L (hysteresis + creep compensators): a 20 µm step per axis held ``dynamics_duration`` (paper:
   < 200 ms of transient), then back down (held out).
+- **plant validation** on S0 (nothing compensated, never fitted on): :func:`plant_validation_trajectory`, a
+  two-level multisine in volts on both axes (0.1–84 Hz, different lines per axis) then a ramped step pair; the
+  identified model of the whole plant is scored on it.
 
 Every step rises and falls in ``step_ramp`` (2 ms: an amplifier's slew limit, 200 V/ms).  Why: the model is the
 explicit discrete Bouc-Wen; a one-sample jump of several hundred volts *down from a loaded state* makes that
@@ -33,7 +36,7 @@ from .recording.run import RunData
 from .trajectories import Hold, Sequence, Sine, Trajectory
 
 __all__ = ["CharacterisationSettings", "Ramp", "Sum", "hysteresis_trajectories", "creep_trajectories", "dynamics_trajectories",
-           "run_open_loop"]
+           "plant_validation_trajectory", "run_open_loop"]
 
 
 @dataclass(frozen=True)
@@ -49,10 +52,16 @@ class CharacterisationSettings:
     dynamics_duration: float = 0.2       #: s, each of step up / step down
     dynamics_lead: float = 0.01          #: s
     step_ramp: float = 2e-3              #: s, rise/fall time of every step (an amplifier's slew limit: 200 V/ms)
+    plant_validation_amplitude: float = 170.0  #: V, peak of the full-level validation multisine (sum of lines)
+    plant_validation_duration: float = 20.0    #: s of the full-level multisine; half as long at half level
+    plant_validation_step: float = 120.0       #: V, step of the validation step pair (x up, y down at 2/3)
+    plant_validation_hold: float = 4.0         #: s, each of step up / step down
 
     def __post_init__(self):
         for name in ("sine_amplitude", "sine_frequency", "validation_fraction", "creep_step", "creep_duration",
-                     "dynamics_step", "dynamics_duration"):
+                     "dynamics_step", "dynamics_duration",
+                     "plant_validation_amplitude", "plant_validation_duration", "plant_validation_step",
+                     "plant_validation_hold"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ConfigError(name, f"must be a positive number, got {v!r}")
@@ -62,7 +71,9 @@ class CharacterisationSettings:
                 raise ConfigError(name, f"must be a non-negative number, got {v!r}")
         if int(self.sine_periods) < 1:
             raise ConfigError("sine_periods", f"must be >= 1, got {self.sine_periods!r}")
-        if self.step_ramp >= min(self.creep_duration, self.dynamics_duration):
+        if self.plant_validation_amplitude > 200.0 or self.plant_validation_step > 200.0:
+            raise ConfigError("plant_validation_amplitude", "validation voltages must stay within ±200 V")
+        if self.step_ramp >= min(self.creep_duration, self.dynamics_duration, self.plant_validation_hold):
             raise ConfigError("step_ramp", "must be shorter than the step durations")
 
 
@@ -162,6 +173,49 @@ def dynamics_trajectories(s: CharacterisationSettings, axes=("x", "y")) -> list:
     """Step up/down per axis [m] for S_L: ``[(name, traj, score_start_seconds)]``."""
     return [(f"dynamics_step_{a}",) + _up_down(s.dynamics_step, s.dynamics_duration, s.dynamics_lead, axes, a,
                                                 s.step_ramp) for a in axes]
+
+
+#: Lines of the plant-validation multisine per axis: (frequency [Hz], relative amplitude).  Frequencies are multiples
+#: of 0.1 Hz so every segment holds whole periods (starts and ends at 0 V); x and y use different lines so the
+#: cross terms are seen apart from the direct ones.
+PLANT_VALIDATION_LINES = {
+    0: ((0.1, 0.50), (0.3, 0.22), (1.1, 0.12), (4.3, 0.07), (17.1, 0.04), (61.3, 0.03), (233.1, 0.02)),
+    1: ((0.2, 0.50), (0.5, 0.22), (1.7, 0.12), (6.1, 0.07), (23.3, 0.04), (83.9, 0.03), (311.7, 0.02)),
+}
+
+
+def plant_validation_trajectory(s: CharacterisationSettings, axes=("x", "y")) -> Sequence:
+    """Held-out voltage record [V] for the identified model of the whole plant S0.
+
+    A multisine on every axis at full level (``plant_validation_amplitude`` peak-sum, ``plant_validation_duration``
+    s), the same at half level for half as long (hysteresis loops of another size), then a step pair ramped in
+    ``step_ramp``: x to ``+plant_validation_step``, y to ``−2/3`` of it, held ``plant_validation_hold`` s, back to
+    0 for as long (creep and G_L transients in both directions).  Nothing here is used for fitting.
+    """
+    axes = tuple(axes)
+    n = len(axes)
+    zero = tuple(0.0 for _ in axes)
+
+    def multisine(level, duration):
+        parts = []
+        for i, a in enumerate(axes):
+            for f, rel in PLANT_VALIDATION_LINES[i % 2]:
+                f_i = f + 0.1 * (i // 2)   # more than two axes: shift the lines so no two axes share one
+                parts.append(Sine(amplitude=level * rel * s.plant_validation_amplitude / sum(
+                    r for _, r in PLANT_VALIDATION_LINES[i % 2]), frequency=f_i, axis=a, duration=duration,
+                    axes=axes))
+        return _sum(axes, parts)
+
+    T = round(s.plant_validation_duration, 1)
+    step = tuple(s.plant_validation_step * (1.0 if i % 2 == 0 else -2.0 / 3.0) for i in range(n))
+    segs = [("multisine_full", multisine(1.0, T)), ("multisine_half", multisine(0.5, round(T / 2, 1)))]
+    if s.step_ramp > 0:
+        segs.append(("step_up", Ramp(start=zero, end=step, duration=s.step_ramp, axes=axes)))
+    segs.append(("hold_up", Hold(value=step, duration=s.plant_validation_hold, axes=axes)))
+    if s.step_ramp > 0:
+        segs.append(("step_down", Ramp(start=step, end=zero, duration=s.step_ramp, axes=axes)))
+    segs.append(("hold_down", Hold(value=zero, duration=s.plant_validation_hold, axes=axes)))
+    return Sequence(segs, axes=axes)
 
 
 def run_open_loop(system, traj, fs: float, name: str, axes, block: int = 200_000, reference_is_input=True,

@@ -1,7 +1,9 @@
 """The whole identification (paper Fig. 3): hysteresis on S0 → creep on S_H → G_L on S_L → H∞ compensator.
 
-- :func:`identify_all` identifies from recorded runs (tagged ``meta['stage']`` ∈ {hysteresis, creep, dynamics}
-  and ``meta['role']`` ∈ {fit, validation}; the characterisation and ``piezo-ff identify`` tag them).
+- :func:`identify_all` identifies from recorded runs (tagged ``meta['stage']`` ∈ {hysteresis, creep, dynamics,
+  plant} and ``meta['role']`` ∈ {fit, validation}; the characterisation and ``piezo-ff identify`` tag them).
+  ``plant`` runs (voltages into S0, never fitted on) score the identified model of the *whole* plant,
+  ``Plant(identified config)``, against the measured output: :func:`plant_fit`.
 - :func:`commission_sim` runs the characterisation stage by stage on a core sim plant (no ROS), each stage through
   the compensators identified before it, and identifies as it goes.
 """
@@ -19,17 +21,21 @@ from .bouc_wen import identify_bouc_wen
 from .creep import identify_creep
 from .dynamics import identify_dynamics
 
-__all__ = ["identify_all", "commission_sim", "split_runs", "build_config", "synthesize_for"]
+__all__ = ["identify_all", "commission_sim", "split_runs", "build_config", "synthesize_for", "plant_fit"]
+
+STAGES = ("hysteresis", "creep", "dynamics")
 
 
 def split_runs(runs: Sequence[RunData]) -> dict:
-    out = {s: {"fit": [], "validation": []} for s in ("hysteresis", "creep", "dynamics")}
+    out = {s: {"fit": [], "validation": []} for s in STAGES + ("plant",)}
     for r in runs:
         st = r.meta.get("stage")
         role = r.meta.get("role", "fit")
         if st not in out:
-            raise ValueError(f"run {r.meta.get('experiment', '?')}: meta['stage'] must be hysteresis, creep or "
-                             f"dynamics, got {st!r}")
+            raise ValueError(f"run {r.meta.get('experiment', '?')}: meta['stage'] must be hysteresis, creep, "
+                             f"dynamics or plant, got {st!r}")
+        if st == "plant":   # whole-plant runs are only ever scored on
+            role = "validation"
         out[st]["validation" if role == "validation" else "fit"].append(r)
     return out
 
@@ -53,6 +59,31 @@ def _fits_report(hf, cf, df, axes):
             "dynamics": clean(df.fit_validation or df.fit_train)}
 
 
+def _simulate_plant(cfg: PiezoConfig, u: np.ndarray, fs: float) -> np.ndarray:
+    from ..models.plant import Plant
+
+    pcfg = cfg if abs(cfg.sample_rate - fs) <= 1e-9 * fs else cfg.with_sample_rate(fs)
+    return Plant(pcfg).process(u)
+
+
+def plant_fit(cfg: PiezoConfig, runs: Sequence[RunData], reference_outputs: Sequence[np.ndarray] | None = None,
+              ) -> dict:
+    """Held-out fit [%] of the identified model of the whole plant S0 = G_L·(K + Cr)·BoucWen, per output.
+
+    ``Plant(cfg)`` (noise-free) is simulated from each run's voltages ``u`` from rest and compared with the run's
+    output ``y`` (or with ``reference_outputs[i]``, e.g. the noise-free truth) as MATLAB ``compare`` does; several
+    runs are scored as one record.  Nothing in ``runs`` may have been used for fitting.
+    """
+    from .metrics import fit_percent
+
+    ys, yh = [], []
+    for i, r in enumerate(runs):
+        ys.append(r.y if reference_outputs is None else reference_outputs[i])
+        yh.append(_simulate_plant(cfg, r.u, r.sample_rate))
+    f = fit_percent(np.vstack(ys), np.vstack(yh))
+    return {a: (None if not np.isfinite(v) else round(float(v), 3)) for a, v in zip(runs[0].axes, f)}
+
+
 def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, generalized: bool = False,
                  creep_order="auto", dynamics_order="auto", synthesize: bool = True,
                  progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, dict]:
@@ -65,7 +96,7 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
     base = base or load_config()
     groups = split_runs(runs)
     for st, g in groups.items():
-        if not g["fit"]:
+        if st in STAGES and not g["fit"]:
             raise ValueError(f"no '{st}' fitting run among the data (tag runs with meta stage/role)")
     axes = groups["hysteresis"]["fit"][0].axes
     fs = groups["hysteresis"]["fit"][0].sample_rate
@@ -85,6 +116,11 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
     cfg = build_config(base, hf, cf, df, fs, axes)
     report = {"fit_percent": _fits_report(hf, cf, df, axes),
               "orders": {"creep": cf.orders, "dynamics": df.orders}, "timing_s": timing}
+    if groups["plant"]["validation"]:
+        t0 = time.perf_counter()
+        say("plant: held-out fit of the identified whole-plant model")
+        report["fit_percent"]["plant"] = plant_fit(cfg, groups["plant"]["validation"])
+        timing["plant_fit"] = time.perf_counter() - t0
     if synthesize and cfg.cascade.vibration:
         t0 = time.perf_counter()
         say("vibration: H∞ synthesis on the identified G_L")
@@ -132,7 +168,7 @@ def commission_sim(plant, fs: float, axes=("x", "y"), settings=None, base: Piezo
     Returns ``(config, report, runs)``; ``runs`` are tagged so :func:`identify_all` can redo the identification.
     """
     from ..characterisation import (CharacterisationSettings, creep_trajectories, dynamics_trajectories,
-                                    hysteresis_trajectories, run_open_loop)
+                                    hysteresis_trajectories, plant_validation_trajectory, run_open_loop)
     from ..compensators.creep import CreepCompensator
     from ..compensators.hysteresis import HysteresisCompensator
 
@@ -184,6 +220,50 @@ def commission_sim(plant, fs: float, axes=("x", "y"), settings=None, base: Piezo
                            [r for r in dyn_runs if r.meta["role"] == "validation"], order=dynamics_order, axes=axes,
                            progress=say)
     cfg = build_config(base, hf, cf, df, fs, axes)
-    report = {"fit_percent": _fits_report(hf, cf, df, axes), "orders": {"creep": cf.orders, "dynamics": df.orders},
-              "timing_s": {"total": time.perf_counter() - t_all}}
+    report = {"fit_percent": _fits_report(hf, cf, df, axes), "orders": {"creep": cf.orders, "dynamics": df.orders}}
+
+    say("validate the whole identified plant on a held-out voltage record (multisine + step pair)")
+    ptraj = plant_validation_trajectory(s, axes)
+    pv = run_open_loop(plant, ptraj, fs, "plant_validation", axes)
+    pv.u = pv.reference.copy()
+    pv.meta.update(stage="plant", role="validation")
+    runs.append(pv)
+    report["fit_percent"]["plant"] = plant_fit(cfg, [pv])
+    report["plant_fit_basis"] = "measured output" + (" (with sensor noise)" if _noise(plant) > 0 else "")
+    y_ref = pv.y
+    clean = _noise_free_copy(plant) if _noise(plant) > 0 else None
+    if clean is not None:
+        y_ref = clean.process(pv.u)
+        report["plant_fit_noise_free"] = plant_fit(cfg, [pv], [y_ref])
+    report["plant_fit_parts"] = _part_fits(cfg, pv, y_ref, ptraj, axes)
+    report["timing_s"] = {"total": time.perf_counter() - t_all}
     return cfg, report, runs
+
+
+def _noise(plant) -> float:
+    return float(getattr(plant, "noise_std", 0.0) or 0.0)
+
+
+def _noise_free_copy(plant):
+    """The same :class:`~..models.plant.Plant` without sensor noise (None for any other kind of plant)."""
+    from ..models.plant import Plant
+
+    if not isinstance(plant, Plant):
+        return None
+    return Plant(plant.cfg, pre=plant.pre, post=plant.post, noise_std=0.0, stages=plant.stages)
+
+
+def _part_fits(cfg: PiezoConfig, run: RunData, y_ref: np.ndarray, traj, axes) -> dict:
+    """Whole-plant fit on each part of the validation record (multisine: hysteresis loops and G_L in the band;
+    step pair: creep and the G_L transients), to see which stage limits the whole-record figure."""
+    from .metrics import fit_percent
+
+    y_model = _simulate_plant(cfg, run.u, run.sample_rate)
+    segs = {seg.name: seg for seg in traj.segments(run.sample_rate)}
+    parts = {"multisine": (segs["multisine_full"].start, segs["multisine_half"].stop),
+             "step_pair": (segs["multisine_half"].stop, len(run))}
+    out = {}
+    for name, (k0, k1) in parts.items():
+        f = fit_percent(y_ref[k0:k1], y_model[k0:k1])
+        out[name] = {a: round(float(v), 3) for a, v in zip(axes, f)}
+    return out
