@@ -217,3 +217,34 @@ def test_identify_cli_errors(cfg, tmp_path, capsys):
     fails(["identify", "--data", str(tmp_path / "missing.csv"), "--stage", "hysteresis", "--out", out],
           "missing.csv")
     assert not (tmp_path / "o.yaml").exists()
+
+
+@pytest.mark.parametrize("noise_nm, target", [(0.0, 99.0), (100.0, 95.0)])
+def test_commissioned_plant_reproduces_the_truth_on_held_out_voltages(cfg, noise_nm, target):
+    """Issue 4 acceptance: stage-by-stage commissioning of the paper's sim plant (60 s creep steps), then the
+    identified *whole* plant (Bouc-Wen → K + Cr → G_L, as exported) simulated from the held-out multisine + step
+    pair record: fit ≥ 99 % noise-free, ≥ 95 % with 100 nm sensor noise scored against the noisy measurement."""
+    from piezo_ff_ros.core.identification.pipeline import commission_sim, identify_all
+    from piezo_ff_ros.core.reproduce import truth_plant
+
+    truth = truth_plant(cfg, "nominal", noise_nm * 1e-9, seed=2)
+    ident, report, runs = commission_sim(truth, cfg.sample_rate, AXES, base=cfg,
+                                         settings=CharacterisationSettings(creep_duration=60.0))
+    plant_fit = report["fit_percent"]["plant"]
+    assert min(plant_fit.values()) >= target, report["fit_percent"]
+    assert report["plant_fit_basis"].startswith("measured output")
+    pv = [r for r in runs if r.meta["stage"] == "plant"]
+    assert len(pv) == 1 and len(pv[0]) > 30 * cfg.sample_rate      # tens of seconds, never fitted on
+    if noise_nm:
+        # against the noisy record the fit is capped by the noise; against the noise-free truth it must be higher
+        assert min(report["plant_fit_noise_free"].values()) >= 99.0, report
+        assert all(report["plant_fit_noise_free"][a] > plant_fit[a] for a in AXES)
+    else:
+        # the figure is sensitive: the identified model with its Dp 2 % off fails it
+        from piezo_ff_ros.core.identification.pipeline import plant_fit as score
+        off = dataclasses.replace(ident, hysteresis=dataclasses.replace(
+            ident.hysteresis, Dp=tuple(tuple(1.02 * v for v in row) for row in ident.hysteresis.Dp)))
+        assert min(score(off, pv).values()) < target
+        # identify_all on the recorded runs reports the same whole-plant figure
+        _, rep2 = identify_all(runs, base=cfg, synthesize=False)
+        assert rep2["fit_percent"]["plant"] == pytest.approx(plant_fit, abs=0.5)
