@@ -144,14 +144,15 @@ def synthesize_for(cfg: PiezoConfig, say=lambda s: None):
     A stage-by-stage identification makes the static gain of S_L ≈ 1 (the creep compensator inverts K + Cr(0)), so
     the DC bound of the H∞ problem, ≈ ‖G_L(0)⁻¹‖, sits at or just above 1 — above the default ``gamma_max`` = 1 that
     the printed G_L (static gains 1.07–1.09) clears.  The bound is a property of the weights and the plant, not a
-    failure: ``gamma_max`` is raised to 1.05 × the bound when needed, and the note says so.
+    failure: ``gamma_max`` is raised to 1.05 × the bound when the bound is within 5 % of it (the reduced-order
+    controller needs that headroom at ω = 0), and the note says so.
     """
     from ..synthesis.hinf import lower_bound_dc, synthesize_hinf
 
     vib = cfg.vibration
     bound = float(lower_bound_dc(cfg.dynamics.G_L, vib))
     note = None
-    if bound >= vib.gamma_max:
+    if 1.05 * bound > vib.gamma_max:   # at or within 5 % of the limit: the 12-state reduction needs headroom
         new = 1.05 * bound
         note = (f"vibration.gamma_max raised from {vib.gamma_max:g} to {new:.4g}: the DC bound of the identified "
                 f"G_L is {bound:.4g}")
@@ -162,6 +163,7 @@ def synthesize_for(cfg: PiezoConfig, say=lambda s: None):
 
 def commission_sim(plant, fs: float, axes=("x", "y"), settings=None, base: PiezoConfig | None = None,
                    generalized: bool = False, creep_order="auto", dynamics_order="auto",
+                   refine_hysteresis: bool = True,
                    progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, dict, list]:
     """Characterise and identify stage by stage on a sim plant (``process``/``reset``), as in Fig. 3.
 
@@ -206,6 +208,12 @@ def commission_sim(plant, fs: float, axes=("x", "y"), settings=None, base: Piezo
                         [r for r in creep_runs if r.meta["role"] == "validation"], order=creep_order, axes=axes,
                         progress=say)
 
+    if refine_hysteresis:
+        say("hysteresis: refit Bouc-Wen on S0 with the identified creep removed from the output")
+        hf = refit_hysteresis_without_creep(hyst_runs, cf.config, fs, generalized=generalized, init=hf,
+                                            progress=say)
+        hcomp = HysteresisCompensator(hf.config)
+
     say("characterise dynamics on S_L (steps up and down per axis)")
     ccomp = CreepCompensator(cf.config, 1.0 / fs)
     for name, tr, score_t in dynamics_trajectories(s, axes):
@@ -238,6 +246,25 @@ def commission_sim(plant, fs: float, axes=("x", "y"), settings=None, base: Piezo
     report["plant_fit_parts"] = _part_fits(cfg, pv, y_ref, ptraj, axes)
     report["timing_s"] = {"total": time.perf_counter() - t_all}
     return cfg, report, runs
+
+
+def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg, fs: float, generalized: bool = False,
+                                   init=None, progress=None):
+    """Bouc-Wen refitted on the S0 sines after removing the identified creep from their output.
+
+    The first Bouc-Wen is fitted on S0, whose 0.1 Hz sines also carry creep (time constants of seconds to minutes):
+    the fit absorbs part of it and gets the slope after a reversal wrong, which shows after compensation as a
+    drift when a step's creep-compensated input slowly reverses (measured: creep y after −0.35 % instead of 0).
+    Passing the measured output through the identified creep inverse, ``(K + Cr)⁻¹`` (whose gains are relative to
+    the first Bouc-Wen, so the composition stays consistent), leaves what the hysteresis alone should explain.
+    """
+    from ..compensators.creep import CreepCompensator
+
+    out = {"fit": [], "validation": []}
+    for r in hyst_runs:
+        cc = CreepCompensator(creep_cfg, 1.0 / fs)
+        out[r.meta["role"]].append(replace(r, y=cc.process(r.y)))
+    return identify_bouc_wen(out["fit"], out["validation"], generalized=generalized, init=init, progress=progress)
 
 
 def _noise(plant) -> float:
