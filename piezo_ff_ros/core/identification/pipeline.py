@@ -24,6 +24,8 @@ from .dynamics import identify_dynamics
 __all__ = ["identify_all", "commission_sim", "split_runs", "build_config", "synthesize_for", "plant_fit"]
 
 STAGES = ("hysteresis", "creep", "dynamics")
+#: ``meta['hysteresis_compensator']`` of S_L runs recorded through the Bouc-Wen refitted without creep
+REFIT_TAG = "refit_without_creep"
 
 
 def split_runs(runs: Sequence[RunData]) -> dict:
@@ -86,11 +88,15 @@ def plant_fit(cfg: PiezoConfig, runs: Sequence[RunData], reference_outputs: Sequ
 
 def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, generalized: bool = False,
                  creep_order="auto", dynamics_order="auto", synthesize: bool = True,
-                 progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, dict]:
+                 refine_hysteresis: bool | None = None, progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, dict]:
     """Identify every stage from tagged runs; returns the complete config and a report (held-out fits, timings).
 
     The H∞ compensator is synthesised from the identified G_L (``core.synthesis.hinf``) and stored in the config
-    (``vibration.controller``) so the compensator node loads it without re-synthesising.
+    (``vibration.controller``) so the compensator node loads it without re-synthesising.  With
+    ``refine_hysteresis`` the Bouc-Wen is refitted once creep is known (:func:`refit_hysteresis_without_creep`),
+    as :func:`commission_sim` does before characterising S_L; the S_L runs must then have been recorded through
+    the refitted hysteresis compensator.  Default (None): refit iff the S_L fitting runs say so
+    (``meta['hysteresis_compensator'] == 'refit_without_creep'``, which ``commission_sim`` sets).
     """
     say = progress or (lambda s: None)
     base = base or load_config()
@@ -109,6 +115,14 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
     cf = identify_creep(groups["creep"]["fit"], groups["creep"]["validation"], order=creep_order, axes=axes,
                         progress=say)
     timing["creep"] = time.perf_counter() - t0
+    if refine_hysteresis is None:   # as the S_L runs were recorded: through the refitted compensator or not
+        refine_hysteresis = any(r.meta.get("hysteresis_compensator") == REFIT_TAG for r in groups["dynamics"]["fit"])
+    if refine_hysteresis:
+        t0 = time.perf_counter()
+        say("hysteresis: refit Bouc-Wen on S0 with the identified creep removed from the output")
+        hf = refit_hysteresis_without_creep(groups["hysteresis"]["fit"] + groups["hysteresis"]["validation"],
+                                            cf.config, generalized=generalized, init=hf, progress=say)
+        timing["hysteresis_refit"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     df = identify_dynamics(groups["dynamics"]["fit"], groups["dynamics"]["validation"], order=dynamics_order,
                            axes=axes, progress=say)
@@ -210,14 +224,15 @@ def commission_sim(plant, fs: float, axes=("x", "y"), settings=None, base: Piezo
 
     if refine_hysteresis:
         say("hysteresis: refit Bouc-Wen on S0 with the identified creep removed from the output")
-        hf = refit_hysteresis_without_creep(hyst_runs, cf.config, fs, generalized=generalized, init=hf,
-                                            progress=say)
+        hf = refit_hysteresis_without_creep(hyst_runs, cf.config, generalized=generalized, init=hf, progress=say)
         hcomp = HysteresisCompensator(hf.config)
 
     say("characterise dynamics on S_L (steps up and down per axis)")
     ccomp = CreepCompensator(cf.config, 1.0 / fs)
     for name, tr, score_t in dynamics_trajectories(s, axes):
         r = run_open_loop(plant, tr, fs, name, axes, chain=[ccomp, hcomp])
+        if refine_hysteresis:
+            r.meta["hysteresis_compensator"] = REFIT_TAG
         k = int(round(score_t * fs))
         fit = r.slice(0, k)
         fit.meta.update(stage="dynamics", role="fit")
@@ -248,8 +263,8 @@ def commission_sim(plant, fs: float, axes=("x", "y"), settings=None, base: Piezo
     return cfg, report, runs
 
 
-def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg, fs: float, generalized: bool = False,
-                                   init=None, progress=None):
+def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg, generalized: bool = False, init=None,
+                                   progress=None):
     """Bouc-Wen refitted on the S0 sines after removing the identified creep from their output.
 
     The first Bouc-Wen is fitted on S0, whose 0.1 Hz sines also carry creep (time constants of seconds to minutes):
@@ -262,8 +277,8 @@ def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg, fs: 
 
     out = {"fit": [], "validation": []}
     for r in hyst_runs:
-        cc = CreepCompensator(creep_cfg, 1.0 / fs)
-        out[r.meta["role"]].append(replace(r, y=cc.process(r.y)))
+        cc = CreepCompensator(creep_cfg, 1.0 / r.sample_rate)
+        out["validation" if r.meta.get("role") == "validation" else "fit"].append(replace(r, y=cc.process(r.y)))
     return identify_bouc_wen(out["fit"], out["validation"], generalized=generalized, init=init, progress=progress)
 
 
