@@ -28,7 +28,7 @@ import numpy as np
 from ..config import CreepConfig
 from ..lti import FactoredTF, TFMatrix
 from ..recording.run import RunData
-from .metrics import fit_percent
+from .metrics import fit_percent, greedy_order_search
 from .modal import Structure, fit_row, simulate_row
 
 __all__ = ["CreepFit", "identify_creep", "step_events"]
@@ -220,30 +220,10 @@ def identify_creep(runs: Sequence[RunData], validation: Sequence[RunData] = (), 
     rows, orders_out = [], {}
     for i in range(n):
         if order == "auto":
-            orders = {j: 1 for j in excited}
-            models = fit_with(i, orders)
             recs = val_recs or fit_recs
-            cur = _row_fits(models, recs, i, n)
-            frozen = set()
-            while True:
-                improved = False
-                for j in excited:
-                    if j in frozen or orders[j] >= max_order:
-                        continue
-                    trial = dict(orders)
-                    trial[j] += 1
-                    m2 = fit_with(i, trial)
-                    f2 = _row_fits(m2, recs, i, n)
-                    gain = f2.get(j, -np.inf) - cur.get(j, -np.inf)
-                    say(f"creep: Cr{axes[i]}{axes[j]} order {trial[j]}: held-out fit {f2.get(j, float('nan')):.2f} % "
-                        f"(gain {gain:+.2f})")
-                    if gain > tol:
-                        orders, models, cur = trial, m2, f2
-                        improved = True
-                    else:
-                        frozen.add(j)
-                if not improved:
-                    break
+            orders, models = greedy_order_search(
+                excited, {j: 1 for j in excited}, max_order, lambda o: o + 1, lambda o: fit_with(i, o),
+                lambda m: _row_fits(m, recs, i, n), tol, lambda j, o: f"creep: Cr{axes[i]}{axes[j]} order {o}", say)
         else:
             orders = {j: fixed_order(i, j) for j in excited}
             models = fit_with(i, orders)

@@ -27,7 +27,7 @@ from ..config import DynamicsConfig
 from ..lti import FactoredTF, TFMatrix
 from ..recording.run import RunData
 from .creep import step_events
-from .metrics import fit_percent
+from .metrics import fit_percent, greedy_order_search
 from .modal import EntryModel, Structure, era_poles, fit_row, poles_to_theta, simulate_row
 
 __all__ = ["DynamicsFit", "identify_dynamics"]
@@ -209,29 +209,13 @@ def identify_dynamics(runs: Sequence[RunData], validation: Sequence[RunData] = (
     for i in range(n):
         if order == "auto":
             scoring = val_recs or fit_recs
-            orders = {j: 2 for j in excited}
-            models = fit_with(i, orders)
-            cur = {j: v for (ii, j), v in entry_fits({i: models}, scoring).items() if j is not None}
-            frozen = set()
-            while True:
-                improved = False
-                for j in excited:
-                    if j in frozen or orders[j] >= max_order:
-                        continue
-                    trial = dict(orders)
-                    trial[j] = min(max_order, trial[j] + 2)
-                    m2 = fit_with(i, trial)
-                    f2 = {jj: v for (ii, jj), v in entry_fits({i: m2}, scoring).items() if jj is not None}
-                    gain = f2.get(j, -np.inf) - cur.get(j, -np.inf)
-                    say(f"dynamics: G_L{axes[i]}{axes[j]} order {trial[j]}: held-out fit "
-                        f"{f2.get(j, float('nan')):.2f} % (gain {gain:+.2f})")
-                    if gain > tol:
-                        orders, models, cur = trial, m2, f2
-                        improved = True
-                    else:
-                        frozen.add(j)
-                if not improved:
-                    break
+
+            def score(m, i=i):
+                return {j: v for (ii, j), v in entry_fits({i: m}, scoring).items() if j is not None}
+
+            orders, models = greedy_order_search(
+                excited, {j: 2 for j in excited}, max_order, lambda o: o + 2, lambda o: fit_with(i, o), score, tol,
+                lambda j, o: f"dynamics: G_L{axes[i]}{axes[j]} order {o}", say)
         else:
             if isinstance(order, dict):
                 orders = {j: int(order.get(f"{axes[i]}{axes[j]}", order.get("default", 8))) for j in excited}
