@@ -6,6 +6,12 @@ trajectory node cannot parse from a parameter.  Here the same experiments are ex
 - a ``Ramp`` (slew-limited step edge) becomes a ``Staircase`` with one level per sample — the same samples;
 - the two-axis sine ``Sum`` with a quarter period between the axes is a ``Circle`` (the paper's circle is exactly
   that); the held-out hysteresis run is a smaller circle at another phase (both axes, another amplitude and phase);
+- any other ``Sum`` (the plant-validation multisine: 7 lines per axis, different on x and y) has no graph type: it is
+  held at ``SAMPLED_RATE`` (2 kHz, zero-order hold of the preset's samples, 9 significant digits) as ``Staircase``
+  chunks.  Not the same samples: the trajectory node parses its spec with YAML (~0.3 MB/s here), and one level per
+  sample at 20 kHz makes the 30 s multisine a 17 MB spec (about a minute to parse).  Held at 2 kHz the top line
+  (312 Hz) has 6 levels per period, the largest level jump is ~4 V, and the spec is ~1 MB.  The whole-plant fit
+  is scored on the voltages the recorder saw, so the record stays exactly what the model is compared on;
 - every run that would start away from 0 V gets a short ramp from rest first (the driver is reset to rest before
   each run; a one-sample jump of hundreds of volts is what the discrete Bouc-Wen form cannot represent).
 
@@ -18,7 +24,7 @@ import math
 import numpy as np
 
 from .characterisation import (CharacterisationSettings, Ramp, Sum, creep_trajectories, dynamics_trajectories,
-                               hysteresis_trajectories)
+                               hysteresis_trajectories, plant_validation_trajectory)
 from .trajectories import TRAJECTORY_TYPES, Circle, Hold, Sequence, Sine, Staircase, Trajectory
 
 __all__ = ["graph_playable", "graph_characterisation"]
@@ -30,10 +36,34 @@ def _ramp_staircase(start, end, n: int, fs: float, axes) -> Staircase:
     return Staircase(levels=levels, dwell=1.0 / fs, axes=axes)
 
 
-def graph_playable(traj: Trajectory, fs: float) -> Trajectory:
-    """The same samples at rate ``fs`` as a trajectory the trajectory node can build (``to_dict``/``from_dict``).
+#: Hz, rate at which a ``Sum`` with no graph equivalent is held (see the module docstring)
+SAMPLED_RATE = 2000.0
+#: levels per ``Staircase`` chunk of a held ``Sum``: the node evaluates only the chunk a block falls in
+SAMPLED_CHUNK = 2000
 
-    Raises ``ValueError`` for a ``Sum`` that is not a quarter-period two-axis sine pair.
+
+def _sampled(traj: Trajectory, fs: float) -> Sequence:
+    """``traj`` held at ≤ ``SAMPLED_RATE`` (its samples at rate ``fs``, every ``fs/SAMPLED_RATE``-th held) as
+    ``Staircase`` chunks, 9 significant digits; as long as ``traj`` rounded up to a whole hold."""
+    hold = max(1, int(round(fs / SAMPLED_RATE)))
+    _, v = traj.sample(fs)
+    v = v[::hold]
+    peak = float(np.max(np.abs(v))) if v.size else 0.0
+    decimals = 9 - int(math.ceil(math.log10(peak))) if peak > 0 else 0
+    v = np.round(v, decimals) + 0.0   # + 0.0: no "-0.0" in the spec
+    chunks = [(f"chunk_{i // SAMPLED_CHUNK}",
+               Staircase(levels=[tuple(r) for r in v[i:i + SAMPLED_CHUNK].tolist()], dwell=hold / fs,
+                         axes=traj.axes))
+              for i in range(0, len(v), SAMPLED_CHUNK)]
+    return Sequence(chunks, axes=traj.axes)
+
+
+def graph_playable(traj: Trajectory, fs: float) -> Trajectory:
+    """(Nearly) the same samples at rate ``fs`` as a trajectory the trajectory node can build (``to_dict``/``from_dict``).
+
+    A quarter-period two-axis sine ``Sum`` becomes a ``Circle``; any other ``Sum`` is held at ``SAMPLED_RATE``
+    (:func:`_sampled`: *not* the same samples).
+    Raises ``ValueError`` for a type with no graph equivalent.
     """
     if isinstance(traj, Sequence):
         return Sequence([(n, graph_playable(t, fs), m) for n, t, m in traj.segments_], axes=traj.axes)
@@ -49,7 +79,7 @@ def graph_playable(traj: Trajectory, fs: float) -> Trajectory:
             p = parts[0]
             return Circle(radius=p.amplitude, frequency=p.frequency, phase=p.phase,
                           revolutions=p.duration * p.frequency, axes=traj.axes)
-        raise ValueError("graph_playable: only a quarter-period two-axis sine sum maps to a graph trajectory")
+        return _sampled(traj, fs)
     if traj.kind in TRAJECTORY_TYPES:
         return traj
     raise ValueError(f"graph_playable: trajectory type {traj.kind!r} has no graph equivalent")
@@ -70,11 +100,13 @@ def graph_characterisation(s: CharacterisationSettings, fs: float, axes=("x", "y
 
     Returns ``{stage: [(name, trajectory, role, score_start_s)]}`` for stage ∈ hysteresis (voltages [V], role fit
     or validation, score_start 0), creep and dynamics (positions [m]; role ``split``: fit on ``[0, score_start)``,
-    score the whole run from ``score_start`` on, as :func:`~piezo_ff_ros.core.identification.pipeline.commission_sim`).
+    score the whole run from ``score_start`` on, as :func:`~piezo_ff_ros.core.identification.pipeline.commission_sim`)
+    and plant (the held-out voltage record [V] of
+    :func:`~piezo_ff_ros.core.characterisation.plant_validation_trajectory`, role validation: never fitted on).
     """
     axes = tuple(axes)
     ramp = max(s.step_ramp, 1.0 / fs)
-    out = {"hysteresis": [], "creep": [], "dynamics": []}
+    out = {"hysteresis": [], "creep": [], "dynamics": [], "plant": []}
     ht = hysteresis_trajectories(s, axes)
     for name, tr in ht["fit"]:
         out["hysteresis"].append((name, _from_rest(name, graph_playable(tr, fs), fs, ramp), "fit", 0.0))
@@ -89,4 +121,6 @@ def graph_characterisation(s: CharacterisationSettings, fs: float, axes=("x", "y
     for stage, fn in (("creep", creep_trajectories), ("dynamics", dynamics_trajectories)):
         for name, tr, score_t in fn(s, axes):
             out[stage].append((name, graph_playable(tr, fs), "split", float(score_t)))
+    out["plant"].append(("plant_validation", graph_playable(plant_validation_trajectory(s, axes), fs), "validation",
+                         0.0))
     return out
