@@ -122,6 +122,20 @@ def spin_node(node, on_exit=None) -> int:
     return code
 
 
+def run_node(name: str, make_node, on_exit=None, argv=None) -> int:
+    """A node's ``main``: init rclpy with ``argv``, build the node (a bad config/parameter is one clear line and
+    exit code 2, not a traceback), spin until SIGINT/SIGTERM, then ``on_exit(node)``."""
+    args = sys.argv if argv is None else [sys.argv[0], *argv]
+    try:
+        rclpy.init(args=args)
+        node = make_node()
+    except Exception as exc:  # noqa: BLE001 - bad config/parameter: one clear line, no traceback
+        print(f"{name}: error: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    return spin_node(node, on_exit=(lambda: on_exit(node)) if on_exit is not None else None)
+
+
 def diag_values(d: dict):
     """dict → list of diagnostic_msgs/KeyValue."""
     from diagnostic_msgs.msg import KeyValue

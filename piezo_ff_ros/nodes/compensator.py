@@ -27,7 +27,6 @@ import time
 
 import numpy as np
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PointStamped
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -39,7 +38,7 @@ from std_srvs.srv import Trigger
 from ..core.config import ConfigError, load_config
 from ..core.hot_swap import HotSwapCascade
 from ..core.param_map import config_to_params, is_config_param, needs_synthesis, params_to_config
-from .common import BLOCK_QOS, BlockFormatError, diag_values, dt_ns, pack_block, spin_node, stamp_to_ns, unpack_block
+from .common import BLOCK_QOS, BlockFormatError, diag_values, dt_ns, pack_block, run_node, stamp_to_ns, unpack_block
 
 _DESCRIPTIONS = {
     "hysteresis.": "Bouc-Wen matrix, flat row-major, one row per axis (Dp, A in m/V; B, Gamma, Delta1/2 in 1/V)",
@@ -299,15 +298,7 @@ def _short(d: dict) -> str:
 
 
 def main(argv=None) -> int:
-    args = sys.argv if argv is None else [sys.argv[0], *argv]
-    try:
-        rclpy.init(args=args)
-        node = CompensatorNode()
-    except Exception as exc:  # noqa: BLE001 - bad config/parameter: one clear line, no traceback
-        print(f"compensator: error: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    return spin_node(node, on_exit=node.stop)
+    return run_node("compensator", CompensatorNode, lambda n: n.stop(), argv)
 
 
 if __name__ == "__main__":

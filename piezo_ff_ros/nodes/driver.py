@@ -19,7 +19,6 @@ from dataclasses import replace
 
 import numpy as np
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, PointCloud2
@@ -28,7 +27,7 @@ from std_srvs.srv import Trigger
 from ..core.config import LimitsConfig, load_config
 from ..core.safety import BlockRejected, VoltageGuard
 from .backends import BackendError, make_backend
-from .common import BLOCK_QOS, BlockFormatError, diag_values, dt_ns, pack_block, spin_node, stamp_to_ns, unpack_block
+from .common import BLOCK_QOS, BlockFormatError, diag_values, dt_ns, pack_block, run_node, stamp_to_ns, unpack_block
 
 
 class DriverNode(Node):
@@ -190,15 +189,7 @@ class DriverNode(Node):
 
 
 def main(argv=None) -> int:
-    args = sys.argv if argv is None else [sys.argv[0], *argv]
-    try:
-        rclpy.init(args=args)
-        node = DriverNode()
-    except Exception as exc:  # noqa: BLE001 - bad config/parameter/backend: one clear line, no traceback
-        print(f"driver: error: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    return spin_node(node, on_exit=node.backend.close)
+    return run_node("driver", DriverNode, lambda n: n.backend.close(), argv)
 
 
 if __name__ == "__main__":

@@ -22,14 +22,13 @@ import sys
 import time
 from pathlib import Path
 
-import rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
 from ..core.config import load_config
 from ..core.recording.mcap_io import McapRecorder
-from .common import LATCHED_QOS, RECORD_QOS, spin_node
+from .common import LATCHED_QOS, RECORD_QOS, run_node
 
 DEFAULT_TOPICS = ["reference", "voltage", "displacement", "experiment", "/diagnostics", "/parameter_events"]
 KNOWN_TYPES = {"reference": "sensor_msgs/msg/PointCloud2", "voltage": "sensor_msgs/msg/PointCloud2",
@@ -151,15 +150,7 @@ class RecorderNode(Node):
 
 
 def main(argv=None) -> int:
-    args = sys.argv if argv is None else [sys.argv[0], *argv]
-    try:
-        rclpy.init(args=args)
-        node = RecorderNode()
-    except Exception as exc:  # noqa: BLE001 - bad parameter/output path: one clear line, no traceback
-        print(f"recorder: error: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    return spin_node(node, on_exit=node.finish)
+    return run_node("recorder", RecorderNode, lambda n: n.finish(), argv)
 
 
 if __name__ == "__main__":

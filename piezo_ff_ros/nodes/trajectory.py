@@ -28,10 +28,8 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import yaml
 
-import rclpy
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
@@ -40,7 +38,7 @@ from std_srvs.srv import Trigger
 
 from ..core.config import ConfigError
 from ..core.trajectories import Sequence, Trajectory, from_dict
-from .common import BLOCK_QOS, LATCHED_QOS, dt_ns, pack_block, spin_node, stamp_to_ns
+from .common import BLOCK_QOS, LATCHED_QOS, dt_ns, pack_block, run_node, stamp_to_ns
 
 DEFAULT_TRAJECTORY = json.dumps({"type": "circle", "radius": 2.0e-5, "frequency": 1.0, "revolutions": 5})
 
@@ -285,15 +283,7 @@ class TrajectoryNode(Node):
 
 
 def main(argv=None) -> int:
-    args = sys.argv if argv is None else [sys.argv[0], *argv]
-    try:
-        rclpy.init(args=args)
-        node = TrajectoryNode()
-    except Exception as exc:  # noqa: BLE001 - bad trajectory/parameter: one clear line, no traceback
-        print(f"trajectory: error: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    return spin_node(node, on_exit=lambda: node.stop())
+    return run_node("trajectory", TrajectoryNode, lambda n: n.stop(), argv)
 
 
 if __name__ == "__main__":
