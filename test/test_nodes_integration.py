@@ -386,9 +386,6 @@ def test_realtime_pacing_held_point_and_recorder_sigterm(tmp_path, probe):
     vsub = probe.node.create_subscription(PointCloud2, "voltage",
                                           lambda m: volts.__setitem__(stamp_to_ns(m.header.stamp), unpack_block(m)),
                                           BLOCK_QOS)
-    refs = {}
-    probe.node.create_subscription(PointCloud2, "reference",
-                                   lambda m: refs.__setitem__(stamp_to_ns(m.header.stamp), unpack_block(m)), BLOCK_QOS)
     from std_srvs.srv import Trigger
 
     start = probe.node.create_client(Trigger, "/trajectory/start")
@@ -405,6 +402,9 @@ def test_realtime_pacing_held_point_and_recorder_sigterm(tmp_path, probe):
         # no driver: in realtime nothing waits for displacement; start once this probe hears the compensator
         probe.spin_until(lambda: vsub.get_publisher_count() > 0, 30, "compensator's voltage publisher")
         wait_recorder_connected(probe, ["/reference", "/voltage"], timeout=60)
+        # that is this reader's side of discovery; the compensator's writer learns of it separately and drops what
+        # it publishes before (volatile): give it time before the 1 s run starts
+        probe.spin_for(1.5)
         assert probe.call(start, Trigger.Request()).success
         probe.spin_until(lambda: any(s["state"] in ("finished", "failed") for _, s in states), 60, "trajectory end")
         t_play = next(t for t, s in states if s["state"] == "playing")
@@ -414,11 +414,6 @@ def test_realtime_pacing_held_point_and_recorder_sigterm(tmp_path, probe):
         probe.spin_until(lambda: len(volts) >= 100, 10, "the voltage blocks")
         stamps = sorted(volts)
         assert all(b - a == 200 * DT_NS for a, b in zip(stamps, stamps[1:]))  # contiguous, no gap
-        from piezo_ff_ros.core.trajectories import from_dict
-
-        probe.spin_until(lambda: len(refs) >= 100, 10, "the reference blocks")
-        first = refs[min(refs)]
-        np.testing.assert_array_equal(first, from_dict(spec).block(preview, 200, FS))  # played ahead, exactly
         # a held set-point, once the reference stream has stopped for hold_timeout
         n0 = len(volts)
         pub = probe.node.create_publisher(PointStamped, "reference_point", 10)
@@ -442,3 +437,12 @@ def test_realtime_pacing_held_point_and_recorder_sigterm(tmp_path, probe):
     with open(out, "rb") as f:
         summary = make_reader(f).get_summary()
     assert summary is not None and summary.statistics.message_count > 200  # finished file: summary + statistics
+    # the trajectory played `preview` samples ahead: the first recorded reference block is the trajectory's
+    # samples [preview, preview + 200), exactly (the recorder was connected before the start)
+    from piezo_ff_ros.core.recording.blocks import deserialize_block
+    from piezo_ff_ros.core.trajectories import from_dict
+
+    with open(out, "rb") as f:
+        first = min((deserialize_block(m.data)[:2] for _, c, m in make_reader(f).iter_messages(topics=["/reference"])),
+                    key=lambda sb: sb[0])[1]
+    np.testing.assert_array_equal(first, from_dict(spec).block(preview, 200, FS))
