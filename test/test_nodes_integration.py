@@ -252,15 +252,17 @@ def test_runtime_parameter_change_through_set_parameters_service(tmp_path, probe
     from piezo_ff_ros.nodes.common import BLOCK_QOS, pack_block, stamp_to_ns, unpack_block
 
     volts = {}
-    probe.node.create_subscription(PointCloud2, "voltage",
-                                   lambda m: volts.__setitem__(stamp_to_ns(m.header.stamp), unpack_block(m)),
-                                   BLOCK_QOS)
+    vsub = probe.node.create_subscription(PointCloud2, "voltage",
+                                          lambda m: volts.__setitem__(stamp_to_ns(m.header.stamp), unpack_block(m)),
+                                          BLOCK_QOS)
     pub = probe.node.create_publisher(PointCloud2, "reference", BLOCK_QOS)
     setp = probe.node.create_client(SetParameters, "/compensator/set_parameters")
     getp = probe.node.create_client(GetParameters, "/compensator/get_parameters")
     comp = start_node("compensator", "-p", "cascade.vibration:=false", "-p", "crossfade:=0.02", log_dir=tmp_path)
     try:
-        probe.spin_until(lambda: pub.get_subscription_count() > 0, 30, "compensator subscription")
+        probe.spin_until(lambda: pub.get_subscription_count() > 0 and vsub.get_publisher_count() > 0, 30,
+                         "compensator subscription and publisher")
+        probe.spin_for(1.0)  # the compensator's writer discovers this reader on its own schedule (volatile QoS)
         assert setp.wait_for_service(timeout_sec=10)
         n_blk, n_blocks = 200, 40
         t = np.arange(n_blk * n_blocks) / FS
@@ -323,6 +325,7 @@ def test_driver_safety_limits_rejection_and_stale_ramp(tmp_path, probe, cfg_novi
     expected = {}
     try:
         probe.spin_until(lambda: pub.get_subscription_count() > 0, 30, "driver subscription")
+        probe.spin_for(1.0)  # and the driver's displacement writer discovers this reader (volatile QoS)
         k = 0
 
         def send(block, expect):
