@@ -18,6 +18,9 @@ setup(
         ("lib/" + package_name, ["ros2run/" + e for e in executables]),
     ],
     install_requires=["setuptools"],
+    # vendor packages of the hardware backends (docs/hardware.md): pip install "piezo_ff_ros[nidaqmx]";
+    # `colcon test` runs pytest only for packages that declare it as a test dependency (else: 0 tests, success)
+    extras_require={"nidaqmx": ["nidaqmx>=1.0"], "pipython": ["pipython>=2.10"], "test": ["pytest"]},
     zip_safe=True,
     maintainer="piezo_ff_ros developers",
     maintainer_email="piezo_ff_ros@example.com",
@@ -26,5 +29,8 @@ setup(
     entry_points={
         "console_scripts": [f"{e} = {package_name}.entry_points:{e}" for e in executables]
         + [f"piezo-ff = {package_name}.entry_points:piezo_ff"],
+        # driver backends as plug-ins: a lab adds its own in this group from its own package
+        "piezo_ff_ros.backends": [f"{b} = {package_name}.nodes.backends.{m}:SPEC"
+                                  for b, m in (("sim", "sim"), ("nidaqmx", "nidaqmx_backend"), ("pi_gcs", "pi_gcs"))],
     },
 )

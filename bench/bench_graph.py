@@ -21,7 +21,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from piezo_ff_ros.ros_env import apply_ros_env_defaults  # noqa: E402
+from piezo_ff_ros.ros.env import apply_ros_env_defaults  # noqa: E402
 
 apply_ros_env_defaults(force_domain=True)
 
@@ -48,7 +48,7 @@ def run_realtime(args, out: Path, vib: bool) -> dict:
     import rclpy
     from sensor_msgs.msg import PointCloud2
 
-    from piezo_ff_ros.launcher import GraphLauncher
+    from piezo_ff_ros.ros.launcher import GraphLauncher
     from piezo_ff_ros.nodes.common import RECORD_QOS, stamp_to_ns
 
     spec = json.dumps({"type": "circle", "radius": 2e-5, "frequency": 1.0, "revolutions": 100000})
@@ -117,7 +117,7 @@ def run_lockstep(args, out: Path, vib: bool, block: int) -> dict:
     from std_msgs.msg import String
     from std_srvs.srv import Trigger
 
-    from piezo_ff_ros.launcher import GraphLauncher
+    from piezo_ff_ros.ros.launcher import GraphLauncher
     from piezo_ff_ros.nodes.common import LATCHED_QOS
 
     spec = json.dumps({"type": "circle", "radius": 2e-5, "frequency": 1.0, "revolutions": args.lockstep_seconds})

@@ -1,7 +1,7 @@
 """ros2 launch file for full ROS 2 installs (``ros2 launch piezo_ff_ros piezo_ff.launch.py``).
 
 Not runnable from the pip wheels (launch/launch_ros are not published there): the project's own demo and tests use
-``piezo_ff_ros/launcher.py``.  Arguments: ``mode`` (realtime|lockstep), ``output`` (MCAP file), ``params_file``
+``piezo_ff_ros/ros/launcher.py``.  Arguments: ``mode`` (realtime|lockstep), ``output`` (MCAP file), ``params_file``
 (compensator parameters, default the packaged config/compensator.params.yaml), ``trajectory`` (JSON/YAML spec),
 ``namespace``.
 """

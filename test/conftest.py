@@ -1,10 +1,13 @@
 """Test-session defaults: ROS isolation env vars are set before anything can import rclpy.
 
-Every test session gets its own ``ROS_DOMAIN_ID`` (from the PID, or ``PIEZO_FF_TEST_DOMAIN``), discovery restricted
-to this machine, and rcl logs in a temp dir.  Data tests skip cleanly where ../shared/data is absent.
+Every test session gets its own ``ROS_DOMAIN_ID`` — ``PIEZO_FF_TEST_DOMAIN`` if set, else the first domain in
+1…100 whose lock file (``$TMPDIR/piezo_ff_test_domain_<id>.lock``, ``flock`` held for the whole session) no other
+session holds, so two concurrent runs cannot collide — discovery restricted to this machine, and rcl logs in a
+temp dir.  Data tests skip cleanly where ../shared/data is absent.
 """
 from __future__ import annotations
 
+import fcntl
 import os
 import sys
 import tempfile
@@ -17,7 +20,28 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ["ROS_DOMAIN_ID"] = os.environ.get("PIEZO_FF_TEST_DOMAIN", str(1 + os.getpid() % 100))
+
+
+def claim_test_domain(first: int = 1, last: int = 100) -> tuple[int, object]:
+    """A ROS domain no other test session holds: the first whose lock file we can ``flock`` (kept open = held)."""
+    start = os.getpid() % (last - first + 1)
+    for i in range(last - first + 1):
+        domain = first + (start + i) % (last - first + 1)
+        f = open(Path(tempfile.gettempdir()) / f"piezo_ff_test_domain_{domain}.lock", "a")
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            f.close()
+            continue
+        return domain, f
+    raise RuntimeError(f"no free ROS test domain in {first}…{last} (all locked by other test sessions)")
+
+
+if os.environ.get("PIEZO_FF_TEST_DOMAIN"):
+    os.environ["ROS_DOMAIN_ID"] = os.environ["PIEZO_FF_TEST_DOMAIN"]
+else:
+    _DOMAIN, _DOMAIN_LOCK = claim_test_domain()   # held until this process exits
+    os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN)
 os.environ["ROS_LOG_DIR"] = tempfile.mkdtemp(prefix="piezo_ff_test_roslog_")
 
 SHARED_DATA = Path(os.environ.get("PIEZO_FF_SHARED_DATA", ROOT.parent / "shared" / "data"))

@@ -30,7 +30,7 @@ def colcon_install(tmp_path_factory):
     # a copy, so that the build leaves nothing (egg-info, build/) in the source tree
     for name in ("setup.py", "setup.cfg", "package.xml"):
         shutil.copy2(ROOT / name, src / name)
-    for name in ("resource", "config", "launch", "ros2run", "piezo_ff_ros"):
+    for name in ("resource", "config", "launch", "ros2run", "piezo_ff_ros", "test", "docs", "bench"):
         if (ROOT / name).exists():
             shutil.copytree(ROOT / name, src / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     env = dict(os.environ)
@@ -63,3 +63,21 @@ def test_installed_executable_runs_from_the_install_space(colcon_install, tmp_pa
                        env=env, capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert r.returncode == 2, r.stdout + r.stderr
     assert "backend: unknown backend 'nope'" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_colcon_test_runs_the_suite(colcon_install):
+    """`colcon test` must run pytest (it reported success with 0 tests while setup.py declared no test dep)."""
+    ws = colcon_install.parent
+    colcon = _colcon()
+    env = dict(os.environ)
+    env["PATH"] = str(Path(sys.prefix) / "bin") + os.pathsep + env.get("PATH", "")
+    r = subprocess.run([colcon, "test", "--base-paths", str(ws / "src"), "--pytest-args", "-k",
+                        "round_trip or two_sessions"], cwd=ws, env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    xml = ws / "build" / "piezo_ff_ros" / "pytest.xml"
+    assert xml.is_file(), r.stdout[-2000:]
+    import xml.etree.ElementTree as ET
+
+    root = ET.parse(xml).getroot()
+    suite = root if root.tag == "testsuite" else root.find("testsuite")
+    assert int(suite.get("tests")) >= 2 and int(suite.get("failures")) == 0 and int(suite.get("errors")) == 0

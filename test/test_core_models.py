@@ -364,13 +364,13 @@ def test_two_axis_hysteresis_compensator_kernel_gives_the_generic_kernels_number
     comp = HysteresisCompensator(cfg, loop, voltage_limit=limit, slew_per_sample=slew)
     fast = np.vstack([comp.process(yh[:777]), comp.process(yh[777:])])
     ref = HysteresisCompensator(cfg, loop, voltage_limit=limit, slew_per_sample=slew)
-    st = ref.state
+    st = ref.bw_state
     u = np.empty_like(yh)
     counters = np.zeros(2, np.int64)
     hc._bw_comp_run(ref._Dp, ref._Dp_pinv, ref._A, ref._B, ref._G, ref._D1, ref._D2, ref._P, st.h, st.u_prev,
                     st.started, ref._signs, loop == "exact", ref.voltage_limit, ref.slew_per_sample, yh, u, counters)
     assert np.array_equal(fast, u)
-    assert np.array_equal(comp.state.h, st.h) and np.array_equal(comp._signs, ref._signs)
+    assert np.array_equal(comp.bw_state.h, st.h) and np.array_equal(comp._signs, ref._signs)
     assert (comp.fallbacks, comp.saturated) == tuple(counters)
     if limit is not None or slew is not None:
         assert comp.saturated > 0

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from piezo_ff_ros.core.config import load_config
-from piezo_ff_ros.core.diagnosis import DiagnosisOptions, diagnose, json_ready, make_runs
+from bench.synthetic.in_family import make_runs
+from piezo_ff_ros.core.diagnosis import DiagnosisOptions, diagnose, json_ready
 from piezo_ff_ros.core.diagnosis.replay import Windows, noise_floor, nrmse_percent, simulate
 from piezo_ff_ros.core.recording.run import RunData
 

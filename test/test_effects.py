@@ -32,14 +32,23 @@ def _all_stages(cfg):
         fx.ThermalDrift([1e-6, -2e-6], 0.3, DT, n), fx.CreepNonlinearity([0.01, 0.02], 0.5, DT, n),
         fx.UnmodelledMode(400.0, 0.02, [0.1, 0.2], DT, n),
         fx.HysteresisStage(fx.asymmetric_hysteresis_config(cfg.hysteresis, [0.003, 0.002], [0.001, 0.0]), 0.4, DT),
+        # issue 8: 2nd-order roll-off per axis, several cross-coupled modes, amplitude-dependent dynamics, cross-talk
+        fx.AmplifierBandwidth([300.0, 700.0], DT, n, order=2, damping=0.6),
+        fx.UnmodelledMode([150.0, 900.0], [0.02, 0.05], [[[0.2, 0.1], [0.0, 0.3]], [[0.1, 0.0], [0.05, 0.2]]], DT, n),
+        fx.AmplitudeDependentDynamics([400.0], [0.03], [[0.1, 0.2]], [[0.5, -0.3]], DT, n),
+        fx.GainMismatch([1.02, 0.98], n, [[0.0, 0.01], [-0.02, 0.0]]),
+        fx.BranchEvenTerm([0.01, -0.02], [0.02, 0.01], DT, n),
     ]
 
 
-@pytest.mark.parametrize("index", range(10))
+VOLTAGE_STAGES = (0, 1, 2, 3, 4, 9, 10)
+
+
+@pytest.mark.parametrize("index", range(15))
 def test_block_split_invariance(cfg, index):
     st = _all_stages(cfg)[index]
     u = _signal()
-    x = u if index in (0, 1, 2, 3, 4, 9) else u * 1e-7  # voltage stages get volts, displacement stages metres
+    x = u if index in VOLTAGE_STAGES else u * 1e-7  # voltage stages get volts, displacement stages metres
     whole = st.process(x)
     st.reset()
     parts, i = [], 0
@@ -138,3 +147,51 @@ def test_build_plant_equals_nominal_without_effects_and_rejects_unknown(cfg):
         fx.build_plant(cfg, [("friction", {})])
     with pytest.raises(ValueError, match="amplifier_slew_limit.rate"):
         fx.AmplifierSlewLimit(-1.0, DT)
+
+
+@pytest.mark.parametrize("order,damping", [(1, 0.7), (2, 0.5), (2, 0.7071), (2, 1.5)])
+def test_rolloff_matches_scipy_built_from_the_continuous_poles(order, damping):
+    """The pole-matched roll-off equals scipy's lfilter with poles e^{pT} of the continuous low-pass (roots by numpy)
+    and unit DC gain; it tends to the identity as the cutoff goes far above the sample rate."""
+    import scipy.signal
+
+    fc = 250.0
+    w = 2 * np.pi * fc
+    den_c = [1.0 / w, 1.0] if order == 1 else [1.0, 2 * damping * w, w * w]
+    poles = np.exp(np.roots(den_c) * DT)
+    den = np.real(np.poly(poles))
+    b = [np.sum(den)]
+    u = _signal(5000)
+    ref = scipy.signal.lfilter(b, den, u, axis=0, zi=np.array([scipy.signal.lfilter_zi(b, den)]).T * u[:1])[0]
+    ours = fx.AmplifierBandwidth(fc, DT, 2, order=order, damping=damping).process(u)
+    assert np.allclose(ours, ref, rtol=0, atol=1e-9 * np.max(np.abs(u)))
+    fast = fx.AmplifierBandwidth(1e3 / DT, DT, 2, order=order, damping=damping).process(u)
+    assert np.allclose(fast, u, atol=1e-12 * np.max(np.abs(u)))
+
+
+def test_several_modes_and_cross_coupling_add_up():
+    y = _signal(6000) * 1e-7
+    G1 = [[0.2, 0.1], [0.0, 0.3]]
+    G2 = [[0.1, 0.0], [0.05, 0.2]]
+    both = fx.UnmodelledMode([150.0, 900.0], [0.02, 0.05], [G1, G2], DT, 2).process(y)
+    one = fx.UnmodelledMode(150.0, 0.02, [G1], DT, 2).process(y)
+    two = fx.UnmodelledMode(900.0, 0.05, [G2], DT, 2).process(y)
+    assert np.allclose(both - y, (one - y) + (two - y), atol=1e-20)
+    # the x→y coupling of mode 2: output y moves when only x moves
+    yx = np.c_[y[:, 0], np.zeros(len(y))]
+    out = fx.UnmodelledMode(900.0, 0.05, [G2], DT, 2).process(yx)
+    bp_x = fx.UnmodelledMode(900.0, 0.05, [1.0, 1.0], DT, 2).bandpass(yx)[:, 0]
+    assert np.max(np.abs(out[:, 1])) > 0 and np.allclose(out[:, 1], 0.05 * bp_x, rtol=0, atol=1e-22)
+    with pytest.raises(ValueError, match="unmodelled_mode.gains"):
+        fx.UnmodelledMode([100.0, 200.0], 0.05, [0.1, 0.2, 0.3], DT, 2)
+
+
+def test_amplitude_dependent_dynamics_grows_with_level():
+    st = fx.AmplitudeDependentDynamics([300.0], [0.05], [[0.0, 0.0]], [[1.0, 1.0]], DT, 2)
+    t = np.arange(20000) * DT
+    s = np.sin(2 * np.pi * 300 * t)[:, None] * np.ones(2)
+    extra = []
+    for a in (1e-6, 4e-6):
+        st.reset()
+        extra.append(np.std((st.process(a * s) - a * s)[10000:, 0]) / a)
+    assert extra[1] == pytest.approx(4 * extra[0], rel=0.05)  # the relative extra response ∝ level

@@ -24,7 +24,7 @@ rclpy = pytest.importorskip("rclpy")
 from piezo_ff_ros.core.compensators.cascade import CompensatorCascade  # noqa: E402
 from piezo_ff_ros.core.config import load_config  # noqa: E402
 from piezo_ff_ros.core.models.plant import Plant  # noqa: E402
-from piezo_ff_ros.core.safety import VoltageGuard  # noqa: E402
+from piezo_ff_ros.core.safety import SafeRampConfig, VoltageGuard  # noqa: E402
 from piezo_ff_ros.core.trajectories import from_dict  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -166,7 +166,9 @@ def test_graph_end_to_end_lockstep_recorded_sample_exact(tmp_path, probe, cfg_no
     procs = [start_node("recorder", "-p", f"output:={out}", log_dir=tmp_path),
              start_node("driver", "-p", "limits.stale_timeout:=5.0", "-p", f"limits.slew:={DRIVER_SLEW}",
                         log_dir=tmp_path),  # lockstep: no wall clock; a slower amplifier than the compensator assumes
-             start_node("compensator", "-p", "cascade.vibration:=false", log_dir=tmp_path),
+             # resync off: the voltage is compared sample-exactly with the cascade run offline on the reference
+             # alone (with it, the slew-limited start would re-synchronise the states on voltage_applied)
+             start_node("compensator", "-p", "cascade.vibration:=false", "-p", "resync:=false", log_dir=tmp_path),
              start_node("trajectory", "-p", "mode:=lockstep", "-p", "block_size:=250", "-p", "window:=3",
                         "-p", f"t0_ns:={t0}", "-p", f"trajectory:='{json.dumps(spec)}'",
                         "-p", "min_subscribers:=2", log_dir=tmp_path)]
@@ -315,7 +317,8 @@ def test_driver_safety_limits_rejection_and_stale_ramp(tmp_path, probe, cfg_novi
         {kv.key: kv.value for kv in s.values} for s in m.status if s.name.endswith("driver")), 10)
     pub = probe.node.create_publisher(PointCloud2, "voltage", BLOCK_QOS)
     drv = start_node("driver", "-p", "max_block:=1000", "-p", "limits.stale_timeout:=1.0",
-                     "-p", f"limits.slew:={DRIVER_SLEW}",
+                     "-p", f"limits.slew:={DRIVER_SLEW}", "-p", "safe_ramp.duration:=0.0",
+                     "-p", f"safe_ramp.slew:={DRIVER_SLEW}",  # a ramp at the operating limit: 20 samples
                      "-p", "diagnostics_period:=0.2", log_dir=tmp_path)
     n = 100
     guard = VoltageGuard(DRIVER_LIMITS(cfg_novib), 2, FS, max_block=1000)
@@ -360,7 +363,7 @@ def test_driver_safety_limits_rejection_and_stale_ramp(tmp_path, probe, cfg_novi
         assert int(last["safe_ramps"]) == 1 and int(last["slew_limited_samples"]) > 0
         ramp_stamp = (k - 1500) * DT_NS
         assert ramp_stamp in got  # the ramp continues the sample stream (the oversized block took no indices)
-        ramp = guard.ramp_to_safe()
+        ramp = guard.ramp_to_safe(SafeRampConfig(duration=0.0, slew=DRIVER_SLEW))
         assert ramp.shape[0] == 20  # 200 V at 10 V/sample
         np.testing.assert_allclose(got[ramp_stamp], plant.process(ramp), rtol=0, atol=1e-15)
         # a block for sample instants already past (here: the very first) is dropped, never re-applied

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from piezo_ff_ros.core.config import LimitsConfig
-from piezo_ff_ros.core.safety import BlockRejected, VoltageGuard
+from piezo_ff_ros.core.safety import BlockRejected, SafeRampConfig, VoltageGuard, safe_ramp, slew_limit
 
 FS = 20000.0
 
@@ -56,14 +56,46 @@ def test_rejects_bad_blocks_and_keeps_state(bad, why):
     np.testing.assert_array_equal(g.hold(4), np.tile(before, (4, 1)))
 
 
-def test_ramp_to_safe_at_slew_limit():
-    g = guard(voltage=200.0, slew=2e5, safe_voltage=0.0)
+def test_ramp_to_safe_own_duration_and_slew_not_the_operating_limit():
+    """Issue 10.9: with the operating limit of the paper's config (1e7 V/s = 500 V per sample) the old ramp was a
+    single 78.6 V → 0 V step.  Now: a straight line of ≥ duration and ≤ the ramp's slew (and the operating one)."""
+    g = guard(voltage=200.0, slew=1.0e7, safe_voltage=0.0)
     g.apply(np.tile([[150.0, -37.0]], (40, 1)))
-    assert g.u_last.tolist() == [150.0, -37.0]
-    r = g.ramp_to_safe()
-    assert r.shape == (15, 2)
+    ramp = SafeRampConfig(duration=0.05, slew=1.0e4)
+    r = g.ramp_to_safe(ramp)
+    assert r.shape == (1000, 2)                       # 50 ms: 150 V at 0.5 V/sample would take only 15 ms
     steps = np.abs(np.diff(np.vstack([[150.0, -37.0], r]), axis=0))
-    assert steps.max() <= 10.0 + 1e-12
+    assert steps.max() <= 150.0 / 1000 + 1e-12
     np.testing.assert_array_equal(r[-1], [0.0, 0.0])
     assert g.at_safe and g.counters.safe_ramps == 1
-    assert g.ramp_to_safe().shape == (0, 2)
+    assert g.ramp_to_safe(ramp).shape == (0, 2)
+
+
+@pytest.mark.parametrize("duration, slew, op_slew", [(0.05, 1e4, 1e7), (0.0, 1e4, 1e7), (0.0, 1e7, 2e5),
+                                                      (0.2, 1e3, 1e7), (0.001, 5e5, 1e6)])
+def test_safe_ramp_worst_step_from_the_worst_state(duration, slew, op_slew):
+    """The worst case: both axes at opposite limits; every step ≤ min(ramp slew, operating slew)/fs and the ramp
+    lasts ≥ duration, ending exactly on the safe voltage."""
+    for u0 in ([200.0, -200.0], [-200.0, 200.0], [200.0, 200.0]):
+        r = safe_ramp(np.array(u0), 0.0, FS, SafeRampConfig(duration=duration, slew=slew), op_slew)
+        steps = np.abs(np.diff(np.vstack([u0, r]), axis=0))
+        assert steps.max() <= min(slew, op_slew) / FS * (1 + 1e-12)
+        assert r.shape[0] >= duration * FS - 1e-9
+        np.testing.assert_array_equal(r[-1], [0.0, 0.0])
+        assert np.all(np.abs(r) <= 200.0)
+
+
+def test_slew_limit_matches_a_reference_loop_and_passes_reachable_targets_exactly():
+    rng = np.random.default_rng(4)
+    target = rng.uniform(-100, 100, size=(500, 3))
+    step = 7.5
+    prev = np.zeros(3)
+    out, n = slew_limit(target, prev.copy(), step)
+    ref, u, n_ref = np.empty_like(target), np.zeros(3), 0
+    for k in range(500):  # the obvious reference: clip the increment
+        d = np.clip(target[k] - u, -step, step)
+        n_ref += bool(np.any(np.abs(target[k] - u) > step))
+        u = np.where(np.abs(target[k] - u) <= step, target[k], u + d)
+        ref[k] = u
+    np.testing.assert_array_equal(out, ref)
+    assert n == n_ref

@@ -18,6 +18,8 @@ ALL = [
     T.PRBS(amplitude=2e-6, clock_rate=900.0, seed=7, axis="all", duration=0.7),
     T.Multisine(amplitude=3e-6, f_min=2.0, f_max=300.0, n_tones=15, duration=1.0),
     T.Chirp(amplitude=1e-6, f0=1.0, f1=500.0, duration=0.8, method="logarithmic"),
+    T.Spiral(radius=20e-6, frequency=10.0, revolutions=3, centre=(1e-6, 0.0)),
+    T.Table(values=np.random.default_rng(3).normal(0, 1e-6, (257, 2)), sample_rate=FS),
     T.Hold(value={"y": 3e-6}, duration=0.2),
 ]
 
@@ -160,7 +162,7 @@ def test_from_dict_units_and_errors():
     assert tr.radius == pytest.approx(20e-6) and tr.centre == pytest.approx((1e-6, 2e-6))
     assert math.isinf(T.from_dict({"type": "sine", "duration": "inf"}).duration)
     with pytest.raises(ConfigError, match=r"^trajectory\.type"):
-        T.from_dict({"type": "spiral"})
+        T.from_dict({"type": "lissajous"})
     with pytest.raises(ConfigError, match=r"^trajectory\.frequency"):
         T.from_dict({"type": "sine", "frequency": 0})
     with pytest.raises(ConfigError, match=r"^trajectory\.amplitude"):
@@ -172,3 +174,56 @@ def test_from_dict_units_and_errors():
                                                         {"name": "b", "trajectory": {"type": "hold"}}]})
     with pytest.raises(ConfigError, match=r"axis"):
         T.Sine(axis="z")
+
+
+# -- issue 11 item 4 / issue 10 item 2 (trajectory parts): tables played sample-exactly, workspace --------------
+
+def test_table_is_sample_exact_at_its_rate_and_interpolates_at_another(tmp_path):
+    vals = np.random.default_rng(0).normal(0, 1e-6, (1000, 2))
+    tab = T.Table(values=vals, sample_rate=FS)
+    assert tab.n_samples(FS) == 1000
+    np.testing.assert_array_equal(tab.block(0, 1000, FS), vals)          # bit-exact, no resampling
+    np.testing.assert_array_equal(tab.block(999, 3, FS), vals[[999, 999, 999]])   # held after the end
+    half = tab.block(0, 500, FS / 2)                                      # every other sample at half the rate
+    np.testing.assert_allclose(half, vals[::2], rtol=0, atol=1e-22)
+    mid = tab.block(1, 1, 2 * FS)                                         # halfway between samples 0 and 1
+    np.testing.assert_allclose(mid[0], 0.5 * (vals[0] + vals[1]), rtol=1e-12)
+    np.save(tmp_path / "t.npy", vals)
+    from_file = T.from_dict({"type": "table", "file": str(tmp_path / "t.npy"), "sample_rate": FS})
+    np.testing.assert_array_equal(from_file.block(0, 1000, FS), vals)
+
+
+def test_table_csv_columns_by_name_and_errors_name_the_row(tmp_path):
+    p = tmp_path / "t.csv"
+    p.write_text("y,x\n1e-6,2e-6\n3e-6,4e-6\n")
+    tab = T.from_dict({"type": "table", "file": str(p), "sample_rate": 1000.0})
+    np.testing.assert_array_equal(tab.block(0, 2, 1000.0), [[2e-6, 1e-6], [4e-6, 3e-6]])   # x first, by name
+    bad = tmp_path / "bad.csv"
+    bad.write_text("x,z\n1,2\n")
+    with pytest.raises(ConfigError, match=r"^trajectory\.file: .*no column named 'y'"):
+        T.from_dict({"type": "table", "file": str(bad)})
+    with pytest.raises(ConfigError, match=r"^trajectory\.values: row 1"):
+        T.from_dict({"type": "table", "values": [[0, 0], [float("nan"), 0]]})
+    with pytest.raises(ConfigError, match=r"^trajectory\.file: .*no such file"):
+        T.from_dict({"type": "table", "file": str(tmp_path / "missing.npy")})
+    with pytest.raises(ConfigError, match=r"^trajectory\.values: give exactly one"):
+        T.from_dict({"type": "table"})
+
+
+@pytest.mark.parametrize("traj", ALL, ids=lambda t: t.kind)
+def test_bound_is_an_upper_bound(traj):
+    n = min(traj.n_samples(FS), 40000)
+    peak = np.abs(traj.block(0, int(n), FS)).max(axis=0)
+    assert np.all(peak <= np.array(traj.bound()) * (1 + 1e-12) + 1e-18)
+
+
+def test_workspace_refuses_a_metre_circle_and_checks_voltage_segments_in_volts():
+    with pytest.raises(ConfigError, match=r"^trajectory\.radius: reaches 1 on axis x, outside the workspace"):
+        T.check_workspace(T.from_dict({"type": "circle", "radius": 1.0}), 1e-4)
+    T.check_workspace(T.from_dict({"type": "circle", "radius": 20, "unit": "um"}), 1e-4)   # fine
+    T.check_workspace(T.from_dict({"type": "circle", "radius": 1.0}), 0.0)                 # 0: disabled
+    seq = T.Sequence([("hyst", T.Sine(amplitude=200.0, frequency=0.1, duration=10.0), {"input": "voltage"}),
+                      ("circle", T.Circle(radius=20e-6), {"input": "reference"})])
+    T.check_workspace(seq, 1e-4, voltage_limit=200.0)
+    with pytest.raises(ConfigError, match=r"segments\[0\]\.trajectory\.amplitude"):
+        T.check_workspace(seq, 1e-4, voltage_limit=100.0)

@@ -9,8 +9,10 @@ through the cascade built from the identified parameters, and Tables I/II are pr
 held-out data.  Writes ``DIR/config.yaml`` (loadable by the compensator node), ``DIR/commission.json`` and, with
 ``--json F``, the same JSON to F.
 
-Without ``--sim-only`` the same sequence runs through the ROS 2 node graph (:mod:`piezo_ff_ros.commission_graph`):
-against a running driver, or — with none on the domain — a sim graph it starts itself; each identified stage is
+Both paths run one sequence (:mod:`piezo_ff_ros.core.commissioning`) over a rig: the simulated plant
+(:class:`~piezo_ff_ros.core.commissioning.SimRig`) or, without ``--sim-only``, the ROS 2 node graph
+(:mod:`piezo_ff_ros.ros.commission`): against a running driver (any backend with a displacement sensor), or — with
+none on the domain — a sim graph it starts itself; each identified stage is
 pushed live to the compensator node before the next is characterised, everything is recorded to
 ``DIR/commission.mcap``, then the paper's tests are played through the graph with the identified cascade.
 """
@@ -67,20 +69,15 @@ def add_parser(subparsers):
     return p
 
 
-def _order(v):
-    return v if v == "auto" else int(v)
-
-
 def _verify(cfg, design, truth_plant, creep_duration, noise_std, say, label):
-    from ..core.experiments import paper_experiments, simulate_experiments
-    from ..core.reproduce import evaluate
+    from ..core.commissioning import SimRig, verify
+    from ..core.experiments import paper_experiments
 
     exps = paper_experiments(cfg, creep_duration=creep_duration)
-    rec = simulate_experiments(cfg, design=design, plant=truth_plant, experiments=exps,
-                               progress=lambda name: say(f"verify ({label}): {name}"))
-    return evaluate(rec, exps, design=design, robust=noise_std > 0,
-                    conditions={"compensator": label, "noise_std_m": noise_std, "creep_duration_s": creep_duration},
-                    reference_model_tau=cfg.vibration.t_r / 3.0)
+    rig = SimRig(truth_plant, cfg.sample_rate, cfg.axes)
+    return verify(rig, cfg, design, exps, robust=noise_std > 0,
+                  conditions={"compensator": label, "noise_std_m": noise_std, "creep_duration_s": creep_duration},
+                  progress=lambda m: say(f"{m} ({label})"))
 
 
 #: "within 10 %" of the printed cascade's figure: the identified cascade's |figure| may exceed the printed one's by
@@ -114,9 +111,12 @@ def after_vs_printed(after: dict, after_printed: dict) -> dict:
 def run(args) -> int:
     from ..core.characterisation import CharacterisationSettings
     from ..core.config import load_config
-    from ..core.identification.pipeline import commission_sim
+    from ..core.commissioning import SimRig, commission
+    from ..core.jsonable import jsonable, parse_order
     from ..core.reproduce import format_tables, truth_plant
+    from . import output_dir
 
+    output_dir(args.out, "--out")  # before minutes of work, not after
     if args.creep_duration is None:
         args.creep_duration = 600.0 if args.sim_only else 60.0
     if not (math.isfinite(args.creep_duration) and args.creep_duration > 1.0):
@@ -131,7 +131,7 @@ def run(args) -> int:
 
     if not args.sim_only:
         _check_graph_args(args)
-        from ..commission_graph import run_graph
+        from ..ros.commission import run_graph
 
         try:
             return run_graph(args, say)
@@ -145,20 +145,10 @@ def run(args) -> int:
     noise = args.noise_nm * 1e-9
     truth = truth_plant(printed, args.truth, noise, seed=args.seed)
     settings = CharacterisationSettings(creep_duration=args.creep_duration)
-    cfg, report, _runs = commission_sim(truth, printed.sample_rate, printed.axes, settings=settings, base=printed,
-                                        generalized=args.generalized, creep_order=_order(args.creep_order),
-                                        dynamics_order=_order(args.dynamics_order), progress=say)
-    t0 = time.perf_counter()
-    say("vibration: H∞ synthesis on the identified G_L")
-    from ..core.identification.pipeline import synthesize_for
-
-    design, note = synthesize_for(cfg, say)
-    report["timing_s"]["hinf"] = time.perf_counter() - t0
-    if note:
-        cfg = dataclasses.replace(cfg, vibration=dataclasses.replace(cfg.vibration,
-                                                                     gamma_max=1.05 * float(design.gamma)))
-    cfg = dataclasses.replace(cfg, vibration=dataclasses.replace(
-        cfg.vibration, controller=design.controller_matrices())).validate()
+    result = commission(SimRig(truth, printed.sample_rate, printed.axes), base=printed, settings=settings,
+                        generalized=args.generalized, creep_order=parse_order(args.creep_order),
+                        dynamics_order=parse_order(args.dynamics_order), progress=say)
+    cfg, design, note, report = result.config, result.design, result.hinf_note, result.report
     cfg_path = out / "config.yaml"
     cfg.to_yaml(cfg_path)
     load_config(cfg_path)  # what the compensator node will do: fails loudly if the file is not loadable
@@ -203,7 +193,7 @@ def run(args) -> int:
     if "plant_fit_noise_free" in report:
         print("  plant vs the noise-free truth: " + "  ".join(
             f"{k}: {_f(v)}" for k, v in report["plant_fit_noise_free"].items()))
-    text = json.dumps(result, indent=2, default=_jsonable)
+    text = json.dumps(jsonable(result), indent=2)
     (out / "commission.json").write_text(text)
     if args.json:
         Path(args.json).write_text(text)
@@ -228,13 +218,3 @@ def _check_graph_args(args):
 
 def _f(v):
     return "—" if v is None else f"{v:8.3f}"
-
-
-def _jsonable(o):
-    import numpy as np
-
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)

@@ -20,6 +20,8 @@ import sys
 import time
 from pathlib import Path
 
+from . import CliError, output_dir
+
 DEFAULT_CREEP_DURATION = 60.0
 
 
@@ -60,10 +62,23 @@ def _check(args):
         raise ValueError(f"--domain-id must be in 0..232, got {args.domain_id}")
     if not 1 <= args.window <= 50:
         raise ValueError(f"--window must be in 1..50, got {args.window}")
+    output_dir(args.out, "--out")
+
+
+def _preflight(args) -> None:
+    """Fail before starting four processes when the config cannot work: it loads, and its H∞ design exists."""
+    from ..core.config import load_config
+
+    cfg = load_config(args.config, variant=args.variant)
+    if cfg.vibration.controller is None:
+        from ..core.synthesis.hinf import synthesize_hinf
+
+        synthesize_hinf(cfg.dynamics.G_L, cfg.vibration)  # HinfSynthesisError: one line from the CLI entry
 
 
 def run(args) -> int:
     _check(args)
+    _preflight(args)
     try:
         return _run(args)
     except (RuntimeError, TimeoutError) as exc:  # a node died, a service timed out…: one clear message
@@ -72,7 +87,7 @@ def run(args) -> int:
 
 
 def _run(args) -> int:
-    from ..ros_env import apply_ros_env_defaults
+    from ..ros.env import apply_ros_env_defaults
 
     # before rclpy is imported: a private domain, localhost discovery only
     apply_ros_env_defaults(domain_id=args.domain_id, force_domain=True)
@@ -81,7 +96,7 @@ def _run(args) -> int:
     from ..core.experiments import paper_experiments
     from ..core.recording.mcap_io import read_run
     from ..core.reproduce import evaluate, format_tables
-    from ..graph_session import GraphClient, sim_graph
+    from ..ros.graph_session import GraphClient, sim_graph
 
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     cfg = load_config(args.config, variant=args.variant)
@@ -132,6 +147,9 @@ def _run(args) -> int:
             n = exp.trajectory.n_samples(fs)
             log(f"  [{i + 1}/{len(exps)}] {exp.name:<16} {n / fs:7.2f} s of signal in {dt:6.2f} s "
                 f"(real-time factor {n / fs / max(dt, 1e-9):.1f})")
+        if exps and len(skipped) == len(exps):
+            raise CliError("no experiment could run: the compensator could not build its configuration ("
+                           f"{client.comp_diag.get('last_error', 'no reason given')})")
         if client.comp_diag.get("failed_builds", "0") != "0":
             log(f"  compensator: {client.comp_diag.get('last_error', '')}")
     finally:

@@ -4,6 +4,11 @@ Examples::
 
     piezo-ff diagnose --train run1.mcap --test run2.mcap --json gap.json --report gap/
     piezo-ff diagnose --model config/my_stage.yaml --data run.csv --apply corrected.yaml --report gap/
+    piezo-ff diagnose --train A --test B --discriminate C     # C: the experiment a first diagnosis proposed
+
+When two candidates explain the held-out run nearly as well, the result says so (``discrimination`` in the JSON)
+and writes the trajectory that separates them (``--proposal FILE``, default ``discriminate_trajectory.yaml`` in the
+report or JSON directory), to play with the trajectory node while the compensator is in bypass.
 """
 from __future__ import annotations
 
@@ -30,6 +35,10 @@ def add_parser(subparsers):
     p.add_argument("--report", metavar="DIR", help="write report.md and PNG plots into DIR")
     p.add_argument("--apply", metavar="OUT.yaml", help="write the config corrected where the cascade can compensate")
     p.add_argument("--candidates", help="comma-separated subset of candidate effects (default: all)")
+    p.add_argument("--discriminate", metavar="RUN",
+                   help="a run of the proposed discrimination experiment: decides between tied candidates")
+    p.add_argument("--proposal", metavar="OUT.yaml",
+                   help="where to write the proposed discrimination trajectory (when the verdict is ambiguous)")
     p.add_argument("--quiet", action="store_true", help="print only the verdict line")
     p.set_defaults(func=run)
     return p
@@ -55,6 +64,7 @@ def run(args) -> int:
     from ..core.diagnosis import DiagnosisOptions, diagnose, json_ready
     from ..core.diagnosis.report import tracking_comparison, write_apply, write_report
     from ..core.models.effects import EFFECT_NAMES
+    from ..core.recording.run import load_run
 
     cfg = load_config(args.model, args.variant)
     train, test = _load_inputs(args)
@@ -66,7 +76,9 @@ def run(args) -> int:
             raise ValueError(f"--candidates: unknown effect(s) {bad}; known: {', '.join(EFFECT_NAMES)}")
         opts.candidates = names
     # a held-out part split from one file is replayed after the training part (its start state is not at rest)
-    res = diagnose(cfg, train, test, opts, test_history=train if args.data else None)
+    disc_run = load_run(args.discriminate) if args.discriminate else None
+    res = diagnose(cfg, train, test, opts, test_history=train if args.data else None, discriminate=disc_run)
+    proposal = _write_proposal(res, args)
     A = res["_arrays"]
     apply_notes, tracking = None, None
     if args.apply:
@@ -82,7 +94,7 @@ def run(args) -> int:
                                                 "after": tracking["after"]["rms_um"]},
                             "tracking_note": "simulated: the diagnosed model stands in for the rig"}
         else:
-            res["apply"] = {"config": str(args.apply), "notes": ["nothing to correct (verdict none)"]}
+            res["apply"] = {"config": str(args.apply), "notes": [f"nothing to correct (verdict {res['verdict']})"]}
             apply_notes = res["apply"]["notes"]
         if not args.quiet:
             print(f"wrote {args.apply}")
@@ -98,12 +110,52 @@ def run(args) -> int:
     print(f"verdict: {res['verdict']} (confidence {res['confidence']}); held-out NRMSE "
           f"{h['before_nrmse_percent']:.3g} % -> {h['after_nrmse_percent']:.3g} % "
           f"(stacked {h['stacked_after_nrmse_percent']:.3g} %, noise floor {h['noise_floor_nrmse_percent']:.3g} %)")
+    if proposal:
+        print(proposal)
     if not args.quiet:
         print("where: " + res["where"]["summary"])
+        if res.get("explainable"):
+            e = res["explainable"]
+            print(f"explainable: the flexible model fitted on train removes {e['share_percent']:.3g} % of the "
+                  f"held-out residual energy ({e['before_nrmse_percent']:.3g} % -> {e['after_nrmse_percent']:.3g} %)")
         for r in res["ranking"][:5]:
             print(f"  {r['effect']:28s} {r['heldout_before_nrmse_percent']:8.3f} % -> "
                   f"{r['heldout_after_nrmse_percent']:8.3f} %{'  *' if r['accepted'] else ''}")
     return 0
+
+
+def _write_proposal(res: dict, args) -> str:
+    """Write the discrimination trajectory when the verdict is ambiguous; returns the line to print ('' if none)."""
+    import yaml
+
+    d = res.get("discrimination") or {}
+    exp = d.get("experiment")
+    if not exp or "trajectory" not in exp:
+        return ""
+    if args.proposal:
+        path = Path(args.proposal)
+    elif args.report:
+        path = Path(args.report) / "discriminate_trajectory.yaml"
+    elif args.json:
+        path = Path(args.json).with_name("discriminate_trajectory.yaml")
+    else:
+        path = None
+    cmd = ("ros2 run piezo_ff_ros compensator --ros-args -p bypass:=true &  "
+           f"ros2 run piezo_ff_ros trajectory --ros-args -p trajectory_file:={path or 'discriminate_trajectory.yaml'}"
+           " -p autostart:=true")
+    exp["command"] = cmd
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        header = (f"# Discrimination experiment proposed by piezo-ff diagnose: {' vs '.join(exp['between'])}\n"
+                  f"# {exp['purpose']}\n# {exp['duration_s']:.4g} s; expected RMS difference "
+                  f"{exp['expected_rms_difference_um']:.3g} um (z = {exp['expected_z']:.3g}); voltages [V]: play "
+                  f"with the compensator in bypass:\n#   {cmd}\n# then: piezo-ff diagnose --train A --test B "
+                  f"--discriminate RECORDED_RUN\n")
+        path.write_text(header + yaml.safe_dump(exp["trajectory"], sort_keys=False, default_flow_style=None))
+        exp["file"] = str(path)
+    return (f"ambiguous: {' vs '.join(exp['between'])}; proposed experiment '{exp['design']}' "
+            f"({exp['duration_s']:.4g} s, expected difference {exp['expected_rms_difference_um']:.3g} µm RMS, "
+            f"z = {exp['expected_z']:.3g})" + (f" written to {path}" if path else " (give --proposal FILE to write it)"))
 
 
 if __name__ == "__main__":  # pragma: no cover

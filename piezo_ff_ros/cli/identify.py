@@ -49,6 +49,9 @@ def run(args) -> int:
     from ..core.identification.pipeline import identify_all
     from ..core.recording.run import load_run
 
+    from . import output_file
+
+    output_file(args.out, "--out")  # before the identification, not after
     t_start = time.perf_counter()
 
     def say(msg):

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.units import UM
+from ..core.jsonable import jsonable as _jsonable
 
 NOISE_NM_ROBUSTNESS = 100.0
 
@@ -159,18 +160,3 @@ def format_robustness(result: dict, axes) -> str:
 
 def _num(v):
     return "—" if v is None else f"{v:.2f}"
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj

@@ -16,7 +16,6 @@ No ROS import.
 from __future__ import annotations
 
 import importlib
-import math
 from pathlib import Path
 from typing import Callable
 
@@ -25,6 +24,7 @@ import numpy as np
 from . import metrics
 from .recording.run import RunData
 from .units import to_um
+from .jsonable import jsonable as _jsonable
 
 __all__ = ["find_evaluate", "segment_signals", "tracking_summary", "analyze_run", "plot_run", "format_report"]
 
@@ -124,22 +124,6 @@ def _driver_counters(diagnostics: dict) -> dict:
             except (TypeError, ValueError):
                 continue
     return out
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(float(x)) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
 
 
 def analyze_run(run: RunData, evaluate: Callable | None = None) -> dict:

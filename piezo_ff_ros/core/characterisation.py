@@ -86,7 +86,9 @@ def hysteresis_trajectories(s: CharacterisationSettings, axes=("x", "y")) -> dic
                             duration=T, axes=axes) for i, a in enumerate(axes)])
     fit.append(("sine_all", both))
     va = s.validation_fraction * s.sine_amplitude
-    val = _sum(axes, [Sine(amplitude=va, frequency=s.sine_frequency, axis=a, phase=0.4 + 1.2 * i,
+    # held out: both axes at once at another amplitude and phase, a quarter period apart (a circle, which the
+    # trajectory node plays sample-exactly: the same run on every rig)
+    val = _sum(axes, [Sine(amplitude=va, frequency=s.sine_frequency, axis=a, phase=0.4 + np.pi / 2 * i,
                            duration=1.0 / s.sine_frequency, axes=axes) for i, a in enumerate(axes)])
     return {"fit": fit, "validation": [("sine_validation", val)]}
 

@@ -5,7 +5,7 @@ trajectory node cannot parse from a parameter.  Here the same experiments are ex
 
 - a ``Ramp`` (slew-limited step edge) becomes a ``Staircase`` with one level per sample — the same samples;
 - the two-axis sine ``Sum`` with a quarter period between the axes is a ``Circle`` (the paper's circle is exactly
-  that); the held-out hysteresis run is a smaller circle at another phase (both axes, another amplitude and phase);
+  that);
 - any other ``Sum`` (the plant-validation multisine: 7 lines per axis, different on x and y) has no graph type: it is
   held at ``SAMPLED_RATE`` (2 kHz, zero-order hold of the preset's samples, 9 significant digits) as ``Staircase``
   chunks.  Not the same samples: the trajectory node parses its spec with YAML (~0.3 MB/s here), and one level per
@@ -23,11 +23,10 @@ import math
 
 import numpy as np
 
-from .characterisation import (CharacterisationSettings, Ramp, Sum, creep_trajectories, dynamics_trajectories,
-                               hysteresis_trajectories, plant_validation_trajectory)
-from .trajectories import TRAJECTORY_TYPES, Circle, Hold, Sequence, Sine, Staircase, Trajectory
+from .characterisation import Ramp, Sum
+from .trajectories import TRAJECTORY_TYPES, Circle, Sequence, Sine, Staircase, Trajectory
 
-__all__ = ["graph_playable", "graph_characterisation"]
+__all__ = ["graph_playable", "from_rest"]
 
 
 def _ramp_staircase(start, end, n: int, fs: float, axes) -> Staircase:
@@ -85,7 +84,7 @@ def graph_playable(traj: Trajectory, fs: float) -> Trajectory:
     raise ValueError(f"graph_playable: trajectory type {traj.kind!r} has no graph equivalent")
 
 
-def _from_rest(name: str, traj: Trajectory, fs: float, ramp: float) -> Trajectory:
+def from_rest(name: str, traj: Trajectory, fs: float, ramp: float) -> Trajectory:
     """``traj`` preceded by a ramp from 0 to its first sample when that is not 0."""
     first = traj.block(0, 1, fs)[0]
     if not np.any(first) or ramp <= 0:
@@ -93,34 +92,3 @@ def _from_rest(name: str, traj: Trajectory, fs: float, ramp: float) -> Trajector
     n = max(1, int(round(ramp * fs)))
     zero = tuple(0.0 for _ in traj.axes)
     return Sequence([("from_rest", _ramp_staircase(zero, first, n, fs, traj.axes)), (name, traj)], axes=traj.axes)
-
-
-def graph_characterisation(s: CharacterisationSettings, fs: float, axes=("x", "y")) -> dict:
-    """The characterisation runs per stage, graph-playable.
-
-    Returns ``{stage: [(name, trajectory, role, score_start_s)]}`` for stage ∈ hysteresis (voltages [V], role fit
-    or validation, score_start 0), creep and dynamics (positions [m]; role ``split``: fit on ``[0, score_start)``,
-    score the whole run from ``score_start`` on, as :func:`~piezo_ff_ros.core.identification.pipeline.commission_sim`)
-    and plant (the held-out voltage record [V] of
-    :func:`~piezo_ff_ros.core.characterisation.plant_validation_trajectory`, role validation: never fitted on).
-    """
-    axes = tuple(axes)
-    ramp = max(s.step_ramp, 1.0 / fs)
-    out = {"hysteresis": [], "creep": [], "dynamics": [], "plant": []}
-    ht = hysteresis_trajectories(s, axes)
-    for name, tr in ht["fit"]:
-        out["hysteresis"].append((name, _from_rest(name, graph_playable(tr, fs), fs, ramp), "fit", 0.0))
-    if len(axes) == 2:
-        # held out: both axes at once at another amplitude and phase (a circle: the graph has no sine sum)
-        val = Circle(radius=s.validation_fraction * s.sine_amplitude, frequency=s.sine_frequency, phase=0.4,
-                     revolutions=1.0, axes=axes)
-    else:
-        val = Sine(amplitude=s.validation_fraction * s.sine_amplitude, frequency=s.sine_frequency, axis=axes[0],
-                   phase=0.4, duration=1.0 / s.sine_frequency, axes=axes)
-    out["hysteresis"].append(("sine_validation", _from_rest("sine_validation", val, fs, ramp), "validation", 0.0))
-    for stage, fn in (("creep", creep_trajectories), ("dynamics", dynamics_trajectories)):
-        for name, tr, score_t in fn(s, axes):
-            out[stage].append((name, graph_playable(tr, fs), "split", float(score_t)))
-    out["plant"].append(("plant_validation", graph_playable(plant_validation_trajectory(s, axes), fs), "validation",
-                         0.0))
-    return out

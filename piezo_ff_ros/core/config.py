@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -68,6 +68,78 @@ def _arr(m: tuple) -> np.ndarray:
     return np.array(m, dtype=float)
 
 
+# Plausibility bounds of a piezoelectric positioner (SI).  Values outside are unit mistakes (µm/V entered as m/V,
+# kV, ms …), not actuators: refused with the field's name.
+#: |Dp|, |A| entries [m/V]: piezo stacks and tubes give 1e-10…1e-6 m/V; amplified (flexure) stages up to ~2e-5 m/V
+MAX_GAIN_M_PER_V = 1e-4
+#: |B|, |Gamma|, |Delta1|, |Delta2| entries [1/V]: fitted values are 1e-4…1e-1 1/V (the paper: 0.0073); above this
+#: the hysteresis would saturate within a fraction of a volt
+MAX_HYSTERESIS_RATE = 10.0
+#: |limits.voltage| [V]: piezo amplifiers stay under 1.5 kV
+MAX_LIMIT_VOLTAGE = 2000.0
+#: limits.slew [V/s]: 1e7 V/s already needs ~50 mA into a few nF
+MAX_LIMIT_SLEW = 1e10
+#: limits.stale_timeout [s]: longer than this and a dead stream is never noticed
+MAX_STALE_TIMEOUT = 60.0
+#: sample rates a piezo drive runs at [Hz] (the same range the importers accept for recorded data)
+MIN_SAMPLE_RATE, MAX_SAMPLE_RATE = 100.0, 10.0e6
+#: the only voltage unit of a config file (gains per volt, limits in volts)
+VOLTAGE_UNITS = ("V",)
+
+
+def _unknown_keys(d: Mapping, allowed, prefix: str) -> None:
+    """Refuse keys not in ``allowed`` (a misspelling must not be silently ignored), suggesting the closest one."""
+    import difflib
+
+    for key in d:
+        if key not in allowed:
+            name = f"{prefix}.{key}" if prefix else str(key)
+            close = difflib.get_close_matches(str(key), [str(a) for a in allowed], n=1, cutoff=0.6)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise ConfigError(name, f"unknown key; {hint}(allowed: {', '.join(sorted(map(str, allowed)))})")
+
+
+def _section(d: Mapping, key: str, prefix: str = "", required: bool = False) -> dict:
+    """``d[key]`` as a dict (``{}`` when absent or null); ``ConfigError`` naming it if it is not a mapping."""
+    name = f"{prefix}.{key}" if prefix else key
+    v = d.get(key)
+    if v is None:
+        if required:
+            raise ConfigError(name, "missing section")
+        return {}
+    if not isinstance(v, Mapping):
+        raise ConfigError(name, f"expected a mapping of keys to values, got {type(v).__name__} {v!r}"[:200])
+    return dict(v)
+
+
+def _number(value, name: str) -> float:
+    """A real number (numeric strings such as YAML's ``1e-3`` included, booleans not)."""
+    if isinstance(value, bool) or value is None:
+        raise ConfigError(name, f"expected a number, got {value!r}")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(name, f"expected a number, got {value!r}"[:200]) from None
+
+
+def _integer(value, name: str) -> int:
+    """An integer; a float is accepted only when it is integral (``12.0``), never rounded (``12.5``)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(name, f"expected an integer, got {value!r}")
+    if isinstance(value, float) and not value.is_integer():
+        raise ConfigError(name, f"expected an integer, got {value!r} (not rounded: say what you mean)")
+    return int(value)
+
+
+def _bounded(m: tuple, name: str, bound: float, unit: str) -> None:
+    a = np.abs(_arr(m))
+    if a.size and a.max() > bound:
+        i, j = np.unravel_index(int(np.argmax(a)), a.shape)
+        raise ConfigError(name, f"entry ({i + 1},{j + 1}) = {_arr(m)[i, j]:.6g} {unit} is not plausible for a "
+                                f"piezo actuator (|entry| ≤ {bound:g} {unit}); check the units "
+                                "(units.length, SI at runtime)")
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # Stage configurations
 # ----------------------------------------------------------------------------------------------------------------
@@ -122,6 +194,11 @@ class BoucWenConfig:
                 _matrix(v, f"{prefix}.{name}", (n, n))
         if self.input_map is not None:
             _matrix(self.input_map, f"{prefix}.input_map", (n, k))
+        _bounded(self.Dp, f"{prefix}.Dp", MAX_GAIN_M_PER_V, "m/V")
+        _bounded(self.A, f"{prefix}.A", MAX_GAIN_M_PER_V, "m/V")
+        for name in ("B", "Gamma", "Delta1", "Delta2"):
+            if getattr(self, name) is not None:
+                _bounded(getattr(self, name), f"{prefix}.{name}", MAX_HYSTERESIS_RATE, "1/V")
         Dp = _arr(self.Dp)
         sv = np.linalg.svd(Dp, compute_uv=False)
         if sv[-1] <= 1e-9 * max(sv[0], 1e-300):
@@ -131,6 +208,8 @@ class BoucWenConfig:
 
     @staticmethod
     def from_dict(d: Mapping, length: float = 1.0, prefix: str = "hysteresis") -> "BoucWenConfig":
+        _unknown_keys(d, [f.name for f in fields(BoucWenConfig)], prefix)
+
         def get(name, scale=1.0, required=True):
             if name not in d or d[name] is None:
                 if required:
@@ -173,8 +252,11 @@ def _tf_matrix_from_dict(d: Mapping | Any, axes: tuple[str, ...], prefix: str) -
         name = f"{prefix}.{axes[i]}{axes[j]}"
         if val is None or val == 0:
             continue
-        if not isinstance(val, Mapping) or "den" not in val:
+        if not isinstance(val, Mapping):
             raise ConfigError(name, "expected {k: gain, num: [[…], …], den: [[…], …]}")
+        _unknown_keys(val, ("k", "gain", "num", "den"), name)
+        if "den" not in val:
+            raise ConfigError(f"{name}.den", "missing (a non-zero entry needs a denominator)")
         try:
             tf = FactoredTF.from_dict(val)
         except (TypeError, ValueError) as exc:
@@ -344,14 +426,27 @@ class LimitsConfig:
     slew: float = 2.0e5             #: |dU/dt| ≤ slew [V/s]
     stale_timeout: float = 0.2      #: no block for this long → ramp to the safe state [s]
     safe_voltage: float = 0.0       #: the safe state [V]
+    #: reference limits per axis, ((min, max), …) [m] (YAML: in the config's length unit); None = unlimited
+    workspace: tuple | None = None
 
     def validate(self, prefix: str = "limits") -> "LimitsConfig":
         for name in ("voltage", "slew", "stale_timeout"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 raise ConfigError(f"{prefix}.{name}", f"must be a finite number > 0, got {v!r}")
+        v = self.safe_voltage
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ConfigError(f"{prefix}.safe_voltage", f"must be a finite number, got {v!r}")
+        for name, bound, unit in (("voltage", MAX_LIMIT_VOLTAGE, "V"), ("slew", MAX_LIMIT_SLEW, "V/s"),
+                                  ("stale_timeout", MAX_STALE_TIMEOUT, "s")):
+            if getattr(self, name) > bound:
+                raise ConfigError(f"{prefix}.{name}", f"{getattr(self, name):g} {unit} is not plausible for a piezo "
+                                                      f"drive (≤ {bound:g} {unit})")
         if abs(self.safe_voltage) > self.voltage:
             raise ConfigError(f"{prefix}.safe_voltage", "outside the voltage limit")
+        for i, pair in enumerate(self.workspace or ()):
+            if len(pair) != 2 or not all(math.isfinite(v) for v in pair) or not pair[0] < pair[1]:
+                raise ConfigError(f"{prefix}.workspace", f"axis {i}: expected [min, max] with min < max, got {pair!r}")
         return self
 
 
@@ -382,8 +477,19 @@ class PiezoConfig:
     def validate(self) -> "PiezoConfig":
         if not self.axes or len(set(self.axes)) != len(self.axes):
             raise ConfigError("axes", f"need distinct axis names, got {list(self.axes)}")
-        if not (isinstance(self.sample_rate, (int, float)) and math.isfinite(self.sample_rate) and self.sample_rate > 0):
+        if isinstance(self.sample_rate, bool) or not (isinstance(self.sample_rate, (int, float))
+                                                       and math.isfinite(self.sample_rate) and self.sample_rate > 0):
             raise ConfigError("sample_rate", f"must be > 0 Hz, got {self.sample_rate!r}")
+        if not MIN_SAMPLE_RATE <= self.sample_rate <= MAX_SAMPLE_RATE:
+            raise ConfigError("sample_rate", f"{self.sample_rate:g} Hz is outside {MIN_SAMPLE_RATE:g} Hz … "
+                                             f"{MAX_SAMPLE_RATE:g} Hz (a unit mistake?)")
+        from .recording.blocks import sample_period_ns
+
+        try:  # the topic contract stamps samples on a whole-nanosecond grid (docs/topics.md)
+            sample_period_ns(self.sample_rate)
+        except ValueError as exc:
+            raise ConfigError("sample_rate", f"{self.sample_rate:g} Hz: {str(exc).split(': ', 1)[-1]} "
+                                             "(docs/topics.md: 20 kHz, 10 kHz, 25 kHz … but not 30 kHz)") from None
         self.hysteresis.validate()
         if self.hysteresis.n_out != self.n_axes:
             raise ConfigError("hysteresis.Dp", f"{self.hysteresis.n_out} outputs for {self.n_axes} axes")
@@ -400,48 +506,88 @@ class PiezoConfig:
     # -- dict / YAML ----------------------------------------------------------------------------------------------
     @staticmethod
     def from_dict(d: Mapping, variant: str | None = None) -> "PiezoConfig":
+        if not isinstance(d, Mapping):
+            raise ConfigError("config", f"top level must be a mapping, got {type(d).__name__}")
         d = copy.deepcopy(dict(d))
-        variants = d.pop("variants", {}) or {}
+        _unknown_keys(d, [f.name for f in fields(PiezoConfig)] + ["units", "variants", "description"], "")
+        variants = _section(d, "variants")
+        d.pop("variants", None)
         chosen = variant or d.pop("variant", None) or "printed"
         d.pop("variant", None)
+        for vname, v in variants.items():
+            if not isinstance(v, Mapping):
+                raise ConfigError(f"variants.{vname}", "expected a mapping {description, set}")
+            _unknown_keys(v, ("description", "set"), f"variants.{vname}")
+            for path in _section(v, "set", f"variants.{vname}"):  # every variant, selected or not: a typo shows now
+                cur = d
+                for k in str(path).split(".")[:-1]:
+                    cur = cur.get(k) if isinstance(cur, dict) else None
+                if not isinstance(cur, dict):
+                    raise ConfigError(f"variants.{vname}.set", f"path {path!r} does not exist in the config")
         if chosen != "printed":
             if chosen not in variants:
                 raise ConfigError("variant", f"unknown variant {chosen!r}; available: {['printed', *variants]}")
-            for path, value in (variants[chosen].get("set") or {}).items():
+            for path, value in _section(variants[chosen], "set", f"variants.{chosen}").items():
                 _set_path(d, path, value)
-        units = d.get("units", {}) or {}
+        units = _section(d, "units")
+        _unknown_keys(units, ("length", "voltage"), "units")
         try:
             L = length_scale(units.get("length", "m"))
-        except ValueError as exc:
+        except (TypeError, ValueError) as exc:
             raise ConfigError("units.length", str(exc)) from None
-        axes = tuple(str(a) for a in d.get("axes", ("x", "y")))
-        for key in ("hysteresis", "creep", "dynamics"):
-            if key not in d:
-                raise ConfigError(key, "missing section")
-        hyst = BoucWenConfig.from_dict(d["hysteresis"], L)
-        cr = d["creep"]
+        if units.get("voltage", "V") not in VOLTAGE_UNITS:
+            raise ConfigError("units.voltage", f"{units['voltage']!r} is not supported: give voltages in V (Dp, A "
+                                               "in <length>/V, B, Gamma in 1/V, limits in V)")
+        raw_axes = d.get("axes", ["x", "y"])
+        if not isinstance(raw_axes, (list, tuple)) or not all(isinstance(a, str) and a for a in raw_axes):
+            raise ConfigError("axes", f"expected a list of axis names like [x, y], got {raw_axes!r}")
+        axes = tuple(raw_axes)
+        if not axes or len(set(axes)) != len(axes):
+            raise ConfigError("axes", f"need at least one axis and distinct names, got {list(axes)}")
+        for key in ("name", "source"):
+            if key in d and not isinstance(d[key], str):
+                raise ConfigError(key, f"expected a string, got {d[key]!r}")
+        hyst = BoucWenConfig.from_dict(_section(d, "hysteresis", required=True), L)
+        cr = _section(d, "creep", required=True)
+        _unknown_keys(cr, ("K", "Cr"), "creep")
         if "K" not in cr:
             raise ConfigError("creep.K", "missing")
         creep = CreepConfig(K=_matrix(cr["K"], "creep.K", (len(axes), len(axes))),
                             Cr=_tf_matrix_from_dict(cr.get("Cr", {}), axes, "creep.Cr"))
-        dyn = d["dynamics"]
+        dyn = _section(d, "dynamics", required=True)
+        _unknown_keys(dyn, ("G_L",), "dynamics")
         if "G_L" not in dyn:
             raise ConfigError("dynamics.G_L", "missing")
         dynamics = DynamicsConfig(_tf_matrix_from_dict(dyn["G_L"], axes, "dynamics.G_L"))
-        vib = dict(d.get("vibration", {}) or {})
+        vib = _section(d, "vibration")
+        _unknown_keys(vib, [f.name for f in fields(HinfConfig)], "vibration")
         W2 = vib.get("W2", 1.0)
-        W2 = tuple(float(w) for w in (W2 if isinstance(W2, (list, tuple)) else [W2] * len(axes)))
-        try:
-            vibration = HinfConfig(t_r=float(vib.get("t_r", 0.025)), eps_s=float(vib.get("eps_s", 0.01)),
-                                   k_o=float(vib.get("k_o", 1.0)), W2=W2, order=int(vib.get("order", 12)),
-                                   gamma_max=float(vib.get("gamma_max", 1.0)), controller=vib.get("controller"))
-        except (TypeError, ValueError) as exc:
-            raise ConfigError("vibration", f"malformed ({exc})") from None
-        cascade = CascadeConfig(**(d.get("cascade") or {}))
-        limits = LimitsConfig(**{k: float(v) for k, v in (d.get("limits") or {}).items()})
+        W2 = tuple(_number(w, "vibration.W2") for w in (W2 if isinstance(W2, (list, tuple)) else [W2] * len(axes)))
+        ctrl = vib.get("controller")
+        if ctrl is not None and not isinstance(ctrl, Mapping):
+            raise ConfigError("vibration.controller", "expected a mapping {A, B, C, D}")
+        vibration = HinfConfig(t_r=_number(vib.get("t_r", 0.025), "vibration.t_r"),
+                               eps_s=_number(vib.get("eps_s", 0.01), "vibration.eps_s"),
+                               k_o=_number(vib.get("k_o", 1.0), "vibration.k_o"), W2=W2,
+                               order=_integer(vib.get("order", 12), "vibration.order"),
+                               gamma_max=_number(vib.get("gamma_max", 1.0), "vibration.gamma_max"), controller=ctrl)
+        casc = _section(d, "cascade")
+        _unknown_keys(casc, [f.name for f in fields(CascadeConfig)], "cascade")
+        cascade = CascadeConfig(**casc)
+        lim = dict(_section(d, "limits"))
+        _unknown_keys(lim, [f.name for f in fields(LimitsConfig)], "limits")
+        ws = lim.pop("workspace", None)
+        if ws is not None:
+            try:
+                ws = tuple((float(lo) * L, float(hi) * L) for lo, hi in ws)
+            except (TypeError, ValueError) as exc:
+                raise ConfigError("limits.workspace", f"expected [[min, max], …] per axis ({exc})") from None
+            if len(ws) != len(axes):
+                raise ConfigError("limits.workspace", f"{len(ws)} ranges for {len(axes)} axes")
+        limits = LimitsConfig(**{k: _number(v, f"limits.{k}") for k, v in lim.items()}, workspace=ws)
         cfg = PiezoConfig(name=str(d.get("name", "piezo")), axes=axes,
-                          sample_rate=float(d.get("sample_rate", 20000.0)), hysteresis=hyst, creep=creep,
-                          dynamics=dynamics, vibration=vibration, cascade=cascade, limits=limits,
+                          sample_rate=_number(d.get("sample_rate", 20000.0), "sample_rate"), hysteresis=hyst,
+                          creep=creep, dynamics=dynamics, vibration=vibration, cascade=cascade, limits=limits,
                           source=str(d.get("source", "")), variant=chosen)
         return cfg.validate()
 
@@ -463,7 +609,9 @@ class PiezoConfig:
                         "hysteresis_loop": self.cascade.hysteresis_loop,
                         "respect_limits": self.cascade.respect_limits},
             "limits": {"voltage": self.limits.voltage, "slew": self.limits.slew,
-                       "stale_timeout": self.limits.stale_timeout, "safe_voltage": self.limits.safe_voltage},
+                       "stale_timeout": self.limits.stale_timeout, "safe_voltage": self.limits.safe_voltage,
+                       **({"workspace": [[lo / L, hi / L] for lo, hi in self.limits.workspace]}
+                          if self.limits.workspace is not None else {})},
         }
 
     def to_yaml(self, path: str | Path | None = None, length_unit: str = "um") -> str:
@@ -502,11 +650,46 @@ def default_config_path() -> Path:
     raise FileNotFoundError("config/pt230_94.yaml not found (looked in: " + ", ".join(map(str, candidates)) + ")")
 
 
+class DuplicateKeyError(ValueError):
+    """A YAML mapping holds the same key twice (``line`` is 1-based)."""
+
+    def __init__(self, key, line: int):
+        super().__init__(f"line {line}: duplicate key {key!r}")
+        self.key, self.line = key, line
+
+
+class UniqueKeyLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses duplicate keys (the plain loader keeps the last value, silently)."""
+
+    def construct_mapping(self, node, deep=False):
+        self.flatten_mapping(node)
+        seen = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            try:
+                dup = key in seen
+            except TypeError:  # an unhashable key: let the base class report it
+                break
+            if dup:
+                raise DuplicateKeyError(key, key_node.start_mark.line + 1)
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
 def load_config(path: str | Path | None = None, variant: str | None = None) -> PiezoConfig:
     """Load and validate a positioner config (default: the paper's PT230.94 values as printed)."""
     p = Path(path) if path is not None else default_config_path()
+    if p.is_dir():
+        raise ConfigError(str(p), "is a directory, not a YAML config file")
+    if not p.is_file():
+        raise FileNotFoundError(f"{p}: no such config file")
     try:
-        data = yaml.safe_load(p.read_text())
+        data = yaml.load(p.read_text(), Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except DuplicateKeyError as exc:
+        raise ConfigError(str(p), f"line {exc.line}: duplicate key {exc.key!r} (YAML would silently keep the "
+                                  "last value)") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(str(p), f"not a text (YAML) file ({exc.reason} at byte {exc.start})") from None
     except yaml.YAMLError as exc:
         raise ConfigError(str(p), f"not valid YAML ({exc})") from None
     if not isinstance(data, Mapping):

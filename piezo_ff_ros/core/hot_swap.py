@@ -1,4 +1,5 @@
-"""Runtime reconfiguration of the compensator cascade without a jump in its output (pure, no ROS).
+"""Runtime reconfiguration of the compensator cascade without a jump in its output, and re-synchronisation of its
+states on the voltage actually applied (pure, no ROS).
 
 :class:`HotSwapCascade` runs one :class:`~piezo_ff_ros.core.compensators.cascade.CompensatorCascade` and replaces it
 by a new one **only between blocks**:
@@ -9,11 +10,24 @@ by a new one **only between blocks**:
    switching stages on/off never resynthesises.
 2. At the next block boundary (``process`` or ``poll``) the new cascade takes over **bumplessly**:
 
-   - state transfer: a stage whose parameters did not change continues from the old stage's exact state; a changed
-     hysteresis stage inherits the old ``h`` and last voltage (h estimates the plant's own state); a changed or newly
-     enabled linear stage starts at its steady state for the signal it was last fed (no start-up transient);
+   - state transfer through each stage's own realisation (``continue_from``, :mod:`piezo_ff_ros.core.stage`): the
+     hysteresis inverse keeps ``h`` and the last voltage (they describe the plant); a linear stage's modes that
+     exist in both realisations keep their exact state (same input history), new modes are fitted to reproduce
+     the old stage's free response; a newly enabled linear stage starts at its steady state for the signal it
+     was last fed;
    - crossfade: during ``crossfade_samples`` both cascades run and the output moves linearly from the old one's
-     to the new one's, so whatever differences remain are spread over the window instead of a step.
+     to the new one's.  After every crossfade block the plant-side states (hysteresis, creep) of *every* cascade
+     in the fade are re-derived from the mixed voltage actually sent, so that the new cascade ends the fade
+     describing the plant; a second swap during a fade fades from the running mix (the first old cascade keeps
+     fading out), not from the newest cascade alone.
+
+3. Re-synchronisation on the applied voltage: blocks processed with their first-sample index (``process(block,
+   k0)``) are kept as *in flight* until the driver reports the voltage it applied for those samples
+   (:meth:`applied`).  When the applied voltage is what was commanded, nothing changes (bit-identical output).
+   When it differs (clamps, slew limits, a safe ramp, held samples after a stall, dropped late blocks, a gap),
+   the hysteresis and creep states are rebuilt from the last confirmed state by following the applied voltage
+   (a gap counts as the last voltage held), then the commands still in flight, so that the inverse models again
+   describe the plant.
 
 Swapping to an identical configuration is therefore invisible (bit-identical output).
 """
@@ -22,6 +36,8 @@ from __future__ import annotations
 import copy
 import json
 import threading
+from collections import deque
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -55,8 +71,50 @@ class _Pending:
         self.done = threading.Event()
 
 
+class _Fade:
+    """Crossfade from ``old`` (a cascade or a running fade) to ``new`` over ``length`` samples."""
+
+    def __init__(self, old, new: CompensatorCascade, length: int):
+        self.old, self.new, self.length, self.done = old, new, int(length), 0
+
+    def leaves(self) -> list:
+        olds = self.old.leaves() if isinstance(self.old, _Fade) else [self.old]
+        return olds + [self.new]
+
+    def mix(self, signals: list, n: int) -> np.ndarray:
+        """Mix of the leaves' signals (in :meth:`leaves` order) over the next ``n`` samples (no advance)."""
+        k = len(signals) - 1
+        y_old = self.old.mix(signals[:k], n) if isinstance(self.old, _Fade) else signals[0]
+        y_new = signals[k]
+        w = np.minimum((self.done + 1 + np.arange(n)) / self.length, 1.0)[:, None]
+        return y_old + w * (y_new - y_old)
+
+    def advance(self, n: int) -> None:
+        self.done += n
+        if isinstance(self.old, _Fade):
+            self.old.advance(n)
+            if self.old.finished:
+                self.old = self.old.new   # the inner fade is over: its newest cascade alone remains
+
+    @property
+    def finished(self) -> bool:
+        return self.done >= self.length
+
+
+#: the voltage crossfade (hysteresis stage switched or changed) re-synchronises every this many samples
+_FADE_CHUNK = 8
+
+
+@dataclass
+class _InFlight:
+    k0: int
+    u: np.ndarray                 # the voltages sent for samples k0 … k0 + N − 1
+    cascade: CompensatorCascade   # the cascade whose plant-side state ``state_after`` is
+    state_after: dict             # plant-side state after these samples, had they been applied as sent
+
+
 class HotSwapCascade:
-    """A compensator cascade that can be reconfigured while it runs.
+    """A compensator cascade that can be reconfigured while it runs, and re-synchronised on the applied voltage.
 
     Parameters
     ----------
@@ -66,10 +124,13 @@ class HotSwapCascade:
         Length of the output crossfade at a swap (0 = state transfer only).
     factory : callable ``(cfg, controller) -> CompensatorCascade``, optional
         Builds a cascade (default :class:`CompensatorCascade`); tests inject slow or failing factories.
+    max_inflight_samples : int
+        Most samples kept in flight awaiting :meth:`applied`; beyond, tracking restarts (bounded memory when no
+        applied voltage comes back).
     """
 
     def __init__(self, cfg: PiezoConfig, crossfade_samples: int = 200,
-                 factory: Callable | None = None):
+                 factory: Callable | None = None, max_inflight_samples: int = 400_000):
         self.factory = factory or (lambda c, controller=None: CompensatorCascade(c, controller=controller))
         self.crossfade_samples = int(crossfade_samples)
         self._designs: dict[str, object] = {}
@@ -82,10 +143,22 @@ class HotSwapCascade:
         self.failed_builds = 0
         self.last_error = ""
         self._pending: _Pending | None = None
-        self._fade: tuple | None = None       # (old cascade, samples done)
+        self._fade: _Fade | None = None
         self._running = False                 # a block was processed since construction/reset
         self._last_in: np.ndarray | None = None
         self._last_taps: dict | None = None
+        # re-synchronisation on the applied voltage
+        self._conf: tuple | None = None       # (k, cascade, plant-side state): consistent with applied samples < k
+        self._inflight: deque[_InFlight] = deque()
+        self._inflight_samples = 0
+        self.max_inflight_samples = int(max_inflight_samples)
+        #: applied voltages within this of the command count as applied as commanded [V] (a driver's slew limiter
+        #: writes ``u_prev + (u − u_prev)``, which may differ from ``u`` in the last bit)
+        self.match_tolerance = 1e-9
+        self._last_applied: np.ndarray | None = None
+        self.resyncs = 0            #: re-synchronisations on an applied voltage that differed from the command
+        self.applied_blocks = 0     #: applied blocks that matched the command exactly
+        self.applied_ignored = 0    #: applied blocks for samples already accounted for (or not tracked)
 
     # -- building ------------------------------------------------------------------------------------------------
     def _controller_for(self, cfg: PiezoConfig):
@@ -106,7 +179,10 @@ class HotSwapCascade:
             with self._lock:
                 self._designs[synthesis_key(cfg)] = design
         # compile/warm the kernels off the hot path (a throw-away copy, state untouched)
-        copy.deepcopy(casc).process(np.zeros((1, cfg.n_axes)))
+        warm = copy.deepcopy(casc)
+        warm.process(np.zeros((1, cfg.n_axes)))
+        if warm.can_follow:
+            warm.follow_applied(np.zeros((1, cfg.n_axes)))
         return casc
 
     def request(self, cfg: PiezoConfig, background: bool | None = None) -> int:
@@ -136,6 +212,11 @@ class HotSwapCascade:
         p = self._pending
         return p.version if p is not None else None
 
+    @property
+    def pending_cfg(self) -> PiezoConfig | None:
+        p = self._pending
+        return p.cfg if p is not None else None
+
     def wait_pending(self, timeout: float | None = None) -> bool:
         """Block until the pending build (if any) finished (for tests and tools, not the hot path)."""
         p = self._pending
@@ -160,12 +241,13 @@ class HotSwapCascade:
         if self._running:
             self._transfer_state(old, new)
             if self.crossfade_samples > 0:
-                self._fade = (old, 0)
+                # a swap during a fade fades out the running mix, not just the newest cascade
+                self._fade = _Fade(self._fade if self._fade is not None else old, new, self.crossfade_samples)
         self.active, self.cfg, self.version = new, cfg, version
         self.swaps += 1
 
     def _transfer_state(self, old: CompensatorCascade, new: CompensatorCascade) -> None:
-        same_order = old.cfg.cascade.order == new.cfg.cascade.order == "paper"
+        same_order = old.cfg.cascade.order == new.cfg.cascade.order
         taps = self._last_taps or {}
         r = self._last_in
         signal = None if r is None else r.copy()    # steady-state input to the next stage of the new chain
@@ -173,19 +255,14 @@ class HotSwapCascade:
             st_new = getattr(new, name)
             st_old = getattr(old, name)
             if st_new is None:
-                if name == "vibration":
-                    pass  # identity: signal unchanged
                 continue
-            if name == "hysteresis":
-                if st_old is not None:
-                    st_new.state = st_old.state.copy()
-                    st_new._signs[:] = st_old._signs
-                continue
-            unchanged = same_order and st_old is not None and _same_linear_stage(name, st_old, st_new)
-            if unchanged:
-                _copy_linear_state(name, st_old, st_new)
-                signal = taps.get(tap, signal) if tap in taps else signal
-            elif signal is not None:
+            if st_old is not None and (same_order or name == "hysteresis"):
+                if name == "hysteresis":
+                    st_new.continue_from(st_old)
+                else:   # the last input of the linear system inside: C(s) sees Y_R, the creep inverse's Cr sees Y_H
+                    st_new.continue_from(st_old, signal if name == "vibration" else taps.get("yh"))
+                signal = taps.get(tap, signal)
+            elif name != "hysteresis" and signal is not None:
                 signal = _settle(name, st_new, signal)
 
     def reset(self) -> None:
@@ -196,27 +273,161 @@ class HotSwapCascade:
         self.active.reset()
         self._last_in = None
         self._last_taps = None
+        self._conf = None
+        self._inflight.clear()
+        self._inflight_samples = 0
+        self._last_applied = None
 
     # -- streaming -----------------------------------------------------------------------------------------------
-    def process(self, block: np.ndarray) -> np.ndarray:
-        """One block ``Y_R [m] → U [V]`` (swaps first if a new configuration is ready)."""
+    def process(self, block: np.ndarray, k0: int | None = None) -> np.ndarray:
+        """One block ``Y_R [m] → U [V]`` (swaps first if a new configuration is ready).
+
+        ``k0`` (index of the block's first sample) keeps the block in flight for :meth:`applied`.
+        """
         self.poll()
         x = np.ascontiguousarray(block, dtype=float)
-        y, taps = self.active.process(x, taps=True)
+        track = k0 is not None and self.active.can_follow and x.shape[0] > 0
+        if track:
+            end = self._inflight[-1].k0 + len(self._inflight[-1].u) if self._inflight else \
+                (self._conf[0] if self._conf is not None else None)
+            if end != k0:   # first block, or the reference stream restarted / jumped: track from here
+                self._inflight.clear()
+                self._inflight_samples = 0
+                self._conf = (k0, self.active, self.active.state(CompensatorCascade.PLANT_STAGES))
         if self._fade is not None:
-            old, done = self._fade
-            y_old = old.process(x)
-            M = self.crossfade_samples
-            w = np.minimum((done + 1 + np.arange(x.shape[0])) / M, 1.0)[:, None]
-            y = y_old + w * (y - y_old)
-            done += x.shape[0]
-            self._fade = None if done >= M else (old, done)
+            y, taps = self._process_fading(x)
+        else:
+            y, taps = self.active.process(x, taps=True)
         if x.shape[0]:
             self._running = True
             self._last_in = x[-1].copy()
             self._last_taps = {k: v[-1].copy() for k, v in taps.items()} if self.active.cfg.cascade.order == "paper" \
                 else None
+        if track:
+            self._inflight.append(_InFlight(k0, y.copy(), self.active,
+                                            self.active.state(CompensatorCascade.PLANT_STAGES)))
+            self._inflight_samples += x.shape[0]
+            if self._inflight_samples > self.max_inflight_samples:  # nothing comes back: bounded memory, restart
+                self._inflight.clear()
+                self._inflight_samples = 0
+                self._conf = None
         return y
+
+    def _process_fading(self, x: np.ndarray) -> tuple[np.ndarray, dict]:
+        fade, active = self._fade, self.active
+        leaves = fade.leaves()
+        n = x.shape[0]
+        if all(_same_hysteresis(c, active) for c in leaves):
+            # fade the hysteresis inverse's input Y_H and run the one inverse: it stays exactly on the voltage
+            # sent; every creep inverse follows the mixed Y_H (what the plant's creep receives)
+            pre = [c.creep.state() if c.creep is not None else None for c in leaves]
+            fronts = [c.process_front(x) for c in leaves]
+            yh = fade.mix([f[0] for f in fronts], n)
+            y = active.hysteresis.process(yh)
+            hyst = active.hysteresis.state()
+            for c, p, (own, _) in zip(leaves, pre, fronts):
+                if c is not active:
+                    c.hysteresis.load_state(hyst)
+                if c.creep is not None and not np.array_equal(own, yh):
+                    c.creep.load_state(p)
+                    c.creep.follow(yh)
+            taps = {**fronts[-1][1], "yh": yh, "u": y}
+            fade.advance(n)
+        else:
+            # the hysteresis stage is switched or changed: fade the voltages, in short chunks after which every
+            # cascade's plant-side states follow the voltage sent
+            parts, tap_parts = [], []
+            for i in range(0, n, _FADE_CHUNK):
+                xc = x[i:i + _FADE_CHUNK]
+                leaves = fade.leaves()
+                before = [c.state(CompensatorCascade.PLANT_STAGES) for c in leaves]
+                own = []
+                for c in leaves[:-1]:
+                    own.append(c.process(xc))
+                y_new, t_new = active.process(xc, taps=True)
+                own.append(y_new)
+                yc = fade.mix(own, xc.shape[0])
+                for c, st, o in zip(leaves, before, own):
+                    if c.can_follow and not np.array_equal(o, yc):
+                        c.load_state(st)
+                        c.follow_applied(yc)
+                parts.append(yc)
+                tap_parts.append({**t_new, "u": yc})
+                fade.advance(xc.shape[0])
+                if fade.finished:
+                    break
+            done = sum(p.shape[0] for p in parts)
+            if done < n:  # the fade ended inside the block: the rest is the new cascade's alone
+                y_rest, t_rest = active.process(x[done:], taps=True)
+                parts.append(y_rest)
+                tap_parts.append(t_rest)
+            y = np.vstack(parts)
+            taps = {k: np.vstack([t[k] for t in tap_parts]) for k in tap_parts[-1]}
+        if fade.finished:
+            self._fade = None
+        return y, taps
+
+    # -- re-synchronisation on the applied voltage ---------------------------------------------------------------
+    def applied(self, k0: int, u: np.ndarray) -> str:
+        """The driver applied the voltages ``u`` to samples ``k0 …``; returns ``"match"`` (as commanded),
+        ``"resync"`` (states rebuilt from the applied voltage) or ``"ignored"`` (not tracked / already accounted)."""
+        u = np.ascontiguousarray(u, dtype=float)
+        if self._conf is None or u.shape[0] == 0:
+            self.applied_ignored += 1
+            return "ignored"
+        k_conf, casc, st = self._conf
+        if k0 + u.shape[0] <= k_conf:
+            self.applied_ignored += 1
+            return "ignored"
+        if k0 < k_conf:
+            u, k0 = u[k_conf - k0:], k_conf
+        self._last_applied = u[-1].copy()
+        head = self._inflight[0] if self._inflight else None
+        if head is not None and k0 == k_conf == head.k0 and head.u.shape == u.shape and \
+                np.max(np.abs(head.u - u)) <= self.match_tolerance:
+            self._inflight.popleft()
+            self._inflight_samples -= u.shape[0]
+            self._conf = (k0 + u.shape[0], head.cascade, head.state_after)
+            self.applied_blocks += 1
+            return "match"
+        self._resync(k_conf, casc, st, k0, u)
+        self.resyncs += 1
+        return "resync"
+
+    def _resync(self, k_conf, casc, st, k0, u) -> None:
+        c = copy.deepcopy(casc)
+        c.load_state(st)
+        if k0 > k_conf:  # samples nobody reported: the amplifier held its last voltage
+            last = c.last_voltage()
+            hold = last if last is not None else np.zeros(u.shape[1])
+            c.follow_applied(np.tile(hold, (k0 - k_conf, 1)))
+        c.follow_applied(u)
+        k_end = k0 + u.shape[0]
+        self._conf = (k_end, c, c.state(CompensatorCascade.PLANT_STAGES))
+        rest: deque[_InFlight] = deque()
+        for rec in self._inflight:                    # the commands still in flight, as they will be applied
+            end = rec.k0 + len(rec.u)
+            if end <= k_end:
+                continue
+            sent = rec.u[max(0, k_end - rec.k0):]
+            follower = copy.deepcopy(c) if not rest else rest[-1].cascade
+            if not rest:
+                follower.load_state(self._conf[2])
+            follower.follow_applied(sent)
+            rest.append(_InFlight(max(rec.k0, k_end), sent, follower, follower.state(CompensatorCascade.PLANT_STAGES)))
+        self._inflight = rest
+        self._inflight_samples = sum(len(r.u) for r in rest)
+        final = rest[-1] if rest else None
+        src = copy.deepcopy(final.cascade if final else c)
+        src.load_state(final.state_after if final else self._conf[2])
+        self._fade = None   # the applied voltage decides now: no mix of cascades that no longer describe the plant
+        if src.cfg == self.active.cfg:
+            self.active.load_state(src.state(CompensatorCascade.PLANT_STAGES))
+        else:
+            for name in CompensatorCascade.PLANT_STAGES:
+                new, old = getattr(self.active, name), getattr(src, name)
+                if new is not None and old is not None:
+                    new.continue_from(old)
 
     @property
     def crossfading(self) -> bool:
@@ -224,20 +435,18 @@ class HotSwapCascade:
 
     def status(self) -> dict:
         return {"config_version": self.version, "pending_version": self.pending_version, "swaps": self.swaps,
-                "failed_builds": self.failed_builds, "crossfading": self.crossfading, "last_error": self.last_error}
+                "failed_builds": self.failed_builds, "crossfading": self.crossfading, "last_error": self.last_error,
+                "resyncs": self.resyncs, "applied_blocks": self.applied_blocks,
+                "in_flight_blocks": len(self._inflight)}
 
 
-def _same_linear_stage(name, a, b) -> bool:
-    if name == "vibration":
-        return all(np.array_equal(x, y) for x, y in zip(a.continuous, b.continuous)) and a.dt == b.dt
-    return a.cfg == b.cfg and a.dt == b.dt
-
-
-def _copy_linear_state(name, src, dst) -> None:
-    if name == "vibration":
-        dst.filter.x[:] = src.filter.x
-    else:
-        dst.x[:] = src.x
+def _same_hysteresis(c: CompensatorCascade, active: CompensatorCascade) -> bool:
+    """Both cascades end in the same hysteresis inverse (paper order): it can be shared through a fade."""
+    a, b = c.cfg, active.cfg
+    return (a.cascade.order == b.cascade.order == "paper" and c.hysteresis is not None
+            and active.hysteresis is not None and a.hysteresis == b.hysteresis
+            and a.cascade.hysteresis_loop == b.cascade.hysteresis_loop
+            and a.cascade.respect_limits == b.cascade.respect_limits and a.limits == b.limits and a.dt == b.dt)
 
 
 def _settle(name, st, u) -> np.ndarray:

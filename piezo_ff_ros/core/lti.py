@@ -190,29 +190,34 @@ class TFMatrix:
 # Continuous modal realisation (real block-diagonal) of a TF matrix
 # ----------------------------------------------------------------------------------------------------------------
 
-def _real_blocks_from_modes(p, b_rows, c_cols):
+def _real_blocks_from_modes(p, b_rows, c_cols, pair_on=None):
     """Group complex modes into real 1×1 / 2×2 blocks.
 
-    ``b_rows[i]`` (n_in,) and ``c_cols[i]`` (n_out,) are the complex input and output vectors of mode i.
+    ``p[i]`` is the (continuous or discrete) eigenvalue of mode i, ``b_rows[i]`` (n_in,) and ``c_cols[i]`` (n_out,)
+    its complex input and output vectors.  Which modes are real and which form conjugate pairs is decided on
+    ``pair_on`` (default ``p``): for a discretised bank pass the *continuous* poles, because a mode that decays
+    within one sample has ``a = e^{pT} ≈ 0`` — it looks real although its b and c are complex, and treating it as
+    real would drop their imaginary parts (the ZOH defect below ~500 Hz).
     Returns lists of (A_blk, B_blk, C_blk).
     """
+    p = np.asarray(p, complex)
+    q = p if pair_on is None else np.asarray(pair_on, complex)
     blocks = []
     used = np.zeros(len(p), bool)
     for i in range(len(p)):
         if used[i]:
             continue
-        pi = p[i]
-        if abs(pi.imag) <= _PAIR_TOL * max(1.0, abs(pi)):
+        if abs(q[i].imag) <= _PAIR_TOL * max(1.0, abs(q[i])):
             used[i] = True
-            blocks.append((np.array([[pi.real]]), np.real(b_rows[i])[None, :], np.real(c_cols[i])[:, None]))
+            blocks.append((np.array([[p[i].real]]), np.real(b_rows[i])[None, :], np.real(c_cols[i])[:, None]))
             continue
         # find its conjugate partner
         cand = [j for j in range(len(p)) if not used[j] and j != i]
-        j = min(cand, key=lambda j: abs(p[j] - np.conj(pi)))
+        j = min(cand, key=lambda j: abs(q[j] - np.conj(q[i])))
         used[i] = used[j] = True
-        if pi.imag < 0:
+        if q[i].imag < 0:
             i, j = j, i
-            pi = p[i]
+        pi = p[i]
         bi, ci = b_rows[i], c_cols[i]
         # complex mode x' = p x + b u, y = 2 Re(c x): real state [Re x, Im x]
         A = np.array([[pi.real, -pi.imag], [pi.imag, pi.real]])
@@ -298,7 +303,7 @@ class DiscreteModalSS:
                 brow[:, j] = beta
                 ccol = np.zeros((len(p), n_out), complex)
                 ccol[:, i] = c
-                blocks += _real_blocks_from_modes(a, brow, ccol)
+                blocks += _real_blocks_from_modes(a, brow, ccol, pair_on=p)
         return DiscreteModalSS._assemble(blocks, D, n_in, n_out, dt)
 
     @staticmethod
@@ -317,7 +322,7 @@ class DiscreteModalSS:
             Bm = np.linalg.solve(V, B.astype(complex))
             Cm = C @ V
             a, beta = _zoh_scalar(lam, dt)
-            blocks = _real_blocks_from_modes(a, Bm * beta[:, None], Cm.T.copy())
+            blocks = _real_blocks_from_modes(a, Bm * beta[:, None], Cm.T.copy(), pair_on=lam)
             return DiscreteModalSS._assemble(blocks, D, n_in, n_out, dt)
         # dense fallback: expm of the augmented matrix
         M = np.zeros((n + n_in, n + n_in))

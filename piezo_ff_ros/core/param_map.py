@@ -139,10 +139,15 @@ def params_to_config(params: Mapping[str, Any], base: PiezoConfig) -> PiezoConfi
             raise ConfigError(name, "unknown parameter")
     get = lambda k, default=None: p.get(k, default)  # noqa: E731
     hyst = d["hysteresis"]
+    base_arrays = base.hysteresis.arrays()
     for name in _HYST:
         key = f"hysteresis.{name}"
         if key in p:
-            hyst[name] = _as_matrix(key, p[key], n)
+            r, c = np.shape(base_arrays["P" if name == "input_map" else name])
+            flat = _as_float_list(key, p[key])
+            if len(flat) != r * c:   # the shape is the node's axes: it cannot change at runtime
+                raise ConfigError(key, f"{len(flat)} values, expected {r}×{c} = {r * c} (flat, row-major)")
+            hyst[name] = _as_matrix(key, flat, n)
     if "creep.K" in p:
         d["creep"]["K"] = _as_matrix("creep.K", p["creep.K"], n)
     for section, group in _TF_GROUPS:

@@ -7,11 +7,17 @@
 - every sample is clamped to ``±limits.voltage`` (counted as saturated) and then moved towards its target by at
   most ``limits.slew / fs`` volts per sample (counted as slew-limited) — so the applied voltage is continuous and
   bounded even when the input jumps;
-- :meth:`ramp_to_safe` produces the samples that bring the applied voltage to ``limits.safe_voltage`` at the slew
-  limit (used on stale input).
+- :meth:`ramp_to_safe` produces the samples that bring the applied voltage to ``limits.safe_voltage`` along a
+  straight line whose duration and slew come from a :class:`SafeRampConfig`, independent of the (fast) operating
+  slew limit: at least ``duration`` seconds, never faster than ``slew`` V/s (nor than the operating limit), all axes
+  arriving together (used on stale input and device faults).
+
+:func:`slew_limit` is the per-sample rate limiter itself (clamp first, then at most ``step`` volts per sample), one
+function for every caller.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,7 +25,7 @@ import numpy as np
 from ._jit import njit
 from .config import LimitsConfig
 
-__all__ = ["VoltageGuard", "GuardCounters", "BlockRejected"]
+__all__ = ["VoltageGuard", "GuardCounters", "BlockRejected", "SafeRampConfig", "safe_ramp", "slew_limit"]
 
 
 class BlockRejected(ValueError):
@@ -41,6 +47,54 @@ class GuardCounters:
         return dict(self.__dict__)
 
 
+@dataclass(frozen=True)
+class SafeRampConfig:
+    """How the driver brings the output to the safe voltage (stale input, device fault).
+
+    The ramp is a straight line that takes at least ``duration`` seconds and moves no axis faster than ``slew`` V/s;
+    e.g. the defaults take 50 ms for any distance up to 500 V (≤ 0.2 V per sample at 20 kHz from 200 V).
+    """
+
+    duration: float = 0.05   #: minimum ramp duration [s]
+    slew: float = 1.0e4      #: maximum ramp slew [V/s] (applied together with the operating limit)
+
+    def validate(self, prefix: str = "safe_ramp") -> "SafeRampConfig":
+        from .config import ConfigError
+
+        if not (isinstance(self.duration, (int, float)) and math.isfinite(self.duration) and 0 <= self.duration <= 60):
+            raise ConfigError(f"{prefix}.duration", f"must be a number of seconds in [0, 60], got {self.duration!r}")
+        if not (isinstance(self.slew, (int, float)) and math.isfinite(self.slew) and self.slew > 0):
+            raise ConfigError(f"{prefix}.slew", f"must be a finite number > 0 V/s, got {self.slew!r}")
+        return self
+
+
+def safe_ramp(u_from, safe_voltage: float, sample_rate: float, ramp: SafeRampConfig,
+              operating_slew: float = math.inf) -> np.ndarray:
+    """Samples ``[n, axes]`` from ``u_from`` (exclusive) to ``safe_voltage`` (the last row, exactly).
+
+    ``n = max(ceil(duration·fs), ceil(distance·fs / min(ramp.slew, operating_slew)))``; empty when already safe.
+    """
+    u0 = np.asarray(u_from, dtype=float)
+    dist = float(np.max(np.abs(u0 - safe_voltage))) if u0.size else 0.0
+    if dist == 0.0:
+        return np.zeros((0, u0.size))
+    step = min(float(ramp.slew), float(operating_slew)) / float(sample_rate)
+    n = max(int(math.ceil(ramp.duration * sample_rate - 1e-9)), int(math.ceil(dist / step - 1e-9)), 1)
+    frac = (np.arange(1, n + 1) / n)[:, None]
+    out = u0[None, :] + (safe_voltage - u0)[None, :] * frac
+    out[-1] = safe_voltage
+    return out
+
+
+def slew_limit(target, u_prev, step: float, out=None) -> tuple[np.ndarray, int]:
+    """Rate-limit ``target [N, axes]`` to at most ``step`` volts per sample starting from ``u_prev`` (updated in
+    place to the last output sample); return ``(limited, samples where an axis was held back)``."""
+    target = np.ascontiguousarray(target, dtype=float)
+    out = np.empty_like(target) if out is None else out
+    n = _slew_run(target, u_prev, float(step), out)
+    return out, int(n)
+
+
 @njit
 def _slew_run(target, u_prev, step, out):  # pragma: no cover - compiled
     """Per-sample rate limiter; returns the number of samples where an axis was limited."""
@@ -50,12 +104,13 @@ def _slew_run(target, u_prev, step, out):  # pragma: no cover - compiled
         for a in range(target.shape[1]):
             d = target[k, a] - u_prev[a]
             if d > step:
-                d = step
+                u_prev[a] = u_prev[a] + step
                 limited = True
             elif d < -step:
-                d = -step
+                u_prev[a] = u_prev[a] - step
                 limited = True
-            u_prev[a] = u_prev[a] + d
+            else:
+                u_prev[a] = target[k, a]  # exactly the target (u + (t - u) need not round to t)
             out[k, a] = u_prev[a]
         if limited:
             n_lim += 1
@@ -119,8 +174,8 @@ class VoltageGuard:
         V = self.limits.voltage
         clamped = np.clip(u, -V, V)
         self.counters.saturated_samples += int(np.count_nonzero(np.any(clamped != u, axis=1)))
-        out = np.empty_like(clamped)
-        self.counters.slew_limited_samples += int(_slew_run(clamped, self.u_last, self.step, out))
+        out, n_limited = slew_limit(clamped, self.u_last, self.step)
+        self.counters.slew_limited_samples += n_limited
         self.counters.blocks_applied += 1
         self.counters.samples_applied += out.shape[0]
         return out
@@ -133,21 +188,15 @@ class VoltageGuard:
     def at_safe(self) -> bool:
         return bool(np.all(self.u_last == self.limits.safe_voltage))
 
-    def ramp_to_safe(self, max_samples: int | None = None) -> np.ndarray:
-        """Samples bringing the applied voltage to the safe voltage at the slew limit (empty if already there).
+    def ramp_to_safe(self, ramp: SafeRampConfig | None = None) -> np.ndarray:
+        """Samples bringing the applied voltage to the safe voltage (see :func:`safe_ramp`; empty if already there).
 
-        The ramp ends exactly on the safe voltage; ``max_samples`` bounds one call (call again for the rest).
+        The ramp ends exactly on the safe voltage and becomes the applied state; it is counted in ``safe_ramps``.
         """
-        dist = np.max(np.abs(self.u_last - self.limits.safe_voltage))
-        n = int(np.ceil(dist / self.step - 1e-12)) if dist > 0 else 0
-        if max_samples is not None:
-            n = min(n, int(max_samples))
-        if n == 0:
-            return np.zeros((0, self.n_axes))
-        target = np.full((n, self.n_axes), float(self.limits.safe_voltage))
-        out = np.empty_like(target)
-        _slew_run(target, self.u_last, self.step, out)
-        self.counters.samples_applied += n
-        if self.at_safe:
-            self.counters.safe_ramps += 1
+        ramp = SafeRampConfig() if ramp is None else ramp
+        out = safe_ramp(self.u_last, self.limits.safe_voltage, self.sample_rate, ramp, self.limits.slew)
+        self.counters.safe_ramps += 1
+        if out.shape[0]:
+            self.u_last[:] = out[-1]
+            self.counters.samples_applied += out.shape[0]
         return out

@@ -11,8 +11,9 @@ plain dictionaries (ROS parameters, YAML); a ``unit`` key (``"um"``, ``"nm"`` �
 spec written by hand.
 
 Generators: :class:`Sine`, :class:`Step`, :class:`Staircase`, :class:`Circle` (paper Fig. 15), :class:`Raster`,
-:class:`PRBS`, :class:`Multisine`, :class:`Chirp`, :class:`Hold`; :class:`Sequence` concatenates named segments
-and says which segment a sample belongs to.
+:class:`PRBS`, :class:`Multisine`, :class:`Chirp`, :class:`Hold`, :class:`Spiral`, :class:`Table` (samples from an
+array or a file, played sample-exactly at their own rate); :class:`Sequence` concatenates named segments and says
+which segment a sample belongs to.  :func:`check_workspace` refuses a trajectory that leaves the workspace.
 """
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ from .units import length_scale
 
 __all__ = [
     "Trajectory", "Sine", "Step", "Staircase", "Circle", "Raster", "PRBS", "Multisine", "Chirp", "Hold",
-    "Sequence", "Segment", "from_dict", "TRAJECTORY_TYPES",
+    "Sequence", "Segment", "from_dict", "TRAJECTORY_TYPES", "Spiral", "Table", "check_workspace", "peak",
 ]
 
 DEFAULT_AXES = ("x", "y")
@@ -143,6 +144,11 @@ class Trajectory:
             raise ValueError(f"{self.kind}: endless trajectory; use block(k0, n, fs)")
         return np.arange(n) / fs, self.block(0, n, fs)
 
+    def bound(self) -> tuple:
+        """An upper bound of ``|value|`` per axis over the whole trajectory (for workspace checks); ``inf`` when a
+        generator does not know one (then :func:`peak` samples it)."""
+        return tuple(math.inf for _ in self.axes)
+
     def to_dict(self) -> dict:
         """Plain dictionary (SI units) that :func:`from_dict` turns back into an equal trajectory."""
         d = {"type": self.kind}
@@ -157,6 +163,11 @@ class Trajectory:
 
     def _values(self, k: np.ndarray, fs: float) -> np.ndarray:  # pragma: no cover - overridden
         raise NotImplementedError
+
+    def _axis_bound(self, peak: float, axis, off_axis: float) -> tuple:
+        idx = _axis_index(self.axes, axis)
+        return tuple(peak if idx is None or i == idx else (0.0 if idx is not None else off_axis)
+                     for i in range(self.n_axes))
 
     def _on_axis(self, values: np.ndarray, axis, offset: float = 0.0) -> np.ndarray:
         out = np.zeros((len(values), self.n_axes))
@@ -191,6 +202,9 @@ class Hold(Trajectory):
         object.__setattr__(self, "value", _per_axis(self.value, self.axes, "value"))
         object.__setattr__(self, "duration", _duration(self.duration))
 
+    def bound(self) -> tuple:
+        return tuple(abs(v) for v in self.value)
+
     def _values(self, k, fs):
         return np.broadcast_to(np.array(self.value), (len(k), self.n_axes))
 
@@ -216,6 +230,9 @@ class Sine(Trajectory):
         object.__setattr__(self, "frequency", _finite(self.frequency, "frequency", positive=True))
         object.__setattr__(self, "duration", _duration(self.duration))
         _axis_index(self.axes, self.axis)
+
+    def bound(self) -> tuple:
+        return self._axis_bound(abs(self.offset) + abs(self.amplitude), self.axis, abs(self.offset))
 
     def _values(self, k, fs):
         t = self._t(k, fs)
@@ -247,6 +264,9 @@ class Step(Trajectory):
     def step_index(self, fs: float) -> int:
         """First sample index at the step level."""
         return int(math.ceil(self.t_step * fs - 1e-9))
+
+    def bound(self) -> tuple:
+        return tuple(abs(v) for v in self.amplitude)
 
     def _values(self, k, fs):
         on = (k >= self.step_index(fs)).astype(float)
@@ -288,6 +308,9 @@ class Staircase(Trajectory):
     def duration(self) -> float:
         return self.dwell * len(self.levels)
 
+    def bound(self) -> tuple:
+        return tuple(float(v) for v in np.abs(np.array(self.levels)).max(axis=0))
+
     def _values(self, k, fs):
         per_level = self.dwell * fs
         i = np.minimum(np.floor(k / per_level + 1e-9).astype(np.int64), len(self.levels) - 1)
@@ -323,6 +346,9 @@ class Circle(Trajectory):
     @property
     def duration(self) -> float:
         return self.revolutions / self.frequency
+
+    def bound(self) -> tuple:
+        return tuple(abs(c) + self.radius for c in self.centre)
 
     def _values(self, k, fs):
         theta = 2 * np.pi * self.frequency * self._t(k, fs) + self.phase
@@ -384,6 +410,12 @@ class Raster(Trajectory):
     def duration(self) -> float:
         return self.lines / self.line_rate
 
+    def bound(self) -> tuple:
+        fi = self.axes.index(self.fast_axis)
+        half = [0.0, 0.0]
+        half[fi], half[1 - fi] = 0.5 * self.width, 0.5 * self.height
+        return tuple(abs(c) + h for c, h in zip(self.centre, half))
+
     def _values(self, k, fs):
         t = self._t(k, fs)
         phi = t * self.line_rate
@@ -396,6 +428,158 @@ class Raster(Trajectory):
         out[:, fi] = self.centre[fi] + fast
         out[:, 1 - fi] = self.centre[1 - fi] + slow
         return out
+
+
+@dataclass(frozen=True)
+class Spiral(Trajectory):
+    """Archimedean spiral from the centre out: radius ``radius·t/T`` over ``revolutions`` turns at ``frequency``.
+
+    ``x = cx + ρ(t)·sin(2πft)``, ``y = cy + ρ(t)·cos(2πft)``, ``ρ(t) = radius·min(t/T, 1)``, T = revolutions/f.
+    """
+
+    radius: float = 20e-6
+    frequency: float = 10.0
+    revolutions: float = 5.0
+    centre: Any = (0.0, 0.0)
+
+    kind = "spiral"
+    length_fields = ("radius", "centre")
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.n_axes != 2:
+            raise ConfigError("axes", f"a spiral needs exactly 2 axes, got {list(self.axes)}")
+        object.__setattr__(self, "radius", _finite(self.radius, "radius", nonneg=True))
+        object.__setattr__(self, "frequency", _finite(self.frequency, "frequency", positive=True))
+        rev = _finite(self.revolutions, "revolutions", positive=True)
+        object.__setattr__(self, "revolutions", rev)
+        object.__setattr__(self, "centre", _per_axis(self.centre, self.axes, "centre"))
+
+    @property
+    def duration(self) -> float:
+        return self.revolutions / self.frequency
+
+    def bound(self) -> tuple:
+        return tuple(abs(c) + self.radius for c in self.centre)
+
+    def _values(self, k, fs):
+        t = self._t(k, fs)
+        rho = self.radius * np.clip(t / self.duration, 0.0, 1.0)
+        theta = 2 * np.pi * self.frequency * t
+        return np.column_stack([self.centre[0] + rho * np.sin(theta), self.centre[1] + rho * np.cos(theta)])
+
+
+@dataclass(frozen=True)
+class Table(Trajectory):
+    """Samples given as an array (``values`` [N, axes]) or a file (``file``: .npy, or .csv/.txt with one column per
+    axis, a header line of axis names optional), at ``sample_rate``.
+
+    Played sample-exactly when the playing rate equals ``sample_rate``; at another rate, linearly interpolated
+    between the table's samples (time ``k/fs``).  Held at the last row after the end.  The array travels in the
+    spec only when given inline; a file is read once, at construction.
+    """
+
+    values: Any = None
+    file: str = ""
+    sample_rate: float = 20000.0
+
+    kind = "table"
+    length_fields = ("values",)
+
+    def __post_init__(self):
+        super().__post_init__()
+        fs = _finite(self.sample_rate, "sample_rate", positive=True)
+        object.__setattr__(self, "sample_rate", fs)
+        if (self.values is None) == (not self.file):
+            raise ConfigError("values", "give exactly one of 'values' (an array) or 'file'")
+        if self.file:
+            arr = _read_table(str(self.file), self.axes)
+        else:
+            try:
+                arr = np.array(self.values, dtype=float)
+            except (TypeError, ValueError):
+                raise ConfigError("values", "expected a numeric array [N, axes]") from None
+        if arr.ndim == 1 and self.n_axes == 1:
+            arr = arr[:, None]
+        if arr.ndim != 2 or arr.shape[1] != self.n_axes or len(arr) == 0:
+            raise ConfigError("file" if self.file else "values",
+                              f"expected an array [N >= 1, {self.n_axes}] (axes {list(self.axes)}), got shape {arr.shape}")
+        bad = np.argwhere(~np.isfinite(arr))
+        if len(bad):
+            raise ConfigError("file" if self.file else "values", f"row {int(bad[0][0])}: not a finite number")
+        arr.setflags(write=False)
+        object.__setattr__(self, "_table", arr)
+
+    def __eq__(self, other):
+        return (isinstance(other, Table) and self.axes == other.axes and self.sample_rate == other.sample_rate
+                and np.array_equal(self._table, other._table))
+
+    def __hash__(self):
+        return hash(("table", self.axes, self.sample_rate, self._table.shape))
+
+    @property
+    def duration(self) -> float:
+        return len(self._table) / self.sample_rate
+
+    def n_samples(self, fs: float):
+        fs = _finite(fs, "fs", positive=True)
+        if fs == self.sample_rate:
+            return len(self._table)
+        return super().n_samples(fs)
+
+    def bound(self) -> tuple:
+        return tuple(float(v) for v in np.abs(self._table).max(axis=0))
+
+    def _values(self, k, fs):
+        if fs == self.sample_rate:
+            return self._table[np.minimum(k, len(self._table) - 1)]
+        pos = k * (self.sample_rate / fs)
+        i0 = np.minimum(np.floor(pos).astype(np.int64), len(self._table) - 1)
+        i1 = np.minimum(i0 + 1, len(self._table) - 1)
+        a = (pos - i0)[:, None]
+        return (1 - a) * self._table[i0] + a * self._table[i1]
+
+    def to_dict(self) -> dict:
+        d = {"type": self.kind, "axes": list(self.axes), "sample_rate": self.sample_rate}
+        if self.file:
+            d["file"] = self.file
+        else:
+            d["values"] = self._table.tolist()
+        return d
+
+
+def _read_table(path: str, axes: tuple) -> np.ndarray:
+    from pathlib import Path
+
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError("file", f"{path}: no such file")
+    try:
+        if p.suffix == ".npy":
+            return np.load(p, allow_pickle=False).astype(float)
+        with p.open() as fh:
+            first = fh.readline()
+        names = [c.strip() for c in first.replace(";", ",").split(",")]
+        header = not all(_is_number(c) for c in names if c)
+        arr = np.loadtxt(p, delimiter=",", skiprows=1 if header else 0, ndmin=2)
+        if header:  # columns by name, not by position
+            missing = [a for a in axes if a not in names]
+            if missing:
+                raise ConfigError("file", f"{path}: no column named {missing[0]!r} (header {names})")
+            arr = arr[:, [names.index(a) for a in axes]]
+        return arr
+    except ConfigError:
+        raise
+    except (OSError, ValueError) as exc:
+        raise ConfigError("file", f"{path}: cannot read a table ({str(exc).splitlines()[0][:120]})") from None
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+        return True
+    except ValueError:
+        return False
 
 
 # maximal-length LFSR feedback taps (Fibonacci form, bit positions 1-based), orders 5 … 16
@@ -458,6 +642,9 @@ class PRBS(Trajectory):
     def period(self) -> float:
         """Sequence period [s]."""
         return (2 ** self.order - 1) / self.clock_rate
+
+    def bound(self) -> tuple:
+        return self._axis_bound(abs(self.offset) + abs(self.amplitude), self.axis, abs(self.offset))
 
     def _values(self, k, fs):
         chips = self._chips
@@ -522,6 +709,10 @@ class Multisine(Trajectory):
             return -np.pi * i * (i - 1) / n
         return np.random.default_rng(self.seed).uniform(0, 2 * np.pi, n)
 
+    def bound(self) -> tuple:
+        peak = abs(self.offset) + self.amplitude * math.sqrt(2.0 / self.n_tones) * self.n_tones
+        return self._axis_bound(peak, self.axis, abs(self.offset))
+
     def _values(self, k, fs):
         t = self._t(k, fs)
         a = self.amplitude * math.sqrt(2.0 / self.n_tones)
@@ -568,6 +759,9 @@ class Chirp(Trajectory):
         if self.method == "linear":
             return self.f0 + (self.f1 - self.f0) * t / self.duration
         return self.f0 * (self.f1 / self.f0) ** (t / self.duration)
+
+    def bound(self) -> tuple:
+        return self._axis_bound(abs(self.offset) + abs(self.amplitude), self.axis, abs(self.offset))
 
     def _values(self, k, fs):
         t = self._t(k, fs)
@@ -706,6 +900,9 @@ class Sequence(Trajectory):
                 out[sel] = seg.trajectory.at_index(k[sel] - seg.start, fs)
         return out
 
+    def bound(self) -> tuple:
+        return tuple(float(v) for v in np.max([t.bound() for _, t, _ in self.segments_], axis=0))
+
     def to_dict(self) -> dict:
         return {"type": "sequence", "axes": list(self.axes),
                 "segments": [{"name": n, "trajectory": t.to_dict(), "meta": _plain_meta(m)}
@@ -720,7 +917,8 @@ def _plain_meta(m):
     return _plain(m)
 
 
-TRAJECTORY_TYPES = {cls.kind: cls for cls in (Hold, Sine, Step, Staircase, Circle, Raster, PRBS, Multisine, Chirp)}
+TRAJECTORY_TYPES = {cls.kind: cls for cls in (Hold, Sine, Step, Staircase, Circle, Raster, PRBS, Multisine, Chirp,
+                                              Spiral, Table)}
 
 
 def _scale_lengths(value, s):
@@ -785,3 +983,48 @@ def from_dict(spec: Mapping, prefix: str = "trajectory") -> Trajectory:
         raise ConfigError(f"{prefix}.{exc.field}", exc.reason) from None
     except TypeError as exc:
         raise ConfigError(prefix, str(exc)) from None
+
+
+def peak(traj: Trajectory, fs: float = 20000.0, max_samples: int = 4_000_000) -> tuple:
+    """``max |value|`` per axis: sampled exactly at ``fs`` when finite and at most ``max_samples`` long, else
+    :meth:`Trajectory.bound` (an upper bound)."""
+    n = traj.n_samples(fs)
+    if math.isinf(n) or n > max_samples:
+        return traj.bound()   # may be inf for a generator without a bound: then it cannot be checked
+    out = np.zeros(traj.n_axes)
+    for k0 in range(0, int(n), 200_000):
+        out = np.maximum(out, np.abs(traj.block(k0, min(200_000, int(n) - k0), fs)).max(axis=0))
+    return tuple(float(v) for v in out)
+
+
+def _in_volts(meta: Mapping) -> bool:
+    return meta.get("input") == "voltage" or meta.get("stage") in ("hysteresis", "plant")
+
+
+def check_workspace(traj: Trajectory, workspace_m: float, voltage_limit: float | None = None,
+                    prefix: str = "trajectory", fs: float = 20000.0) -> None:
+    """Refuse a trajectory that leaves ``±workspace_m`` on any axis (ConfigError naming the field).
+
+    Segments of a :class:`Sequence` whose meta says ``input: voltage`` (paper experiments on S0) or ``stage:
+    hysteresis|plant`` (the commissioning's characterisation of S0, played through a bypassed compensator) are in
+    volts and checked against ``±voltage_limit`` instead (skipped when it is None).
+    ``workspace_m <= 0`` disables the check.
+    """
+    if workspace_m <= 0:
+        return
+    if isinstance(traj, Sequence):
+        for i, (name, t, meta) in enumerate(traj.segments_):
+            volts = _in_volts(meta)
+            if volts and voltage_limit is None:
+                continue
+            check_workspace(t, voltage_limit if volts else workspace_m, None,
+                            prefix=f"{prefix}.segments[{i}].trajectory", fs=fs)
+        return
+    field_name = traj.length_fields[0] if traj.length_fields else "value"
+    if all(b <= workspace_m for b in traj.bound()):
+        return
+    for axis, b in zip(traj.axes, peak(traj, fs)):
+        if math.isfinite(b) and b > workspace_m * (1 + 1e-12):
+            raise ConfigError(f"{prefix}.{field_name}",
+                              f"reaches {b:.6g} on axis {axis}, outside the workspace ±{workspace_m:g} "
+                              f"(SI units: metres; e.g. radius: 2.0e-5 or unit: um)")

@@ -16,7 +16,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2, PointField
 
-__all__ = ["BLOCK_QOS", "RECORD_QOS", "LATCHED_QOS", "FRAME_ID", "dt_ns", "pack_block", "unpack_block",
+__all__ = ["BLOCK_QOS", "RECORD_QOS", "LATCHED_QOS", "CONFIG_QOS", "FRAME_ID", "dt_ns", "pack_block", "unpack_block",
            "stamp_to_ns", "ns_to_stamp", "k0_of", "spin_node", "BlockFormatError"]
 
 FRAME_ID = "piezo"
@@ -30,6 +30,10 @@ RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability
 #: ``experiment`` markers: late joiners (the recorder) still get the current segment
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+#: the compensator's ``~/config`` (every configuration version): a recorder started late still gets them all
+CONFIG_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 _FLOAT64 = PointField.FLOAT64
 
@@ -78,14 +82,22 @@ def pack_block(block: np.ndarray, axes: Sequence[str], stamp_ns: int, msg: Point
 
 
 def unpack_block(msg: PointCloud2, axes: Sequence[str] | None = None) -> np.ndarray:
-    """PointCloud2 of the contract → ``[N, axes]`` float64 array (a copy); :class:`BlockFormatError` otherwise."""
+    """PointCloud2 of the contract → ``[N, axes]`` float64 array (a copy); :class:`BlockFormatError` otherwise.
+
+    With ``axes`` (what a node that applies the block must pass) the columns are taken **by field name**, in the
+    order of ``axes``: a block whose fields are ``[y, x]`` gives the same array as one with ``[x, y]``; missing,
+    duplicate or unknown field names are refused.  Without ``axes`` the fields' own order is kept.
+    """
     fields = list(msg.fields)
     k = len(fields)
     if k == 0:
         raise BlockFormatError("no fields")
     names = [f.name for f in fields]
-    if axes is not None and names != list(axes):
-        raise BlockFormatError(f"fields {names}, expected axes {list(axes)}")
+    if len(set(names)) != k:
+        raise BlockFormatError(f"duplicate field names {names}")
+    if axes is not None and sorted(names) != sorted(axes):
+        raise BlockFormatError(f"fields {names} do not name the axes {list(axes)} (missing "
+                               f"{sorted(set(axes) - set(names))}, unknown {sorted(set(names) - set(axes))})")
     for i, f in enumerate(fields):
         if f.datatype != _FLOAT64 or f.offset != 8 * i or f.count not in (0, 1):
             raise BlockFormatError(f"field {f.name!r}: expected FLOAT64 at offset {8 * i}")
@@ -97,7 +109,10 @@ def unpack_block(msg: PointCloud2, axes: Sequence[str] | None = None) -> np.ndar
     raw = bytes(msg.data) if not isinstance(msg.data, (bytes, bytearray, memoryview)) else msg.data
     if len(raw) != 8 * k * n:
         raise BlockFormatError(f"{len(raw)} data bytes for {n} samples × {k} fields")
-    return np.frombuffer(raw, dtype="<f8").reshape(n, k).astype(float)
+    table = np.frombuffer(raw, dtype="<f8").reshape(n, k)
+    if axes is not None and names != list(axes):
+        return table[:, [names.index(a) for a in axes]].astype(float)
+    return table.astype(float)
 
 
 def spin_node(node, on_exit=None) -> int:

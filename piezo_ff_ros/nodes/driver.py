@@ -1,33 +1,48 @@
-"""Driver node: ``voltage`` blocks → (safety) → backend → ``displacement`` blocks, ``joint_states``, ``/diagnostics``.
+"""Driver node: ``voltage`` blocks → safety → device → ``voltage_applied`` + ``displacement`` blocks,
+``joint_states``, ``/diagnostics``.  Wiring only: the logic is :class:`piezo_ff_ros.core.hardware.DriverCore`.
 
-Whatever it is sent, the voltage applied is within ``±limits.voltage`` and changes by at most ``limits.slew`` V/s
-(:class:`piezo_ff_ros.core.safety.VoltageGuard`).  NaN/Inf/wrong-shape/oversized blocks are rejected with an error log
-and the last voltage is held for the block's duration; with no block for ``limits.stale_timeout`` s the output ramps
-to ``limits.safe_voltage`` at the slew limit.  The displacement block with stamp S answers the voltage block with
-stamp S; the stale ramp is published with the stamps that follow the last block.
+Whatever it is sent, the voltage applied is within ``±limits.voltage`` and changes by at most ``limits.slew`` V/s.
+Malformed blocks (NaN/Inf, other fields such as ``[y, x]``, wrong shape) are rejected with an error log and the
+last voltage is held for their samples; oversized blocks (> ``max_block``) are not applied.  Gaps in the stamps are held
+and counted, late samples dropped and counted, a block far off the stream is applied only once the next block
+confirms the jump; with no block for ``limits.stale_timeout`` s the output ramps to ``limits.safe_voltage`` along the
+``safe_ramp`` (its own duration and slew).  ``voltage_applied`` carries every sample the device actually output
+(holds and ramps included) on the stamp grid of ``voltage``; ``displacement`` the sensor samples on the same grid.
 
-Parameters: ``config_file`` (''=paper config), ``variant``, ``backend`` ('sim'), ``noise_std`` [m], ``seed``,
-``max_block`` (samples), ``joint_states_rate`` [Hz], ``diagnostics_period`` [s], ``limits.voltage|slew|
-stale_timeout|safe_voltage`` (default: the config's ``limits``).  Service ``~/reset`` (std_srvs/Trigger): back to
-rest (simulator only).
+Parameters (read-only, validated at start-up; a bad one is a one-line error naming it): ``config_file``,
+``variant``, ``backend`` (``sim``; plug-ins: ``piezo_ff_ros.backends`` entry points) and its ``<backend>.*``
+parameters, ``noise_std`` [m] and ``seed`` (sim sensor), ``max_block`` [samples], ``max_gap``, ``write_ahead``,
+``low_water`` [s], ``joint_states_rate`` [Hz], ``diagnostics_period`` [s], ``limits.voltage|slew|stale_timeout|
+safe_voltage`` (default the config's; may only tighten them), ``safe_ramp.duration|slew``.  Service ``~/reset``
+(std_srvs/Trigger): back to rest (simulator only).
 """
 from __future__ import annotations
 
+import math
+import os
 import sys
-import time
 from dataclasses import replace
 
-import numpy as np
-
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, PointCloud2
 from std_srvs.srv import Trigger
 
-from ..core.config import LimitsConfig, load_config
-from ..core.safety import BlockRejected, VoltageGuard
-from .backends import BackendError, make_backend
-from .common import BLOCK_QOS, BlockFormatError, diag_values, dt_ns, pack_block, run_node, stamp_to_ns, unpack_block
+from ..core.config import ConfigError, LimitsConfig, load_config
+from ..core.hardware import DriverCore, DriverSettings
+from ..core.hardware.driver_core import ERROR, WARN
+from ..core.safety import SafeRampConfig
+from .backends import get_spec
+from .common import BLOCK_QOS, BlockFormatError, diag_values, pack_block, run_node, stamp_to_ns, unpack_block
+
+_LEVEL = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
+
+
+def _check(name: str, value, lo: float, hi: float, unit: str = ""):
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and lo <= value <= hi):
+        raise ConfigError(name, f"must be in [{lo:g}, {hi:g}]{unit}, got {value!r}")
+    return value
 
 
 class DriverNode(Node):
@@ -35,161 +50,161 @@ class DriverNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("driver", **kwargs)
-        p = self._declare_all()
+        settings, backend_name, bparams, p = self._declare_all()
         self.axes = self.cfg.axes
-        self.period_ns = dt_ns(self.cfg.sample_rate)
-        self.guard = VoltageGuard(self.limits, self.cfg.n_axes, self.cfg.sample_rate, max_block=p["max_block"])
-        self.backend = make_backend(p["backend"], self.cfg, p)
-        self.backend.open()
-        self.backend.start()
-        self.state = "idle"            # idle (nothing yet) | active | safe (ramped down after stale input)
-        self.next_stamp_ns = None      # stamp the next block should have
-        self.last_block_wall = None
-        self.last_block_n = 200
-        self.gap_samples = 0           # samples skipped between consecutive blocks (k0 jumps)
-        self.late_blocks = 0           # blocks overlapping samples already applied (dropped)
-        self.malformed_blocks = 0      # messages that are not a block of the contract
-        self.last_error = ""
-        self._js_every = max(1, int(round(self.cfg.sample_rate / max(p["joint_states_rate"], 1e-3))))
-        self._js_next = 0
-        self._samples_out = 0
+        self.backend_name = backend_name
+        backend = get_spec(backend_name).create(self.cfg, bparams)
+        self.core = DriverCore(settings, backend)
+        self.malformed_blocks = 0
+        self.conflict = ""
+        self._js_every = max(1, int(round(self.cfg.sample_rate / p["joint_states_rate"])))
+        self._js_count = 0
 
         self.pub_y = self.create_publisher(PointCloud2, "displacement", BLOCK_QOS)
+        self.pub_u = self.create_publisher(PointCloud2, "voltage_applied", BLOCK_QOS)
         self.pub_js = self.create_publisher(JointState, "joint_states", 10)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.sub_u = self.create_subscription(PointCloud2, "voltage", self.on_voltage, BLOCK_QOS)
         self.create_service(Trigger, "~/reset", self.on_reset)
-        self.create_timer(min(self.limits.stale_timeout / 4.0, 0.05), self.check_stale)
+        lim = settings.limits
+        tick = min(settings.low_water / 2, 0.005) if backend.info.clocked else min(lim.stale_timeout / 4, 0.05)
+        # the device's clock starts with the first tick (not here: spinning may begin much later)
+        self.create_timer(tick, self.on_tick)
         self.create_timer(p["diagnostics_period"], self.publish_diagnostics)
-        self.get_logger().info(f"driver ready: backend {p['backend']}, ±{self.limits.voltage} V, "
-                               f"{self.limits.slew} V/s, stale {self.limits.stale_timeout} s")
+        self._conflict_timer = self.create_timer(2.0, self.check_conflict)
+        mode = "clocked" if backend.info.clocked else "lockstep"
+        self.get_logger().info(f"driver ready: backend {backend_name} ({mode}), ±{lim.voltage} V, {lim.slew} V/s, stale {lim.stale_timeout} s, safe ramp ≥ "
+                               f"{settings.ramp.duration} s at ≤ {settings.ramp.slew} V/s")
 
     # -- parameters ------------------------------------------------------------------------------------------------
-    def _declare_all(self) -> dict:
-        cfg_file = self.declare_parameter("config_file", "").value
-        variant = self.declare_parameter("variant", "").value
+    def _param(self, name: str, default, description: str = ""):
+        return self.declare_parameter(name, default, ParameterDescriptor(
+            description=description or name, read_only=True)).value
+
+    def _declare_all(self):
+        cfg_file = self._param("config_file", "", "configuration YAML ('' = the paper's)")
+        variant = self._param("variant", "", "config variant")
         self.cfg = load_config(cfg_file or None, variant or None)
         lim = self.cfg.limits
-        limits = {k: float(self.declare_parameter(f"limits.{k}", float(getattr(lim, k))).value)
-                  for k in ("voltage", "slew", "stale_timeout", "safe_voltage")}
-        self.limits = LimitsConfig(**limits).validate()
-        self.cfg = replace(self.cfg, limits=self.limits)
-        return {"backend": self.declare_parameter("backend", "sim").value,
-                "noise_std": float(self.declare_parameter("noise_std", 0.0).value),
-                "seed": int(self.declare_parameter("seed", 0).value),
-                "max_block": int(self.declare_parameter("max_block", 20000).value),
-                "joint_states_rate": float(self.declare_parameter("joint_states_rate", 100.0).value),
-                "diagnostics_period": float(self.declare_parameter("diagnostics_period", 1.0).value)}
+        limits = {k: float(self._param(f"limits.{k}", float(getattr(lim, k)))) for k in
+                  ("voltage", "slew", "stale_timeout", "safe_voltage")}
+        limits = LimitsConfig(**limits).validate()
+        # the config describes the amplifier: a parameter may tighten its limits, never widen them
+        for k in ("voltage", "slew"):
+            if getattr(limits, k) > getattr(lim, k):
+                raise ConfigError(f"limits.{k}", f"{getattr(limits, k)!r} exceeds the config's {getattr(lim, k)!r} "
+                                                 "(the amplifier's range: change the config file to raise it)")
+        _check("limits.stale_timeout", limits.stale_timeout, 1e-3, 3600.0, " s")
+        self.cfg = replace(self.cfg, limits=limits)
+        ramp = SafeRampConfig(duration=float(self._param("safe_ramp.duration", 0.05, "minimum safe-ramp duration [s]")),
+                              slew=float(self._param("safe_ramp.slew", 1.0e4, "maximum safe-ramp slew [V/s]")))
+        p = {"max_block": self._param("max_block", 20000, "largest accepted block [samples]"),
+             "max_gap": float(self._param("max_gap", 1.0, "largest gap held [s]; larger jumps need confirmation")),
+             "write_ahead": float(self._param("write_ahead", 0.05, "clocked devices: FIFO margin [s]")),
+             "low_water": float(self._param("low_water", 0.01, "clocked devices: hold below this margin [s]")),
+             "joint_states_rate": float(self._param("joint_states_rate", 100.0, "joint_states rate [Hz]")),
+             "diagnostics_period": float(self._param("diagnostics_period", 1.0, "/diagnostics period [s]"))}
+        _check("diagnostics_period", p["diagnostics_period"], 0.05, 3600.0, " s")
+        _check("joint_states_rate", p["joint_states_rate"], 0.01, 1000.0, " Hz")
+        settings = DriverSettings(sample_rate=self.cfg.sample_rate, n_axes=self.cfg.n_axes, limits=limits, ramp=ramp,
+                                  max_block=p["max_block"], max_gap=p["max_gap"], write_ahead=p["write_ahead"],
+                                  low_water=p["low_water"]).validate()
+        name = self._param("backend", "sim", "backend plug-in name")
+        spec = get_spec(name)
+        given = {}
+        if name == "sim":  # the historical top-level names of the simulator's sensor noise
+            given = {"noise_std": float(self._param("noise_std", 0.0, "sim sensor noise [m]")),
+                     "seed": int(self._param("seed", 0, "sim noise seed"))}
+        for pname, prm in spec.parameters.items():
+            if pname in given:
+                continue
+            given[pname] = self._param(f"{name}.{pname}", prm.default, prm.description)
+        return settings, name, spec.validate(given), p
 
     # -- data path -------------------------------------------------------------------------------------------------
     def on_voltage(self, msg: PointCloud2) -> None:
+        if not self.core.started:
+            self.on_tick()
         stamp = stamp_to_ns(msg.header.stamp)
-        if self.next_stamp_ns is not None and stamp < self.next_stamp_ns:
-            # those sample instants are past (applied by an earlier block or by the stale ramp): never rewrite them
-            self.late_blocks += 1
-            self._error(f"late block dropped: stamp {stamp} overlaps samples already applied "
-                        f"(next expected {self.next_stamp_ns}; ~/reset starts a new stream)")
-            return
-        if self.next_stamp_ns is not None and stamp > self.next_stamp_ns:
-            self.gap_samples += (stamp - self.next_stamp_ns) // self.period_ns
-        self.last_block_wall = time.monotonic()
         try:
-            block = unpack_block(msg)
-            u = self.guard.apply(block)
-        except (BlockFormatError, BlockRejected) as exc:
-            if isinstance(exc, BlockFormatError):
-                self.malformed_blocks += 1
-                self.guard.counters.rejected_blocks += 1
-            n = int(msg.width) * int(msg.height)
-            held = 0 < n <= self.guard.max_block
-            self._error(f"voltage block rejected ({exc}); " +
-                        (f"holding {self.guard.u_last.tolist()} V for {n} samples" if held else "nothing applied"))
-            if not held:
-                return
-            u = self.guard.hold(n)
-        self.state = "active"
-        self._apply(u, stamp)
+            u = unpack_block(msg, self.axes)
+        except BlockFormatError as exc:
+            self.malformed_blocks += 1
+            self._emit(self.core.on_block(stamp, n=int(msg.width) * int(msg.height), reject=str(exc)))
+            return
+        self._emit(self.core.on_block(stamp, u))
 
-    def _apply(self, u: np.ndarray, stamp: int) -> None:
-        try:
-            y = self.backend.write(u)
-        except BackendError as exc:
-            self._error(f"backend: {exc}")
-            return
-        self.next_stamp_ns = stamp + u.shape[0] * self.period_ns
-        self.last_block_n = u.shape[0]
-        if y is not None:
+    def on_tick(self) -> None:
+        self._emit(self.core.tick() if self.core.started else self.core.start())
+
+    def _emit(self, em) -> None:
+        for stamp, u in em.applied:
+            self.pub_u.publish(pack_block(u, self.axes, stamp))
+        for stamp, y in em.displacement:
             self.pub_y.publish(pack_block(y, self.axes, stamp))
             self._joint_states(y, stamp)
-        self._samples_out += u.shape[0]
+        log = self.get_logger()
+        for level, text in em.log:  # one call site per severity (rclpy refuses a severity change per site)
+            if level >= ERROR:
+                log.error(text)
+            elif level >= WARN:
+                log.warning(text)
+            else:
+                log.info(text)
 
-    def _joint_states(self, y: np.ndarray, stamp: int) -> None:
-        if self._samples_out + y.shape[0] <= self._js_next:
+    def _joint_states(self, y, stamp: int) -> None:
+        n = y.shape[0]
+        before = self._js_count
+        self._js_count += n
+        if self._js_count // self._js_every == before // self._js_every:
             return
-        self._js_next = (self._samples_out + y.shape[0]) // self._js_every * self._js_every + self._js_every
         js = JointState()
-        last = stamp + (y.shape[0] - 1) * self.period_ns
+        last = stamp + (n - 1) * self.core.period_ns
         js.header.stamp.sec, js.header.stamp.nanosec = last // 1_000_000_000, last % 1_000_000_000
         js.header.frame_id = "piezo"
         js.name = list(self.axes)
         js.position = [float(v) for v in y[-1]]
         self.pub_js.publish(js)
 
-    def check_stale(self) -> None:
-        if self.state != "active" or self.last_block_wall is None:
-            return
-        if time.monotonic() - self.last_block_wall < self.limits.stale_timeout:
-            return
-        u_from = self.guard.u_last.tolist()
-        ramp = self.guard.ramp_to_safe()
-        if ramp.shape[0]:
-            self.get_logger().warning(f"no voltage block for {self.limits.stale_timeout} s: ramping "
-                                   f"from {u_from} V to the safe state "
-                                   f"{self.limits.safe_voltage} V in {ramp.shape[0]} samples")
-            for i in range(0, ramp.shape[0], self.last_block_n):
-                self._apply(ramp[i:i + self.last_block_n], self.next_stamp_ns)
-        else:
-            self.guard.counters.safe_ramps += 1
-        self.backend.safe_state()
-        self.state = "safe"
-
     def on_reset(self, request, response):
-        if self.backend.reset():
-            self.guard.reset()
-            self.state, self.next_stamp_ns, self._samples_out, self._js_next = "idle", None, 0, 0
-            self.gap_samples = self.late_blocks = self.malformed_blocks = 0
+        if self.core.reset():
+            self.malformed_blocks, self._js_count = 0, 0
+            self._emit(self.core.tick())
             response.success, response.message = True, "backend and safety state reset"
         else:
-            response.success, response.message = False, f"backend {self.backend.name} cannot be reset"
+            response.success, response.message = False, f"backend {self.backend_name} cannot be reset"
         return response
 
     # -- diagnostics -----------------------------------------------------------------------------------------------
-    def _error(self, text: str) -> None:
-        self.last_error = text
-        self.get_logger().error(text)
-
-    def status(self) -> dict:
-        d = {"state": self.state, **self.guard.counters.as_dict(), "gap_samples": self.gap_samples,
-             "late_blocks": self.late_blocks, "malformed_blocks": self.malformed_blocks,
-             "applied_voltage": self.guard.u_last.tolist(), "next_stamp_ns": self.next_stamp_ns,
-             "last_error": self.last_error}
-        d.update(self.backend.status())
-        return d
+    def check_conflict(self) -> None:
+        """Two graphs on one ROS domain (or two drivers in one namespace) mix their blocks: say so plainly."""
+        others = {t: self.count_publishers(t) - 1 for t in ("displacement", "voltage_applied")}
+        if any(v > 0 for v in others.values()):
+            text = (f"another driver publishes on {self.resolve_topic_name('displacement')} (publishers besides this "
+                    f"one: {others}): two graphs on ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}? Give each "
+                    "graph its own ROS_DOMAIN_ID or namespace (--ros-args -r __ns:=/tube2)")
+            if text != self.conflict:
+                self.get_logger().error(text)
+            self.conflict = text
+        else:
+            self.conflict = ""
 
     def publish_diagnostics(self) -> None:
-        st = self.status()
-        level = DiagnosticStatus.OK
-        if st["rejected_blocks"] or st["late_blocks"] or st["saturated_samples"]:
-            level = DiagnosticStatus.WARN
+        self.check_conflict()
+        st = {**self.core.status(), "malformed_blocks": self.malformed_blocks, "backend": self.backend_name}
+        level, message = self.core.health()
+        if self.conflict:
+            level, message = ERROR, self.conflict
+        st["conflict"] = self.conflict
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
-        arr.status = [DiagnosticStatus(level=level, name=f"{self.get_fully_qualified_name()}", message=self.state,
-                                       hardware_id=self.backend.name, values=diag_values(st))]
+        arr.status = [DiagnosticStatus(level=_LEVEL[level], name=f"{self.get_fully_qualified_name()}",
+                                       message=message, hardware_id=self.backend_name, values=diag_values(st))]
         self.pub_diag.publish(arr)
 
 
 def main(argv=None) -> int:
-    return run_node("driver", DriverNode, lambda n: n.backend.close(), argv)
+    return run_node("driver", DriverNode, lambda n: n.core.close(), argv)
 
 
 if __name__ == "__main__":

@@ -28,16 +28,25 @@ from std_msgs.msg import String
 
 from ..core.config import load_config
 from ..core.recording.mcap_io import McapRecorder
-from .common import LATCHED_QOS, RECORD_QOS, run_node
+from .common import CONFIG_QOS, LATCHED_QOS, RECORD_QOS, run_node
 
-DEFAULT_TOPICS = ["reference", "voltage", "displacement", "experiment", "/diagnostics", "/parameter_events"]
+DEFAULT_TOPICS = ["reference", "voltage", "displacement", "experiment", "/diagnostics", "/parameter_events",
+                  "compensator/config", "voltage_applied"]
 KNOWN_TYPES = {"reference": "sensor_msgs/msg/PointCloud2", "voltage": "sensor_msgs/msg/PointCloud2",
                "displacement": "sensor_msgs/msg/PointCloud2", "experiment": "std_msgs/msg/String",
                "joint_states": "sensor_msgs/msg/JointState", "reference_point": "geometry_msgs/msg/PointStamped",
                "diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
-               "parameter_events": "rcl_interfaces/msg/ParameterEvent"}
+               "parameter_events": "rcl_interfaces/msg/ParameterEvent", "config": "std_msgs/msg/String",
+               "voltage_applied": "sensor_msgs/msg/PointCloud2"}
 #: the experiment markers are transient-local: a recorder started late still gets the current segment
 _LATCHED = {"experiment"}
+#: block topics whose first message gives t0_ns and block_size to the metadata
+_BLOCK_TOPICS = {"reference", "voltage", "displacement"}
+#: chunks hold at most this many bytes of uncompressed records (docs/topics.md): the recorder closes the open
+#: chunk before a message that would take it past (the MCAP writer itself only closes a chunk once it is over)
+CHUNK_LIMIT = 512 * 1024
+_RECORD_OVERHEAD = 64          # message record header in a chunk (31 bytes), with room to spare
+_CHUNK_MARGIN = 8 * 1024       # schema and channel records that may share the chunk
 _EVENTS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 
@@ -77,10 +86,18 @@ class RecorderNode(Node):
             raise ValueError(f"metadata: expected a JSON object ({exc})") from None
         cfg = load_config(cfg_file or None, variant or None)
         Path(out).parent.mkdir(parents=True, exist_ok=True)
-        self.rec = McapRecorder(out, flush_interval=flush)
+        self.rec = McapRecorder(out, flush_interval=flush, chunk_size=CHUNK_LIMIT)
+        self._chunk_bytes = 0
         self.rec.set_metadata({"sample_rate": cfg.sample_rate, "axes": list(cfg.axes), "config_yaml": cfg.to_yaml(),
                                "config_name": cfg.name, "variant": cfg.variant, "git_rev": git_rev(),
-                               "recorder": {"topics": topics, "started_ns": time.time_ns()}, **extra})
+                               "recorder": {"topics": topics, "started_ns": time.time_ns()},
+                               **extra})
+        self.node_parameters = {"recorder": {"output": str(out), "topics": topics, "config_file": cfg_file,
+                                             "variant": variant, "flush_interval": flush}}
+        self.rec.set_metadata({"parameters": self.node_parameters})
+        self.period_ns = int(round(1e9 / cfg.sample_rate))
+        self.t0_ns: int | None = None
+        self.config_versions: list[dict] = []
         self.topics = {self.resolve_topic_name(t): t for t in topics}
         self.types: dict[str, str] = {}
         self.subs = {}
@@ -121,6 +138,8 @@ class RecorderNode(Node):
             return
         last = topic.rsplit("/", 1)[-1]
         qos = LATCHED_QOS if last in _LATCHED else (_EVENTS_QOS if last == "parameter_events" else RECORD_QOS)
+        if type_name == "std_msgs/msg/String" and last == "config":
+            qos = CONFIG_QOS
         self.types[topic] = type_name
         self.counts[topic] = 0
         self.subs[topic] = self.create_subscription(
@@ -132,8 +151,50 @@ class RecorderNode(Node):
             offered = [p.qos_profile for p in self.get_publishers_info_by_topic(topic)]
             self.rec.register_topic(topic, self.types[topic], offered)
         src = info.get("source_timestamp") if isinstance(info, dict) else getattr(info, "source_timestamp", None)
+        size = len(data) + _RECORD_OVERHEAD
+        if self._chunk_bytes and self._chunk_bytes + size > CHUNK_LIMIT - _CHUNK_MARGIN:
+            self.rec.flush()       # close the chunk now: it stays ≤ CHUNK_LIMIT
+            self._chunk_bytes = 0
         self.rec.write(topic, data, log_time_ns=now, publish_time_ns=src or now)
+        self._chunk_bytes += size
         self.counts[topic] += 1
+        last = topic.rsplit("/", 1)[-1]
+        try:
+            if self.t0_ns is None and last in _BLOCK_TOPICS:
+                self._first_block(data)
+            elif last == "config" and self.types.get(topic) == "std_msgs/msg/String":
+                self._config_version(data)
+        except Exception as exc:  # noqa: BLE001 - metadata is best effort; the message itself is recorded
+            self.get_logger().warning(f"{topic}: metadata not updated ({exc})")
+
+    def _first_block(self, data: bytes) -> None:
+        from ..core.recording.blocks import deserialize_block
+
+        stamp, block = deserialize_block(data)[:2]
+        self.t0_ns = int(stamp)
+        self.rec.set_metadata({"t0_ns": self.t0_ns, "block_size": int(block.shape[0])})
+        for v in self.config_versions:
+            v["k0"] = (v["stamp_ns"] - self.t0_ns) // self.period_ns
+        if self.config_versions:
+            self.rec.set_metadata({"config_versions": self.config_versions})
+
+    def _config_version(self, data: bytes) -> None:
+        """A configuration version of the compensator (``~/config``): stored with the sample index where it took
+        effect; ``config_yaml`` becomes the live configuration's (first version), ``parameters`` the node's."""
+        from rclpy.serialization import deserialize_message
+
+        d = json.loads(deserialize_message(data, String).data)
+        entry = {"version": d["version"], "stamp_ns": d["stamp_ns"],
+                 "k0": None if self.t0_ns is None else (d["stamp_ns"] - self.t0_ns) // self.period_ns,
+                 "config_yaml": d["config_yaml"], "parameters": d.get("parameters", {})}
+        self.config_versions = [v for v in self.config_versions if v["version"] != entry["version"]] + [entry]
+        self.config_versions.sort(key=lambda v: v["version"])
+        meta = {"config_versions": self.config_versions}
+        if len(self.config_versions) == 1 or entry["version"] == min(v["version"] for v in self.config_versions):
+            meta["config_yaml"] = entry["config_yaml"]
+            self.node_parameters["compensator"] = entry["parameters"]
+            meta["parameters"] = self.node_parameters
+        self.rec.set_metadata(meta)
 
     def _status(self):
         self.pub_status.publish(String(data=json.dumps({"recording": str(self.rec.path),

@@ -5,7 +5,10 @@ text naming the field — and used from the next start):
 
 - ``trajectory``: the trajectory as JSON or YAML text (``core.trajectories.from_dict`` spec, e.g.
   ``{type: circle, radius: 2.0e-5, frequency: 1.0, revolutions: 3}``; a ``sequence`` of named segments publishes
-  an ``experiment`` marker at each segment start); ``trajectory_file``: the same from a YAML/JSON file (wins when set);
+  an ``experiment`` marker at each segment start); ``trajectory_file``: the same from a YAML/JSON file (wins when set),
+  or a table of samples (``.npy``, or ``.csv`` with a header of axis names) played sample-exactly at ``sample_rate``;
+- ``workspace_m`` (default 1e-4 m): a trajectory reaching beyond ±workspace_m on any axis is refused, naming the
+  field (segments marked ``input: voltage`` are checked against ±``voltage_limit`` V instead); 0 disables;
 - ``mode``: ``realtime`` (paced by the wall clock with sleep-until, stamps follow the wall clock) or ``lockstep`` (as
   fast as the graph answers, deterministic and lossless: at most ``window`` blocks in flight, the next block is
   sent when the ``displacement`` for an earlier one came back);
@@ -37,18 +40,31 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from ..core.config import ConfigError
-from ..core.trajectories import Sequence, Trajectory, from_dict
+from ..core.trajectories import Sequence, Table, Trajectory, check_workspace, from_dict
 from .common import BLOCK_QOS, LATCHED_QOS, dt_ns, pack_block, run_node, stamp_to_ns
 
 DEFAULT_TRAJECTORY = json.dumps({"type": "circle", "radius": 2.0e-5, "frequency": 1.0, "revolutions": 5})
 
 
-def parse_trajectory(text: str = "", file: str = "") -> Trajectory:
-    """Trajectory from spec text (JSON/YAML) or a file; ConfigError naming the field otherwise."""
+def parse_trajectory(text: str = "", file: str = "", sample_rate: float = 20000.0, workspace_m: float = 0.0,
+                     voltage_limit: float | None = None) -> Trajectory:
+    """Trajectory from spec text (JSON/YAML), a spec file or a table file (.npy/.csv, at ``sample_rate``), checked
+    against the workspace; ConfigError naming the field otherwise."""
+    traj = _parse(text, file, sample_rate)
+    check_workspace(traj, workspace_m, voltage_limit, fs=sample_rate)
+    return traj
+
+
+def _parse(text: str, file: str, sample_rate: float) -> Trajectory:
     if file:
         p = Path(file)
         if not p.is_file():
             raise ConfigError("trajectory_file", f"{file}: no such file")
+        if p.suffix.lower() in (".npy", ".csv"):
+            try:
+                return Table(file=str(p), sample_rate=sample_rate)
+            except ConfigError as exc:
+                raise ConfigError(f"trajectory_file.{exc.field}", exc.reason) from None
         text = p.read_text()
     try:
         spec = yaml.safe_load(text) if text.strip() else None
@@ -83,8 +99,12 @@ class TrajectoryNode(Node):
             # `piezo-ff diagnose --apply` → reference_preview.delay_s) lands on time; trajectories are pure
             # functions of the sample index, so the preview is exact
             "preview_s": self.declare_parameter("preview_s", 0.0).value,
+            # workspace: a trajectory beyond ±workspace_m [m] is refused (0: off); voltage segments: ±voltage_limit
+            "workspace_m": self.declare_parameter("workspace_m", 1e-4).value,
+            "voltage_limit": self.declare_parameter("voltage_limit", 200.0).value,
         }
-        self.traj = parse_trajectory(p["trajectory"], p["trajectory_file"])
+        self.traj = parse_trajectory(p["trajectory"], p["trajectory_file"], float(p["sample_rate"]),
+                                     float(p["workspace_m"]), float(p["voltage_limit"]))
         self.fs = float(p["sample_rate"])
         self.period_ns = dt_ns(self.fs)
         t0 = int(p["t0_ns"]) or time.time_ns()
@@ -127,7 +147,11 @@ class TrajectoryNode(Node):
                                           or not isinstance(values["preview_s"], (int, float))
                                           or not 0.0 <= values["preview_s"] <= 1.0):
                 raise ConfigError("preview_s", f"must be a number of seconds in [0, 1], got {values['preview_s']!r}")
-            for name in ("sample_rate", "lockstep_timeout"):
+            for name in ("workspace_m",):
+                if name in values and (isinstance(values[name], bool) or not isinstance(values[name], (int, float))
+                                       or not 0.0 <= values[name] < math.inf):
+                    raise ConfigError(name, f"must be a number of metres >= 0 (0: no check), got {values[name]!r}")
+            for name in ("sample_rate", "lockstep_timeout", "voltage_limit"):
                 if name in values and (isinstance(values[name], bool) or not isinstance(values[name], (int, float))
                                        or not values[name] > 0):
                     raise ConfigError(name, f"must be a number > 0, got {values[name]!r}")
@@ -137,7 +161,9 @@ class TrajectoryNode(Node):
                 text = values.get("trajectory", self.param("trajectory") if self._ready else "")
                 file = values.get("trajectory_file", self.param("trajectory_file") if self._ready else "")
                 if text or file:
-                    traj = parse_trajectory(text, file)
+                    ws = values.get("workspace_m", self.param("workspace_m") if self._ready else 0.0)
+                    vlim = values.get("voltage_limit", self.param("voltage_limit") if self._ready else 200.0)
+                    traj = parse_trajectory(text, file, self.fs if self._ready else 20000.0, float(ws), float(vlim))
                     if self._ready:
                         self.traj = traj
         except ConfigError as exc:
@@ -268,6 +294,7 @@ class TrajectoryNode(Node):
                 if self._stop.is_set() or not loop:
                     break
             self._set_state("stopped" if self._stop.is_set() else "finished", blocks=blocks)
+            self.get_logger().info(f"trajectory {self.state['state']}: {blocks} blocks")
         except TimeoutError as exc:
             self.get_logger().error(str(exc))
             with self._cv:

@@ -19,14 +19,30 @@ __all__ = ["CompensatorCascade"]
 
 
 class _Gain:
+    """A static matrix (stateless stage)."""
+
     def __init__(self, M):
         self.M = np.asarray(M, float)
+
+    @property
+    def n_in(self) -> int:
+        return self.M.shape[1]
+
+    @property
+    def n_out(self) -> int:
+        return self.M.shape[0]
 
     def reset(self):
         pass
 
     def process(self, x):
         return np.ascontiguousarray(x, float) @ self.M.T
+
+    def state(self) -> dict:
+        return {}
+
+    def load_state(self, state) -> None:
+        pass
 
 
 class _Linearizer:
@@ -36,11 +52,25 @@ class _Linearizer:
         self.comp = comp
         self.Dp = np.array(comp.cfg.Dp, float)
 
+    @property
+    def n_in(self) -> int:
+        return self.comp.n_in
+
+    @property
+    def n_out(self) -> int:
+        return self.Dp.shape[0]
+
     def reset(self):
         self.comp.reset()
 
     def process(self, x):
         return self.comp.process(x) @ self.Dp.T
+
+    def state(self) -> dict:
+        return self.comp.state()
+
+    def load_state(self, state) -> None:
+        self.comp.load_state(state)
 
 
 class CompensatorCascade:
@@ -97,10 +127,75 @@ class CompensatorCascade:
     def n_axes(self) -> int:
         return self.cfg.n_axes
 
+    @property
+    def n_in(self) -> int:
+        return self.cfg.n_axes
+
+    @property
+    def n_out(self) -> int:
+        return self.cfg.n_axes
+
+    def stages(self) -> dict:
+        """The enabled compensator stages by name (``vibration``, ``creep``, ``hysteresis``)."""
+        return {k: getattr(self, k) for k in self.STAGES if getattr(self, k) is not None}
+
+    STAGES = ("vibration", "creep", "hysteresis")
+
+    def state(self, names=STAGES) -> dict:
+        """The state of every enabled stage among ``names`` (``{stage: {array name: copy}}``)."""
+        return {k: st.state() for k, st in self.stages().items() if k in names}
+
+    def load_state(self, state) -> None:
+        for k, st_state in state.items():
+            getattr(self, k).load_state(st_state)
+
+    #: the stages whose state describes the plant (re-synchronised on the applied voltage)
+    PLANT_STAGES = ("creep", "hysteresis")
+
+    @property
+    def can_follow(self) -> bool:
+        """True when :meth:`follow_applied` can re-derive the plant-side states (paper order, square Dp)."""
+        dp = np.asarray(self.cfg.hysteresis.Dp, float)
+        return self.cfg.cascade.order == "paper" and dp.shape[0] == dp.shape[1]
+
+    def follow_applied(self, u: np.ndarray) -> None:
+        """Advance the hysteresis and creep stages as if the cascade had output the voltages ``u``.
+
+        The hysteresis inverse's ``h`` and last voltage become the Bouc-Wen state for ``u``, and the creep inverse's
+        Cr state is driven by ``Y_H = Dp·U − h`` — the signal the plant's creep receives.  The vibration stage (a
+        function of the reference alone) is left as it is.  Paper order only (:attr:`can_follow`).
+        """
+        if not self.can_follow:
+            raise ValueError("re-synchronisation on the applied voltage needs cascade.order = paper and a square Dp")
+        u = np.ascontiguousarray(u, dtype=float)
+        if self.hysteresis is not None:
+            yh = self.hysteresis.follow(u)
+        else:
+            yh = u @ np.asarray(self.cfg.hysteresis.Dp, float).T
+        if self.creep is not None:
+            self.creep.follow(yh)
+
+    def last_voltage(self) -> np.ndarray | None:
+        """The last output voltage known to the hysteresis stage (None without one or before the first sample)."""
+        h = self.hysteresis
+        if h is None or not h.bw_state.started[0]:
+            return None
+        return h.bw_state.u_prev.copy()
+
     def reset(self) -> None:
         for st in self._chain:
             if st is not None:
                 st.reset()
+
+    def process_front(self, yr: np.ndarray) -> tuple[np.ndarray, dict]:
+        """Every stage but the last (paper order: ``Y_R → Y_H``); returns the signal and the taps so far."""
+        x = np.ascontiguousarray(yr, dtype=float)
+        out = {}
+        for name, st in zip(self.tap_names[:-1], self._chain[:-1]):
+            if st is not None:
+                x = st.process(x)
+            out[name] = x
+        return x, out
 
     def process(self, yr: np.ndarray, taps: bool = False):
         x = np.ascontiguousarray(yr, dtype=float)

@@ -10,8 +10,9 @@ import numpy as np
 
 from .._jit import njit
 from ..config import CreepConfig
-from ..lti import DiscreteModalSS
+from ..lti import DiscreteModalSS, LTIFilter
 from ..models.creep import discretise_creep
+from ..stage import transfer_linear_state
 
 __all__ = ["CreepCompensator", "creep_inverse_poles"]
 
@@ -39,6 +40,9 @@ class CreepCompensator:
         self._two_axis = self.ss.n_in == 2 and self.ss.n_out == 2 and self.ss.small_blocks
         self._io = self.ss.packed_io()
         self.x = np.zeros(self.ss.n_states)
+        # the Cr filter alone on the same state array: advances x from a given Y_H (re-synchronisation)
+        self._cr = LTIFilter(self.ss)
+        self._cr.x = self.x
 
     @property
     def n_in(self) -> int:
@@ -62,6 +66,22 @@ class CreepCompensator:
             _inverse_affine_run(self.Kinv, self._Ablk, self._offsets, self.ss.sizes, self.ss.B, self.ss.C, self.x,
                                 yl, yh)
         return yh
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The Cr filter state ``x`` (modal coordinates of :attr:`ss`), a copy."""
+        return {"x": self.x.copy()}
+
+    def load_state(self, state) -> None:
+        self.x[:] = state["x"]
+
+    def follow(self, yh: np.ndarray) -> None:
+        """Advance the state as if this stage had output ``yh`` (what the plant's creep actually received)."""
+        self._cr.process(np.ascontiguousarray(yh, dtype=float))
+
+    def continue_from(self, old: "CreepCompensator", u_last=None) -> None:
+        """Bumpless takeover from ``old``: Cr's modes keep their input history (see
+        :func:`~piezo_ff_ros.core.stage.transfer_linear_state`)."""
+        self.x[:] = transfer_linear_state(old.ss, old.x, self.ss, u_last)[0]
 
 
 @njit

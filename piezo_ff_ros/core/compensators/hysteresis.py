@@ -16,7 +16,7 @@ import numpy as np
 
 from .._jit import njit
 from ..config import BoucWenConfig
-from ..models.bouc_wen import BoucWenState, _bw_increment
+from ..models.bouc_wen import BoucWenState, _bw_increment, _bw_model_run, _bw_model_run_2x2
 
 __all__ = ["HysteresisCompensator"]
 
@@ -36,7 +36,7 @@ class HysteresisCompensator:
         self._Dp, self._A, self._B, self._G = p["Dp"], p["A"], p["B"], p["Gamma"]
         self._D1, self._D2, self._P = p["Delta1"], p["Delta2"], p["P"]
         self._Dp_pinv = np.linalg.pinv(self._Dp)
-        self.state = BoucWenState(cfg.n_out, cfg.n_in)
+        self.bw_state = BoucWenState(cfg.n_out, cfg.n_in)
         self._signs = np.ones(cfg.n_out)
         self.fallbacks = 0  #: samples where no sign pattern was consistent (delayed formula used instead)
         # Saturating here (as the amplifier will) keeps the internal h equal to the plant's even when a reference
@@ -55,7 +55,7 @@ class HysteresisCompensator:
         return self.cfg.n_in
 
     def reset(self) -> None:
-        self.state = BoucWenState(self.cfg.n_out, self.cfg.n_in)
+        self.bw_state = BoucWenState(self.cfg.n_out, self.cfg.n_in)
         self._signs[:] = 1.0
         self.fallbacks = 0
         self.saturated = 0
@@ -65,7 +65,7 @@ class HysteresisCompensator:
         if yh.ndim != 2 or yh.shape[1] != self.n_in:
             raise ValueError(f"expected a block of shape [N, {self.n_in}], got {yh.shape}")
         u = np.empty((yh.shape[0], self.n_out))
-        s = self.state
+        s = self.bw_state
         fb = np.zeros(2, np.int64)
         run = _bw_comp_run_2x2 if self.n_in == 2 and self.n_out == 2 else _bw_comp_run
         run(self._Dp, self._Dp_pinv, self._A, self._B, self._G, self._D1, self._D2, self._P,
@@ -76,7 +76,35 @@ class HysteresisCompensator:
 
     @property
     def h(self) -> np.ndarray:
-        return self.state.h.copy()
+        return self.bw_state.h.copy()
+
+    # ``state`` is the Stage method; the Bouc-Wen state object itself is ``bw_state``
+    def state(self) -> dict[str, np.ndarray]:
+        """``h``, the last output voltage, whether a sample was seen, and the last sign pattern (copies)."""
+        s = self.bw_state
+        return {"h": s.h.copy(), "u_prev": s.u_prev.copy(), "started": s.started.copy(), "signs": self._signs.copy()}
+
+    def load_state(self, state) -> None:
+        s = self.bw_state
+        s.h[:] = state["h"]
+        s.u_prev[:] = state["u_prev"]
+        s.started[:] = state["started"]
+        self._signs[:] = state["signs"]
+
+    def continue_from(self, old: "HysteresisCompensator") -> None:
+        """Take over ``old``'s state: h and the last voltage describe the plant, whatever the new parameters."""
+        self.load_state(old.state())
+
+    def follow(self, u: np.ndarray) -> np.ndarray:
+        """Advance the state as if this stage had output the voltages ``u`` (e.g. what the driver applied);
+        returns ``Y_H = Dp·U − h`` consistent with them (the input the creep stage before it should have seen)."""
+        u = np.ascontiguousarray(u, dtype=float)
+        y = np.empty((u.shape[0], self.n_in))
+        hs = np.empty((u.shape[0], self.n_in))
+        s = self.bw_state
+        run = _bw_model_run_2x2 if self.n_in == 2 and self.n_out == 2 else _bw_model_run
+        run(self._Dp, self._A, self._B, self._G, self._D1, self._D2, self._P, s.h, s.u_prev, s.started, u, y, hs)
+        return y
 
 
 @njit

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..lti import DiscreteModalSS, LTIFilter
+from ..stage import transfer_linear_state
 
 __all__ = ["VibrationCompensator"]
 
@@ -42,3 +43,14 @@ class VibrationCompensator:
 
     def process(self, yr: np.ndarray) -> np.ndarray:
         return self.filter.process(yr)
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The filter state ``x`` (modal coordinates of :attr:`ss`), a copy."""
+        return {"x": self.filter.x.copy()}
+
+    def load_state(self, state) -> None:
+        self.filter.x[:] = state["x"]
+
+    def continue_from(self, old: "VibrationCompensator", u_last=None) -> None:
+        """Bumpless takeover from ``old`` (see :func:`~piezo_ff_ros.core.stage.transfer_linear_state`)."""
+        self.filter.x[:] = transfer_linear_state(old.ss, old.filter.x, self.ss, u_last)[0]

@@ -1,9 +1,12 @@
-"""Sim-to-real gap diagnosis (issue 5): where the gap lies, which unmodelled effect causes it, how far it shrinks.
+"""Sim-to-real gap diagnosis (issues 5, 8): where the gap lies, which unmodelled effect causes it (or that it is
+reproducible but unnamed — ``unexplained`` — or not reproducible at all — ``none``), how far it shrinks, and which
+experiment separates two explanations that fit equally well.
 
-``diagnose(cfg, train, test)`` → JSON-ready dict; :mod:`.report` writes the Markdown/PNG report and the corrected
-config (``--apply``).  The candidate effects are the stages of :mod:`piezo_ff_ros.core.models.effects`.
+``diagnose(cfg, train, test)`` → JSON-ready dict; :mod:`.stats` is the held-out test every verdict rests on,
+:mod:`.flexible` the reference model behind the explainable share, :mod:`.discriminate` the experiment proposals,
+:mod:`.report` the Markdown/PNG report and the corrected config (``--apply``).  The candidate effects are the stages
+of :mod:`piezo_ff_ros.core.models.effects`.  Truth generators for benchmarks live under ``bench/``, not here.
 """
 from .engine import DiagnosisOptions, diagnose, json_ready
-from .synthetic import excitation, truth_cases, make_runs
 
-__all__ = ["DiagnosisOptions", "diagnose", "json_ready", "excitation", "truth_cases", "make_runs"]
+__all__ = ["DiagnosisOptions", "diagnose", "json_ready"]

@@ -39,6 +39,7 @@ class FitContext:
     windows: Windows              # where voltage-side fits simulate
     target: np.ndarray = None     # y on the windows, corrected for the windows' truncated history
     y_base_win: np.ndarray = None
+    cache: dict = field(default_factory=dict)  # shared between the candidates fitted on this context
 
     def __post_init__(self):
         if self.windows.is_whole:
@@ -127,12 +128,21 @@ def _lin_per_axis(y: np.ndarray, regs: list[np.ndarray]):
 
 
 def fit_gain_mismatch(ctx: FitContext) -> FitResult:
+    """Per-axis gains and cross-talk: each output's residual regressed on every axis' base output."""
     k = _stride(len(ctx.y))
     r0 = residual(ctx.y[::k], ctx.y_base[::k])
-    coef, res, se = _lin_per_axis(r0, [ctx.y_base[::k]])
-    g = 1.0 + coef[0]
-    return FitResult("gain_mismatch", {"gains": g.tolist()}, {"gains": se[0].tolist()},
-                     [("gain_mismatch", {"gains": g.tolist()})], ctx.cfg.n_axes, _rms(res))
+    n = ctx.cfg.n_axes
+    yb = ctx.y_base[::k]
+    regs = [np.repeat(yb[:, [j]], n, axis=1) for j in range(n)]  # reg j, column i = Ŷ_j (for output i)
+    coef, res, se = _lin_per_axis(r0, regs)  # coef[j, i]: effect of Ŷ_j on output i
+    E = coef.T
+    g = 1.0 + np.diag(E)
+    C = E.copy()
+    np.fill_diagonal(C, 0.0)
+    se_m = se.T.copy()
+    params = {"gains": g.tolist(), "cross_gains": C.tolist()}
+    return FitResult("gain_mismatch", params, {"gains": np.diag(se_m).tolist(), "cross_gains": None},
+                     [("gain_mismatch", params)], n * n, _rms(res))
 
 
 def _creep_regs(y_base: np.ndarray, dt: float, beta: float | None = None):
@@ -221,47 +231,173 @@ def _mode_design(y_base, freq, damping, dt, windows: Windows | None):
     return np.concatenate(outs)
 
 
+#: at most this many modes per fit, and the share of the current training residual a new mode must remove
+MAX_MODES = 4
+MODE_MIN_GAIN = 0.02
+#: a structural mode lies above MODE_FMIN [Hz] and is lightly damped (ζ ≤ MODE_ZMAX): a broad band-pass at the
+#: excitation's own frequencies would otherwise pass for a "mode" while only patching the gain and phase there
+MODE_FMIN = 20.0
+MODE_ZMAX = 0.5
+
+
+def _hp_design(y_base, freq, damping, dt, windows: Windows | None):
+    n = y_base.shape[1]
+    st = fx.UnmodelledMode(freq, damping, np.zeros(n), dt, n)
+    if windows is None or windows.is_whole:
+        return st.highpass(y_base)
+    outs = []
+    for w, s, e in windows.spans:
+        st.reset()
+        outs.append(st.highpass(y_base[w:e])[s - w:])
+    return np.concatenate(outs)
+
+
+def _level_design(y_base, dt, windows: Windows | None):
+    n = y_base.shape[1]
+    st = fx.AmplitudeDependentDynamics(10.0, 0.1, np.zeros(n), np.zeros(n), dt, n)
+    if windows is None or windows.is_whole:
+        return st.level(y_base)
+    outs = []
+    for w, s, e in windows.spans:
+        st.reset()
+        outs.append(st.level(y_base[w:e])[s - w:])
+    return np.concatenate(outs)
+
+
+class _ModeSearch:
+    """Greedy search of resonances in the training residual: each mode adds band-pass regressors of the base
+    output; ``kind='cross'``: output i regresses on BP(Ŷ_j) of every axis j (cross-coupled gains);
+    ``kind='level'``: on BP(Ŷ_i) and A_i(t)·BP(Ŷ_i) (amplitude-dependent)."""
+
+    def __init__(self, ctx: FitContext, kind: str):
+        self.ctx, self.kind = ctx, kind
+        win = ctx.windows
+        r0 = residual(ctx.y, ctx.y_base) if win.is_whole else residual(win.take(ctx.y), win.take(ctx.y_base))
+        self.k = max(1, -(-len(r0) // 60_000))  # rows kept in the regressions (the filters run on every sample)
+        self.r0 = r0[::self.k] - r0[::self.k].mean(axis=0)
+        self.n = ctx.cfg.n_axes
+        self.lev = _level_design(ctx.y_base, ctx.dt, win)[::self.k] if kind == "level" else None
+        self.unit = max(_rms(self.r0), 1e-15)
+
+    def regs(self, f: float, z: float) -> list[np.ndarray]:
+        """Per output i, the regressors [rows, p] this mode adds."""
+        B = _mode_design(self.ctx.y_base, f, z, self.ctx.dt, self.ctx.windows)[::self.k]
+        B = B - B.mean(axis=0)
+        Hp = _hp_design(self.ctx.y_base, f, z, self.ctx.dt, self.ctx.windows)[::self.k]
+        Hp = Hp - Hp.mean(axis=0)
+        if self.kind == "cross":
+            return [np.hstack([B, Hp])] * self.n
+        out = []
+        for i in range(self.n):  # the cross-coupled mode, plus its level-modulated direct terms
+            LB = self.lev[:, i] * B[:, i]
+            LH = self.lev[:, i] * Hp[:, i]
+            out.append(np.column_stack([B, Hp, LB - LB.mean(), LH - LH.mean()]))
+        return out
+
+    def solve(self, modes: list) -> tuple[list, np.ndarray]:
+        """Joint least squares of all modes' gains per output: (coefficients per output, residual)."""
+        R = [self.regs(f, z) for f, z in modes]
+        res = np.empty_like(self.r0)
+        coefs = []
+        for i in range(self.n):
+            X = np.hstack([Ri[i] for Ri in R])
+            c, *_ = np.linalg.lstsq(X, self.r0[:, i], rcond=None)
+            coefs.append(c)
+            res[:, i] = self.r0[:, i] - X @ c
+        return coefs, res
+
+    def run(self, fmin: float, fmax: float) -> tuple[list, list, np.ndarray]:
+        modes: list = []
+        coefs, res = [], self.r0.copy()
+        sse = float(np.sum(res ** 2))
+        freqs = np.geomspace(fmin, fmax, 40)
+        g = max(1, len(res) // 40_000)  # the coarse grid scores on fewer rows
+        for _ in range(MAX_MODES):
+            best = (0.0, None)
+            for f in freqs:
+                for z in (0.01, 0.05, 0.2):
+                    R = self.regs(f, z)
+                    gain = 0.0
+                    for i in range(self.n):
+                        Ri = R[i][::g]
+                        c, *_ = np.linalg.lstsq(Ri, res[::g, i], rcond=None)
+                        gain += float(np.sum((Ri @ c) ** 2)) * g
+                    if gain > best[0]:
+                        best = (gain, (f, z))
+            if best[1] is None or best[0] < MODE_MIN_GAIN * sse:
+                break
+            f0, z0 = best[1]
+
+            def resid(theta, modes=modes):
+                _, rr = self.solve(modes + [(math.exp(theta[0]), math.exp(theta[1]))])
+                return rr.reshape(-1) / self.unit
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                sol = optimize.least_squares(resid, [math.log(f0), math.log(z0)], diff_step=1e-3, max_nfev=12,
+                                             bounds=([math.log(fmin), math.log(1e-3)],
+                                                     [math.log(0.49 / self.ctx.dt), math.log(MODE_ZMAX)]))
+            cand = modes + [(math.exp(sol.x[0]), math.exp(sol.x[1]))]
+            c_new, r_new = self.solve(cand)
+            sse_new = float(np.sum(r_new ** 2))
+            if sse - sse_new < MODE_MIN_GAIN * sse:
+                break
+            modes, coefs, res, sse = cand, c_new, r_new, sse_new
+        return modes, coefs, res
+
+
 def fit_unmodelled_mode(ctx: FitContext) -> FitResult:
-    r_full = residual(ctx.y, ctx.y_base)
-    win = ctx.windows
-    r0 = r_full if win.is_whole else residual(win.take(ctx.y), win.take(ctx.y_base))
     n = ctx.cfg.n_axes
     fs = 1.0 / ctx.dt
     T = len(ctx.y) * ctx.dt
-    fmin = max(2.0, 20.0 / T)
-    freqs = np.geomspace(fmin, 0.45 * fs, 40)
-    best = (np.inf, None)
-    rc = r0 - r0.mean(axis=0)
-    for f in freqs:
-        for z in (0.01, 0.05):
-            X = _mode_design(ctx.y_base, f, z, ctx.dt, win)
-            X = X - X.mean(axis=0)
-            # closed-form per-axis regression: energy removed = <X, r>²/<X, X>
-            v = -float(np.sum(np.sum(X * rc, axis=0) ** 2 / np.maximum(np.sum(X * X, axis=0), 1e-300)))
-            if v < best[0]:
-                best = (v, (f, z))
-    f0, z0 = best[1]
+    fmin = min(max(MODE_FMIN, 20.0 / T), 0.2 * fs)
+    ms = _ModeSearch(ctx, "cross")
+    modes, coefs, res = ms.run(fmin, 0.45 * fs)
+    ctx.cache["modes"] = list(modes)
+    if not modes:
+        raise ValueError("no resonance found in the training residual")
+    K = len(modes)
+    G = np.zeros((K, n, n))
+    Hg = np.zeros((K, n, n))
+    for i in range(n):
+        c = np.asarray(coefs[i]).reshape(K, 2, n)  # per mode: band-pass gains of every axis, then high-pass
+        G[:, i, :] = c[:, 0, :]
+        Hg[:, i, :] = c[:, 1, :]
+    params = {"freq": [m[0] for m in modes] if K > 1 else modes[0][0],
+              "damping": [m[1] for m in modes] if K > 1 else modes[0][1], "gains": G.tolist(),
+              "hp_gains": Hg.tolist()}
+    return FitResult("unmodelled_mode", params, {"freq": None, "damping": None, "gains": None, "hp_gains": None},
+                     [("unmodelled_mode", params)], K * (2 + 2 * n * n), _rms(res),
+                     note=f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}")
 
-    unit = max(_rms(r0), 1e-15)  # scipy's tolerances are absolute: work in units of the base RMS error
 
-    def resid(theta):
-        f, z = math.exp(theta[0]), math.exp(theta[1])
-        X = _mode_design(ctx.y_base, f, z, ctx.dt, win)
-        _, res, _ = _lin_per_axis(r0, [X])
-        return res.reshape(-1) / unit
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        sol = optimize.least_squares(resid, [math.log(f0), math.log(z0)], diff_step=1e-3, max_nfev=40,
-                                     bounds=([math.log(fmin), math.log(1e-3)], [math.log(0.49 * fs), math.log(2.0)]))
-    f, z = math.exp(sol.x[0]), math.exp(sol.x[1])
-    X = _mode_design(ctx.y_base, f, z, ctx.dt, win)
-    coef, res, se_g = _lin_per_axis(r0, [X])
-    se_log = _stderr(sol.jac, res / unit) if sol.jac is not None else np.full(2, np.nan)
-    params = {"freq": f, "damping": z, "gains": coef[0].tolist()}
-    return FitResult("unmodelled_mode", params,
-                     {"freq": float(se_log[0] * f), "damping": float(se_log[1] * z), "gains": se_g[0].tolist()},
-                     [("unmodelled_mode", params)], n + 2, _rms(res))
+def fit_amplitude_dependent_dynamics(ctx: FitContext) -> FitResult:
+    n = ctx.cfg.n_axes
+    fs = 1.0 / ctx.dt
+    T = len(ctx.y) * ctx.dt
+    fmin = min(max(MODE_FMIN, 20.0 / T), 0.2 * fs)
+    ms = _ModeSearch(ctx, "level")
+    if ctx.cache.get("modes"):
+        # the resonances the mode search found on this context; the level terms are then linear
+        modes = ctx.cache["modes"]
+        coefs, res = ms.solve(modes)
+    else:
+        modes, coefs, res = ms.run(fmin, 0.45 * fs)
+    if not modes:
+        raise ValueError("no amplitude-dependent resonance found in the training residual")
+    K = len(modes)
+    G, Hg = np.zeros((K, n, n)), np.zeros((K, n, n))
+    Kl, Kh = np.zeros((K, n)), np.zeros((K, n))
+    for i in range(n):
+        c = np.asarray(coefs[i]).reshape(K, 2 * n + 2)
+        G[:, i, :], Hg[:, i, :] = c[:, :n], c[:, n:2 * n]
+        Kl[:, i], Kh[:, i] = c[:, 2 * n], c[:, 2 * n + 1]
+    params = {"freq": [m[0] for m in modes], "damping": [m[1] for m in modes], "gains": G.tolist(),
+              "hp_gains": Hg.tolist(), "level_gains": Kl.tolist(), "level_hp_gains": Kh.tolist()}
+    return FitResult("amplitude_dependent_dynamics", params,
+                     {k: None for k in params},
+                     [("amplitude_dependent_dynamics", params)], K * (2 + 2 * n * n + 2 * n), _rms(res),
+                     note=f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}")
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -345,11 +481,45 @@ def fit_amplifier_saturation(ctx: FitContext) -> FitResult:
 
 
 def fit_amplifier_bandwidth(ctx: FitContext) -> FitResult:
+    """Shared cutoff for a 1st- and a 2nd-order (ζ = 0.707) roll-off, the better order kept, then one cutoff per
+    axis refined from there (amplifier channels differ)."""
     fs = 1.0 / ctx.dt
+    n = ctx.cfg.n_axes
     # up to 10·fs, where the pole-matched filter is the identity to 1e-27: "no bandwidth limit" is on the grid
     grid = np.linspace(math.log(fs / 2000.0), math.log(10.0 * fs), 14)
-    return _fit_scalar(ctx, "amplifier_bandwidth", "cutoff", lambda z: {"cutoff": math.exp(z)}, grid, math.exp,
-                       math.exp)
+    f1 = _fit_scalar(ctx, "amplifier_bandwidth", "cutoff", lambda z: {"cutoff": math.exp(z), "order": 1}, grid,
+                     math.exp, math.exp)
+    fits = [(f1.train_rms, 1, f1)]
+    c1 = math.log(f1.params["cutoff"])
+    if c1 < math.log(fs):  # a finite roll-off was found: try the 2nd order around it (a 2nd-order corner lies
+        # above the 1st-order one that mimics it), on a short grid
+        grid2 = np.linspace(c1 - 0.5, c1 + 2.0, 6)
+        f2 = _fit_scalar(ctx, "amplifier_bandwidth", "cutoff", lambda z: {"cutoff": math.exp(z), "order": 2},
+                         grid2, math.exp, math.exp)
+        fits.append((f2.train_rms, 2, f2))
+    _, order, best = min(fits, key=lambda t: t[0])
+    c0 = math.log(best.params["cutoff"])
+    if n > 1 and c0 < math.log(fs):
+        unit = max(_rms(residual(ctx.target, ctx.y_base_win)), 1e-15)
+
+        def resid(theta):
+            p = {"cutoff": np.exp(theta).tolist(), "order": order}
+            return ctx.sim_residual([("amplifier_bandwidth", p)]).reshape(-1) / unit
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            sol = optimize.least_squares(resid, np.full(n, c0), diff_step=1e-3, max_nfev=4,
+                                         bounds=(np.full(n, math.log(fs / 4000.0)), np.full(n, math.log(20 * fs))))
+        r = sol.fun.reshape(-1, n) * unit
+        if _rms(r) < best.train_rms:
+            cut = np.exp(sol.x)
+            se = _stderr(sol.jac, r / unit) * cut
+            p = {"cutoff": cut.tolist(), "order": order}
+            return FitResult("amplifier_bandwidth", p, {"cutoff": se.tolist(), "order": None},
+                             [("amplifier_bandwidth", p)], n + 1, _rms(r), note=f"order {order}")
+    p = {"cutoff": [best.params["cutoff"]] * n, "order": order}
+    return FitResult("amplifier_bandwidth", p, {"cutoff": [best.stderr["cutoff"]] * n, "order": None},
+                     [("amplifier_bandwidth", p)], 2, best.train_rms, note=f"order {order}", extra=best.extra)
 
 
 def fit_hysteresis_rate_dependence(ctx: FitContext) -> FitResult:
@@ -380,8 +550,15 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
     r = sol.fun.reshape(-1, n)
     se = _stderr(sol.jac, r) * scale
     p = make(sol.x)
-    return FitResult("hysteresis_asymmetry", p, {"Delta1": se[:n].tolist(), "Delta2": se[n:].tolist()},
-                     [("hysteresis_asymmetry", p)], 2 * n, _rms(r) * unit)
+    # then the even, branch-dependent term, linear given the generalized Bouc-Wen: regression on its regressors
+    y_w = simulate(ctx.cfg, ctx.u, list(ctx.base) + [("hysteresis_asymmetry", p)], ctx.windows)
+    r_w = residual(ctx.target, y_w)
+    q, dq = fx.BranchEvenTerm(0.0, 0.0, ctx.dt, n).terms(y_w)
+    coef, res, se2 = _lin_per_axis(r_w, [q, dq])
+    p = dict(p, even=coef[0].tolist(), branch_even=coef[1].tolist())
+    return FitResult("hysteresis_asymmetry", p, {"Delta1": se[:n].tolist(), "Delta2": se[n:].tolist(),
+                                                 "even": se2[0].tolist(), "branch_even": se2[1].tolist()},
+                     [("hysteresis_asymmetry", p)], 4 * n, _rms(res))
 
 
 CANDIDATES: dict[str, Callable[[FitContext], FitResult]] = {
@@ -394,6 +571,7 @@ CANDIDATES: dict[str, Callable[[FitContext], FitResult]] = {
     "amplifier_saturation": fit_amplifier_saturation,
     "amplifier_bandwidth": fit_amplifier_bandwidth,
     "unmodelled_mode": fit_unmodelled_mode,
+    "amplitude_dependent_dynamics": fit_amplitude_dependent_dynamics,
     "gain_mismatch": fit_gain_mismatch,
 }
 

@@ -1,18 +1,25 @@
-"""The diagnosis: replay, localise, fit the candidate effects on TRAIN, score them on TEST, stack greedily.
+"""The diagnosis: replay, localise, fit the candidate effects on TRAIN, score them on TEST, decide, stack.
 
-Decision rule (why a verdict is not ``none``): on the held-out run the candidate must remove more of the gap than
-noise can explain, i.e. its drop in residual energy must exceed both
+Decision rule (:mod:`.stats` states the test):
 
-* a complexity penalty ``p·ln(N_eff)·σ²·N/N_eff`` (BIC-like, with ``p`` the number of parameters, σ the measured
-  noise floor and ``N_eff`` the effective number of independent samples of the correlated residual), and
-* :data:`MIN_EXCESS_SHRINK` of the gap's excess over the noise floor;
+* every model fitted on TRAIN — each candidate effect and the flexible reference model (:mod:`.flexible`) — gets a
+  held-out z: its drop in TEST residual energy over the standard deviation that drop would have if the residual
+  were noise of the measured spectrum (white, coloured or quantised alike); significant above the one-sided
+  Bonferroni threshold at family-wise α = 1 %;
+* a candidate is **accepted** when it is significant and removes at least :data:`MIN_SHARE` of the explainable
+  held-out gap (the largest drop any model achieves, the flexible one included); the verdict is the best accepted
+  candidate (ranked by held-out residual energy plus a small complexity penalty);
+* nothing accepted but something significant → ``unexplained`` (the gap is reproducible, no candidate names it);
+  nothing significant → ``none``;
+* a runner-up whose held-out residual is not significantly worse than the verdict's (paired z < :data:`TIE_Z`)
+  makes the verdict ambiguous: confidence ``low`` and a proposed discrimination experiment (:mod:`.discriminate`).
 
-and the gap's excess over the noise floor must be positive.  Candidates are ranked by their penalised held-out
-residual energy.  Greedy stacking (each new effect followed by one backfitting pass over the earlier ones) stops
-when the rest is within :data:`STACK_STOP`·σ of the noise floor, when nothing more is accepted, or at ``max_stack``.
+Greedy stacking (each new effect followed by one backfitting pass over the earlier ones) stops when the rest is
+within :data:`STACK_STOP`·σ of the white-noise floor, when nothing more is significant, or at ``max_stack``.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -21,18 +28,44 @@ from typing import Sequence
 import numpy as np
 
 from ..config import PiezoConfig
-from ..models.effects import EFFECTS
+from ..models.effects import EFFECTS, build_plant
 from ..recording.run import RunData
+from . import discriminate as disc
+from . import stats
 from .candidates import CANDIDATES, FitContext, FitResult, fit_candidate, n_eff_ratio
+from .flexible import fit_flexible
 from .replay import (Windows, check_run, input_period, model_for_run, noise_floor, noise_floor_periodic,
                      nrmse_percent, residual, simulate)
 from .where import localise
 
-__all__ = ["DiagnosisOptions", "diagnose", "signatures", "MIN_EXCESS_SHRINK", "NOISE_MARGIN"]
+__all__ = ["DiagnosisOptions", "diagnose", "signatures", "MIN_SHARE", "TIE_Z", "NOISE_MARGIN"]
 
-MIN_EXCESS_SHRINK = 0.2
+#: an accepted candidate removes at least this share of the explainable held-out gap
+MIN_SHARE = 0.5
+#: a richer candidate ranks above the simpler one it contains only with a paired z >= TIE_Z and this much less
+#: held-out residual energy
+RICHER_MIN_GAIN = 0.05
+#: an accepted candidate removes at least this share of the held-out gap above the white-noise floor ("explains"
+#: it, not merely nibbles at it); "high" confidence needs HIGH_EXCESS_SHRINK
+MIN_EXCESS_SHRINK = 0.25
+HIGH_EXCESS_SHRINK = 0.6
+#: a significant model also removes at least this share of the held-out residual energy
+MIN_DROP = 0.01
+#: a runner-up within this paired z of the verdict explains the held-out run about as well: ambiguous
+TIE_Z = 2.0
+#: "high" confidence: z above the threshold by this margin, this share of the explainable gap, this paired z
+HIGH_Z_MARGIN = 3.0
+HIGH_SHARE = 0.7
+HIGH_PAIRED_Z = 4.0
+#: candidates flexible enough to absorb other dynamics (several free resonances): their verdict is at most medium
+GENERIC = ("unmodelled_mode", "amplitude_dependent_dynamics")
+#: informational: the held-out gap is "at the white-noise floor" within this factor (RMS)
 NOISE_MARGIN = 1.05
 STACK_STOP = 1.01
+#: above this many held-out samples, localisation and signatures use stretches of the run
+LOCALISE_SAMPLES = 300_000
+#: a stacked effect must also remove this share of what is left above the white-noise floor
+STACK_MIN_SHARE = 0.1
 
 
 @dataclass
@@ -47,10 +80,17 @@ class DiagnosisOptions:
     candidates: Sequence[str] = tuple(CANDIDATES)
     fit_samples: int = 240_000
     score_samples: int = 480_000
+    #: runs longer than this many samples (a 10-minute 20 kHz record has 12 M) fit on ``long_fit_samples`` and
+    #: score on ``long_score_samples``: a fixed time budget, the parameters of an effect that lasts the whole run
+    #: are as well determined by 8 windows of 15 k samples as of 30 k
+    long_run_samples: int = 2_000_000
+    long_fit_samples: int = 120_000
+    long_score_samples: int = 240_000
     n_windows: int = 8
     warmup_s: float = 0.5
     max_stack: int = 3
     stack_pool: int = 4
+    flexible: bool = True
     verbose: bool = False
 
 
@@ -143,10 +183,12 @@ def signatures(u: np.ndarray, y_hat: np.ndarray, r: np.ndarray, dt: float, sigma
     du = np.gradient(u[:, :k], dt, axis=0)
     if k < n:
         du = np.column_stack([du] + [du[:, :1]] * (n - k))
-    sig = {"gain": abs(_corr(r, yh)),
-           "delay": abs(_partial_corr(r, dy, [yh])),
-           "even_harmonics": abs(_partial_corr(r, yh ** 2, [yh])),
-           "rate": abs(_partial_corr(r, np.sign(du) * np.abs(du), [yh, dy]))}
+    k_ = max(1, len(r) // 200_000)  # correlations on every k-th row: the derivatives are taken on the whole run
+    rs, yhs, dys, dus = r[::k_], yh[::k_], dy[::k_], du[::k_]
+    sig = {"gain": abs(_corr(rs, yhs)),
+           "delay": abs(_partial_corr(rs, dys, [yhs])),
+           "even_harmonics": abs(_partial_corr(rs, yhs ** 2, [yhs])),
+           "rate": abs(_partial_corr(rs, np.sign(dus) * np.abs(dus), [yhs, dys]))}
     e = np.sum(r ** 2, axis=1)
     tot = float(e.sum()) or 1.0
     rate = np.abs(du).max(axis=1)
@@ -176,28 +218,63 @@ def signatures(u: np.ndarray, y_hat: np.ndarray, r: np.ndarray, dt: float, sigma
 SIGNATURE_OF = {"gain_mismatch": "gain", "input_delay": "delay", "hysteresis_asymmetry": "even_harmonics",
                 "hysteresis_rate_dependence": "rate", "amplifier_slew_limit": "slew",
                 "amplifier_saturation": "saturation", "creep_nonlinearity": "slow_trend",
-                "thermal_drift": "slow_trend", "unmodelled_mode": "resonance_peak", "amplifier_bandwidth": "delay"}
+                "thermal_drift": "slow_trend", "unmodelled_mode": "resonance_peak", "amplifier_bandwidth": "delay",
+                "amplitude_dependent_dynamics": "resonance_peak"}
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# Main entry point
+# Scoring and the decision
 # ----------------------------------------------------------------------------------------------------------------
 
-def _score(fit: FitResult, held: _Held, sigma2: float, t0: float) -> _Scored:
+def _evaluate(fit: FitResult, held: _Held, t0: float) -> _Scored:
     r_after = held.score(fit.effects)
     sse_b = float(np.sum(held.r_before ** 2))
     sse_a = float(np.sum(r_after ** 2))
-    N = r_after.size
-    ratio = n_eff_ratio(r_after)
-    n_eff = max(N / ratio, 2.0)
-    penalty = fit.n_params * math.log(n_eff) * sigma2 * ratio
-    excess = sse_b - N * sigma2
-    accepted = (sse_b - sse_a > penalty) and (sse_b - sse_a > MIN_EXCESS_SHRINK * max(excess, 0.0)) and excess > 0
-    return _Scored(fit, sse_b, sse_a, penalty, held.nrmse(held.r_before), held.nrmse(r_after), bool(accepted),
+    return _Scored(fit, sse_b, sse_a, 0.0, held.nrmse(held.r_before), held.nrmse(r_after), False,
                    time.perf_counter() - t0, {"r_after": r_after})
 
 
-def _fit_all(cfg, train, y_base_train, base, names, held, sigma2, opts, log):
+def _judge(scored: list, flex: "_Scored | None", held: _Held, sigma2: float, zc: float) -> "stats.NoisePSD":
+    """z of every held-out improvement (noise spectrum from the best residual), share of the explainable gap,
+    acceptance; sorts ``scored`` best first.  Returns the noise spectrum used."""
+    pool = list(scored) + ([flex] if flex is not None else [])
+    r_best = min((s.extra["r_after"] for s in pool), key=lambda r: float(np.sum(r ** 2)), default=held.r_before)
+    if float(np.sum(r_best ** 2)) > float(np.sum(held.r_before ** 2)):
+        r_best = held.r_before
+    psd = stats.noise_psd(r_best)
+    for s in pool:
+        s.extra["delta"], s.extra["sd"], s.extra["z"] = stats.improvement_z(held.r_before, s.extra["r_after"], psd)
+    explainable = max([s.extra["delta"] for s in pool] + [0.0])
+    N = held.r_before.size
+    ratio = n_eff_ratio(r_best)
+    excess = max(float(np.sum(held.r_before ** 2)) - N * sigma2, 1e-300)
+    for s in pool:
+        s.extra["excess_shrink"] = s.extra["delta"] / excess
+    for s in scored:
+        s.extra["share"] = s.extra["delta"] / explainable if explainable > 0 else 0.0
+        s.penalty = s.fit.n_params * math.log(max(N / ratio, 2.0)) * sigma2 * ratio
+        s.accepted = bool(_significant(s, zc) and s.extra["share"] >= MIN_SHARE
+                          and s.extra["excess_shrink"] >= MIN_EXCESS_SHRINK)
+    scored.sort(key=lambda s: s.sse_after + s.penalty)
+    # a richer candidate that nests a simpler one must beat it clearly on held-out data to rank above it
+    for i in range(len(scored)):
+        for j in range(i + 1, len(scored)):
+            rich, simple = scored[i], scored[j]
+            if (rich.fit.effect, simple.fit.effect) in RICHER and simple.accepted and \
+                    (stats.paired_z(rich.extra["r_after"], simple.extra["r_after"], psd) < TIE_Z
+                     or rich.sse_after > (1 - RICHER_MIN_GAIN) * simple.sse_after):
+                scored[i], scored[j] = simple, rich
+    return psd
+
+
+def _significant(s: _Scored, zc: float) -> bool:
+    """Statistically (z above the threshold) *and* practically (removes ≥ MIN_DROP of the held-out residual
+    energy) significant: a tiny but 'significant' drop is what structured noise — coarse quantisation is a
+    deterministic function of the signal — gives a model correlated with the signal."""
+    return bool(s.extra["z"] > zc and s.extra["delta"] >= MIN_DROP * s.sse_before)
+
+
+def _fit_all(cfg, train, y_base_train, base, names, held, opts, log):
     fs = train.sample_rate
     win = Windows.spread(len(train), opts.fit_samples, opts.n_windows, int(opts.warmup_s * fs))
     ctx = FitContext(cfg, list(base), train.u, train.y, y_base_train, win)
@@ -206,41 +283,68 @@ def _fit_all(cfg, train, y_base_train, base, names, held, sigma2, opts, log):
         t0 = time.perf_counter()
         try:
             fit = fit_candidate(name, ctx)
-            s = _score(fit, held, sigma2, t0)
+            s = _evaluate(fit, held, t0)
         except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
             log(f"  {name}: fit failed ({exc})")
             continue
-        log(f"  {name:28s} held-out {s.before_nrmse:7.3f} % -> {s.after_nrmse:7.3f} %  "
-            f"{'accepted' if s.accepted else 'rejected'}  ({s.seconds:.1f} s)")
+        log(f"  {name:28s} held-out {s.before_nrmse:7.3f} % -> {s.after_nrmse:7.3f} %  ({s.seconds:.1f} s)")
         scored.append(s)
-    scored.sort(key=lambda s: s.sse_after + s.penalty)
     return scored
 
 
-def _confidence(best: _Scored, runner: _Scored | None, sigma2: float, N: int) -> tuple[str, str]:
-    ex_b = best.sse_before - N * sigma2
-    ex_best = max(best.sse_after - N * sigma2, 0.0)
-    shrink = 1 - ex_best / ex_b if ex_b > 0 else 0.0
-    if runner is None:
-        return "high" if shrink > 0.5 else "medium", f"it removes {100 * shrink:.0f} % of the gap above the noise"
-    ex_run = max(runner.sse_after - N * sigma2, 0.0)
-    margin = (ex_run + 1e-30) / (ex_best + 1e-3 * max(ex_b, 1e-30))
-    why = (f"it removes {100 * shrink:.0f} % of the held-out gap above the noise floor; the runner-up "
-           f"({runner.fit.effect}) leaves {margin:.3g}× as much excess")
-    if shrink > 0.5 and margin > 2.0:
+def _fit_flexible(cfg, train, y_train_nom, held: _Held, test_ext: RunData, y_ext_nom, opts, log):
+    """The flexible reference model on TRAIN, scored on TEST like a candidate (``None`` if it cannot be fitted)."""
+    t0 = time.perf_counter()
+    fs = cfg.sample_rate
+    win = Windows.spread(len(train), opts.fit_samples, opts.n_windows, int(opts.warmup_s * fs))
+    try:
+        fm = fit_flexible(train.u, train.y, y_train_nom, win, fs)
+        d = fm.predict(test_ext.u, y_ext_nom, held.windows)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        log(f"  flexible model failed ({exc})")
+        return None
+    r_after = residual(held.r_before, d)
+    fit = FitResult("flexible", {}, {}, [], fm.n_features * cfg.n_axes, float("nan"))
+    s = _Scored(fit, float(np.sum(held.r_before ** 2)), float(np.sum(r_after ** 2)), 0.0,
+                held.nrmse(held.r_before), held.nrmse(r_after), False, time.perf_counter() - t0,
+                {"r_after": r_after, "ridge": fm.ridge})
+    log(f"  {'(flexible reference model)':28s} held-out {s.before_nrmse:7.3f} % -> {s.after_nrmse:7.3f} %  "
+        f"({s.seconds:.1f} s, {fm.n_features} features per output)")
+    return s
+
+
+def _confidence(best: _Scored, runner: "_Scored | None", tie_z: float | None, zc: float) -> tuple[str, str]:
+    """high / medium / low from how clearly the verdict beats noise, how much of the explainable gap it takes and
+    how clearly it beats the runner-up on the held-out run (paired z)."""
+    z, share = best.extra["z"], best.extra["share"]
+    why = (f"held-out improvement z = {z:.3g} (threshold {zc:.2f}); it takes {100 * min(share, 9.99):.0f} % of "
+           f"the explainable held-out gap")
+    if runner is None or tie_z is None:
+        tie_z = math.inf
+    else:
+        why += f"; it beats the runner-up ({runner.fit.effect}) by z = {tie_z:.3g}"
+    why += f"; it removes {100 * best.extra['excess_shrink']:.0f} % of the gap above the white-noise floor"
+    if z > zc + HIGH_Z_MARGIN and share >= HIGH_SHARE and tie_z >= HIGH_PAIRED_Z and \
+            best.extra["excess_shrink"] >= HIGH_EXCESS_SHRINK:
+        if best.fit.effect in GENERIC:
+            return "medium", why + (f"; capped at medium: {best.fit.effect} is a generic filter family that can "
+                                    "absorb other dynamics")
         return "high", why
-    if shrink > 0.3 and margin > 1.2:
+    if share >= MIN_SHARE and tie_z >= TIE_Z:
         return "medium", why
     return "low", why
 
 
 def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: DiagnosisOptions | None = None,
-             log=None, test_history: RunData | None = None) -> dict:
-    """Diagnose the gap between ``cfg`` and the measured runs; returns the JSON-ready result (issue 5 §5).
+             log=None, test_history: RunData | None = None, discriminate: RunData | None = None) -> dict:
+    """Diagnose the gap between ``cfg`` and the measured runs; returns the JSON-ready result (issue 5 §5, issue 8).
 
     ``test_history``: the part of the same record that precedes ``test`` (``--data`` split: the training part).
     Its voltages drive the model before the held-out part so that the held-out part does not start from an
     unknown state (creep has time constants of minutes); only the held-out samples are scored.
+
+    ``discriminate``: a third run (e.g. the experiment a previous diagnosis proposed) on which the candidates that
+    tie on ``test`` are compared; the one that explains it better becomes the verdict.
 
     The result also carries, under the key ``"_arrays"`` (not JSON), the arrays the report plots.
     """
@@ -253,11 +357,20 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
     if abs(test.sample_rate - cfg.sample_rate) > 1e-6 * cfg.sample_rate:
         raise ValueError(f"train is sampled at {cfg.sample_rate:g} Hz but test at {test.sample_rate:g} Hz")
     model_for_run(cfg, test)
+    if discriminate is not None:
+        check_run(discriminate, "discriminate")
+        model_for_run(cfg, discriminate)
+        if abs(discriminate.sample_rate - cfg.sample_rate) > 1e-6 * cfg.sample_rate:
+            raise ValueError(f"discriminate: sampled at {discriminate.sample_rate:g} Hz, train at "
+                             f"{cfg.sample_rate:g} Hz")
     unknown = [c for c in opts.candidates if c not in CANDIDATES]
     if unknown:
         raise ValueError(f"unknown candidate effect(s) {unknown}; known: {list(CANDIDATES)}")
     fs = cfg.sample_rate
     axes = tuple(cfg.axes)
+    if max(len(train), len(test)) > opts.long_run_samples:
+        opts = dataclasses.replace(opts, fit_samples=min(opts.fit_samples, opts.long_fit_samples),
+                                   score_samples=min(opts.score_samples, opts.long_score_samples))
     # the held-out run, extended by its history when it was split from a longer record
     H = 0
     test_ext = test
@@ -268,6 +381,14 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
                            np.vstack([test_history.y, test.y]), test.axes)
 
     def sim_test(effects):
+        # displacement-side effects only: applied to the nominal output, no need to re-run the plant
+        if all(EFFECTS[e].position == "post" for e, _ in effects):
+            plant = build_plant(cfg, effects)
+            y = y_ext_nom
+            for st in plant.post:
+                st.reset()
+                y = st.process(y)
+            return y[H:]
         return simulate(cfg, test_ext.u, effects)[H:]
 
     # 1. replay
@@ -282,21 +403,63 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
     sigma2 = float(np.mean(sigma ** 2))
     log(f"replay: train {nrmse_percent(train.y - train.y.mean(0), y_train_nom - y_train_nom.mean(0)):.3f} %, "
         f"test {nrmse_percent(test.y - test.y.mean(0), y_test_nom - y_test_nom.mean(0)):.3f} % NRMSE; "
-        f"noise floor {np.round(sigma * 1e9, 1).tolist()} nm by {noise_method} ({time.perf_counter() - t_start:.1f} s)")
+        f"white noise floor {np.round(sigma * 1e9, 1).tolist()} nm by {noise_method} "
+        f"({time.perf_counter() - t_start:.1f} s)")
     # 2. where
-    where = localise(test.u, test.y, y_test_nom, cfg.dt, axes, sigma)
+    # a long run is localised on 8 contiguous stretches spread over it (LOCALISE_SAMPLES in all): descriptive
+    # statistics do not need every sample, and the 10-minute run must stay fast
+    lw = Windows.spread(len(test), LOCALISE_SAMPLES, 8)
+    lt = (lambda x: x) if lw.is_whole else lw.take
+    where = localise(lt(test.u), lt(test.y), lt(y_test_nom), cfg.dt, axes, sigma)
+    if not lw.is_whole:
+        where["sampled_on"] = f"{lw.n} samples in {len(lw.spans)} stretches spread over the held-out run"
     where["train_nrmse_percent"] = nrmse_percent(train.y - train.y.mean(0), y_train_nom - y_train_nom.mean(0))
-    sig = signatures(test.u, y_test_nom, r_test, cfg.dt, sigma)
+    sig = signatures(lt(test.u), lt(y_test_nom), residual(lt(test.y), lt(y_test_nom)), cfg.dt, sigma)
+    log(f"localised ({time.perf_counter() - t_start:.1f} s)")
     # 3. which: fit on TRAIN, score on TEST
     score_win = Windows.spread(len(test), opts.score_samples, opts.n_windows, int(opts.warmup_s * fs), offset=H)
     held = _Held(cfg, test_ext, [], score_win, y_ext_nom)
     N = held.r_before.size
-    # informational: whether the gap is within NOISE_MARGIN of the noise floor (acceptance itself is the test)
-    at_floor = math.sqrt(float(np.mean(held.r_before ** 2))) <= NOISE_MARGIN * math.sqrt(sigma2)
     log("candidates (fitted on train, scored on test):")
-    scored = _fit_all(cfg, train, y_train_nom, [], list(opts.candidates), held, sigma2, opts, log)
+    scored = _fit_all(cfg, train, y_train_nom, [], list(opts.candidates), held, opts, log)
+    flex = _fit_flexible(cfg, train, y_train_nom, held, test_ext, y_ext_nom, opts, log) if opts.flexible else None
+    n_tests = len(scored) + (flex is not None)
+    zc = stats.z_critical(n_tests)
+    psd = _judge(scored, flex, held, sigma2, zc)
     accepted = [s for s in scored if s.accepted]
+    significant = [s for s in scored + ([flex] if flex is not None else []) if _significant(s, zc)]
     verdict = accepted[0] if accepted else None
+    # near ties: another effect that explains the held-out run about as well (paired test)
+    ties = []
+    runner, tie_z = None, None
+    if verdict is not None:
+        others = [s for s in scored if s is not verdict and s.extra["delta"] > 0]
+        for s in others:
+            s.extra["paired_z"] = stats.paired_z(verdict.extra["r_after"], s.extra["r_after"], psd)
+        if others:
+            runner = min(others, key=lambda s: s.extra["paired_z"])
+            tie_z = runner.extra["paired_z"]
+        ties = [s for s in others if s.extra["paired_z"] < TIE_Z and _significant(s, zc)
+                and not _nested(verdict.fit.effect, s.fit.effect)]
+    discrimination = None
+    if verdict is not None and ties:
+        discrimination = {"ambiguous_between": [verdict.fit.effect] + [s.fit.effect for s in ties],
+                          "paired_z": {s.fit.effect: s.extra["paired_z"] for s in ties}}
+        if discriminate is not None:
+            pick = disc.decide_on_run(cfg, [verdict] + ties, discriminate)
+            discrimination["decided_on_run"] = pick
+            winner = next(s for s in [verdict] + ties if s.fit.effect == pick["winner"])
+            log(f"discrimination run: {pick['summary']}")
+            if winner is not verdict:
+                verdict = winner
+            runner = None
+            tie_z = pick["paired_z"] if pick["paired_z"] is not None else None
+        else:
+            try:
+                discrimination["experiment"] = disc.propose(cfg, verdict.fit, [s.fit for s in ties], psd, sigma,
+                                                            test.u)
+            except (ValueError, np.linalg.LinAlgError) as exc:  # the proposal is advice: never fail the diagnosis
+                discrimination["experiment"] = {"error": str(exc)}
     # 4. greedy stacking
     stack = []
     base = []
@@ -305,16 +468,29 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
         fits = [verdict.fit]
         stack.append({"effect": verdict.fit.effect, "params": _fmt_params(verdict.fit),
                       "heldout_nrmse_percent": verdict.after_nrmse})
-        pool = [s.fit.effect for s in scored if s.fit.effect != verdict.fit.effect][:opts.stack_pool]
+        pool = [s.fit.effect for s in scored if s.fit.effect != verdict.fit.effect and s.extra["z"] > 0
+                and not _nested(verdict.fit.effect, s.fit.effect)][:opts.stack_pool]
+        r_k = verdict.extra["r_after"]
         while len(stack) < opts.max_stack and pool:
+            if math.sqrt(float(np.mean(r_k ** 2))) <= STACK_STOP * math.sqrt(sigma2):
+                break  # the rest is at the white-noise floor: nothing left to stack
             held_k = _Held(cfg, test_ext, base, score_win,
                            simulate(cfg, test_ext.u, base) if not score_win.is_whole else None)
             if math.sqrt(float(np.mean(held_k.r_before ** 2))) <= STACK_STOP * math.sqrt(sigma2):
                 break
             log(f"stacking on {[e for e, _ in base]}:")
             y_tr = simulate(cfg, train.u, base)
-            sc = _fit_all(cfg, train, y_tr, base, pool, held_k, sigma2, opts, log)
-            acc = [s for s in sc if s.accepted]
+            sc = _fit_all(cfg, train, y_tr, base, pool, held_k, opts, log)
+            if not sc:
+                break
+            psd_k = stats.noise_psd(min((s.extra["r_after"] for s in sc), key=lambda r: float(np.sum(r ** 2))))
+            excess = float(np.sum(held_k.r_before ** 2)) - held_k.r_before.size * sigma2
+            acc = []
+            for s in sc:
+                s.extra["delta"], _, s.extra["z"] = stats.improvement_z(held_k.r_before, s.extra["r_after"], psd_k)
+                if s.extra["z"] > zc and s.extra["delta"] > STACK_MIN_SHARE * max(excess, 0.0):
+                    acc.append(s)
+            acc.sort(key=lambda s: s.sse_after)
             if not acc:
                 break
             best = acc[0]
@@ -323,14 +499,15 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
             # alone absorbs part of the ones found later (a delay fitted under a gain error is biased, etc.)
             win = Windows.spread(len(train), opts.fit_samples, opts.n_windows, int(opts.warmup_s * fs))
             for i in range(len(fits) - 1):
-                others = [e for j, f in enumerate(fits) if j != i for e in f.effects]
+                others_fx = [e for j, f in enumerate(fits) if j != i for e in f.effects]
                 try:
-                    ctx = FitContext(cfg, others, train.u, train.y, simulate(cfg, train.u, others), win)
+                    ctx = FitContext(cfg, others_fx, train.u, train.y, simulate(cfg, train.u, others_fx), win)
                     fits[i] = fit_candidate(fits[i].effect, ctx)
                 except (ValueError, np.linalg.LinAlgError) as exc:  # keep the earlier fit
                     log(f"  backfit of {fits[i].effect} failed ({exc})")
             base = [e for f in fits for e in f.effects]
-            after = held.nrmse(held.score(base))
+            r_k = held.score(base)
+            after = held.nrmse(r_k)
             log(f"  added {best.fit.effect}; after backfitting the stack leaves {after:.3f} %")
             stack = [{"effect": f.effect, "params": _fmt_params(f), "heldout_nrmse_percent": e["heldout_nrmse_percent"]}
                      for f, e in zip(fits, stack)]
@@ -341,17 +518,51 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
     y_test_verdict = sim_test(verdict.fit.effects) if verdict is not None else y_test_nom
     y_test_final = y_test_verdict if len(stack) <= 1 else sim_test(base)
     r_final = residual(test.y, y_test_final)
-    runner = next((s for s in scored if verdict is not None and s is not verdict), None)
-    conf, why = ("n/a", "")
-    if verdict is not None:
-        conf, why = _confidence(verdict, runner, sigma2, N)
-    elif at_floor:
-        why = "the held-out gap is at the measured noise floor and no candidate removes a significant part of it"
-    else:
-        why = ("no candidate removes more of the held-out gap than noise and its number of parameters explain"
-               + (f" (best: {scored[0].fit.effect}, {scored[0].before_nrmse:.3g} % -> {scored[0].after_nrmse:.3g} %)"
-                  if scored else ""))
     noise_nrmse = float(100 * math.sqrt(N * sigma2) / max(held.den, 1e-300))
+    # the explainable share: what the flexible model (fitted on TRAIN) removes on TEST
+    explainable = None
+    if flex is not None:
+        sse_b = flex.sse_before
+        explainable = {
+            "share_percent": 100 * flex.extra["delta"] / sse_b if sse_b > 0 else 0.0,
+            "after_nrmse_percent": flex.after_nrmse,
+            "before_nrmse_percent": flex.before_nrmse,
+            "z": flex.extra["z"],
+            "significant": _significant(flex, zc),
+            "model": "ridge regression of the residual on a filter bank (difference, low-passes, resonators) of "
+                     "every voltage and every nominal output, fitted on TRAIN",
+        }
+    # the verdict
+    if verdict is not None:
+        name = verdict.fit.effect
+        conf, why = _confidence(verdict, runner, tie_z, zc)
+        if discrimination is not None and "decided_on_run" not in discrimination:
+            conf = "low"
+            why += (f"; ambiguous with {', '.join(s.fit.effect for s in ties)} on this held-out run — run the "
+                    "proposed discrimination experiment")
+    elif significant:
+        name = "unexplained"
+        best_c = max(scored, key=lambda s: s.extra["delta"]) if scored else None
+        fz = flex.extra["z"] if flex is not None else 0.0
+        why = (f"the held-out gap is reproducible (flexible model z = {fz:.3g}, threshold {zc:.2f}) but no "
+               f"candidate explains at least {100 * MIN_SHARE:.0f} % of what can be explained and "
+               f"{100 * MIN_EXCESS_SHRINK:.0f} % of the gap above the white-noise floor")
+        if best_c is not None:
+            why += f" (best: {best_c.fit.effect}, {100 * max(best_c.extra['share'], 0):.0f} %)"
+        # never high: "no candidate takes half" also happens when a candidate's fit on TRAIN went astray
+        conf = "medium" if (fz > zc + HIGH_Z_MARGIN and (best_c is None or best_c.extra["share"] < 0.25)) \
+            else "low"
+    else:
+        name = "none"
+        zmax = max([s.extra["z"] for s in scored] + ([flex.extra["z"]] if flex is not None else []) + [-math.inf])
+        why = (f"no model fitted on TRAIN reproduces the held-out gap beyond noise (largest z = {zmax:.3g}, "
+               f"threshold {zc:.2f}, or less than {100 * MIN_DROP:g} % of the residual energy; the noise spectrum "
+               "is measured, so coloured noise is allowed for)")
+        at_floor = math.sqrt(float(np.mean(held.r_before ** 2))) <= NOISE_MARGIN * math.sqrt(sigma2)
+        conf = "high" if (zmax < zc - 1.0 and at_floor) else "medium"
+        if not at_floor:
+            why += (f"; the gap is {math.sqrt(float(np.mean(held.r_before ** 2)) / max(sigma2, 1e-300)):.3g}× the "
+                    "white-noise floor: coloured or drifting noise, not reproducible from the training run")
     ranking = []
     for s in scored:
         ranking.append({
@@ -363,13 +574,18 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
             "n_params": s.fit.n_params,
             "train_rms_um": s.fit.train_rms * 1e6,
             "heldout_shrink_percent": 100 * (1 - s.sse_after / s.sse_before) if s.sse_before > 0 else 0.0,
-            "signature": {"name": SIGNATURE_OF[s.fit.effect], "value": sig.get(SIGNATURE_OF[s.fit.effect])},
+            "z": s.extra["z"],
+            "explainable_share_percent": 100 * s.extra.get("share", 0.0),
+            "excess_shrink_percent": 100 * s.extra.get("excess_shrink", 0.0),
+            "paired_z_vs_verdict": s.extra.get("paired_z"),
+            "signature": {"name": SIGNATURE_OF.get(s.fit.effect, ""), "value": sig.get(SIGNATURE_OF.get(s.fit.effect, ""))},
             "explanation": EFFECTS[s.fit.effect].signature,
+            "note": s.fit.note,
             "fit_seconds": s.seconds,
         })
     stacked_nrmse = nrmse_percent(test.y - test.y.mean(0), y_test_final - y_test_final.mean(0))
     result = {
-        "verdict": verdict.fit.effect if verdict is not None else "none",
+        "verdict": name,
         "confidence": conf,
         "confidence_reason": why,
         "heldout": {
@@ -380,6 +596,15 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
             "noise_floor_method": noise_method,
             "scored_on_samples": int(held.r_before.shape[0]),
         },
+        "test": {
+            "name": "held-out improvement z-test against the residual's own noise spectrum (Welch), one-sided, "
+                    f"Bonferroni over {n_tests} models at family-wise alpha = {stats.ALPHA:g}",
+            "z_critical": zc,
+            "min_share_of_explainable": MIN_SHARE,
+            "min_drop_of_residual_energy": MIN_DROP,
+        },
+        "explainable": explainable,
+        "discrimination": discrimination,
         "ranking": ranking,
         "stack": stack,
         "where": where,
@@ -397,6 +622,17 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
         f"{result['heldout']['after_nrmse_percent']:.3f} % (stacked {stacked_nrmse:.3f} %, noise "
         f"{noise_nrmse:.3f} %) in {result['seconds']:.1f} s")
     return result
+
+
+def _nested(a: str, b: str) -> bool:
+    """Whether one of two candidates contains the other as a special case (then they are not rival explanations
+    to discriminate: the simpler one stands unless the richer one is better on held-out data)."""
+    return frozenset((a, b)) in NESTED
+
+
+#: (richer, simpler): the simpler candidate is a special case of the richer one
+RICHER = {("amplitude_dependent_dynamics", "unmodelled_mode")}
+NESTED = {frozenset(p) for p in RICHER}
 
 
 def json_ready(result: dict) -> dict:

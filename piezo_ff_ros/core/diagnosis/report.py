@@ -218,15 +218,20 @@ def _table(rows, header) -> str:
 
 
 def _pfmt(params: dict) -> str:
+    def f(x):
+        if isinstance(x, (list, tuple)):
+            return "[" + ", ".join(f(a) for a in x) + "]"
+        return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.4g}"
+
     parts = []
     for k, v in params.items():
         val, se, unit = v["value"], v.get("stderr"), v.get("unit", "")
-
-        def f(x):
-            return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.4g}"
-        if isinstance(val, list):
-            s = ", ".join(f"{f(a)} ± {f(b)}" for a, b in zip(val, se or [None] * len(val)))
+        if isinstance(val, list) and isinstance(se, list) and len(se) == len(val) and \
+                not any(isinstance(a, list) for a in val):
+            s = ", ".join(f"{f(a)} ± {f(b)}" for a, b in zip(val, se))
             parts.append(f"{k} = [{s}] {unit}")
+        elif se is None or isinstance(val, list):
+            parts.append(f"{k} = {f(val)} {unit}")
         else:
             parts.append(f"{k} = {f(val)} ± {f(se)} {unit}")
     return "; ".join(parts)
@@ -245,6 +250,31 @@ def write_report(res: dict, outdir, tracking: dict | None = None, apply_notes=No
     L.append(f"Held-out gap: **{h['before_nrmse_percent']:.3g} % → {h['after_nrmse_percent']:.3g} %** NRMSE with "
              f"the verdict; {h['stacked_after_nrmse_percent']:.3g} % with all stacked effects; the noise floor "
              f"alone is {h['noise_floor_nrmse_percent']:.3g} %.")
+    t = res.get("test") or {}
+    if t:
+        L.append("")
+        L.append(f"Test: {t['name']} (z > {t['z_critical']:.2f}; an accepted effect also takes ≥ "
+                 f"{100 * t['min_share_of_explainable']:.0f} % of the explainable gap).")
+    e = res.get("explainable")
+    if e:
+        L.append("")
+        L.append(f"Explainable share: a flexible model fitted on the training run ({e['model']}) removes "
+                 f"**{e['share_percent']:.3g} %** of the held-out residual energy ({e['before_nrmse_percent']:.3g} % → "
+                 f"{e['after_nrmse_percent']:.3g} %, z = {e['z']:.3g}).")
+    d = res.get("discrimination")
+    if d:
+        L += ["", "## Ambiguity", "",
+              f"Nearly the same held-out fit: {', '.join(f'`{x}`' for x in d['ambiguous_between'])} (paired z "
+              + ", ".join(f"{k} {v:.3g}" for k, v in d["paired_z"].items()) + ")."]
+        if d.get("decided_on_run"):
+            L.append(f"Decided on the discrimination run: {d['decided_on_run']['summary']}.")
+        exp = d.get("experiment") or {}
+        if "design" in exp:
+            L.append(f"Proposed experiment **{exp['design']}** ({exp['purpose']}): {exp['duration_s']:.4g} s, "
+                     f"expected RMS difference {exp['expected_rms_difference_um']:.3g} µm between the two "
+                     f"explanations (z ≈ {exp['expected_z']:.3g}). " +
+                     (f"Trajectory: `{exp['file']}`; play it with `{exp['command']}`, then rerun with "
+                      f"`--discriminate RUN`." if exp.get("file") else ""))
     L += ["", "## Where", "", w["summary"], ""]
     L.append(_table([[a, f"{v['nrmse_percent']:.3g}", f"{100 * v['energy_share']:.0f} %", f"{v['rms_um']:.3g}",
                       f"{v['noise_floor_um']:.3g}"] for a, v in w["axis"].items()],

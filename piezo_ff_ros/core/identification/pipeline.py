@@ -51,7 +51,9 @@ def build_config(base: PiezoConfig, hyst, creep, dyn, sample_rate: float, axes) 
                    ).validate()
 
 
-def _fits_report(hf, cf, df, axes):
+def fits_report(hf, cf, df, axes) -> dict:
+    """Held-out fit [%] per stage and axis/entry of identified stages (None where not finite)."""
+
     def clean(d):
         return {k: (None if v is None or not np.isfinite(v) else round(float(v), 3)) for k, v in d.items()}
 
@@ -128,7 +130,7 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
                            axes=axes, progress=say)
     timing["dynamics"] = time.perf_counter() - t0
     cfg = build_config(base, hf, cf, df, fs, axes)
-    report = {"fit_percent": _fits_report(hf, cf, df, axes),
+    report = {"fit_percent": fits_report(hf, cf, df, axes),
               "orders": {"creep": cf.orders, "dynamics": df.orders}, "timing_s": timing}
     if groups["plant"]["validation"]:
         t0 = time.perf_counter()
@@ -181,86 +183,16 @@ def commission_sim(plant, fs: float, axes=("x", "y"), settings=None, base: Piezo
                    progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, dict, list]:
     """Characterise and identify stage by stage on a sim plant (``process``/``reset``), as in Fig. 3.
 
-    Returns ``(config, report, runs)``; ``runs`` are tagged so :func:`identify_all` can redo the identification.
+    The sequence of :func:`piezo_ff_ros.core.commissioning.commission` on a
+    :class:`~piezo_ff_ros.core.commissioning.SimRig`, without the H∞ synthesis.  Returns ``(config, report, runs)``;
+    ``runs`` are tagged so :func:`identify_all` can redo the identification.
     """
-    from ..characterisation import (CharacterisationSettings, creep_trajectories, dynamics_trajectories,
-                                    hysteresis_trajectories, plant_validation_trajectory, run_open_loop)
-    from ..compensators.creep import CreepCompensator
-    from ..compensators.hysteresis import HysteresisCompensator
+    from ..commissioning import SimRig, commission
 
-    say = progress or (lambda s: None)
-    s = settings or CharacterisationSettings()
-    base = base or load_config()
-    runs: list[RunData] = []
-    t_all = time.perf_counter()
-
-    say("characterise hysteresis on S0 (sines)")
-    ht = hysteresis_trajectories(s, axes)
-    for role in ("fit", "validation"):
-        for name, tr in ht[role]:
-            r = run_open_loop(plant, tr, fs, name, axes)
-            r.u = r.reference.copy()
-            r.meta.update(stage="hysteresis", role=role)
-            runs.append(r)
-    hyst_runs = [r for r in runs if r.meta["stage"] == "hysteresis"]
-    hf = identify_bouc_wen([r for r in hyst_runs if r.meta["role"] == "fit"],
-                           [r for r in hyst_runs if r.meta["role"] == "validation"], generalized=generalized,
-                           progress=say)
-
-    say(f"characterise creep on S_H ({s.creep_duration:g} s steps up and down per axis)")
-    hcomp = HysteresisCompensator(hf.config)
-    for name, tr, score_t in creep_trajectories(s, axes):
-        r = run_open_loop(plant, tr, fs, name, axes, chain=[hcomp])
-        k = int(round(score_t * fs))
-        fit = r.slice(0, k)
-        fit.meta.update(stage="creep", role="fit")
-        r.meta.update(stage="creep", role="validation", score_start=k)
-        runs += [fit, r]
-        say(f"  {name}: {len(r)} samples")
-    creep_runs = [r for r in runs if r.meta["stage"] == "creep"]
-    cf = identify_creep([r for r in creep_runs if r.meta["role"] == "fit"],
-                        [r for r in creep_runs if r.meta["role"] == "validation"], order=creep_order, axes=axes,
-                        progress=say)
-
-    if refine_hysteresis:
-        say("hysteresis: refit Bouc-Wen on S0 with the identified creep removed from the output")
-        hf = refit_hysteresis_without_creep(hyst_runs, cf.config, generalized=generalized, init=hf, progress=say)
-        hcomp = HysteresisCompensator(hf.config)
-
-    say("characterise dynamics on S_L (steps up and down per axis)")
-    ccomp = CreepCompensator(cf.config, 1.0 / fs)
-    for name, tr, score_t in dynamics_trajectories(s, axes):
-        r = run_open_loop(plant, tr, fs, name, axes, chain=[ccomp, hcomp])
-        if refine_hysteresis:
-            r.meta["hysteresis_compensator"] = REFIT_TAG
-        k = int(round(score_t * fs))
-        fit = r.slice(0, k)
-        fit.meta.update(stage="dynamics", role="fit")
-        r.meta.update(stage="dynamics", role="validation", score_start=k)
-        runs += [fit, r]
-    dyn_runs = [r for r in runs if r.meta["stage"] == "dynamics"]
-    df = identify_dynamics([r for r in dyn_runs if r.meta["role"] == "fit"],
-                           [r for r in dyn_runs if r.meta["role"] == "validation"], order=dynamics_order, axes=axes,
-                           progress=say)
-    cfg = build_config(base, hf, cf, df, fs, axes)
-    report = {"fit_percent": _fits_report(hf, cf, df, axes), "orders": {"creep": cf.orders, "dynamics": df.orders}}
-
-    say("validate the whole identified plant on a held-out voltage record (multisine + step pair)")
-    ptraj = plant_validation_trajectory(s, axes)
-    pv = run_open_loop(plant, ptraj, fs, "plant_validation", axes)
-    pv.u = pv.reference.copy()
-    pv.meta.update(stage="plant", role="validation")
-    runs.append(pv)
-    report["fit_percent"]["plant"] = plant_fit(cfg, [pv])
-    report["plant_fit_basis"] = "measured output" + (" (with sensor noise)" if _noise(plant) > 0 else "")
-    y_ref = pv.y
-    clean = _noise_free_copy(plant) if _noise(plant) > 0 else None
-    if clean is not None:
-        y_ref = clean.process(pv.u)
-        report["plant_fit_noise_free"] = plant_fit(cfg, [pv], [y_ref])
-    report["plant_fit_parts"] = _part_fits(cfg, pv, y_ref, ptraj, axes)
-    report["timing_s"] = {"total": time.perf_counter() - t_all}
-    return cfg, report, runs
+    res = commission(SimRig(plant, fs, axes), base=base, settings=settings, generalized=generalized,
+                     creep_order=creep_order, dynamics_order=dynamics_order, refine_hysteresis=refine_hysteresis,
+                     synthesize=False, progress=progress)
+    return res.config, res.report, res.runs
 
 
 def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg, generalized: bool = False, init=None,
@@ -282,20 +214,7 @@ def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg, gene
     return identify_bouc_wen(out["fit"], out["validation"], generalized=generalized, init=init, progress=progress)
 
 
-def _noise(plant) -> float:
-    return float(getattr(plant, "noise_std", 0.0) or 0.0)
-
-
-def _noise_free_copy(plant):
-    """The same :class:`~..models.plant.Plant` without sensor noise (None for any other kind of plant)."""
-    from ..models.plant import Plant
-
-    if not isinstance(plant, Plant):
-        return None
-    return Plant(plant.cfg, pre=plant.pre, post=plant.post, noise_std=0.0, stages=plant.stages)
-
-
-def _part_fits(cfg: PiezoConfig, run: RunData, y_ref: np.ndarray, traj, axes) -> dict:
+def part_fits(cfg: PiezoConfig, run: RunData, y_ref: np.ndarray, traj, axes) -> dict:
     """Whole-plant fit on each part of the validation record (multisine: hysteresis loops and G_L in the band;
     step pair: creep and the G_L transients), to see which stage limits the whole-record figure."""
     from .metrics import fit_percent

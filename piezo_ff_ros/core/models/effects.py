@@ -26,7 +26,8 @@ from .bouc_wen import _bw_increment  # the core increment (same maths, no per-sa
 
 __all__ = [
     "InputDelay", "AmplifierSlewLimit", "AmplifierSaturation", "AmplifierBandwidth", "GainMismatch",
-    "ThermalDrift", "CreepNonlinearity", "UnmodelledMode", "HysteresisStage", "EffectSpec", "EFFECTS",
+    "ThermalDrift", "CreepNonlinearity", "UnmodelledMode", "AmplitudeDependentDynamics", "BranchEvenTerm",
+    "HysteresisStage", "EffectSpec", "EFFECTS",
     "EFFECT_NAMES", "build_plant", "RATE_REF", "CREEP_TAUS", "CREEP_YREF",
 ]
 
@@ -38,6 +39,11 @@ RATE_SMOOTHING = 1.0e-3
 CREEP_TAUS = (0.1, 1.0, 10.0, 100.0)
 #: reference displacement of the amplitude-dependent creep term [m]
 CREEP_YREF = 10e-6
+#: level of the amplitude-dependent dynamics: |Y| low-passed over LEVEL_TAU [s], in units of LEVEL_REF [m]
+LEVEL_TAU = 0.05
+LEVEL_REF = 10e-6
+#: direction of motion of the asymmetric loop's even term: sign of Y minus Y low-passed over this [s]
+DIRECTION_TAU = 2e-3
 
 
 def _block(x, n: int | None = None) -> np.ndarray:
@@ -148,38 +154,73 @@ class AmplifierSaturation:
 
 
 @njit
-def _lp1_run(u, y_prev, started, a, out):  # pragma: no cover - compiled
+def _ap2_run(u, state, started, g, a1, a2, out):  # pragma: no cover - compiled
+    """Per column j: ``y[k] = g_j·u[k] − a1_j·y[k−1] − a2_j·y[k−2]``, started settled at the first input."""
     N, n = u.shape
     for t in range(N):
         for j in range(n):
             if not started[0]:
-                y_prev[j] = u[t, j]
-            y_prev[j] = a * y_prev[j] + (1.0 - a) * u[t, j]
-            out[t, j] = y_prev[j]
+                state[0, j] = u[t, j]
+                state[1, j] = u[t, j]
+            y = g[j] * u[t, j] - a1[j] * state[0, j] - a2[j] * state[1, j]
+            state[1, j] = state[0, j]
+            state[0, j] = y
+            out[t, j] = y
         started[0] = True
 
 
-class AmplifierBandwidth:
-    """First-order amplifier bandwidth ``1/(s/ωc + 1)`` on the voltage (pole-matched, unit DC gain).
+def _pole_matched(cutoff: float, order: int, damping: float, dt: float) -> tuple[float, float, float]:
+    """Unit-DC-gain all-pole discretisation (poles ``e^{pT}``) of a 1st/2nd-order low-pass: (g, a1, a2).
 
-    The filter starts settled at the first voltage it sees.
+    As the cutoff grows beyond the sample rate the poles go to 0 and the filter to the identity, so "no bandwidth
+    limit" is a point of the parameter space (unlike a ZOH or bilinear discretisation)."""
+    w = 2.0 * math.pi * cutoff
+    if order == 1:
+        a = math.exp(-w * dt)
+        return 1.0 - a, -a, 0.0
+    z = damping
+    if z < 1.0:
+        r = math.exp(-z * w * dt)
+        a1 = -2.0 * r * math.cos(w * dt * math.sqrt(1.0 - z * z))
+        a2 = r * r
+    else:
+        s = math.sqrt(z * z - 1.0)
+        p1, p2 = -w * (z - s), -w * (z + s)
+        a1 = -(math.exp(p1 * dt) + math.exp(p2 * dt))
+        a2 = math.exp((p1 + p2) * dt)
+    return 1.0 + a1 + a2, a1, a2
+
+
+class AmplifierBandwidth:
+    """Amplifier roll-off on the voltage: first order ``1/(s/ωc + 1)`` or second order
+    ``ωc²/(s² + 2ζωc·s + ωc²)`` (``order=2``, damping ``ζ``), with a cutoff per axis or shared.
+
+    Pole-matched, unit DC gain, started settled at the first voltage it sees.  Unlike a pure delay it attenuates
+    (≈ (f/fc)²/2 at order 1) and rounds steps instead of shifting them.
     """
 
-    def __init__(self, cutoff: float, dt: float, n_axes: int = 2):
-        if not (math.isfinite(cutoff) and cutoff > 0):
+    def __init__(self, cutoff, dt: float, n_axes: int = 2, order: int = 1, damping: float = 1 / math.sqrt(2)):
+        c = _per_axis(cutoff, n_axes, "amplifier_bandwidth.cutoff")
+        if not np.all(c > 0):
             raise ValueError(f"amplifier_bandwidth.cutoff: must be > 0 Hz, got {cutoff!r}")
-        self.cutoff, self.dt, self.n = float(cutoff), float(dt), n_axes
-        self._a = math.exp(-2.0 * math.pi * self.cutoff * self.dt)
+        if int(order) not in (1, 2):
+            raise ValueError(f"amplifier_bandwidth.order: must be 1 or 2, got {order!r}")
+        if not (math.isfinite(damping) and damping > 0):
+            raise ValueError(f"amplifier_bandwidth.damping: must be > 0, got {damping!r}")
+        self.cutoff, self.dt, self.n = c, float(dt), n_axes
+        self.order, self.damping = int(order), float(damping)
+        co = np.array([_pole_matched(float(f), self.order, self.damping, self.dt) for f in c])
+        self._g, self._a1, self._a2 = (np.ascontiguousarray(co[:, i]) for i in range(3))
         self.reset()
 
     def reset(self) -> None:
-        self._prev = np.zeros(self.n)
+        self._state = np.zeros((2, self.n))
         self._started = np.zeros(1, np.bool_)
 
     def process(self, u):
         u = _block(u, self.n)
         out = np.empty_like(u)
-        _lp1_run(u, self._prev, self._started, self._a, out)
+        _ap2_run(u, self._state, self._started, self._g, self._a1, self._a2, out)
         return out
 
 
@@ -188,17 +229,29 @@ class AmplifierBandwidth:
 # --------------------------------------------------------------------------------------------------------------
 
 class GainMismatch:
-    """Per-axis gain error of the whole chain (piezo coefficient, sensor calibration): ``Y_i ← g_i·Y_i``."""
+    """Gain error of the whole chain (piezo coefficient, amplifier gains, sensor calibration and cross-talk):
+    ``Y_i ← g_i·Y_i + Σ_{j≠i} c_ij·Y_j``.
 
-    def __init__(self, gains, n_axes: int = 2):
+    ``gains`` per axis; ``cross_gains`` an n×n matrix whose diagonal is ignored (default none).
+    """
+
+    def __init__(self, gains, n_axes: int = 2, cross_gains=None):
         self.n = n_axes
         self.gains = _per_axis(gains, n_axes, "gain_mismatch.gains")
+        C = np.zeros((n_axes, n_axes)) if cross_gains is None else np.asarray(cross_gains, float)
+        if C.shape != (n_axes, n_axes) or not np.all(np.isfinite(C)):
+            raise ValueError(f"gain_mismatch.cross_gains: expected a finite {n_axes}x{n_axes} matrix, got "
+                             f"{cross_gains!r}")
+        self.G = C.copy()
+        np.fill_diagonal(self.G, self.gains)
+        self._diag = not np.any(C - np.diag(np.diag(C)))
 
     def reset(self) -> None:
         pass
 
     def process(self, y):
-        return _block(y, self.n) * self.gains
+        y = _block(y, self.n)
+        return y * self.gains if self._diag else y @ self.G.T
 
 
 class ThermalDrift:
@@ -301,34 +354,204 @@ def _bandpass_coeffs(freq: float, damping: float, dt: float):
     return b0, b1, b2, a1, a2
 
 
-class UnmodelledMode:
-    """A structural resonance the nominal G_L lacks: ``Y_i ← Y_i + g_i·BP(Y_i)``.
+def _highpass_coeffs(freq: float, damping: float, dt: float):
+    """Bilinear (prewarped at ω) discretisation of ``s²/(s² + 2ζωs + ω²)`` (0 at DC, 1 far above ω)."""
+    w = 2 * math.pi * freq
+    K = w / math.tan(w * dt / 2)
+    a0 = K * K + 2 * damping * w * K + w * w
+    b0 = K * K / a0
+    a1 = (2 * w * w - 2 * K * K) / a0
+    a2 = (K * K - 2 * damping * w * K + w * w) / a0
+    return b0, -2.0 * b0, b0, a1, a2
 
-    ``BP(s) = 2ζωs/(s² + 2ζωs + ω²)``: no static effect, peak gain ``g_i`` at ``freq`` [Hz] with damping ``ζ``.
+
+def _modes_spec(freq, damping, dt: float, name: str):
+    """Validated lists of mode frequencies and dampings (scalars mean one mode)."""
+    f = np.atleast_1d(np.asarray(freq, float)).reshape(-1)
+    z = np.atleast_1d(np.asarray(damping, float)).reshape(-1)
+    if z.size == 1 and f.size > 1:
+        z = np.full(f.size, float(z[0]))
+    if f.size == 0 or z.size != f.size:
+        raise ValueError(f"{name}.damping: expected {f.size} value(s), got {damping!r}")
+    for fi in f:
+        if not (math.isfinite(fi) and 0 < fi < 0.5 / dt):
+            raise ValueError(f"{name}.freq: must be in (0, Nyquist={0.5 / dt:g}) Hz, got {freq!r}")
+    for zi in z:
+        if not (math.isfinite(zi) and 0 < zi < 5):
+            raise ValueError(f"{name}.damping: must be in (0, 5), got {damping!r}")
+    return f, z
+
+
+def _mode_gains(gains, K: int, n: int, name: str) -> np.ndarray:
+    """Gains as [K, n, n] (output i, input j); a per-axis list (one mode) or [K][n] means diagonal."""
+    g = np.asarray(gains, float)
+    if g.ndim <= 1 and K == 1:
+        return np.diag(_per_axis(g, n, name))[None]
+    if g.ndim == 2 and g.shape == (K, n):
+        return np.stack([np.diag(row) for row in g])
+    if g.shape == (K, n, n) and np.all(np.isfinite(g)):
+        return g
+    raise ValueError(f"{name}: expected {n} per-axis gains (one mode), [{K}][{n}] or [{K}][{n}][{n}], got "
+                     f"shape {g.shape}")
+
+
+class UnmodelledMode:
+    """Structural resonances the nominal G_L lacks: ``Y_i ← Y_i + Σ_m Σ_j (g_mij·BP_m + h_mij·HP_m)(Y_j)``.
+
+    ``BP_m(s) = 2ζ_mω_m·s/(s² + 2ζ_mω_m·s + ω_m²)``: unit peak gain at ``freq[m]`` [Hz];
+    ``HP_m(s) = s²/(s² + 2ζ_mω_m·s + ω_m²)``.  Both vanish at DC, so together they are any second-order correction
+    with that pole pair and no static effect — a resonance, or a pole–zero pair (anti-resonance) in series, which
+    leaves a gain change above it.  ``freq``/``damping``: scalars (one mode) or lists (several); ``gains`` and
+    ``hp_gains`` (default 0): per axis (one mode), ``[K][n]`` or ``[K][n][n]`` (output i through axis j:
+    cross-coupled modes).
     """
 
-    def __init__(self, freq: float, damping: float, gains, dt: float, n_axes: int = 2):
-        if not (math.isfinite(freq) and 0 < freq < 0.5 / dt):
-            raise ValueError(f"unmodelled_mode.freq: must be in (0, Nyquist={0.5 / dt:g}) Hz, got {freq!r}")
-        if not (math.isfinite(damping) and 0 < damping < 5):
-            raise ValueError(f"unmodelled_mode.damping: must be in (0, 5), got {damping!r}")
-        self.n, self.dt, self.freq, self.damping = n_axes, float(dt), float(freq), float(damping)
-        self.gains = _per_axis(gains, n_axes, "unmodelled_mode.gains")
-        self._c = _bandpass_coeffs(self.freq, self.damping, self.dt)
+    def __init__(self, freq, damping, gains, dt: float, n_axes: int = 2, hp_gains=None):
+        self.n, self.dt = n_axes, float(dt)
+        self.freqs, self.dampings = _modes_spec(freq, damping, self.dt, "unmodelled_mode")
+        self.freq, self.damping = float(self.freqs[0]), float(self.dampings[0])
+        K = len(self.freqs)
+        self.G = _mode_gains(gains, K, n_axes, "unmodelled_mode.gains")
+        self.H = np.zeros_like(self.G) if hp_gains is None else _mode_gains(hp_gains, K, n_axes,
+                                                                            "unmodelled_mode.hp_gains")
+        self._c = [_bandpass_coeffs(float(f), float(z), self.dt) for f, z in zip(self.freqs, self.dampings)]
+        self._ch = [_highpass_coeffs(float(f), float(z), self.dt) for f, z in zip(self.freqs, self.dampings)]
         self.reset()
 
     def reset(self) -> None:
-        self._z = np.zeros((2, self.n))
+        self._z = [np.zeros((2, self.n)) for _ in self._c]
+        self._zh = [np.zeros((2, self.n)) for _ in self._c]
 
-    def bandpass(self, y):
+    def highpass(self, y, m: int = 0):
+        """``HP_m`` of every column of ``y`` (advances mode ``m``'s high-pass state)."""
         y = _block(y, self.n)
         out = np.empty_like(y)
-        _biquad_run(y, *self._c, self._z, out)
+        _biquad_run(y, *self._ch[m], self._zh[m], out)
+        return out
+
+    def bandpass(self, y, m: int = 0):
+        """``BP_m`` of every column of ``y`` (advances mode ``m``'s state)."""
+        y = _block(y, self.n)
+        out = np.empty_like(y)
+        _biquad_run(y, *self._c[m], self._z[m], out)
         return out
 
     def process(self, y):
         y = _block(y, self.n)
-        return y + self.bandpass(y) * self.gains
+        out = y.copy()
+        for m in range(len(self._c)):
+            out += self.bandpass(y, m) @ self.G[m].T
+            if np.any(self.H[m]):
+                out += self.highpass(y, m) @ self.H[m].T
+        return out
+
+
+@njit
+def _level_run(y, a, state, started, out):  # pragma: no cover - compiled
+    N, n = y.shape
+    for t in range(N):
+        for j in range(n):
+            v = abs(y[t, j])
+            if not started[0]:
+                state[j] = v
+            state[j] = a * state[j] + (1.0 - a) * v
+            out[t, j] = state[j]
+        started[0] = True
+
+
+class AmplitudeDependentDynamics:
+    """Resonances whose shape moves with the motion's level (softening/hardening, damping growing with
+    amplitude): the :class:`UnmodelledMode` correction plus level-modulated terms,
+    ``Y_i ← Y_i + Σ_m Σ_j (g_mij·BP_m + h_mij·HP_m)(Y_j) + Σ_m A_i(t)·(k_mi·BP_m + l_mi·HP_m)(Y_i)``.
+
+    ``A_i(t)`` = the level of axis i, ``|Y_i|`` low-passed over :data:`LEVEL_TAU` and divided by
+    :data:`LEVEL_REF` (dimensionless).  A pole pair shifted by δω, δζ at level A changes the response, to first
+    order, by A times a combination of the band-pass and high-pass terms around ω — the ``k``, ``l`` terms.
+    ``gains``/``hp_gains``: as for :class:`UnmodelledMode`; ``level_gains``/``level_hp_gains``: ``[K][n]``.
+    """
+
+    def __init__(self, freq, damping, gains, level_gains, dt: float, n_axes: int = 2, hp_gains=None,
+                 level_hp_gains=None):
+        self.n, self.dt = n_axes, float(dt)
+        self.freqs, self.dampings = _modes_spec(freq, damping, self.dt, "amplitude_dependent_dynamics")
+        K = len(self.freqs)
+        name = "amplitude_dependent_dynamics"
+        self.base = UnmodelledMode(self.freqs, self.dampings,
+                                   _mode_gains(gains, K, n_axes, f"{name}.gains"), dt, n_axes,
+                                   None if hp_gains is None else _mode_gains(hp_gains, K, n_axes, f"{name}.hp_gains"))
+
+        def diag(v, what):
+            return np.diagonal(_mode_gains(v, K, n_axes, f"{name}.{what}"), axis1=1, axis2=2).copy()
+        self.Kl = diag(level_gains, "level_gains")
+        self.Kh = np.zeros_like(self.Kl) if level_hp_gains is None else diag(level_hp_gains, "level_hp_gains")
+        self._a = math.exp(-self.dt / LEVEL_TAU)
+        self.reset()
+
+    def reset(self) -> None:
+        self.base.reset()
+        self._lev = np.zeros(self.n)
+        self._started = np.zeros(1, np.bool_)
+
+    def level(self, y):
+        """``A(t)`` of every column (advances the level state)."""
+        y = _block(y, self.n)
+        out = np.empty_like(y)
+        _level_run(y, self._a, self._lev, self._started, out)
+        return out / LEVEL_REF
+
+    def process(self, y):
+        y = _block(y, self.n)
+        lev = self.level(y)
+        out = y.copy()
+        b = self.base
+        for m in range(len(b._c)):
+            bp = b.bandpass(y, m)
+            hp = b.highpass(y, m)
+            out += bp @ b.G[m].T + hp @ b.H[m].T + lev * (bp * self.Kl[m] + hp * self.Kh[m])
+        return out
+
+
+class BranchEvenTerm:
+    """The even, branch-dependent part of an asymmetric loop: ``Y_i += (e_i + b_i·D_i(t))·Y_i²/LEVEL_REF`` with
+    ``D_i = sign(Y_i − LP(Y_i))`` the direction of motion (LP over :data:`DIRECTION_TAU`): an ascending and a
+    descending branch bent differently, which a point-symmetric loop cannot have.  Part of
+    ``hysteresis_asymmetry`` (parameters ``even``, ``branch_even``)."""
+
+    def __init__(self, even, branch_even, dt: float, n_axes: int = 2):
+        self.n, self.dt = n_axes, float(dt)
+        self.even = _per_axis(even, n_axes, "hysteresis_asymmetry.even")
+        self.branch = _per_axis(branch_even, n_axes, "hysteresis_asymmetry.branch_even")
+        self._a = math.exp(-self.dt / DIRECTION_TAU)
+        self.reset()
+
+    def reset(self) -> None:
+        self._lp = np.zeros(self.n)
+        self._started = np.zeros(1, np.bool_)
+
+    def terms(self, y):
+        """(q, D·q) of every column, q = Y²/LEVEL_REF (advances the direction state)."""
+        y = _block(y, self.n)
+        lp = np.empty_like(y)
+        _lp1_run(y, self._lp, self._started, self._a, lp)
+        q = y * y / LEVEL_REF
+        return q, np.sign(y - lp) * q
+
+    def process(self, y):
+        y = _block(y, self.n)
+        q, dq = self.terms(y)
+        return y + q * self.even + dq * self.branch
+
+
+@njit
+def _lp1_run(u, y_prev, started, a, out):  # pragma: no cover - compiled
+    N, n = u.shape
+    for t in range(N):
+        for j in range(n):
+            if not started[0]:
+                y_prev[j] = u[t, j]
+            y_prev[j] = a * y_prev[j] + (1.0 - a) * u[t, j]
+            out[t, j] = y_prev[j]
+        started[0] = True
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -429,8 +652,10 @@ class EffectSpec:
 
 
 EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
-    EffectSpec("hysteresis_asymmetry", "hysteresis", {"Delta1": ("1/V", True), "Delta2": ("1/V", True)},
-               "generalized Bouc-Wen: ascending and descending branches not point-symmetric",
+    EffectSpec("hysteresis_asymmetry", "hysteresis", {"Delta1": ("1/V", True), "Delta2": ("1/V", True),
+                                                      "even": ("-", True), "branch_even": ("-", True)},
+               "generalized Bouc-Wen (+ an even, branch-dependent term): ascending and descending branches not "
+               "point-symmetric",
                "even harmonics in the residual (error correlates with U², not U)"),
     EffectSpec("hysteresis_rate_dependence", "hysteresis", {"alpha": ("-", False)},
                f"loop width grows with the voltage rate (A·(1 + α·tanh(|dU/dt|/{RATE_REF:g} V/s)))",
@@ -448,12 +673,21 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                "amplifier slew-rate limit", "error concentrated where |dU/dt| is large (steps, fast ramps)"),
     EffectSpec("amplifier_saturation", "pre", {"limit": ("V", False)},
                "amplifier output rails clip the voltage", "error only at the largest |U|"),
-    EffectSpec("amplifier_bandwidth", "pre", {"cutoff": ("Hz", False)},
-               "first-order amplifier bandwidth", "amplitude loss and phase lag at high frequency"),
-    EffectSpec("unmodelled_mode", "post", {"freq": ("Hz", False), "damping": ("-", False), "gains": ("-", True)},
-               "an extra lightly damped structural resonance", "a narrow peak in the residual spectrum"),
-    EffectSpec("gain_mismatch", "post", {"gains": ("-", True)},
-               "per-axis gain error (piezo coefficient, sensor calibration)",
+    EffectSpec("amplifier_bandwidth", "pre", {"cutoff": ("Hz", True), "order": ("-", False),
+                                              "damping": ("-", False)},
+               "first- or second-order amplifier roll-off (cutoff per axis)",
+               "amplitude loss and phase lag at high frequency; steps rounded, not shifted"),
+    EffectSpec("unmodelled_mode", "post", {"freq": ("Hz", False), "damping": ("-", False), "gains": ("-", True),
+                                          "hp_gains": ("-", True)},
+               "extra lightly damped structural resonances (one or several, per axis and cross-coupled)",
+               "narrow peaks in the residual spectrum"),
+    EffectSpec("amplitude_dependent_dynamics", "post",
+               {"freq": ("Hz", False), "damping": ("-", False), "gains": ("-", True), "hp_gains": ("-", True),
+                "level_gains": ("-", True), "level_hp_gains": ("-", True)},
+               f"resonances whose strength moves with the level (|Y| over {LEVEL_TAU:g} s per {LEVEL_REF:g} m)",
+               "dynamics-band residual growing with the motion's amplitude"),
+    EffectSpec("gain_mismatch", "post", {"gains": ("-", True), "cross_gains": ("-", True)},
+               "gain error per axis and cross-talk between axes (piezo coefficient, amplifier, sensor calibration)",
                "residual ∝ Ŷ on each axis (a scaled copy of the prediction)"),
 ]}
 EFFECT_NAMES = tuple(EFFECTS)
@@ -468,15 +702,18 @@ def _stage(name: str, p: Mapping, cfg: PiezoConfig):
     if name == "amplifier_saturation":
         return AmplifierSaturation(p["limit"], n)
     if name == "amplifier_bandwidth":
-        return AmplifierBandwidth(p["cutoff"], dt, n)
+        return AmplifierBandwidth(p["cutoff"], dt, n, int(p.get("order", 1)), float(p.get("damping", 2 ** -0.5)))
     if name == "gain_mismatch":
-        return GainMismatch(p["gains"], n)
+        return GainMismatch(p["gains"], n, p.get("cross_gains"))
     if name == "thermal_drift":
         return ThermalDrift(p["amplitudes"], p["time_constant"], dt, n)
     if name == "creep_nonlinearity":
         return CreepNonlinearity(p["gamma"], p.get("beta", 0.0), dt, n)
     if name == "unmodelled_mode":
-        return UnmodelledMode(p["freq"], p["damping"], p["gains"], dt, n)
+        return UnmodelledMode(p["freq"], p["damping"], p["gains"], dt, n, p.get("hp_gains"))
+    if name == "amplitude_dependent_dynamics":
+        return AmplitudeDependentDynamics(p["freq"], p["damping"], p["gains"], p["level_gains"], dt, n,
+                                          p.get("hp_gains"), p.get("level_hp_gains"))
     raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
 
 
@@ -505,6 +742,8 @@ def build_plant(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping]] = (), n
         if name == "hysteresis_asymmetry":
             hcfg = asymmetric_hysteresis_config(hcfg, p["Delta1"], p.get("Delta2", 0.0))
             custom_h = True
+            if "even" in p or "branch_even" in p:
+                post.append(BranchEvenTerm(p.get("even", 0.0), p.get("branch_even", 0.0), cfg.dt, cfg.n_axes))
         elif name == "hysteresis_rate_dependence":
             alpha += float(p["alpha"])
             custom_h = True

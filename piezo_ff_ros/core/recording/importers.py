@@ -19,18 +19,42 @@ import numpy as np
 
 from .run import RunData
 
-__all__ = ["load_csv", "load_mat", "check_run_arrays", "MAX_DISPLACEMENT", "MAX_VOLTAGE", "UNIFORM_TOL"]
+__all__ = ["load_csv", "load_mat", "check_run_arrays", "canonical_axes", "MAX_DISPLACEMENT", "MAX_VOLTAGE",
+           "MIN_DRIVE_VOLTAGE", "MIN_SAMPLE_RATE", "MAX_SAMPLE_RATE", "UNIFORM_TOL"]
 
 #: largest plausible |displacement| of a piezo positioner [m]; above it the column is almost surely µm or mm
 MAX_DISPLACEMENT = 5e-3
 #: largest plausible |drive voltage| [V]; piezo drives stay well under 1.5 kV, larger numbers are mV or counts
 MAX_VOLTAGE = 2000.0
+#: a driven run whose largest |u| (all axes) lies between MAX_DISPLACEMENT and this [V] moves a piezo by nanometres:
+#: the numbers are almost surely kV (5 V … 1 kV); smaller inputs are lengths in m (stage inputs Y_H, Y_L of the
+#: creep and dynamics characterisations), an axis not driven at all (0 V) is fine
+MIN_DRIVE_VOLTAGE = 1.0
+#: plausible sample rates of a piezo record [Hz]: outside, the time column is almost surely in ms/µs (or ns)
+MIN_SAMPLE_RATE = 100.0
+MAX_SAMPLE_RATE = 10.0e6
+#: axis names put first, in this order, whatever the column order of the file (x, y, z as in REP 103)
+AXIS_ORDER = ("x", "y", "z")
 #: relative tolerance on the sample period (recorders write t with ~6–9 significant digits)
 UNIFORM_TOL = 1e-3
 
 
 def _fail(path, msg: str):
     raise ValueError(f"{path}: {msg}")
+
+
+def canonical_axes(names) -> tuple[str, ...]:
+    """Axis names in a fixed order — x, y, z first, then the others as given — so that the column order of a
+    file never changes which column is which axis."""
+    names = list(names)
+    return tuple([a for a in AXIS_ORDER if a in names] + [a for a in names if a not in AXIS_ORDER])
+
+
+def _time_unit_hint(dt: float) -> str:
+    for unit, scale in (("ms", 1e-3), ("µs", 1e-6), ("ns", 1e-9), ("minutes", 60.0)):
+        if MIN_SAMPLE_RATE <= 1.0 / (dt * scale) <= MAX_SAMPLE_RATE:
+            return f"the column looks like {unit} — convert to s"
+    return "check its unit (s expected)"
 
 
 def check_run_arrays(path, t: np.ndarray, u: np.ndarray, y: np.ndarray, u_names, y_names,
@@ -56,6 +80,10 @@ def check_run_arrays(path, t: np.ndarray, u: np.ndarray, y: np.ndarray, u_names,
         _fail(path, f"column 't': time does not increase at row {k + 1 + row_offset} "
                     f"(t={t[k + 1]:.9g} after t={t[k]:.9g})")
     dt0 = float(np.median(dt))
+    if not MIN_SAMPLE_RATE <= 1.0 / dt0 <= MAX_SAMPLE_RATE:
+        _fail(path, f"column 't': sample step {dt0:.6g} s ({1.0 / dt0:.6g} Hz) is not plausible in seconds for a "
+                    f"piezo record ({MIN_SAMPLE_RATE:g} Hz … {MAX_SAMPLE_RATE:g} Hz expected); "
+                    + _time_unit_hint(dt0))
     dev = np.abs(dt - dt0) > UNIFORM_TOL * dt0
     if dev.any():
         k = int(np.argmax(dev))
@@ -76,6 +104,12 @@ def check_run_arrays(path, t: np.ndarray, u: np.ndarray, y: np.ndarray, u_names,
             _fail(path, f"reference: non-finite value at row {k + row_offset}")
         if m > MAX_DISPLACEMENT:
             _fail(path, f"reference: |r| up to {m:.6g} is not plausible in metres; it looks like µm — convert to m")
+    u_max = float(np.max(np.abs(u))) if u.size else 0.0
+    # below MAX_DISPLACEMENT the input is a length (the creep/dynamics stages are characterised from Y_H, Y_L in m)
+    if MAX_DISPLACEMENT < u_max < MIN_DRIVE_VOLTAGE:
+        i = int(np.argmax(np.max(np.abs(u), axis=0)))
+        _fail(path, f"column {u_names[i]!r}: the largest drive voltage of the run is {u_max:.6g} — a piezo "
+                    f"driven by < {MIN_DRIVE_VOLTAGE:g} V barely moves; the column looks like kV — convert to V")
     for i, nm in enumerate(u_names):
         m = float(np.max(np.abs(u[:, i])))
         if m > MAX_VOLTAGE:
@@ -84,7 +118,7 @@ def check_run_arrays(path, t: np.ndarray, u: np.ndarray, y: np.ndarray, u_names,
                         f"{MAX_VOLTAGE:g} V expected); the column looks like mV or raw counts — convert to V")
 
 
-def load_csv(path, delimiter: str | None = None) -> RunData:
+def load_csv(path, delimiter: str | None = None, axes=None) -> RunData:
     """Load a run from CSV with header ``t,u_<axis>…,<axis>…`` (s, V, m), uniformly sampled.
 
     Parameters
@@ -93,16 +127,19 @@ def load_csv(path, delimiter: str | None = None) -> RunData:
         The file.
     delimiter : str, optional
         Field separator; sniffed from the header (``,``, ``;``, tab) when not given.
+    axes : sequence of str, optional
+        Axes wanted, in this order (each needs its ``u_<axis>`` and ``<axis>`` columns).  Default: every axis of
+        the file in the order x, y, z, then the others — columns are read by name, never by position.
 
     Returns
     -------
     RunData
-        ``axes`` in the order of the ``u_<axis>`` columns.
 
     Raises
     ------
     ValueError
-        Missing/duplicate columns, non-numeric cells, NaN, non-uniform time, implausible units (with row/column).
+        Missing/duplicate/unknown columns, non-numeric cells, NaN, non-uniform time, implausible units (kV, ms,
+        µm …), each naming the file, the column and the row.
     """
     p = Path(path)
     if not p.is_file():
@@ -126,15 +163,30 @@ def load_csv(path, delimiter: str | None = None) -> RunData:
         _fail(p, f"header line {skip + 1}: duplicate column(s) {dup}")
     if "t" not in header:
         _fail(p, f"header line {skip + 1}: missing column 't' (time in s); found {header}")
-    axes = [h[2:] for h in header if h.startswith("u_")]
-    if not axes:
+    file_axes = [h[2:] for h in header if h.startswith("u_") and len(h) > 2]
+    if not file_axes:
         _fail(p, f"header line {skip + 1}: no input column 'u_<axis>' (voltage in V); found {header}")
-    missing = [a for a in axes if a not in header]
+    missing = [a for a in file_axes if a not in header]
     if missing:
         _fail(p, f"header line {skip + 1}: missing displacement column(s) {missing} for input(s) "
                  f"{['u_' + a for a in missing]}; found {header}")
-    extra_out = [h for h in header if h not in ("t",) and not h.startswith(("u_", "r_")) and h not in axes]
-    has_ref = all(f"r_{a}" in header for a in axes)
+    known = {"t"} | {f"u_{a}" for a in file_axes} | set(file_axes) | {f"r_{a}" for a in file_axes}
+    unknown = [h for h in header if h not in known]
+    if unknown:
+        _fail(p, f"header line {skip + 1}: unknown column(s) {unknown}; expected t, u_<axis>, <axis> and optional "
+                 f"r_<axis> for the axes {file_axes} (remove or rename the others)")
+    refs = [a for a in file_axes if f"r_{a}" in header]
+    if refs and len(refs) != len(file_axes):
+        _fail(p, f"header line {skip + 1}: reference columns for {refs} only, missing "
+                 f"{['r_' + a for a in file_axes if a not in refs]}")
+    has_ref = bool(refs)
+    if axes is None:
+        axes = list(canonical_axes(file_axes))
+    else:
+        axes = [str(a) for a in axes]
+        for a in axes:
+            if a not in file_axes:
+                _fail(p, f"axis {a!r}: no column 'u_{a}' (the file has axes {file_axes})")
     rows = []
     width = len(header)
     for lineno, line in enumerate(lines[skip + 1:], start=skip + 2):
@@ -162,13 +214,11 @@ def load_csv(path, delimiter: str | None = None) -> RunData:
     # row numbers in messages: the data row's line number in the file (blank/comment lines are rare; we map index
     # to line assuming none inside the data, which is what exporters write)
     check_run_arrays(p, t, u, y, [f"u_{a}" for a in axes], axes, row_offset=skip + 2, ref=ref)
-    meta = {"source": str(p), "format": "csv"}
-    if extra_out:
-        meta["ignored_columns"] = extra_out
+    meta = {"source": str(p), "format": "csv", "columns": header}
     return RunData(t=t, u=u, y=y, axes=tuple(axes), reference=ref, meta=meta)
 
 
-def load_mat(path) -> RunData:
+def load_mat(path, axes=None) -> RunData:
     """Load a run from a MATLAB ``.mat`` file with variables ``t`` [N], ``u`` [N×axes], ``y`` [N×axes].
 
     Row/column vectors are accepted for one axis; ``u``/``y`` given as axes×N are transposed when unambiguous.
@@ -218,17 +268,28 @@ def load_mat(path) -> RunData:
     if u.shape[1] != y.shape[1]:
         _fail(p, f"variables 'u' and 'y': {u.shape[1]} input(s) but {y.shape[1]} output(s)")
     k = u.shape[1]
-    axes = ("x", "y", "z")[:k] if k <= 3 else tuple(f"a{i}" for i in range(k))
+    file_axes = ("x", "y", "z")[:k] if k <= 3 else tuple(f"a{i}" for i in range(k))
     if "axes" in d:
         try:
             names = [str(np.asarray(a).ravel()[0]) if np.asarray(a).size else "" for a in np.asarray(d["axes"]).ravel()]
             if len(names) == 1 and len(names[0]) == k:  # char array 'xy'
                 names = list(names[0])
-            if len(names) == k and all(names):
-                axes = tuple(names)
         except (TypeError, ValueError, IndexError):
-            pass
+            _fail(p, "variable 'axes': expected a cell or char array of axis names")
+        if len(names) != k or not all(names) or len(set(names)) != k:
+            _fail(p, f"variable 'axes': {names} does not give {k} distinct axis names (one per column of u)")
+        file_axes = tuple(names)
     ref = as_matrix("r") if "r" in d else None
+    if ref is not None and ref.shape[1] != k:
+        _fail(p, f"variable 'r': {ref.shape[1]} column(s) for {k} axes")
     check_run_arrays(p, t, u, y, [f"u(:,{i + 1})" for i in range(k)], [f"y(:,{i + 1})" for i in range(k)],
                      row_offset=1, ref=ref)
-    return RunData(t=t, u=u, y=y, axes=tuple(axes), reference=ref, meta={"source": str(p), "format": "mat"})
+    if axes is None:
+        axes = canonical_axes(file_axes)
+    for a in axes:
+        if a not in file_axes:
+            _fail(p, f"axis {a!r}: not in the file's axes {list(file_axes)}")
+    cols = [file_axes.index(a) for a in axes]
+    ref = None if ref is None else ref[:, cols]
+    return RunData(t=t, u=u[:, cols], y=y[:, cols], axes=tuple(axes), reference=ref,
+                   meta={"source": str(p), "format": "mat", "file_axes": list(file_axes)})

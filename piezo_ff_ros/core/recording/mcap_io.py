@@ -16,8 +16,10 @@ recordings or any other ROS 2 MCAP writer (``rosbags`` bare ``.mcap``, a rosbag2
 from __future__ import annotations
 
 import json
+import mmap
 import os
 import re
+import struct
 import sys
 import threading
 import time
@@ -25,16 +27,17 @@ from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
 from .blocks import BLOCK_TYPE, deserialize_block, deserialize_message, sample_period_ns
+from .importers import canonical_axes
 from .run import RunData
 
 __all__ = [
     "METADATA_NAME", "BLOCK_ROLES", "ros2msg_definition", "type_hash", "qos_profiles_yaml", "block_qos_profile",
-    "McapRecorder", "McapContents", "scan_mcap", "read_run",
+    "McapRecorder", "McapContents", "scan_mcap", "iter_mcap_records", "read_run",
 ]
 
 METADATA_NAME = "piezo_ff_ros"  #: name of the MCAP Metadata record holding the run configuration
@@ -396,6 +399,23 @@ class McapContents:
     truncated: bool = False
     error: str | None = None
     files: list = field(default_factory=list)
+    losses: list = field(default_factory=list)  # per file: what could not be read (see iter_mcap_records)
+
+    def loss_summary(self) -> dict:
+        """What could not be read, summed over the files: chunk/message/byte counts and lost log-time ranges."""
+        out = {"chunks_total": 0, "chunks_lost": 0, "messages_lost": 0, "bytes_skipped": 0, "records_skipped": 0,
+               "orphan_messages": 0, "lost_time_ranges_ns": [], "messages_lost_by_topic": {}, "truncated": False,
+               "errors": []}
+        for loss in self.losses:
+            for key in ("chunks_total", "chunks_lost", "messages_lost", "bytes_skipped", "records_skipped",
+                        "orphan_messages"):
+                out[key] += loss[key]
+            out["lost_time_ranges_ns"] += loss["lost_time_ranges_ns"]
+            out["errors"] += loss["errors"]
+            out["truncated"] |= loss["truncated"]
+            for t, k in loss["messages_lost_by_topic"].items():
+                out["messages_lost_by_topic"][t] = out["messages_lost_by_topic"].get(t, 0) + k
+        return out
 
     def metadata_record(self, name: str = METADATA_NAME) -> dict:
         """The Metadata records called ``name``, merged in file order (later keys win)."""
@@ -407,49 +427,239 @@ class McapContents:
 
 
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
+_OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_MESSAGE_INDEX = 1, 2, 3, 4, 5, 6, 7
+_OP_DATA_END = 0x0F
+_COMPRESSIONS = (b"", b"lz4", b"zstd")
+_MAX_RANGES = 50  # lost time ranges listed individually (the counts are always complete)
+
+
+def _new_loss() -> dict:
+    """The reader's account of what it could not read (every count is a lower bound on what was lost)."""
+    return {"chunks_total": 0, "chunks_lost": 0, "messages_lost": 0, "messages_lost_by_channel": Counter(),
+            "lost_time_ranges_ns": [], "bytes_skipped": 0, "records_skipped": 0, "orphan_messages": 0,
+            "truncated": False, "footer": False, "errors": []}
+
+
+def _plausible_opcode(op: int) -> bool:
+    # 0x01–0x0F are the spec's records, 0x80–0xFF user records; 0x00 and 0x10–0x7F are reserved: damage
+    return 0x01 <= op <= 0x0F or op >= 0x80
+
+
+def _chunk_header_at(buf, pos: int) -> tuple[int, int, int] | None:
+    """If a complete, self-consistent Chunk record starts at ``pos``: (total length, start_time, end_time)."""
+    n = len(buf)
+    if pos + 9 + 40 > n or buf[pos] != _OP_CHUNK:
+        return None
+    length = struct.unpack_from("<Q", buf, pos + 1)[0]
+    if pos + 9 + length > n:
+        return None
+    t_start, t_end, _usize, _crc, clen = struct.unpack_from("<QQQII", buf, pos + 9)
+    if clen not in (0, 3, 4) or t_end < t_start:
+        return None
+    if bytes(buf[pos + 9 + 32:pos + 9 + 32 + clen]) not in _COMPRESSIONS:
+        return None
+    (dlen,) = struct.unpack_from("<Q", buf, pos + 9 + 32 + clen)
+    if 32 + clen + 8 + dlen != length:
+        return None
+    return 9 + length, t_start, t_end
+
+
+def _find_next_chunk(buf, start: int) -> int | None:
+    """Offset of the next complete Chunk record at or after ``start`` (resynchronisation after damaged framing)."""
+    i = start
+    while True:
+        i = buf.find(b"\x06", i)
+        if i < 0:
+            return None
+        if _chunk_header_at(buf, i) is not None:
+            return i
+        i += 1
+
+
+def _partial_chunk_times(buf, pos: int) -> tuple[int, int] | None:
+    if pos + 9 + 16 <= len(buf) and buf[pos] == _OP_CHUNK:
+        t0, t1 = struct.unpack_from("<QQ", buf, pos + 9)
+        if t0 <= t1:
+            return int(t0), int(t1)
+    return None
+
+
+def _lose_chunk(loss: dict, times: tuple[int, int] | None, why: str) -> None:
+    loss["chunks_lost"] += 1
+    if times is not None and len(loss["lost_time_ranges_ns"]) < _MAX_RANGES:
+        loss["lost_time_ranges_ns"].append([int(times[0]), int(times[1])])
+    if len(loss["errors"]) < _MAX_RANGES:
+        loss["errors"].append(why)
+
+
+def iter_mcap_records(path, loss: dict | None = None) -> Iterator:
+    """Every record of an MCAP file, in file order, with the records inside chunks expanded; damage-tolerant.
+
+    Unlike ``mcap``'s stream reader, which stops at the first bad record, this walks the top-level records
+    itself: a chunk whose payload fails its CRC or decompression is skipped (the MessageIndex records after it
+    give the count of messages lost per channel, its header the log-time range); damaged framing (an absurd
+    record length, a reserved opcode) is skipped up to the next self-consistent Chunk record; a file that ends
+    inside a record (a killed writer) ends the walk.  Everything skipped is accounted in ``loss`` (see
+    :func:`_new_loss`).  Raises ``ValueError`` if the file does not start with the MCAP magic.
+    """
+    from io import BytesIO
+
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import (Attachment, Channel, Chunk, Footer, Header, Message, MessageIndex, Metadata, Schema,
+                              Statistics)
+    from mcap.stream_reader import breakup_chunk
+
+    parsers = {_OP_HEADER: Header.read, _OP_FOOTER: Footer.read, _OP_SCHEMA: Schema.read,
+               _OP_CHANNEL: Channel.read, _OP_CHUNK: Chunk.read, _OP_MESSAGE_INDEX: MessageIndex.read,
+               0x09: Attachment.read, 0x0B: Statistics.read, 0x0C: Metadata.read}
+    loss = _new_loss() if loss is None else loss
+    path = Path(path)
+    with open(path, "rb") as f:
+        try:
+            buf = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        except ValueError:  # empty file
+            buf = b""
+    try:
+        if bytes(buf[:len(_MCAP_MAGIC)]) != _MCAP_MAGIC:
+            raise ValueError(f"{path}: not an MCAP file (bad magic {bytes(buf[:8])!r})")
+        n, pos, after_lost_chunk = len(buf), len(_MCAP_MAGIC), False
+        while True:
+            if pos + 9 > n:
+                loss["truncated"] = True
+                if pos < n:
+                    loss["errors"].append(f"{n - pos} trailing byte(s) at offset {pos}: a record cut short")
+                break
+            op = buf[pos]
+            (length,) = struct.unpack_from("<Q", buf, pos + 1)
+            end = pos + 9 + length
+            if not _plausible_opcode(op) or end > n:
+                nxt = _find_next_chunk(buf, pos + 1)
+                times = _partial_chunk_times(buf, pos)
+                if nxt is None:
+                    loss["truncated"] = True
+                    if op == _OP_CHUNK:
+                        _lose_chunk(loss, times, f"offset {pos}: the last chunk is cut short "
+                                                 f"({n - pos} of {9 + length} bytes on disk)")
+                    else:
+                        loss["bytes_skipped"] += n - pos
+                        loss["errors"].append(f"offset {pos}: damaged or cut-short record (opcode {op:#04x}, "
+                                              f"length {length}); {n - pos} byte(s) to the end unreadable")
+                    break
+                loss["bytes_skipped"] += nxt - pos
+                _lose_chunk(loss, times if op == _OP_CHUNK else None,
+                            f"offset {pos}: damaged record framing (opcode {op:#04x}, length {length}); "
+                            f"{nxt - pos} byte(s) skipped to the next chunk")
+                after_lost_chunk = False  # what was lost there cannot be counted
+                pos = nxt
+                continue
+            parse = parsers.get(op)
+            if op == _OP_MESSAGE:
+                parse = lambda s, _n=length: Message.read(s, _n)  # noqa: E731
+            if op != _OP_MESSAGE_INDEX:
+                after_lost_chunk = False
+            if parse is None:  # DataEnd, indexes, summary offsets, user records: nothing to read in them
+                pos = end
+                continue
+            try:
+                rec = parse(ReadDataStream(BytesIO(buf[pos + 9:end])))
+            except Exception as exc:  # noqa: BLE001 - struct/unicode errors of a damaged record
+                if op == _OP_CHUNK:
+                    loss["chunks_total"] += 1
+                    _lose_chunk(loss, _partial_chunk_times(buf, pos), f"offset {pos}: unreadable chunk header "
+                                                                       f"({type(exc).__name__})")
+                    after_lost_chunk = True
+                else:
+                    loss["records_skipped"] += 1
+                    loss["errors"].append(f"offset {pos}: unreadable record (opcode {op:#04x}, "
+                                          f"{type(exc).__name__})")
+                pos = end
+                continue
+            pos = end
+            if op == _OP_CHUNK:
+                loss["chunks_total"] += 1
+                try:
+                    inner = breakup_chunk(rec, validate_crc=True)
+                except Exception as exc:  # noqa: BLE001 - CRC mismatch, zstd/lz4 errors, records cut inside
+                    _lose_chunk(loss, (rec.message_start_time, rec.message_end_time),
+                                f"offset {pos - 9 - length}: corrupt chunk ({type(exc).__name__}: {exc})"[:300])
+                    after_lost_chunk = True
+                    continue
+                yield from inner
+            elif op == _OP_MESSAGE_INDEX:
+                if after_lost_chunk:
+                    loss["messages_lost"] += len(rec.records)
+                    loss["messages_lost_by_channel"][rec.channel_id] += len(rec.records)
+            else:
+                yield rec
+                if op == _OP_FOOTER:
+                    loss["footer"] = True
+                    break
+    finally:
+        if isinstance(buf, mmap.mmap):
+            buf.close()
 
 
 def _scan_one(path: Path, out: McapContents) -> None:
     from mcap.records import Channel, Header, Message, Metadata, Schema, Statistics
-    from mcap.stream_reader import StreamReader
 
-    with open(path, "rb") as f:
-        head = f.read(len(_MCAP_MAGIC))
-        if head != _MCAP_MAGIC:
-            raise ValueError(f"{path}: not an MCAP file (bad magic {head[:8]!r})")
-        f.seek(0)
-        schemas: dict[int, Schema] = {}
-        channels: dict[int, Channel] = {}
-        n_messages = 0
-        reader = StreamReader(f, validate_crcs=True)
-        try:
-            for rec in reader.records:
-                if isinstance(rec, Message):
-                    ch = channels.get(rec.channel_id)
-                    if ch is None:
-                        raise ValueError(f"message on unknown channel {rec.channel_id}")
-                    out.messages[ch.topic].append((rec.log_time, rec.publish_time, rec.data))
-                    n_messages += 1
-                elif isinstance(rec, Channel):
-                    channels[rec.id] = rec
-                    sch = schemas.get(rec.schema_id)
-                    out.topics.setdefault(rec.topic, sch.name if sch else "")
-                    out.encodings.setdefault(rec.topic, rec.message_encoding)
-                    out.channel_metadata.setdefault(rec.topic, dict(rec.metadata))
-                elif isinstance(rec, Schema):
-                    schemas[rec.id] = rec
-                elif isinstance(rec, Metadata):
-                    out.metadata.append((rec.name, dict(rec.metadata)))
-                elif isinstance(rec, Header):
-                    out.profile, out.library = rec.profile, rec.library
-                elif isinstance(rec, Statistics):
-                    out.statistics = rec
-        except Exception as exc:  # EndOfFile, struct/zstd/CRC errors: keep the readable prefix
-            msg = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-            if not channels and n_messages == 0:
-                raise ValueError(f"{path}: unreadable MCAP, nothing recoverable ({msg})") from None
-            out.truncated = True
-            out.error = f"{path.name}: data ends early or is corrupt after {n_messages} messages ({msg})"
+    loss = _new_loss()
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    by_channel: dict[int, list] = defaultdict(list)
+    n_messages = 0
+    for rec in iter_mcap_records(path, loss):
+        if isinstance(rec, Message):
+            by_channel[rec.channel_id].append((rec.log_time, rec.publish_time, rec.data))
+            n_messages += 1
+        elif isinstance(rec, Channel):
+            channels.setdefault(rec.id, rec)
+        elif isinstance(rec, Schema):
+            schemas.setdefault(rec.id, rec)
+        elif isinstance(rec, Metadata):
+            out.metadata.append((rec.name, dict(rec.metadata)))
+        elif isinstance(rec, Header):
+            out.profile, out.library = rec.profile, rec.library
+        elif isinstance(rec, Statistics):
+            out.statistics = rec
+    if not channels and n_messages == 0 and not out.metadata:
+        why = "; ".join(loss["errors"][:3]) or "no records"
+        raise ValueError(f"{path}: unreadable MCAP, nothing recoverable ({why})")
+    # channels are resolved at the end: a Channel record may come after its messages (repeated in a later chunk
+    # or in the summary section) when the chunk that first held it was lost
+    for cid, ch in sorted(channels.items()):
+        sch = schemas.get(ch.schema_id)
+        out.topics.setdefault(ch.topic, sch.name if sch else "")
+        out.encodings.setdefault(ch.topic, ch.message_encoding)
+        out.channel_metadata.setdefault(ch.topic, dict(ch.metadata))
+    for cid, msgs in by_channel.items():
+        ch = channels.get(cid)
+        if ch is None:
+            loss["orphan_messages"] += len(msgs)
+            continue
+        out.messages[ch.topic].extend(msgs)
+    by_topic = Counter()
+    for cid, k in loss.pop("messages_lost_by_channel").items():
+        by_topic[channels[cid].topic if cid in channels else f"channel {cid}"] += k
+    loss["messages_lost_by_topic"] = dict(by_topic)
+    loss["file"] = str(path)
+    out.losses.append(loss)
+    problems = []
+    if loss["chunks_lost"]:
+        span = sum(t1 - t0 for t0, t1 in loss["lost_time_ranges_ns"]) / 1e9
+        problems.append(f"skipped {loss['chunks_lost']} corrupt or cut-short chunk(s) of {loss['chunks_total']} "
+                        f"(≥ {loss['messages_lost']} message(s) lost, {len(loss['lost_time_ranges_ns'])} log-time "
+                        f"range(s) totalling {span:.3g} s; meta['loss'] lists them)")
+    if loss["orphan_messages"]:
+        problems.append(f"{loss['orphan_messages']} message(s) on channels whose definition was lost")
+    if loss["records_skipped"]:
+        problems.append(f"{loss['records_skipped']} unreadable record(s) skipped")
+    if loss["truncated"]:
+        problems.append(f"data ends early after {n_messages} messages (no footer: a writer that was killed or a "
+                        "file cut short)")
+    if problems:
+        out.truncated = True
+        msg = f"{path.name}: " + "; ".join(problems)
+        out.error = msg if out.error is None else f"{out.error}; {msg}"
     out.files.append(str(path))
 
 
@@ -534,6 +744,42 @@ def _infer_dt_ns(stamp_lists: list[list[tuple[int, int]]]) -> int | None:
     return votes.most_common(1)[0][0] if votes else None
 
 
+#: a gap between blocks is bridged (kept as NaN rows) up to this many samples, or the number of samples the
+#: recording holds if larger; beyond that, the blocks on the smaller side are outliers (memory stays ≤ ~2× the data)
+MIN_BRIDGED_GAP = 1_000_000
+
+
+def _split_outliers(decoded: dict[str, list[tuple[int, np.ndarray]]], dt_ns: int):
+    """Keep the blocks of the main time span; return ``(kept, outliers)`` per role.
+
+    Blocks (all topics together) are grouped into clusters separated by gaps larger than
+    ``max(MIN_BRIDGED_GAP, samples held)`` sample periods; the cluster holding the most samples is the recording,
+    the others are outliers (never allocated).
+    """
+    items = sorted((s, s + len(b) * dt_ns, role, i) for role, blks in decoded.items() for i, (s, b) in enumerate(blks))
+    if not items:
+        return decoded, {}
+    per_role = Counter()
+    for role, blks in decoded.items():
+        per_role[role] = sum(len(b) for _, b in blks)
+    max_gap_ns = max(MIN_BRIDGED_GAP, max(per_role.values())) * dt_ns
+    clusters, cur, cur_end, cur_n = [], [], None, 0
+    for start, end, role, i in items:
+        if cur and start - cur_end > max_gap_ns:
+            clusters.append((cur_n, cur))
+            cur, cur_n, cur_end = [], 0, None
+        cur.append((role, i))
+        cur_n += (end - start) // dt_ns
+        cur_end = end if cur_end is None else max(cur_end, end)
+    clusters.append((cur_n, cur))
+    if len(clusters) == 1:
+        return decoded, {r: [] for r in decoded}
+    main = set(max(clusters, key=lambda c: c[0])[1])
+    kept = {r: [blk for i, blk in enumerate(blks) if (r, i) in main] for r, blks in decoded.items()}
+    outs = {r: [blk for i, blk in enumerate(blks) if (r, i) not in main] for r, blks in decoded.items()}
+    return kept, outs
+
+
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """[start, stop) ranges where ``mask`` is True."""
     if not mask.any():
@@ -562,6 +808,13 @@ def _diagnostics_summary(raw_msgs) -> dict:
     return summary
 
 
+def _as_int(v) -> int:
+    """An integer from JSON (an integral float too); ``ValueError`` otherwise (bools, text, 1.5)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or (isinstance(v, float) and not v.is_integer()):
+        raise ValueError(f"not an integer: {v!r}")
+    return int(v)
+
+
 def _experiment_markers(raw_msgs, t0_ns: int, dt_ns: int, warnings: list) -> list[dict]:
     markers, seen = [], set()
     for log_time, _, raw in raw_msgs:
@@ -577,13 +830,20 @@ def _experiment_markers(raw_msgs, t0_ns: int, dt_ns: int, warnings: list) -> lis
         except (TypeError, ValueError):
             warnings.append(f"experiment: marker {text[:60]!r} is not a JSON object; skipped")
             continue
-        if "stamp_ns" in info:
-            q, r = divmod(int(info["stamp_ns"]) - t0_ns, dt_ns)
-            k0 = q + (2 * r >= dt_ns)
-        elif "k0" in info:
-            k0 = int(info["k0"])
-        else:
-            warnings.append(f"experiment: marker {info.get('name')!r} has neither k0 nor stamp_ns; skipped")
+        try:
+            if "stamp_ns" in info:
+                q, r = divmod(_as_int(info["stamp_ns"]) - t0_ns, dt_ns)
+                k0 = q + (2 * r >= dt_ns)
+            elif "k0" in info:
+                k0 = _as_int(info["k0"])
+            else:
+                warnings.append(f"experiment: marker {info.get('name')!r} has neither k0 nor stamp_ns; skipped")
+                continue
+            for key in ("k1", "n"):
+                if key in info:
+                    info[key] = _as_int(info[key])
+        except (TypeError, ValueError):
+            warnings.append(f"experiment: marker {text[:60]!r}: k0/stamp_ns/k1/n not integers; skipped")
             continue
         key = (str(info.get("name", info.get("experiment", ""))), k0)  # Experiment.meta() says "experiment"
         if key in seen:  # transient-local redelivery or several publishers: one marker
@@ -647,47 +907,88 @@ def read_run(path, *, namespace: str | None = None, sample_rate: float | None = 
     axes = None
     if "axes" in md:
         try:
-            axes = tuple(json.loads(md["axes"]))
+            axes = json.loads(md["axes"])
         except ValueError:
-            axes = tuple(a.strip() for a in md["axes"].split(",") if a.strip())
+            axes = [a.strip() for a in md["axes"].split(",") if a.strip()]
+        if not (isinstance(axes, list) and axes and all(isinstance(a, str) and a for a in axes)
+                and len(set(axes)) == len(axes)):
+            warnings.append(f"metadata axes {md['axes']!r} is not a list of distinct names; taken from the blocks")
+            axes = None
+        else:
+            axes = canonical_axes(axes)  # columns by name, in the fixed x, y, z order whatever the writer's order
     decoded: dict[str, list[tuple[int, np.ndarray]]] = {}
     malformed: Counter = Counter()
     for role, topic in roles.items():
         out = decoded[role] = []
         for _, _, raw in contents.messages.get(topic, []):
             try:
+                if axes is None:  # no metadata: the first block's field names, in the fixed x, y, z order
+                    axes = canonical_axes(deserialize_block(raw)[2])
                 stamp, block, names = deserialize_block(raw, axes)
             except ValueError as exc:
                 if malformed[role] == 0:
                     warnings.append(f"{topic}: malformed block skipped ({exc})")
                 malformed[role] += 1
                 continue
-            if axes is None:
-                axes = names
             out.append((stamp, block))
     if axes is None or not any(decoded.values()):
         raise ValueError(f"{path}: the block topics {sorted(roles.values())} hold no decodable block")
 
     # sample grid
-    if sample_rate is None and "sample_rate" in md:
+    if sample_rate is not None:
+        try:
+            dt_ns = sample_period_ns(sample_rate)
+        except ValueError as exc:
+            raise ValueError(f"{path}: --sample-rate/sample_rate= {exc}") from None
+    elif "sample_rate" in md:
         try:
             sample_rate = float(md["sample_rate"])
-        except ValueError:
-            warnings.append(f"metadata sample_rate {md['sample_rate']!r} unreadable; inferred from stamps")
-    if sample_rate is not None:
-        dt_ns = sample_period_ns(sample_rate)
-    else:
+            dt_ns = sample_period_ns(sample_rate)
+        except ValueError as exc:
+            warnings.append(f"metadata sample_rate {md['sample_rate']!r} unusable ({exc}); inferred from stamps")
+            sample_rate = None
+        else:  # the stamps are the contract's ground truth: a metadata rate they contradict is not used
+            from_stamps = _infer_dt_ns([[(s, len(b)) for s, b in blks] for blks in decoded.values()])
+            if from_stamps is not None and from_stamps != dt_ns:
+                warnings.append(f"metadata sample_rate {md['sample_rate']!r} Hz contradicts the block stamps "
+                                f"({1e9 / from_stamps:g} Hz: {from_stamps} ns per sample); the stamps are used")
+                dt_ns = from_stamps
+    if sample_rate is None:
         dt_ns = _infer_dt_ns([[(s, len(b)) for s, b in blks] for blks in decoded.values()])
         if dt_ns is None:
             raise ValueError(f"{path}: cannot infer the sample rate (fewer than two consecutive blocks, no "
                              "sample_rate metadata); pass sample_rate=")
     fs = 1e9 / dt_ns
+    # stamps far outside the span of the data (a clock glitch, a corrupt stamp) are set aside and reported: the
+    # arrays are sized from the data, never from the stamp span
+    decoded, outliers = _split_outliers(decoded, dt_ns)
+    for role, outs in outliers.items():
+        if outs:
+            warnings.append(f"{roles[role]}: {len(outs)} block(s) stamped outside the recording's span ignored "
+                            f"(stamps {[s for s, _ in outs[:5]]} ns{' …' if len(outs) > 5 else ''})")
     all_stamps = [s for blks in decoded.values() for s, _ in blks]
-    t0_ns = int(md["t0_ns"]) if "t0_ns" in md else min(all_stamps)
+    t0_ns = None
+    if "t0_ns" in md:
+        try:
+            t0_ns = int(md["t0_ns"])
+        except ValueError:
+            warnings.append(f"metadata t0_ns {md['t0_ns']!r} is not an integer; the first stamp is used")
+    if t0_ns is not None:
+        phases = Counter((s - t0_ns) % dt_ns for s in all_stamps)
+        if phases.most_common(1)[0][0] != 0:  # most stamps off the metadata's grid: that t0 is not the stamps'
+            warnings.append(f"metadata t0_ns {md['t0_ns']!r} is not on the block stamps' {dt_ns} ns grid; the "
+                            "first stamp is used")
+            t0_ns = None
+    if t0_ns is None:
+        t0_ns = min(all_stamps)
+
+    def index_of(stamp: int) -> int:  # nearest sample index (off-grid stamps are rounded, and counted below)
+        q, r = divmod(stamp - t0_ns, dt_ns)
+        return q + int(2 * r >= dt_ns)
 
     # place blocks by sample index
-    k_first = min((s - t0_ns) // dt_ns for s in all_stamps)
-    k_end = max((s - t0_ns) // dt_ns + len(b) for blks in decoded.values() for s, b in blks)
+    k_first = min(index_of(s) for s in all_stamps)
+    k_end = max(index_of(s) + len(b) for blks in decoded.values() for s, b in blks)
     length = int(k_end - k_first)
     arrays, covered, info = {}, {}, {}
     for role, blks in decoded.items():
@@ -697,10 +998,8 @@ def read_run(path, *, namespace: str | None = None, sample_rate: float | None = 
         seen_k0 = set()
         sizes = Counter()
         for stamp, block in blks:
-            q, r = divmod(stamp - t0_ns, dt_ns)
-            if r:
-                off_grid += 1
-                q += int(2 * r >= dt_ns)
+            q = index_of(stamp)
+            off_grid += int((stamp - t0_ns) % dt_ns != 0)
             a = int(q - k_first)
             b = a + len(block)
             sizes[len(block)] += 1
@@ -723,6 +1022,8 @@ def read_run(path, *, namespace: str | None = None, sample_rate: float | None = 
             "end_k": hi + k_first, "gaps": [(a + k_first, b + k_first) for a, b in gaps],
             "missing_samples": missing, "missing_blocks": int(np.ceil(missing / typical)) if typical else 0,
             "duplicates": dup, "conflicts": conflicts, "off_grid": off_grid, "malformed": malformed[role],
+            "outliers": len(outliers.get(role, [])),
+            "outlier_stamps_ns": [int(st) for st, _ in outliers.get(role, [])[:_MAX_RANGES]],
         }
         if off_grid:
             warnings.append(f"{roles[role]}: {off_grid} block stamps off the {dt_ns} ns sample grid (rounded)")
@@ -781,6 +1082,6 @@ def read_run(path, *, namespace: str | None = None, sample_rate: float | None = 
         "topics": {t: {"type": tn, "count": len(contents.messages.get(t, []))} for t, tn in contents.topics.items()},
         "sample_rate": fs, "dt_ns": int(dt_ns), "t0_ns": int(t0_ns), "k_offset": k_offset, "axes": tuple(axes),
         "blocks": info, "segments": segments, "metadata": md, "diagnostics": diagnostics, "warnings": warnings,
-        "trimmed": {"head": int(start), "tail": int(length - stop)},
+        "trimmed": {"head": int(start), "tail": int(length - stop)}, "loss": contents.loss_summary(),
     }
     return RunData(t=t, u=u, y=y, axes=tuple(axes), reference=ref, meta=meta)

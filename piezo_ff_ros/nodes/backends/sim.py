@@ -1,59 +1,37 @@
-"""Simulated positioner: the nominal plant of the config (``core.models.plant.Plant``) plus optional sensor noise."""
+"""The ``sim`` backend: the config's nominal plant (``core.models.plant.Plant``, optional sensor noise) behind the
+streaming contract, in ``lockstep`` (deterministic, time follows the samples written) or ``clocked`` mode (paced by
+the wall clock like a DAQ: FIFO depth, transport latency, jitter, real underruns)."""
 from __future__ import annotations
 
 import numpy as np
 
+from ...core.hardware.sim import ClockedSim, LockstepSim
 from ...core.models.plant import Plant
-from .base import Backend, BackendError
+from .base import BackendSpec, Param, float_range, int_range, one_of
 
 
-class SimBackend(Backend):
-    """The paper's model chain U → Bouc-Wen → creep → G_L as the "hardware".
+def create(cfg, p: dict):
+    plant = Plant(cfg, noise_std=p["noise_std"], seed=p["seed"])
+    plant.process(np.zeros((1, cfg.n_axes)))   # compile the kernels now, not on the first block
+    plant.reset()
+    if p["mode"] == "lockstep":
+        return LockstepSim(cfg.sample_rate, cfg.n_axes, plant)
+    return ClockedSim(cfg.sample_rate, cfg.n_axes, plant, fifo_depth=p["fifo_depth"],
+                      latency_samples=p["latency_samples"], jitter_samples=p["jitter_samples"], seed=p["seed"])
 
-    Time in the simulator advances only with the samples written (a pause in the input freezes it).
-    """
 
-    name = "sim"
-
-    def __init__(self, cfg, noise_std: float = 0.0, seed: int = 0):
-        if not (np.isfinite(noise_std) and noise_std >= 0):
-            raise BackendError(f"noise_std: must be a finite number ≥ 0, got {noise_std!r}")
-        self.cfg = cfg
-        self.noise_std = float(noise_std)
-        self.seed = int(seed)
-        self.plant: Plant | None = None
-        self.samples = 0
-        self.started = False
-
-    @staticmethod
-    def from_params(cfg, params: dict) -> "SimBackend":
-        return SimBackend(cfg, noise_std=float(params.get("noise_std", 0.0)), seed=int(params.get("seed", 0)))
-
-    def open(self) -> None:
-        self.plant = Plant(self.cfg, noise_std=self.noise_std, seed=self.seed)
-        # compile the kernels now, not on the first block
-        self.plant.process(np.zeros((1, self.cfg.n_axes)))
-        self.plant.reset()
-
-    def start(self) -> None:
-        if self.plant is None:
-            raise BackendError("sim: start() before open()")
-        self.started = True
-
-    def write(self, voltage: np.ndarray) -> np.ndarray:
-        if not self.started:
-            raise BackendError("sim: write() before start()")
-        self.samples += voltage.shape[0]
-        return self.plant.process(voltage)
-
-    def safe_state(self) -> None:
-        pass  # the driver's ramp already brought the applied voltage to the safe value
-
-    def reset(self) -> bool:
-        if self.plant is not None:
-            self.plant.reset()
-        self.samples = 0
-        return True
-
-    def status(self) -> dict:
-        return {"backend": self.name, "samples": self.samples, "noise_std": self.noise_std}
+SPEC = BackendSpec(
+    name="sim",
+    description="simulated positioner (the config's model), lockstep or clocked",
+    parameters={
+        "mode": Param("lockstep", "lockstep: time follows the samples written; clocked: paced by the wall clock",
+                      one_of("lockstep", "clocked")),
+        "noise_std": Param(0.0, "sensor noise standard deviation [m]", float_range(0.0, 1e-3)),
+        "seed": Param(0, "seed of the sensor noise and jitter", int_range(0, 2 ** 31 - 1)),
+        "fifo_depth": Param(8000, "clocked: output FIFO [samples]", int_range(16, 10_000_000)),
+        "latency_samples": Param(2, "clocked: sensor transport latency [samples]", int_range(0, 1_000_000)),
+        "jitter_samples": Param(0, "clocked: random extra sensor delivery delay, up to [samples]",
+                                int_range(0, 1_000_000)),
+    },
+    create=create,
+)

@@ -1,13 +1,13 @@
 """Python launcher for the node graph (``ros2 launch`` is not available from pip; see launch/piezo_ff.launch.py).
 
 Starts driver, compensator, trajectory and recorder as subprocesses (``python -m piezo_ff_ros.nodes.<name>``) with
-the safe ROS environment (:func:`piezo_ff_ros.ros_env.apply_ros_env_defaults`: localhost discovery, own domain,
+the safe ROS environment (:func:`piezo_ff_ros.ros.env.apply_ros_env_defaults`: localhost discovery, own domain,
 logs in a temp dir), waits until each node has logged that it is ready, and stops them with SIGINT (trajectory
 first, recorder last, so that the recording holds everything).  No ROS import here.
 
 Command line::
 
-    python -m piezo_ff_ros.launcher [--out DIR] [--mode realtime|lockstep] [--duration S] [--trajectory SPEC]
+    python -m piezo_ff_ros.ros.launcher [--out DIR] [--mode realtime|lockstep] [--duration S] [--trajectory SPEC]
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from .ros_env import apply_ros_env_defaults
+from .env import apply_ros_env_defaults
 
 NODES = ("driver", "compensator", "trajectory", "recorder")
 READY_MARKERS = {"driver": "driver ready", "compensator": "compensator ready", "trajectory": "trajectory ready",
@@ -35,7 +35,7 @@ class NodeProcess:
         self.name = name
         self.log_path = log_dir / f"{name}.log"
         self._log = open(self.log_path, "wb")
-        repo = str(Path(__file__).resolve().parents[1])
+        repo = str(Path(__file__).resolve().parents[2])   # the directory holding the piezo_ff_ros package
         env = dict(env)
         env["PYTHONPATH"] = repo + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
         env.setdefault("PYTHONUNBUFFERED", "1")
@@ -137,7 +137,7 @@ def _tail(text: str, n: int = 15) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m piezo_ff_ros.launcher", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m piezo_ff_ros.ros.launcher", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=".", help="directory for run.mcap and the node logs")
     ap.add_argument("--mode", choices=("realtime", "lockstep"), default="realtime")
     ap.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: on Ctrl-C)")

@@ -1,6 +1,6 @@
 """Driving the node graph from a command (``piezo-ff demo``, ``piezo-ff commission``): one rclpy client node.
 
-- :func:`sim_graph` — a :class:`~piezo_ff_ros.launcher.GraphLauncher` for driver (simulated PT230.94),
+- :func:`sim_graph` — a :class:`~piezo_ff_ros.ros.launcher.GraphLauncher` for driver (simulated PT230.94),
   compensator, trajectory (lockstep) and recorder, with the driver and compensator enforcing the same limits;
 - :class:`GraphClient` — parameter pushes (``set_parameters_atomically``), Trigger services, the trajectory's state,
   the compensator's diagnostics and the recorder's status; :meth:`GraphClient.configure` switches the compensator's
@@ -8,7 +8,7 @@
   compensator to rest and plays one named experiment to its end;
 - :func:`driver_present` — is a driver already on the domain?
 
-Import this module only after the ROS environment is set (:func:`piezo_ff_ros.ros_env.apply_ros_env_defaults`).
+Import this module only after the ROS environment is set (:func:`piezo_ff_ros.ros.env.apply_ros_env_defaults`).
 """
 from __future__ import annotations
 
@@ -64,7 +64,7 @@ class GraphClient:
         from std_msgs.msg import String
         from std_srvs.srv import Trigger
 
-        from .nodes.common import LATCHED_QOS
+        from ..nodes.common import LATCHED_QOS
 
         self.rclpy = rclpy
         self.context = rclpy.Context()
@@ -82,7 +82,11 @@ class GraphClient:
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 50)
         self.node.create_subscription(String, "/recorder/status", lambda m: self.recorder.update(json.loads(m.data)),
                                       LATCHED_QOS)
+        from rcl_interfaces.srv import GetParameters
+
         self.set_comp = self.node.create_client(SetParametersAtomically, "/compensator/set_parameters_atomically")
+        self.get_comp = self.node.create_client(GetParameters, "/compensator/get_parameters")
+        self.GetParameters = GetParameters
         self.set_traj = self.node.create_client(SetParametersAtomically, "/trajectory/set_parameters_atomically")
         self.reset_comp = self.node.create_client(Trigger, "/compensator/reset")
         self.reset_drv = self.node.create_client(Trigger, "/driver/reset")
@@ -126,6 +130,21 @@ class GraphClient:
         if not res.successful:
             raise RuntimeError(f"{client.srv_name} rejected {sorted(values)[:6]}…: {res.reason}")
 
+    def changed_params(self, values: dict) -> dict:
+        """The entries of ``values`` that differ from the compensator's current parameters (a push of values that
+        already run creates no configuration version, so nothing would be waited for)."""
+        from rclpy.parameter import parameter_value_to_python
+
+        names = list(values)
+        if not names:
+            return {}
+        res = self.call(self.get_comp, self.GetParameters.Request(names=names))
+        out = {}
+        for name, pv in zip(names, res.values):
+            if not _same_value(parameter_value_to_python(pv), values[name]):
+                out[name] = values[name]
+        return out
+
     def trigger(self, client):
         res = self.call(client, self.Trigger.Request())
         if not res.success:
@@ -159,10 +178,10 @@ class GraphClient:
         stage_str = stage_string(stages)
         failed_before = self.comp_diag.get("failed_builds", "0")
         version_before = self.comp_diag.get("config_version")
+        changed = bool(self.changed_params(params)) if params else False
         self.set_params(self.set_comp, {**(params or {}), "bypass": False, **want})
         if "vibration" in stages and self.comp_diag.get("stages") != stage_str:
             say("  (the compensator builds the vibration compensator in the background …)")
-        changed = bool(params)
 
         def done():
             d = self.comp_diag
@@ -176,7 +195,7 @@ class GraphClient:
 
     def play(self, name: str, trajectory, meta: dict, timeout: float = 3600.0) -> float:
         """Reset driver and compensator to rest, play ``trajectory`` as segment ``name``; returns the wall time."""
-        from .core.trajectories import Sequence
+        from ..core.trajectories import Sequence
 
         self.trigger(self.reset_drv)
         self.trigger(self.reset_comp)
@@ -192,6 +211,17 @@ class GraphClient:
         if end["state"] != "finished":
             raise RuntimeError(f"experiment {name}: trajectory {end['state']}: {end.get('error', '')}")
         return time.perf_counter() - t0
+
+
+def _same_value(a, b) -> bool:
+    """Parameter values equal as the compensator compares them (arrays element-wise, ints as floats)."""
+    if isinstance(a, (list, tuple)) or isinstance(b, (list, tuple)) or hasattr(a, "tolist"):
+        a = list(a.tolist() if hasattr(a, "tolist") else a)
+        b = list(b.tolist() if hasattr(b, "tolist") else b)
+        return len(a) == len(b) and all(_same_value(x, y) for x, y in zip(a, b))
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+        return float(a) == float(b)
+    return a == b
 
 
 def driver_present(client: GraphClient, timeout: float = 3.0) -> bool:

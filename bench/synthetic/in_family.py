@@ -1,5 +1,9 @@
-"""Withheld-effect data: truth plants (nominal + one hidden effect + sensor noise) driven by two different
-excitations, for the benchmark (``bench/bench_diagnosis.py``) and the tests.
+"""In-family diagnosis data: truth plants built by the diagnoser's own effect library (nominal + one hidden effect
++ white sensor noise) driven by two different excitations, for ``bench/bench_diagnosis.py`` and the tests.
+
+This is NOT an independent benchmark (the truths are the candidates' own parameterisations): it measures in-family
+fitting.  It lives under ``bench/`` so that no installed code depends on it; the independent, withheld-effect
+benchmark is ``bench/diagnosis/``.
 
 TRAIN: a slow sine with a growing amplitude, a staircase of held steps, and a band-limited random multisine.
 TEST: triangles at two rates, a logarithmic chirp and steps at other levels; the axes are driven differently.
@@ -8,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..config import PiezoConfig
-from ..models.effects import build_plant
-from ..recording.run import RunData
+from piezo_ff_ros.core.config import PiezoConfig
+from piezo_ff_ros.core.models.effects import build_plant
+from piezo_ff_ros.core.recording.run import RunData
 
 __all__ = ["excitation", "truth_cases", "make_runs", "NOISE_STD"]
 

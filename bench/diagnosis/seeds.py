@@ -1,0 +1,15 @@
+"""Seed sets of the independent diagnosis benchmark (issue 8).
+
+TUNING seeds may be looked at freely while the diagnosis engine is tuned.  HELD-OUT seeds were frozen on
+2026-11-23 (09:55 UTC), before any diagnosis was run on them, and are never looked at while tuning: report their
+figures, do not act on their per-case rows.
+"""
+
+#: the seeds the engine may be tuned against
+TUNING_SEEDS = (11, 12)
+
+# frozen 2026-11-23, never looked at while tuning
+HELDOUT_SEEDS = (90417, 90418)
+
+#: the seeds of the in-family cases (the project's own generator) per split
+IN_FAMILY_SEED = {"tuning": 0, "heldout": 90417}

@@ -1,0 +1,1 @@
+"""Truth generators used by the benchmarks and tests (not installed)."""

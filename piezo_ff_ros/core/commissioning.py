@@ -1,0 +1,359 @@
+"""One commissioning sequence (paper Fig. 3) over a small rig interface: characterise, identify, synthesise, verify.
+
+The sequence is written once, here; where the signals come from is the rig's business:
+
+- :class:`SimRig` — a core simulated plant (no ROS): ``piezo-ff commission --sim-only``;
+- :class:`piezo_ff_ros.ros.graph_rig.GraphRig` — the running node graph (simulated driver or any hardware
+  backend): ``piezo-ff commission``.
+
+A rig does three things (:class:`Rig`): ``configure`` the compensator in front of the plant (which stages, with
+which identified parameters, or bypass: voltages straight in), ``play`` planned runs and return what was applied and
+measured, and ``run_experiments`` (the paper's verification tests).  Stage by stage, each stage is characterised on
+the system the previous compensators leave (S0 → S_H → S_L), identified on its ``fit`` runs and scored on held-out
+runs; the Bouc-Wen is refitted once creep is known; the whole identified plant is scored on a held-out voltage
+record; the H∞ compensator is synthesised on the identified G_L.
+
+Pure: no ROS import.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Callable, Mapping, Protocol, Sequence
+
+import numpy as np
+
+from .characterisation import (CharacterisationSettings, creep_trajectories, dynamics_trajectories,
+                               hysteresis_trajectories, plant_validation_trajectory, run_open_loop)
+from .config import PiezoConfig, load_config
+from .identification.bouc_wen import identify_bouc_wen
+from .identification.creep import identify_creep
+from .identification.dynamics import identify_dynamics
+from .identification.pipeline import (REFIT_TAG, build_config, fits_report, part_fits, plant_fit,
+                                      refit_hysteresis_without_creep, synthesize_for)
+from .recording.run import RunData
+from .trajectories import Trajectory
+
+__all__ = ["CommissioningError", "PlannedRun", "Rig", "RigLimits", "SimRig", "CommissionResult",
+           "characterisation_plan", "check_voltage_runs", "commission", "verify"]
+
+Progress = Callable[[str], None]
+
+
+class CommissioningError(RuntimeError):
+    """Commissioning cannot start or go on (no sensor, a run outside the limits, a configuration refused…)."""
+
+
+@dataclass(frozen=True)
+class PlannedRun:
+    """One characterisation run.
+
+    ``role``: ``fit`` (identified on), ``validation`` (only scored on) or ``split`` (fitted on ``[0, score_start_s)``,
+    the whole run scored from ``score_start_s`` on).  ``input`` is ``voltage`` (compensator bypassed, the trajectory
+    is in volts) or ``position`` (through the compensators configured for the stage, in metres).
+    """
+
+    name: str
+    trajectory: Trajectory
+    stage: str
+    role: str
+    score_start_s: float = 0.0
+    input: str = "position"
+
+
+class Rig(Protocol):
+    """What the commissioning sequence needs from a positioner and its compensator."""
+
+    sample_rate: float
+    axes: tuple[str, ...]
+
+    @property
+    def has_sensor(self) -> bool:
+        """True when the rig measures the displacement (commissioning needs it)."""
+
+    @property
+    def voltage_limit(self) -> float:
+        """±V the driver enforces."""
+
+    @property
+    def slew_limit(self) -> float:
+        """V/s the driver enforces."""
+
+    def configure(self, cfg: PiezoConfig | None, stages: frozenset[str], bypass: bool = False) -> None:
+        """Put ``stages`` of ``cfg`` (None: keep the parameters that run) in front of the plant, or bypass it.
+
+        Raises :class:`CommissioningError` when the compensator refuses the configuration.
+        """
+
+    def play(self, runs: Sequence[PlannedRun], meta: Mapping[str, object] | None = None) -> dict[str, RunData]:
+        """Play ``runs`` from rest one after the other; ``{name: RunData}`` with ``u`` the voltage applied,
+        ``y`` the measured displacement, ``reference`` the trajectory's samples, all at :attr:`sample_rate`."""
+
+    def run_experiments(self, cfg: PiezoConfig, design: object, experiments: Sequence[object],
+                        progress: Progress) -> dict[str, tuple]:
+        """The paper's verification experiments: ``{name: (t, reference, u, y)}``."""
+
+
+def characterisation_plan(settings: CharacterisationSettings, axes: Sequence[str]) -> dict[str, list[PlannedRun]]:
+    """The characterisation runs per stage (hysteresis, plant, creep, dynamics), the paper's defaults."""
+    axes = tuple(axes)
+    ht = hysteresis_trajectories(settings, axes)
+    plan: dict[str, list[PlannedRun]] = {"hysteresis": [], "plant": [], "creep": [], "dynamics": []}
+    for role in ("fit", "validation"):
+        plan["hysteresis"] += [PlannedRun(n, tr, "hysteresis", role, input="voltage") for n, tr in ht[role]]
+    plan["plant"].append(PlannedRun("plant_validation", plant_validation_trajectory(settings, axes), "plant",
+                                    "validation", input="voltage"))
+    for stage, fn in (("creep", creep_trajectories), ("dynamics", dynamics_trajectories)):
+        plan[stage] = [PlannedRun(n, tr, stage, "split", float(t)) for n, tr, t in fn(settings, axes)]
+    return plan
+
+
+def check_voltage_runs(runs: Sequence[PlannedRun], voltage_limit: float, slew_limit: float, fs: float) -> None:
+    """Refuse voltage-input runs that would leave the rig's limits (the driver would clip them: a wrong fit)."""
+    for r in runs:
+        if r.input != "voltage":
+            continue
+        _, v = r.trajectory.sample(fs)
+        peak = float(np.max(np.abs(v))) if v.size else 0.0
+        if peak > voltage_limit * (1 + 1e-9):
+            raise CommissioningError(f"{r.name}: peak {peak:.4g} V exceeds the rig's voltage limit "
+                                     f"±{voltage_limit:g} V (lower the characterisation amplitude)")
+        # (a run that starts away from 0 V is the rig's to reach from rest: the graph rig ramps to it)
+        slew = float(np.max(np.abs(np.diff(v, axis=0)))) * fs if len(v) > 1 else 0.0
+        if slew > slew_limit * (1 + 1e-9):
+            raise CommissioningError(f"{r.name}: slew {slew:.4g} V/s exceeds the rig's slew limit "
+                                     f"{slew_limit:g} V/s")
+
+
+class RigLimits:
+    """The driver's limits a rig reports (shared by the rigs here)."""
+
+    def __init__(self, voltage_limit: float, slew_limit: float) -> None:
+        self._vlim, self._slim = float(voltage_limit), float(slew_limit)
+
+    @property
+    def voltage_limit(self) -> float:
+        return self._vlim
+
+    @property
+    def slew_limit(self) -> float:
+        return self._slim
+
+
+class SimRig(RigLimits):
+    """A core simulated plant (``process``/``reset``, e.g. :class:`~piezo_ff_ros.core.models.plant.Plant`) with the
+    compensators the commissioning configures in front of it."""
+
+    def __init__(self, plant, sample_rate: float, axes: Sequence[str] = ("x", "y"),
+                 voltage_limit: float = float("inf"), slew_limit: float = float("inf")) -> None:
+        self.plant = plant
+        self.sample_rate = float(sample_rate)
+        self.axes = tuple(axes)
+        super().__init__(voltage_limit, slew_limit)
+        self._chain: list = []
+
+    @property
+    def has_sensor(self) -> bool:
+        return True
+
+    def configure(self, cfg: PiezoConfig | None, stages: frozenset[str], bypass: bool = False) -> None:
+        from .compensators.creep import CreepCompensator
+        from .compensators.hysteresis import HysteresisCompensator
+
+        if bypass or not stages:
+            self._chain = []
+            return
+        if cfg is None:
+            raise CommissioningError("the simulated rig needs the configuration to build its compensators")
+        unknown = set(stages) - {"creep", "hysteresis"}
+        if unknown:
+            raise CommissioningError(f"characterisation through {sorted(unknown)} is not part of the sequence")
+        chain = []
+        if "creep" in stages:
+            chain.append(CreepCompensator(cfg.creep, 1.0 / self.sample_rate))
+        if "hysteresis" in stages:
+            chain.append(HysteresisCompensator(cfg.hysteresis))
+        self._chain = chain
+
+    def play(self, runs: Sequence[PlannedRun], meta: Mapping[str, object] | None = None) -> dict[str, RunData]:
+        return {r.name: run_open_loop(self.plant, r.trajectory, self.sample_rate, r.name, self.axes,
+                                      chain=self._chain) for r in runs}
+
+    def run_experiments(self, cfg: PiezoConfig, design: object, experiments: Sequence[object],
+                        progress: Progress) -> dict[str, tuple]:
+        from .experiments import simulate_experiments
+
+        return simulate_experiments(cfg, design=design, plant=self.plant, experiments=list(experiments),
+                                    progress=lambda name: progress(f"verify: {name}"))
+
+    # only a simulation can tell the noise-free output (for the plant fit against the truth)
+    def noise_free_output(self, u: np.ndarray) -> np.ndarray | None:
+        from .models.plant import Plant
+
+        p = self.plant
+        if not isinstance(p, Plant) or not float(getattr(p, "noise_std", 0.0) or 0.0) > 0:
+            return None
+        return Plant(p.cfg, pre=p.pre, post=p.post, noise_std=0.0, stages=p.stages).process(u)
+
+
+@dataclass
+class CommissionResult:
+    """What :func:`commission` identified: the complete config (H∞ controller stored in it), the design, the runs
+    recorded and a report (held-out fits per stage and of the whole plant, orders, timings)."""
+
+    config: PiezoConfig
+    design: object
+    hinf_note: str | None
+    report: dict
+    runs: list[RunData] = field(default_factory=list)
+
+
+def _tagged(recorded: Mapping[str, RunData], planned: Sequence[PlannedRun], fs: float,
+            extra: Mapping[str, object] | None = None) -> tuple[list[RunData], list[RunData]]:
+    """Split the recorded runs into fit and validation records as their plan says."""
+    fit, val = [], []
+    for p in planned:
+        r = recorded[p.name]
+        r.meta.update(extra or {})
+        if p.role == "split":
+            k = int(round(p.score_start_s * fs))
+            f = r.slice(0, k)
+            f.meta.update(stage=p.stage, role="fit")
+            r.meta.update(stage=p.stage, role="validation", score_start=k)
+            fit.append(f)
+            val.append(r)
+        else:
+            r.meta.update(stage=p.stage, role=p.role)
+            (val if p.role == "validation" else fit).append(r)
+    return fit, val
+
+
+def commission(rig: Rig, base: PiezoConfig | None = None, settings: CharacterisationSettings | None = None,
+               generalized: bool = False, creep_order: int | str = "auto", dynamics_order: int | str = "auto",
+               refine_hysteresis: bool = True, synthesize: bool = True,
+               progress: Progress | None = None) -> CommissionResult:
+    """Characterise and identify ``rig`` stage by stage (paper Fig. 3), then synthesise the H∞ compensator.
+
+    Parameters
+    ----------
+    rig : Rig
+        Where the signals come from (:class:`SimRig`, the ROS graph's ``GraphRig``, …). Must have a sensor.
+    base : PiezoConfig, optional
+        Weights, cascade options and limits kept in the identified config (default: the paper's config).
+    settings : CharacterisationSettings, optional
+        Amplitudes, durations, frequencies of the characterisation (default: the paper's).
+    generalized : bool
+        Identify the asymmetric (generalized) Bouc-Wen.
+    creep_order, dynamics_order : int or "auto"
+        Model orders (``auto``: chosen on held-out fit).
+    refine_hysteresis : bool
+        Refit the Bouc-Wen once creep is known (before S_L is characterised through it).
+    synthesize : bool
+        Synthesise the H∞ compensator and store it in the config.
+    progress : callable, optional
+        Called with one line per step.
+
+    Returns
+    -------
+    CommissionResult
+
+    Raises
+    ------
+    CommissioningError
+        The rig has no sensor, a voltage run would leave its limits, or its compensator refused a configuration.
+    """
+    say = progress or (lambda s: None)
+    if not rig.has_sensor:
+        raise CommissioningError("the rig has no displacement sensor: commissioning identifies the plant from "
+                                 "measured displacements (use a metrology rig, or load a config)")
+    s = settings or CharacterisationSettings()
+    base = base or load_config()
+    fs, axes = rig.sample_rate, tuple(rig.axes)
+    plan = characterisation_plan(s, axes)
+    check_voltage_runs([r for runs in plan.values() for r in runs], rig.voltage_limit, rig.slew_limit, fs)
+    timing: dict[str, float] = {}
+    t_all = time.perf_counter()
+    runs: list[RunData] = []
+
+    def characterise(stage: str, extra: Mapping[str, object] | None = None) -> tuple[list[RunData], list[RunData]]:
+        t0 = time.perf_counter()
+        recorded = rig.play(plan[stage], {"stage": stage, **(extra or {})})
+        fit, val = _tagged(recorded, plan[stage], fs, extra)
+        runs.extend(fit + val)
+        timing[f"characterise_{stage}"] = time.perf_counter() - t0
+        return fit, val
+
+    say("characterise hysteresis on S0 (compensator bypassed: sines in volts)")
+    rig.configure(None, frozenset(), bypass=True)
+    hfit, hval = characterise("hysteresis")
+    say("held-out whole-plant voltage record (multisine + step pair, never fitted on), still bypassed")
+    _, plant_runs = characterise("plant")
+    t0 = time.perf_counter()
+    hf = identify_bouc_wen(hfit, hval, generalized=generalized, progress=say)
+    timing["identify_hysteresis"] = time.perf_counter() - t0
+
+    say(f"characterise creep on S_H ({s.creep_duration:g} s steps up and down per axis) through the identified "
+        "hysteresis compensator")
+    rig.configure(replace(base, hysteresis=hf.config), frozenset({"hysteresis"}))
+    cfit, cval = characterise("creep")
+    t0 = time.perf_counter()
+    cf = identify_creep(cfit, cval, order=creep_order, axes=axes, progress=say)
+    timing["identify_creep"] = time.perf_counter() - t0
+
+    extra: dict[str, object] = {}
+    if refine_hysteresis:
+        t0 = time.perf_counter()
+        say("hysteresis: refit Bouc-Wen on S0 with the identified creep removed from the output")
+        hf = refit_hysteresis_without_creep(hfit + hval, cf.config, generalized=generalized, init=hf, progress=say)
+        timing["identify_hysteresis_refit"] = time.perf_counter() - t0
+        extra["hysteresis_compensator"] = REFIT_TAG
+
+    say("characterise dynamics on S_L through the creep and hysteresis compensators")
+    rig.configure(replace(base, hysteresis=hf.config, creep=cf.config), frozenset({"creep", "hysteresis"}))
+    dfit, dval = characterise("dynamics", extra)
+    t0 = time.perf_counter()
+    df = identify_dynamics(dfit, dval, order=dynamics_order, axes=axes, progress=say)
+    timing["identify_dynamics"] = time.perf_counter() - t0
+    cfg = build_config(base, hf, cf, df, fs, axes)
+    report: dict = {"fit_percent": fits_report(hf, cf, df, axes), "orders": {"creep": cf.orders,
+                                                                              "dynamics": df.orders}}
+
+    say("plant: held-out fit of the identified whole-plant model on the recorded voltage record")
+    t0 = time.perf_counter()
+    pv = plant_runs[0]
+    report["fit_percent"]["plant"] = plant_fit(cfg, plant_runs)
+    noise_free = getattr(rig, "noise_free_output", lambda u: None)(pv.u)
+    report["plant_fit_basis"] = "measured output" + (" (with sensor noise)" if noise_free is not None else "")
+    if noise_free is not None:
+        report["plant_fit_noise_free"] = plant_fit(cfg, [pv], [noise_free])
+    report["plant_fit_parts"] = part_fits(cfg, pv, pv.y if noise_free is None else noise_free,
+                                          plan["plant"][0].trajectory, axes)
+    timing["plant_fit"] = time.perf_counter() - t0
+
+    design, note = None, None
+    if synthesize:
+        t0 = time.perf_counter()
+        say("vibration: H∞ synthesis on the identified G_L")
+        design, note = synthesize_for(cfg, say)
+        vib = replace(cfg.vibration, controller=design.controller_matrices())
+        if note:   # keep the config re-synthesisable with the same bound
+            vib = replace(vib, gamma_max=1.05 * float(design.gamma))
+        cfg = replace(cfg, vibration=vib).validate()
+        timing["hinf"] = time.perf_counter() - t0
+    timing["total"] = time.perf_counter() - t_all
+    report["timing_s"] = timing
+    return CommissionResult(config=cfg, design=design, hinf_note=note, report=report, runs=runs)
+
+
+def verify(rig: Rig, cfg: PiezoConfig, design: object, experiments: Sequence[object], conditions: Mapping,
+           robust: bool = False, progress: Progress | None = None) -> dict:
+    """The paper's tests played on ``rig`` with ``cfg``'s cascade; Tables I/II (:func:`~.reproduce.evaluate`)."""
+    from .reproduce import evaluate
+
+    say = progress or (lambda s: None)
+    rec = rig.run_experiments(cfg, design, experiments, say)
+    missing = [e.name for e in experiments if e.name not in rec]
+    if missing:
+        raise CommissioningError(f"verification runs missing: {missing}")
+    return evaluate({e.name: rec[e.name] for e in experiments}, list(experiments), design=design, robust=robust,
+                    conditions=dict(conditions), reference_model_tau=cfg.vibration.t_r / 3.0)

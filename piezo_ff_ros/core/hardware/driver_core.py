@@ -1,0 +1,423 @@
+"""The driver without ROS: voltage blocks in, what the device actually applied (and measured) out.
+
+:class:`DriverCore` owns the :class:`~piezo_ff_ros.core.safety.VoltageGuard` (limits, slew, rejection), the
+:class:`~.stream.StreamBook` (stamps ↔ device samples, gaps, late blocks), the idle/active/safe/fault state and a
+:class:`~.contract.StreamingBackend`.  The driver node only converts messages and publishes what it returns.
+
+- ``on_block(stamp, block)`` — a voltage block from the topic (or ``reject=`` a reason: the block's samples are
+  then held at the last voltage, as long as its size is plausible);
+- ``tick()`` — called periodically: polls the device (faults → safe ramp), keeps a clocked device's FIFO fed
+  (safe voltage while idle/safe, the last voltage while a late stream is awaited — counted as starved samples —,
+  close to the clock once a stream has started),
+  ramps to safe after ``stale_timeout`` without input, and collects what was applied/measured;
+- each call returns an :class:`Emit`: ``applied`` and ``displacement`` blocks ``(stamp_ns, [N, axes])`` on the
+  topic grid (every applied sample exactly once, in order, holds and ramps included), and log lines.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..config import ConfigError, LimitsConfig
+from ..safety import BlockRejected, SafeRampConfig, VoltageGuard
+from .contract import DeviceFault, Disconnect, StreamingBackend
+from .stream import StreamBook
+
+__all__ = ["DriverSettings", "DriverCore", "Emit", "OK", "WARN", "ERROR"]
+
+OK, WARN, ERROR = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class DriverSettings:
+    """The driver's validated settings (from node parameters or a rig-check)."""
+
+    sample_rate: float
+    n_axes: int
+    limits: LimitsConfig
+    ramp: SafeRampConfig = field(default_factory=SafeRampConfig)
+    max_block: int = 20000           #: largest accepted block [samples]
+    max_gap: float = 1.0             #: largest gap filled by holding [s]; larger jumps need confirmation
+    write_ahead: float = 0.05        #: clocked devices: target FIFO margin ahead of the clock [s]
+    low_water: float = 0.01          #: clocked devices: below this margin the last voltage is held [s]
+
+    def validate(self) -> "DriverSettings":
+        self.limits.validate()
+        self.ramp.validate()
+        if not (isinstance(self.max_block, int) and 1 <= self.max_block <= 10 * self.sample_rate):
+            raise ConfigError("max_block", f"must be an integer in [1, {int(10 * self.sample_rate)}] samples "
+                                           f"(10 s), got {self.max_block!r}")
+        for name, lo, hi in (("max_gap", 0.0, 3600.0), ("write_ahead", 1e-3, 10.0), ("low_water", 0.0, 10.0)):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
+                raise ConfigError(name, f"must be a number of seconds in [{lo:g}, {hi:g}], got {v!r}")
+        if self.low_water >= self.write_ahead:
+            raise ConfigError("low_water", f"must be below write_ahead ({self.write_ahead} s), got {self.low_water}")
+        return self
+
+    def samples(self, seconds: float) -> int:
+        return int(round(seconds * self.sample_rate))
+
+
+@dataclass
+class Emit:
+    """What a call produced: blocks to publish and log lines ``(level, text)``."""
+
+    applied: list = field(default_factory=list)
+    displacement: list = field(default_factory=list)
+    log: list = field(default_factory=list)
+
+    def extend(self, other: "Emit") -> "Emit":
+        self.applied += other.applied
+        self.displacement += other.displacement
+        self.log += other.log
+        return self
+
+
+class _Rechunker:
+    """Re-cuts a device's sample stream at the driver's block boundaries, so that ``voltage_applied`` and
+    ``displacement`` come one block per block applied (same stamps as the voltage blocks), whatever chunks the
+    device delivers.  A hole in the delivered samples (lost sensor data) flushes what was buffered."""
+
+    def __init__(self):
+        self.cuts: deque[int] = deque()
+        self._d0: int | None = None
+        self._parts: list[np.ndarray] = []
+        self._n = 0
+
+    def cut(self, d: int) -> None:
+        if not self.cuts or d > self.cuts[-1]:
+            self.cuts.append(d)
+
+    def feed(self, d0: int, arr: np.ndarray) -> list[tuple[int, np.ndarray]]:
+        out = []
+        if self._d0 is not None and d0 != self._d0 + self._n and self._n:
+            out.append((self._d0, np.vstack(self._parts)))
+            self._parts, self._n = [], 0
+        if not self._n:
+            self._d0 = d0
+        self._parts.append(arr)
+        self._n += arr.shape[0]
+        while self.cuts and self.cuts[0] <= self._d0:
+            self.cuts.popleft()
+        end = self._d0 + self._n
+        if self.cuts and self.cuts[0] <= end:
+            buf = np.vstack(self._parts) if len(self._parts) > 1 else self._parts[0]
+            while self.cuts and self.cuts[0] <= end:
+                c = self.cuts.popleft()
+                if c > self._d0:
+                    out.append((self._d0, buf[:c - self._d0]))
+                    buf = buf[c - self._d0:]
+                    self._d0 = c
+            self._parts, self._n = ([buf], buf.shape[0]) if buf.shape[0] else ([], 0)
+        return out
+
+    def clear(self) -> None:
+        self.cuts.clear()
+        self._d0, self._parts, self._n = None, [], 0
+
+
+class DriverCore:
+    """See the module docstring."""
+
+    def __init__(self, settings: DriverSettings, backend: StreamingBackend, now=time.monotonic):
+        self.s = settings.validate()
+        self.backend = backend
+        self.info = backend.info
+        if self.info.n_axes != self.s.n_axes:
+            raise ConfigError("backend", f"{self.info.name} has {self.info.n_axes} axes, the config {self.s.n_axes}")
+        if abs(self.info.sample_rate_hz - self.s.sample_rate) > 1e-9 * self.s.sample_rate:
+            raise ConfigError("backend", f"{self.info.name} runs at {self.info.sample_rate_hz} Hz, "
+                                         f"the config at {self.s.sample_rate} Hz")
+        self.now = now
+        self.period_ns = int(round(1e9 / self.s.sample_rate))
+        self.guard = VoltageGuard(self.s.limits, self.s.n_axes, self.s.sample_rate, max_block=self.s.max_block)
+        self.book = StreamBook(self.period_ns, self.s.samples(self.s.max_gap))
+        self.safe = np.full(self.s.n_axes, float(self.s.limits.safe_voltage))
+        self.state = "idle"
+        self.faults = {"underrun": 0, "overrun": 0, "disconnect": 0, "limit": 0}
+        self.starved_samples = 0
+        self.resumes = 0
+        self.last_error = ""
+        self.last_block_wall: float | None = None
+        self._queue: deque[np.ndarray] = deque()   # committed samples not yet in the device FIFO
+        self._queued = 0
+        self._w = 0                                 # device index after everything committed
+        self._chunks = (_Rechunker(), _Rechunker())  # applied, measured
+        self._started = False
+        self._window = {"samples": 0, "lost": 0}    # since the last health() call
+        self._lost_seen = 0
+
+    # -- life cycle ------------------------------------------------------------------------------------------------
+    def _prefill(self) -> int:
+        return min(self.s.samples(self.s.write_ahead), self.info.fifo_depth) if self.info.clocked else 0
+
+    def start(self) -> Emit:
+        """Start the device (its clock runs from here: call it where the periodic ``tick`` starts too)."""
+        self._w = self.backend.start(self.safe.copy(), self._prefill())
+        self._started = True
+        return self.tick()
+
+    def reset(self) -> bool:
+        """Back to rest if the device can (the simulator); stream and counters start anew."""
+        if not self.backend.reset():
+            return False
+        self.guard.reset()
+        self.book.reset()
+        self._queue.clear()
+        self._queued = 0
+        for c in self._chunks:
+            c.clear()
+        self.state, self.last_block_wall, self.last_error = "idle", None, ""
+        self.starved_samples = self.resumes = 0
+        self.faults = dict.fromkeys(self.faults, 0)
+        self._w = self.backend.start(self.safe.copy(), self._prefill())
+        return True
+
+    @property
+    def next_stamp(self) -> int | None:
+        """Stamp of the next sample the stream expects (None before the first block)."""
+        self._sync()
+        return self.book.stamp_of(self._w) if self.book.started else None
+
+    @property
+    def started(self) -> bool:
+        return self._started
+
+    def close(self) -> None:
+        self.backend.close()
+
+    # -- input ------------------------------------------------------------------------------------------------------
+    def on_block(self, stamp: int, block=None, *, n: int | None = None, reject: str | None = None) -> Emit:
+        """A voltage block stamped ``stamp`` (first sample, ns); with ``reject`` (a reason) it is not applied and
+        its ``n`` samples hold the last voltage (nothing if ``n`` is out of [1, max_block])."""
+        em = Emit()
+        if self.state == "fault":
+            em.log.append((ERROR, f"block at {stamp} ignored: device fault ({self.last_error})"))
+            return em
+        if reject is not None:
+            self.guard.counters.rejected_blocks += 1
+        else:
+            try:
+                u = self.guard.check(block)
+            except BlockRejected as exc:
+                reject, n = str(exc), int(np.shape(block)[0]) if np.ndim(block) >= 1 else 0
+        if reject is not None:
+            n = int(n or 0)
+            if not 1 <= n <= self.s.max_block:
+                self._err(em, f"voltage block rejected ({reject}); nothing applied")
+                return em
+            self._err(em, f"voltage block rejected ({reject}); holding {self.guard.u_last.tolist()} V for {n} "
+                          "samples")
+            u = None
+        else:
+            n = u.shape[0]
+        self.last_block_wall = self.now()
+        if self.info.clocked:
+            # the device's clock moved since the last tick: catch up (faults first) so that the block is placed
+            # against where the device really is; a first block gets the full write-ahead margin
+            self._poll(em)
+            if self.state == "fault":
+                return em
+            self._sync()
+            if not self.book.started:
+                self._feed(em)
+        self._sync()
+        try:
+            d = self.book.classify(int(stamp), n, self._w, payload=u)
+        except ValueError as exc:
+            self._err(em, f"voltage block dropped: {exc}")
+            return em
+        if d.kind == "pending":
+            off = abs(stamp - (self.book.stamp_of(self._w) or 0)) // self.period_ns
+            em.log.append((WARN, f"block at {stamp} is {off} samples off the stream: held back until the next "
+                                 "block confirms the jump"))
+            return em.extend(self._collect())
+        if d.kind == "late":
+            self._err(em, f"late block dropped: stamp {stamp} is for samples already applied "
+                          f"(next expected {self.book.stamp_of(self._w)})", level=WARN)
+            return em.extend(self._collect())
+        if d.kind == "confirm":
+            em.log.append((WARN, f"stream jumped to stamp {d.replay[0]}: map re-based (a gap in the stamps, no "
+                                 "samples lost on the device)"))
+            self._commit_block(d.replay[2], d.replay[1])
+        if d.kind == "gap":
+            self._err(em, f"{d.fill} sample(s) missing before stamp {stamp} (lost blocks?): holding "
+                          f"{self.guard.u_last.tolist()} V", level=WARN)
+            self._commit(self.guard.hold(d.fill))
+        if d.kind == "trim":
+            em.log.append((WARN, f"{d.skip} leading sample(s) of the block at {stamp} were past: dropped"))
+        if self.state == "safe":
+            self.resumes += 1
+            em.log.append((WARN, "input resumed after the safe state: the applied voltage restarts from "
+                                 f"{self.guard.u_last.tolist()} V (see voltage_applied)"))
+        self.state = "active"
+        self._commit_block(u, n, skip=d.skip)
+        return em.extend(self._collect())
+
+    def _commit_block(self, u, n: int, skip: int = 0) -> None:
+        if u is None:
+            self._commit(self.guard.hold(n - skip))
+        else:
+            self._commit(self.guard.apply(u[skip:]))
+
+    def _sync(self) -> None:
+        """Follow the device's write cursor if it moved on its own (samples it held after an underrun)."""
+        head = self.backend.write_index
+        if head != self._w - self._queued:
+            self._w = head + self._queued
+
+    def _commit(self, u: np.ndarray) -> None:
+        if u.shape[0] == 0:
+            return
+        for c in self._chunks:
+            c.cut(self._w)
+            c.cut(self._w + u.shape[0])
+        self._queue.append(u)
+        self._queued += u.shape[0]
+        self._w += u.shape[0]
+        self._window["samples"] += u.shape[0]
+
+    # -- time ------------------------------------------------------------------------------------------------------
+    def tick(self) -> Emit:
+        """Poll the device, keep the FIFO fed, ramp on stale input; see the module docstring."""
+        em = Emit()
+        if self.state == "fault":
+            return em
+        self._poll(em)
+        if self.state == "fault":
+            return em
+        self._sync()
+        stale = self.state == "active" and self.last_block_wall is not None and \
+            self.now() - self.last_block_wall >= self.s.limits.stale_timeout
+        if stale:
+            if self.book.drop_candidate():
+                em.log.append((WARN, "a held-back out-of-sequence block was never confirmed: dropped"))
+            self._ramp(em, f"no voltage block for {self.s.limits.stale_timeout} s")
+        if self.info.clocked:
+            self._feed(em)
+        return em.extend(self._collect())
+
+    def _feed(self, em: Emit) -> None:
+        """Keep a clocked device's FIFO from running dry.  Before the first block: ``write_ahead`` of the safe
+        voltage (the first block then lands that far ahead of the clock: the stream's margin).  Afterwards the
+        driver's own holds stay close to the clock (below ``low_water``, up to 2·low_water), so that a stream
+        that resumes a little late still finds its sample instants free."""
+        margin = self._w - self.backend.clock()
+        lw = self.s.samples(self.s.low_water)
+        if self.book.started:
+            if margin >= lw:
+                return
+            target = min(2 * lw, self.s.samples(self.s.write_ahead))
+        else:
+            target = self.s.samples(self.s.write_ahead)
+        want = target - margin
+        if want <= 0:
+            return
+        if self.state == "active":
+            self.starved_samples += want
+        self._commit(self.guard.hold(want))
+
+    def _ramp(self, em: Emit, why: str) -> None:
+        u_from = self.guard.u_last.tolist()
+        r = self.guard.ramp_to_safe(self.s.ramp)
+        em.log.append((WARN, f"{why}: ramping from {u_from} V to the safe state {self.s.limits.safe_voltage} V in "
+                             f"{r.shape[0]} samples"))
+        self._commit(r)
+        self.state = "safe"
+
+    def _poll(self, em: Emit) -> None:
+        try:
+            self.backend.poll()
+        except Disconnect as exc:
+            self.faults["disconnect"] += 1
+            self.state = "fault"
+            self._err(em, f"device fault: {exc}; output stopped")
+            return
+        except DeviceFault as exc:
+            self.faults[exc.kind] = self.faults.get(exc.kind, 0) + 1
+            self._window["lost"] += 1
+            self._err(em, f"device fault ({exc.kind}): {exc}")
+            if self.state == "active":
+                self._ramp(em, f"device {exc.kind}")
+
+    def _collect(self) -> Emit:
+        """Write what fits into the FIFO; map what the device applied and measured to stamps."""
+        em = Emit()
+        try:
+            self._sync()
+            while self._queue:
+                space = self.backend.write_space()
+                if space <= 0:
+                    break
+                b = self._queue[0]
+                part = b[:space]
+                self.backend.write(self.backend.write_index, part)
+                self._queued -= part.shape[0]
+                if part.shape[0] == b.shape[0]:
+                    self._queue.popleft()
+                else:
+                    self._queue[0] = b[part.shape[0]:]
+            applied = self.backend.take_applied()
+            measured = self.backend.read()
+        except Disconnect as exc:
+            self.faults["disconnect"] += 1
+            self.state = "fault"
+            self._err(em, f"device fault: {exc}; output stopped")
+            return em
+        for src, dst, chunker in ((applied, em.applied, self._chunks[0]), (measured, em.displacement,
+                                                                           self._chunks[1])):
+            for d_in, b_in in src:
+                for d0, blk in chunker.feed(d_in, b_in):
+                    for off, cnt, stamp in self.book.split(d0, blk.shape[0]):
+                        dst.append((stamp, blk[off:off + cnt]))
+        return em
+
+    # -- reporting ---------------------------------------------------------------------------------------------------
+    def _err(self, em: Emit, text: str, level: int = ERROR) -> None:
+        self.last_error = text
+        em.log.append((level, text))
+
+    def status(self) -> dict:
+        st = {"state": self.state, **self.guard.counters.as_dict(), **self.book.counters.as_dict(),
+              "starved_samples": self.starved_samples, "resumes": self.resumes,
+              **{f"{k}_faults": v for k, v in self.faults.items()},
+              "applied_voltage": self.guard.u_last.tolist(),
+              "next_stamp_ns": self.book.stamp_of(self._w) if self.book.started else None,
+              "latency_samples": self.backend.latency_samples, "last_error": self.last_error}
+        if self.info.clocked and self.state != "fault":
+            st["write_ahead_samples"] = self._w - self.backend.clock()
+        try:
+            st.update({f"device.{k}": v for k, v in self.backend.status().items()})
+        except Exception as exc:  # noqa: BLE001 - a status read must never take the driver down
+            st["device.error"] = str(exc)
+        return st
+
+    def lost_samples(self) -> int:
+        c = self.book.counters
+        return c.gap_samples + c.late_samples + self.starved_samples
+
+    def health(self) -> tuple[int, str]:
+        """(level, message) for ``/diagnostics``: ERROR on a device fault or when ≥ 10 % of the samples since the
+        last call were lost; WARN when anything was lost, rejected, clamped or faulted since start."""
+        st = self.status()
+        lost_now = self.lost_samples()
+        window_lost = lost_now - self._lost_seen + self._window["lost"]
+        window_total = max(self._window["samples"], 1)
+        self._lost_seen = lost_now
+        self._window = {"samples": 0, "lost": 0}
+        c = self.book.counters
+        losses = (f"lost: {c.gap_samples} gap + {c.late_samples} late + {self.starved_samples} starved samples, "
+                  f"~{c.lost_blocks} lost / {c.late_blocks} late / {c.out_of_sequence_blocks} out-of-sequence blocks")
+        faults = sum(self.faults.values())
+        if self.state == "fault":
+            return ERROR, f"fault: {self.last_error}"
+        if window_lost and window_lost >= 0.1 * window_total:
+            return ERROR, f"{self.state}; {window_lost} of {window_total} samples lost since the last report; {losses}"
+        if lost_now or faults or st["rejected_blocks"] or st["saturated_samples"] or c.out_of_sequence_blocks:
+            return WARN, f"{self.state}; {losses}; {faults} device fault(s); {st['rejected_blocks']} rejected"
+        return OK, self.state

@@ -1,0 +1,139 @@
+"""``piezo-ff commission`` through the ROS 2 node graph: the sequence of :mod:`piezo_ff_ros.core.commissioning` on a
+:class:`~piezo_ff_ros.ros.graph_rig.GraphRig`.
+
+1. Finds a driver on the domain (a node named ``driver`` or a subscriber of ``voltage``): any backend, simulated or
+   hardware; without one it starts the sim graph (driver, compensator, trajectory, recorder) on a private domain (or
+   ``--domain-id``); with one it starts only the nodes that are missing (never a second recorder: the recording
+   must be ours).  A driver without a displacement sensor is refused.
+2. Characterises S0 (compensator bypassed), S_H and S_L stage by stage with live parameter pushes, identifies each
+   stage from the recording, scores the identified whole plant on a held-out voltage record, synthesises H∞ and
+   pushes the complete identified config (all in :func:`~piezo_ff_ros.core.commissioning.commission`).
+3. Verifies by playing the paper's tests (:mod:`piezo_ff_ros.core.experiments`) through the graph; Tables I/II.
+
+Everything goes through the topics into ``DIR/commission.mcap``.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+
+def run_graph(args, say) -> int:
+    """The ROS path of ``piezo-ff commission`` (``args`` from :mod:`piezo_ff_ros.cli.commission`)."""
+    from .env import apply_ros_env_defaults
+
+    # before rclpy is imported: localhost discovery; probe the given (or the caller's) domain for a driver
+    apply_ros_env_defaults(domain_id=args.domain_id, force_domain=args.domain_id is not None)
+    from ..core.characterisation import CharacterisationSettings
+    from ..core.commissioning import commission, verify
+    from ..core.config import load_config
+    from ..core.experiments import paper_experiments
+    from ..core.jsonable import jsonable, parse_order
+    from ..core.reproduce import format_tables
+    from .graph_rig import GraphRig
+    from .graph_session import GraphClient, driver_present, sim_graph
+
+    t_start = time.perf_counter()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    mcap_path = out / "commission.mcap"
+    if mcap_path.exists():
+        mcap_path.unlink()
+    printed = load_config(args.config, variant=args.variant)
+    fs, axes = printed.sample_rate, printed.axes
+    vlim = printed.limits.voltage if args.voltage_limit is None else args.voltage_limit
+    slim = printed.limits.slew
+    settings = CharacterisationSettings(sine_frequency=args.sine_frequency, sine_periods=args.sine_periods,
+                                        creep_step=args.step_um * 1e-6, dynamics_step=args.step_um * 1e-6,
+                                        creep_duration=args.creep_duration)
+    exps = paper_experiments(printed, creep_duration=args.creep_duration)
+    if args.only:
+        wanted = [s.strip() for s in args.only.split(",") if s.strip()]
+        unknown = set(wanted) - {e.name for e in exps}
+        if unknown:
+            raise ValueError(f"--only: unknown experiment(s) {sorted(unknown)}; have {[e.name for e in exps]}")
+        exps = [e for e in exps if e.name in wanted]
+
+    client = GraphClient("piezo_ff_commission", domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+    found = driver_present(client, timeout=args.probe_timeout)
+    if found:
+        present = {n.rsplit("/", 1)[-1] for n in client.node_names()}
+        if "recorder" in present:
+            client.close()
+            raise ValueError("a recorder node is already running on this domain; stop it (commissioning records "
+                             "to its own DIR/commission.mcap)")
+        nodes = ("recorder",) + tuple(n for n in ("compensator", "trajectory") if n not in present)
+        say(f"driver found on ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}; starting {', '.join(nodes)}")
+    else:
+        client.close()
+        client = None
+        if args.domain_id is None:   # a private domain for our own sim graph
+            apply_ros_env_defaults(force_domain=True)
+        nodes = ("driver", "compensator", "trajectory", "recorder")
+        say(f"no driver on the domain: starting the sim graph on ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}")
+    graph = sim_graph(out, mcap_path, fs=fs, voltage_limit=vlim, slew_limit=slim, block_size=args.block_size,
+                      config=args.config, variant=args.variant, nodes=nodes,
+                      metadata={"commission": {"creep_duration": args.creep_duration, "step_m": settings.creep_step,
+                                               "sine_frequency": settings.sine_frequency, "mode": "lockstep"}})
+    graph.start()
+    timing = {}
+    try:
+        if client is None:
+            client = GraphClient("piezo_ff_commission", domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+        client.wait_recorder_connected()
+        rig = GraphRig(client, graph, mcap_path, fs, axes, vlim, slim, say=say)
+        result = commission(rig, base=printed, settings=settings, generalized=args.generalized,
+                            creep_order=parse_order(args.creep_order),
+                            dynamics_order=parse_order(args.dynamics_order),
+                            progress=say)
+        cfg, design, note = result.config, result.design, result.hinf_note
+        cfg_path = out / "config.yaml"
+        cfg.to_yaml(cfg_path)
+        load_config(cfg_path)  # what the compensator node will do: fails loudly if the file is not loadable
+        say(f"wrote {cfg_path}; pushing the complete identified configuration live")
+        rig.configure(cfg, frozenset({"hysteresis", "creep", "vibration"}))
+        say(f"verify: {len(exps)} paper experiments through the graph with the identified cascade")
+        t0 = time.perf_counter()
+        res = verify(rig, cfg, design, exps,
+                     conditions={"source": "piezo-ff commission (ROS 2 graph, lockstep)", "compensator": "identified",
+                                 "creep_duration_s": args.creep_duration}, progress=say)
+        timing["verify"] = time.perf_counter() - t0
+    finally:
+        if client is not None:
+            client.close()
+        codes = graph.stop()
+    bad = {k: v for k, v in codes.items() if v != 0}
+    if bad:
+        print(f"warning: node exit codes {bad} (logs in {graph.log_dir})", file=sys.stderr)
+
+    report = result.report
+    timing = {**report["timing_s"], **timing, "total": time.perf_counter() - t_start}
+    out_json = {"fit_percent": report["fit_percent"],
+                "plant_fit_basis": "measured output (recorded through the graph)",
+                "plant_fit_parts": report.get("plant_fit_parts"),
+                "orders": report["orders"],
+                "before": res["before"], "after": res["after"], "hinf": res.get("hinf"),
+                "tracking": res.get("tracking"), "static_error_percent": res.get("static_error_percent"),
+                "conditions": {"graph": "started sim graph" if not found else "existing driver",
+                               "ros_domain_id": int(os.environ["ROS_DOMAIN_ID"]),
+                               "creep_duration_s": args.creep_duration,
+                               "characterisation_step_m": settings.creep_step,
+                               "sine_frequency_hz": settings.sine_frequency, "sample_rate_hz": fs,
+                               "generalized": bool(args.generalized), "voltage_limit_v": vlim,
+                               "experiments": [e.name for e in exps]},
+                "config": str(out / "config.yaml"), "recording": str(mcap_path), "hinf_note": note,
+                "timing_s": {k: round(v, 2) for k, v in timing.items()}}
+    print(format_tables(res, label="identified cascade (ROS graph)", axes=axes))
+    print()
+    print("held-out fit [%] (MATLAB compare):")
+    for stage, d in report["fit_percent"].items():
+        print(f"  {stage:10s} " + "  ".join(f"{k}: {'—' if v is None else f'{v:8.3f}'}" for k, v in d.items()))
+    text = json.dumps(jsonable(out_json), indent=2)
+    (out / "commission.json").write_text(text)
+    if args.json:
+        Path(args.json).write_text(text)
+    say(f"done in {timing['total']:.1f} s; recording {mcap_path}, config {out / 'config.yaml'}")
+    return 0
