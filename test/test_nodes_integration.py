@@ -40,21 +40,33 @@ def child_env() -> dict:
 
 
 def start_node(name: str, *ros_args: str, log_dir: Path) -> subprocess.Popen:
-    log = open(log_dir / f"{name}.log", "wb")
-    return subprocess.Popen([sys.executable, "-m", f"piezo_ff_ros.nodes.{name}", "--ros-args", *ros_args],
-                            env=child_env(), stdout=log, stderr=subprocess.STDOUT)
+    log_path = log_dir / f"{name}.log"
+    log = open(log_path, "wb")
+    p = subprocess.Popen([sys.executable, "-m", f"piezo_ff_ros.nodes.{name}", "--ros-args", *ros_args],
+                         env=child_env(), stdout=log, stderr=subprocess.STDOUT)
+    p.log_path = log_path  # type: ignore[attr-defined]  # shown by stop_node when the exit is not clean
+    return p
 
 
 def stop_node(p: subprocess.Popen, timeout: float = 15.0) -> int:
+    """SIGINT, wait, exit code (-9 if it had to be killed); a non-zero code prints the node's log tail, which
+    pytest shows with the failure."""
+    code = p.returncode
     if p.poll() is None:
         p.send_signal(signal.SIGINT)
         try:
-            return p.wait(timeout)
+            code = p.wait(timeout)
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait()
-            return -9
-    return p.returncode
+            code = -9
+    else:
+        code = p.returncode
+    log_path = getattr(p, "log_path", None)
+    if code != 0 and log_path is not None and Path(log_path).exists():
+        tail = Path(log_path).read_text(errors="replace").splitlines()[-40:]
+        print(f"--- {Path(log_path).name} (exit {code}) ---", *tail, sep="\n")
+    return code
 
 
 class Probe:

@@ -118,19 +118,23 @@ def unpack_block(msg: PointCloud2, axes: Sequence[str] | None = None) -> np.ndar
 def spin_node(node, on_exit=None) -> int:
     """Spin until SIGINT/SIGTERM (ExternalShutdownException in these rclpy versions); clean exit code 0."""
     code = 0
+    name = node.get_name()   # read now: after a shutdown the node's handle is gone and get_name() raises
     try:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as exc:  # noqa: BLE001 - last resort: a clear one-line message, not a traceback
-        print(f"{node.get_name()}: fatal: {exc}", file=sys.stderr)
-        code = 1
+        if node.context.ok():
+            print(f"{name}: fatal: {exc}", file=sys.stderr)
+            code = 1
+        else:   # SIGINT/SIGTERM shut the context down under a running callback (publish → InvalidHandle): clean
+            print(f"{name}: stopped during a callback ({type(exc).__name__}: {exc})", file=sys.stderr)
     finally:
         if on_exit is not None:
             try:
                 on_exit()
             except Exception as exc:  # noqa: BLE001
-                print(f"{node.get_name()}: error while finishing: {exc}", file=sys.stderr)
+                print(f"{name}: error while finishing: {exc}", file=sys.stderr)
                 code = 1
         node.destroy_node()
         rclpy.try_shutdown()
