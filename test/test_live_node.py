@@ -230,6 +230,7 @@ def test_applied_voltage_resync_workspace_and_input_gaps(tmp_path, probe):
         g.send(held(N_BLK))
         d = g.diag_after(lambda d: d.get("input_gaps") == "1", "a counted input gap")
         assert d["input_gap_samples"] == str(5 * N_BLK) and d["input_workspace_clamped_samples"] == str(N_BLK)
+        assert d["resync_active"] == "True"
         assert d["_level"] == 1
     finally:
         assert stop_node(comp) == 0

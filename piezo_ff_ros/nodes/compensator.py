@@ -595,7 +595,9 @@ class CompensatorNode(Node):
         st = {**self.hs.status(), "bypass": self.bypass, "blocks": self.blocks, "rejected_blocks": self.rejected_blocks,
               **{f"input_{k}": v for k, v in self.input.items()}, "applied_rejected": self.applied_rejected,
               "stages": ",".join(k for k in ("vibration", "creep", "hysteresis") if getattr(self.hs.cfg.cascade, k)),
-              "order": self.hs.cfg.cascade.order, "preview_s": self.front.preview_s,
+              "order": self.hs.cfg.cascade.order,
+              # re-synchronisation needs the paper order (commuted: the voltage leaves C(s), not the hysteresis⁻¹)
+              "resync_active": bool(self.resync and self.hs.active.can_follow), "preview_s": self.front.preview_s,
               "learning_file": self.front.learning_file}
         if self.last_error:
             st["last_error"] = self.last_error
