@@ -140,3 +140,42 @@ def test_clocked_parameters_validated():
         ClockedSim(FS, 2, fifo_depth=0)
     with pytest.raises(ValueError, match="latency_samples"):
         ClockedSim(FS, 2, latency_samples=-1)
+
+
+@pytest.mark.parametrize("scale", [0.5, 1.0, 10.0, 250.0])
+def test_clocked_time_scale_runs_the_device_clock_that_many_times_faster(scale):
+    clk = FakeClock()            # now() = clk.n / FS seconds
+    sim = ClockedSim(FS, 2, Gain(), fifo_depth=1 << 20, latency_samples=0, now=clk, time_scale=scale)
+    sim.start(np.zeros(2), prefill=0)
+    sim.write(0, np.ones((1 << 19, 2)))
+    clk.advance(1000)            # 0.05 s of now()
+    sim.poll()
+    assert sim.clock() == int(1000 * scale)
+    _, a = concat(sim.take_applied())
+    assert a.shape[0] == int(1000 * scale)   # every device sample output once, whatever the speed
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), 1e4])
+def test_clocked_time_scale_validated(bad):
+    with pytest.raises(ValueError, match="time_scale"):
+        ClockedSim(FS, 2, Gain(), time_scale=bad)
+
+
+def test_clocked_reset_restarts_the_stream_at_rest():
+    clk = FakeClock()
+    sim = ClockedSim(FS, 2, Gain(), fifo_depth=1000, latency_samples=0, now=clk)
+    sim.start(np.zeros(2))
+    sim.write(0, np.full((300, 2), 2.0))
+    clk.advance(200)
+    sim.poll()
+    sim.read()
+    assert sim.reset()
+    assert sim.start(np.zeros(2), prefill=10) == 10          # index 0 again, prefilled with the safe voltage
+    sim.write(10, np.full((50, 2), 1.0))
+    clk.advance(60)
+    sim.poll()
+    k0, a = concat(sim.take_applied())
+    assert k0 == 0 and a.shape[0] == 60
+    np.testing.assert_array_equal(a, np.vstack([np.zeros((10, 2)), np.ones((50, 2))]))   # nothing of before
+    k0, y = concat(sim.read())
+    assert k0 == 0 and y.shape[0] == 60

@@ -41,6 +41,10 @@ def add_parser(subparsers):
                         "paper's amplifier; the 20 µm x step asks ≈ 202 V at first, so it is clamped)")
     p.add_argument("--slew-limit", type=float, default=None, metavar="V/S",
                    help="driver (and compensator) slew limit (default: the config's limits.slew)")
+    p.add_argument("--clocked", type=float, default=None, metavar="SPEED",
+                   help="drive the clocked simulator (paced by the wall clock like a DAQ: FIFO, write-ahead, sensor "
+                        "latency, underruns) with its clock SPEED times real time (1 = a real rig's pace); default: "
+                        "the lockstep simulator")
     p.add_argument("--domain-id", type=int, metavar="ID",
                    help="ROS_DOMAIN_ID of the demo's graph (default: a private one derived from the process id)")
     p.add_argument("--only", metavar="NAMES", help="comma-separated experiment names (default: all)")
@@ -54,6 +58,8 @@ def _check(args):
         raise ValueError(f"--creep-duration must be > 1 s, got {args.creep_duration}")
     if not 1 <= args.block_size <= 20000:
         raise ValueError(f"--block-size must be in 1..20000, got {args.block_size}")
+    if args.clocked is not None and not (math.isfinite(args.clocked) and 1e-3 <= args.clocked <= 1e3):
+        raise ValueError(f"--clocked must be a speed in [0.001, 1000], got {args.clocked}")
     for name in ("voltage_limit", "slew_limit"):
         v = getattr(args, name)
         if v is not None and not (math.isfinite(v) and v > 0):
@@ -118,7 +124,8 @@ def _run(args) -> int:
     fs = cfg.sample_rate
     total_s = sum(e.trajectory.n_samples(fs) for e in exps) / fs
     print(f"piezo-ff demo: {len(exps)} experiments ({total_s:.1f} s of signal at {fs:g} Hz) through the ROS 2 graph "
-          f"in lockstep; creep runs {args.creep_duration:g} s after the step"
+          + (f"on the clocked simulator at {args.clocked:g}× real time" if args.clocked else "in lockstep")
+          + f"; creep runs {args.creep_duration:g} s after the step"
           + (" (the paper's 600 s: --creep-duration 600)" if args.creep_duration != 600 else "")
           + f"; driver limits ±{args.voltage_limit:g} V, {args.slew_limit:g} V/s", flush=True)
 
@@ -126,7 +133,8 @@ def _run(args) -> int:
                       block_size=args.block_size, window=args.window, config=args.config, variant=args.variant,
                       metadata={"demo": {"creep_duration": args.creep_duration,
                                          "experiments": [e.name for e in exps], "block_size": args.block_size,
-                                         "mode": "lockstep"}})
+                                         "mode": "lockstep", "driver_clock": args.clocked or "lockstep"}},
+                      clocked=args.clocked)
     t_start = time.perf_counter()
     log(f"starting the nodes (ROS_DOMAIN_ID={graph.env['ROS_DOMAIN_ID']}, logs in {graph.log_dir}) …")
     graph.start()
@@ -166,7 +174,8 @@ def _run(args) -> int:
 
     log("replay analysis of the recording …")
     data = read_run(mcap_path)
-    conditions = {"source": "piezo-ff demo (ROS 2 graph, lockstep, sim driver)",
+    driver = f"clocked sim driver at {args.clocked:g}× real time" if args.clocked else "lockstep sim driver"
+    conditions = {"source": f"piezo-ff demo (ROS 2 graph, {driver})",
                   "creep_duration_s": args.creep_duration, "config": cfg.name, "variant": args.variant}
     result = analyze_run(data, evaluate=lambda rec: evaluate(rec, experiments=exps, design=hinf,
                                                                   conditions=conditions))

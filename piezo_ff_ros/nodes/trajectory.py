@@ -200,7 +200,9 @@ class TrajectoryNode(Node):
         stamp = stamp_to_ns(msg.header.stamp)
         end_k = (stamp - self.t0_ns) // self.period_ns + int(msg.width)
         with self._cv:
-            self._inflight.discard(stamp)
+            # a block is done once the device has passed it: answered, or dropped as late by a clocked device
+            # (its samples were already played) — it must not hold the window forever
+            self._inflight = {s for s in self._inflight if s > stamp}
             self._last_ack = time.monotonic()
             # the driver may have published samples of its own (stale ramp): never reuse their indices
             self.k_stream = max(self.k_stream, end_k) if end_k > 0 else self.k_stream
@@ -231,9 +233,11 @@ class TrajectoryNode(Node):
         self.state = {"state": state, "k": int(self.k_stream), **extra}
         self.pub_state.publish(String(data=json.dumps(self.state)))
 
-    def _marker(self, name, k0, meta):
+    def _marker(self, name, k0, meta, k1=None):
         info = {"name": name, "k0": int(k0), "stamp_ns": int(self.t0_ns + k0 * self.period_ns),
                 "stages": meta.get("stages"), **{k: v for k, v in meta.items() if k != "stages"}}
+        if k1 is not None:   # the segment's own end: samples a clocked device holds after it are not part of it
+            info["k1"] = int(k1)
         self.pub_exp.publish(String(data=json.dumps(info, default=str)))
 
     def _play(self):
@@ -260,7 +264,8 @@ class TrajectoryNode(Node):
                     n = n_blk if math.isinf(total) else int(min(n_blk, total - k))
                     while seg_i < len(segs) and segs[seg_i].start < k + n:
                         s = segs[seg_i]
-                        self._marker(s.name, start + s.start, s.meta)
+                        self._marker(s.name, start + s.start, s.meta,
+                                     None if math.isinf(s.stop) else start + int(s.stop))
                         seg_i += 1
                     block = traj.block(k + preview, n, fs)
                     kk = start + k

@@ -7,6 +7,8 @@
   value (a DAC holds) and raises :class:`~.contract.Underrun` on the next :meth:`poll`; sensor samples become
   readable ``latency_samples`` (+ up to ``jitter_samples`` of random delivery delay) after they were output; an
   unread input buffer larger than ``input_buffer`` loses its oldest samples (:class:`~.contract.Overrun`).
+  ``time_scale`` > 1 runs the simulated device clock that many times faster than ``now()`` (long simulated runs,
+  e.g. the demo's creep experiments, through every clocked timing path in less wall time); 1 = a real DAQ.
 
 ``plant`` is any streaming stage ``process(block[N, axes]) -> block`` / ``reset()`` (e.g. ``core.models.plant.Plant``)
 or None for a device without sensor.  ``now`` is injectable so that tests drive the clock deterministically.
@@ -139,16 +141,20 @@ class ClockedSim(_SimBase):
     jitter_samples : int
         Random extra delay of sensor delivery, uniform in ``0…jitter_samples`` per read.
     input_buffer : int
-        Unread sensor samples kept; older ones are lost (Overrun).
+        Unread sensor samples kept; older ones are lost (Overrun). Default: one second of ``now()``.
     now : callable
         Clock source [s] (``time.monotonic``).
     seed : int
         Seed of the jitter.
+    time_scale : float
+        Device seconds per second of ``now()`` (1 = real time; 10 = the device clock runs 10× faster).
     """
 
     def __init__(self, fs: float, n_axes: int, plant=None, *, fifo_depth: int = 4000, latency_samples: int = 2,
                  jitter_samples: int = 0, input_buffer: int | None = None, now: Callable[[], float] = time.monotonic,
-                 seed: int = 0, name: str = "sim"):
+                 seed: int = 0, name: str = "sim", time_scale: float = 1.0):
+        if not (isinstance(time_scale, (int, float)) and math.isfinite(time_scale) and 1e-3 <= time_scale <= 1e3):
+            raise ValueError(f"time_scale: must be a number in [0.001, 1000], got {time_scale!r}")
         for field, v, lo in (("fifo_depth", fifo_depth, 1), ("latency_samples", latency_samples, 0),
                              ("jitter_samples", jitter_samples, 0)):
             if not isinstance(v, (int, np.integer)) or v < lo:
@@ -157,8 +163,10 @@ class ClockedSim(_SimBase):
                                     fifo_depth=int(fifo_depth), has_sensor=plant is not None, clocked=True), plant)
         self.latency = int(latency_samples)
         self.jitter = int(jitter_samples)
-        self.input_buffer = int(input_buffer) if input_buffer is not None else int(fs)
+        # default: one second of now() — the host reads on a wall-clock cadence, whatever the device speed
+        self.input_buffer = int(input_buffer) if input_buffer is not None else int(fs * max(1.0, time_scale))
         self.now = now
+        self._clock_hz = float(fs) * float(time_scale)   # device samples per second of now()
         self._rng = np.random.default_rng(seed)
         self._fifo: deque[np.ndarray] = deque()
         self._fifo_n = 0
@@ -178,13 +186,13 @@ class ClockedSim(_SimBase):
             self._fifo.append(np.tile(self._last, (int(prefill), 1)))
             self._fifo_n += int(prefill)
             self._widx += int(prefill)
-        self._t0 = self.now() - self._played / self.info.sample_rate_hz
+        self._t0 = self.now() - self._played / self._clock_hz
         return self._widx
 
     def clock(self) -> int:
         if not self.started:
             return 0
-        return max(self._played, int(math.floor((self.now() - self._t0) * self.info.sample_rate_hz + 1e-6)))
+        return max(self._played, int(math.floor((self.now() - self._t0) * self._clock_hz + 1e-6)))
 
     def _advance(self) -> None:
         target = self.clock()
@@ -286,6 +294,20 @@ class ClockedSim(_SimBase):
     @property
     def latency_samples(self) -> int:
         return self.latency
+
+    def reset(self) -> bool:
+        """The simulated stage back at rest and the stream stopped: FIFO, sensor queue and sample index cleared;
+        the next :meth:`start` restarts the clock from index 0 (as re-arming a DAQ task does)."""
+        if self.plant is not None:
+            self.plant.reset()
+        self._applied, self._pending = [], []
+        self._sensor.clear()
+        self._fifo.clear()
+        self._fifo_n = 0
+        self._played = self._widx = self._read_cap = 0
+        self._dry = False
+        self.started = False
+        return not self._disconnected
 
     def status(self) -> dict:
         st = super().status()

@@ -17,7 +17,8 @@ def create(cfg, p: dict):
     if p["mode"] == "lockstep":
         return LockstepSim(cfg.sample_rate, cfg.n_axes, plant)
     return ClockedSim(cfg.sample_rate, cfg.n_axes, plant, fifo_depth=p["fifo_depth"],
-                      latency_samples=p["latency_samples"], jitter_samples=p["jitter_samples"], seed=p["seed"])
+                      latency_samples=p["latency_samples"], jitter_samples=p["jitter_samples"], seed=p["seed"],
+                      time_scale=p["time_scale"])
 
 
 SPEC = BackendSpec(
@@ -32,6 +33,8 @@ SPEC = BackendSpec(
         "latency_samples": Param(2, "clocked: sensor transport latency [samples]", int_range(0, 1_000_000)),
         "jitter_samples": Param(0, "clocked: random extra sensor delivery delay, up to [samples]",
                                 int_range(0, 1_000_000)),
+        "time_scale": Param(1.0, "clocked: device seconds per wall second (1 = real time; >1 runs the simulated "
+                                 "device faster, e.g. for long demos)", float_range(1e-3, 1e3)),
     },
     create=create,
 )
