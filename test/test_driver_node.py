@@ -137,10 +137,13 @@ def test_two_drivers_on_one_domain_named_as_the_cause(tmp_path, probe):
         assert stop_node(d1) == 0 and stop_node(d2) == 0
 
 
-def test_graph_on_the_clocked_simulator(tmp_path, probe):
+@pytest.mark.parametrize("window,write_ahead", [(8, 0.1), (1, 0.002)], ids=["ample", "starved"])
+def test_graph_on_the_clocked_simulator(tmp_path, probe, window, write_ahead):
     """trajectory (lockstep window) → compensator → driver on the clocked simulator (paced by the wall clock, FIFO,
     latency): the run finishes, voltage_applied has every sample once, and the displacement is exactly the plant's
-    answer to it — whatever the timing did (starved/late samples are counted, not hidden)."""
+    answer to it — whatever the timing did (starved/late samples are counted, not hidden).  ``starved``: one block
+    in flight, answered only once played, so the FIFO runs dry before every next block (underrun → safe ramp →
+    resume, late samples dropped), as on a host too slow for its DAQ."""
     from std_msgs.msg import String
 
     from piezo_ff_ros.nodes.common import LATCHED_QOS
@@ -151,9 +154,10 @@ def test_graph_on_the_clocked_simulator(tmp_path, probe):
                                    LATCHED_QOS)
     spec = {"type": "circle", "radius": 1e-5, "frequency": 10.0, "revolutions": 2}
     procs = [start_node("driver", "-p", "sim.mode:=clocked", "-p", "sim.latency_samples:=40",
-                        "-p", "write_ahead:=0.1", "-p", "diagnostics_period:=0.2", log_dir=tmp_path),
+                        "-p", f"write_ahead:={write_ahead}", "-p", "low_water:=0.001", "-p", "diagnostics_period:=0.2",
+                        log_dir=tmp_path),
              start_node("compensator", "-p", "cascade.vibration:=false", log_dir=tmp_path),
-             start_node("trajectory", "-p", "mode:=lockstep", "-p", "block_size:=400", "-p", "window:=8",
+             start_node("trajectory", "-p", "mode:=lockstep", "-p", "block_size:=400", "-p", f"window:={window}",
                         "-p", f"trajectory:='{json.dumps(spec)}'", "-p", "min_subscribers:=1",
                         "-p", "lockstep_timeout:=20.0", log_dir=tmp_path)]
     try:
@@ -189,4 +193,11 @@ def test_graph_on_the_clocked_simulator(tmp_path, probe):
     y_ref = Plant(cfg).process(np.vstack([np.zeros((1, 2)), u]))[1:]
     np.testing.assert_allclose(y, y_ref[:y.shape[0]], rtol=0, atol=1e-15)
     last = diags[-1][2]
-    assert int(last["latency_samples"]) == 40 and int(last["underrun_faults"]) == 0
+    assert int(last["latency_samples"]) == 40
+    # on a loaded host the FIFO may run dry (the device holds, as a DAC does): never hidden — every underrun the
+    # device had is a fault on /diagnostics, and the held samples are in voltage_applied (checked above)
+    assert int(last["underrun_faults"]) == int(last["device.underruns"])
+    if window == 1:
+        assert int(last["underrun_faults"]) > 0
+    if int(last["underrun_faults"]):
+        assert any(level >= 1 and "fault" in msg for level, msg, _ in diags), diags[-3:]   # WARN/ERROR, not OK
