@@ -50,3 +50,26 @@ def test_commission_ros_short(tmp_path):
     assert result["after"]["hysteresis_percent"]["x"] < 3
     assert result["after"]["overshoot_percent"]["x"] < 5
     assert (tmp_path / "commission.mcap").stat().st_size > 0
+
+
+def test_commission_refuses_a_running_driver_without_sensor(tmp_path):
+    """Issue 12.8: a driver whose backend measures nothing (here the simulator with ``sim.sensor:=false``) publishes
+    no ``displacement``; commissioning against it stops with one line naming the cause, before moving the stage.
+    (The driver used to create its displacement publisher whatever the backend: it passed for a sensor.)"""
+    from test_nodes_integration import start_node, stop_node
+
+    driver = start_node("driver", "-p", "sim.sensor:=false", log_dir=tmp_path)
+    try:
+        env = dict(os.environ)
+        env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+        r = subprocess.run([sys.executable, "-m", "piezo_ff_ros", "commission", "--out", str(tmp_path / "c"),
+                            "--quiet", "--creep-duration", "2", "--probe-timeout", "20",
+                            "--domain-id", os.environ["ROS_DOMAIN_ID"]],
+                           env=env, capture_output=True, text=True, timeout=300)
+    finally:
+        assert stop_node(driver) == 0
+    assert r.returncode != 0, r.stdout[-2000:]
+    assert "Traceback" not in r.stderr
+    last = r.stderr.strip().splitlines()[-1]
+    assert "sensor" in last, r.stderr[-2000:]
+    assert "the device has no displacement sensor" in (tmp_path / "driver.log").read_text()

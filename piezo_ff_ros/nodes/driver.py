@@ -60,7 +60,10 @@ class DriverNode(Node):
         self._js_every = max(1, int(round(self.cfg.sample_rate / p["joint_states_rate"])))
         self._js_count = 0
 
-        self.pub_y = self.create_publisher(PointCloud2, "displacement", BLOCK_QOS)
+        # no sensor, no displacement topic: a publisher that never publishes would pass for a sensor (commissioning
+        # and lockstep trajectories look for one)
+        self.has_sensor = bool(backend.info.has_sensor)
+        self.pub_y = self.create_publisher(PointCloud2, "displacement", BLOCK_QOS) if self.has_sensor else None
         self.pub_u = self.create_publisher(PointCloud2, "voltage_applied", BLOCK_QOS)
         self.pub_js = self.create_publisher(JointState, "joint_states", 10)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -73,6 +76,8 @@ class DriverNode(Node):
         self.create_timer(p["diagnostics_period"], self.publish_diagnostics)
         self._conflict_timer = self.create_timer(2.0, self.check_conflict)
         mode = "clocked" if backend.info.clocked else "lockstep"
+        if not self.has_sensor:
+            self.get_logger().info("the device has no displacement sensor: no displacement topic")
         self.get_logger().info(f"driver ready: backend {backend_name} ({mode}), ±{lim.voltage} V, {lim.slew} V/s, stale {lim.stale_timeout} s, safe ramp ≥ "
                                f"{settings.ramp.duration} s at ≤ {settings.ramp.slew} V/s")
 
@@ -141,8 +146,9 @@ class DriverNode(Node):
         for stamp, u in em.applied:
             self.pub_u.publish(pack_block(u, self.axes, stamp))
         for stamp, y in em.displacement:
-            self.pub_y.publish(pack_block(y, self.axes, stamp))
-            self._joint_states(y, stamp)
+            if self.pub_y is not None:
+                self.pub_y.publish(pack_block(y, self.axes, stamp))
+                self._joint_states(y, stamp)
         log = self.get_logger()
         for level, text in em.log:  # one call site per severity (rclpy refuses a severity change per site)
             if level >= ERROR:
@@ -178,7 +184,8 @@ class DriverNode(Node):
     # -- diagnostics -----------------------------------------------------------------------------------------------
     def check_conflict(self) -> None:
         """Two graphs on one ROS domain (or two drivers in one namespace) mix their blocks: say so plainly."""
-        others = {t: self.count_publishers(t) - 1 for t in ("displacement", "voltage_applied")}
+        others = {t: self.count_publishers(t) - (1 if t == "voltage_applied" or self.has_sensor else 0)
+                  for t in ("displacement", "voltage_applied")}
         if any(v > 0 for v in others.values()):
             text = (f"another driver publishes on {self.resolve_topic_name('displacement')} (publishers besides this "
                     f"one: {others}): two graphs on ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}? Give each "
@@ -191,7 +198,8 @@ class DriverNode(Node):
 
     def publish_diagnostics(self) -> None:
         self.check_conflict()
-        st = {**self.core.status(), "malformed_blocks": self.malformed_blocks, "backend": self.backend_name}
+        st = {**self.core.status(), "malformed_blocks": self.malformed_blocks, "backend": self.backend_name,
+              "has_sensor": self.has_sensor}
         level, message = self.core.health()
         if self.conflict:
             level, message = ERROR, self.conflict

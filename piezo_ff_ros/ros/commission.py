@@ -34,7 +34,7 @@ def run_graph(args, say) -> int:
     from ..core.jsonable import jsonable, parse_order
     from ..core.reproduce import format_tables
     from .graph_rig import GraphRig
-    from .graph_session import GraphClient, driver_present, sim_graph
+    from .graph_session import GraphClient, displacement_present, driver_present, sim_graph
 
     t_start = time.perf_counter()
     out = Path(args.out)
@@ -65,6 +65,11 @@ def run_graph(args, say) -> int:
             client.close()
             raise ValueError("a recorder node is already running on this domain; stop it (commissioning records "
                              "to its own DIR/commission.mcap)")
+        if not displacement_present(client, timeout=max(args.probe_timeout, 5.0)):
+            client.close()
+            raise ValueError(f"the driver on ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']} publishes no /displacement: "
+                             "its device has no sensor, and commissioning identifies from measured displacement "
+                             "(use a backend with a sensor, e.g. nidaqmx with ai_channels)")
         nodes = ("recorder",) + tuple(n for n in ("compensator", "trajectory") if n not in present)
         say(f"driver found on ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}; starting {', '.join(nodes)}")
     else:

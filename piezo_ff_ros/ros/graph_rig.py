@@ -20,7 +20,7 @@ from ..core.commissioning import CommissioningError, PlannedRun, RigLimits
 from ..core.config import PiezoConfig
 from ..core.param_map import config_to_params
 from ..core.recording.run import RunData
-from .graph_session import GraphClient
+from .graph_session import GraphClient, displacement_present
 
 #: which flat parameters each stage's switch needs pushed with it
 _STAGE_PARAMS = {"hysteresis": ("hysteresis.",), "creep": ("creep.",), "vibration": ("dynamics.", "vibration.")}
@@ -58,12 +58,7 @@ class GraphRig(RigLimits):
     @property
     def has_sensor(self) -> bool:
         """A driver whose backend measures publishes ``/displacement``."""
-        deadline = time.monotonic() + 5.0
-        while time.monotonic() < deadline:
-            if self.client.node.count_publishers("/displacement") > 0:
-                return True
-            self.client.spin_for(0.2)
-        return False
+        return displacement_present(self.client)
 
     def configure(self, cfg: PiezoConfig | None, stages: frozenset[str], bypass: bool = False) -> None:
         params = None

@@ -267,3 +267,13 @@ def driver_present(client: GraphClient, timeout: float = 3.0) -> bool:
             return True
         client.spin_for(0.2)
     return False
+
+
+def displacement_present(client: GraphClient, timeout: float = 5.0) -> bool:
+    """True if a ``/displacement`` publisher (a driver whose device has a sensor) shows up within ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if client.node.count_publishers("/displacement") > 0:
+            return True
+        client.spin_for(0.2)
+    return False

@@ -14,6 +14,8 @@ def create(cfg, p: dict):
     plant = Plant(cfg, noise_std=p["noise_std"], seed=p["seed"])
     plant.process(np.zeros((1, cfg.n_axes)))   # compile the kernels now, not on the first block
     plant.reset()
+    if not p["sensor"]:   # an amplifier without displacement sensor: the stage moves, nothing is measured
+        plant = None
     if p["mode"] == "lockstep":
         return LockstepSim(cfg.sample_rate, cfg.n_axes, plant)
     return ClockedSim(cfg.sample_rate, cfg.n_axes, plant, fifo_depth=p["fifo_depth"],
@@ -33,6 +35,8 @@ SPEC = BackendSpec(
         "latency_samples": Param(2, "clocked: sensor transport latency [samples]", int_range(0, 1_000_000)),
         "jitter_samples": Param(0, "clocked: random extra sensor delivery delay, up to [samples]",
                                 int_range(0, 1_000_000)),
+        "sensor": Param(True, "false: a device without displacement sensor (open-loop amplifier only: no "
+                              "displacement topic; commissioning refuses it)"),
         "time_scale": Param(1.0, "clocked: device seconds per wall second (1 = real time; >1 runs the simulated "
                                  "device faster, e.g. for long demos)", float_range(1e-3, 1e3)),
     },
