@@ -63,7 +63,7 @@ def test_commission_refuses_a_running_driver_without_sensor(tmp_path):
         env = dict(os.environ)
         env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
         r = subprocess.run([sys.executable, "-m", "piezo_ff_ros", "commission", "--out", str(tmp_path / "c"),
-                            "--quiet", "--creep-duration", "2", "--probe-timeout", "20",
+                            "--quiet", "--creep-duration", "2", "--probe-timeout", "10",
                             "--domain-id", os.environ["ROS_DOMAIN_ID"]],
                            env=env, capture_output=True, text=True, timeout=300)
     finally:
