@@ -212,7 +212,10 @@ class TrajectoryNode(Node):
         deadline = time.monotonic() + timeout
         settle = False
         while not self._stop.is_set():
-            counts = {"reference": self.count_subscribers("reference"), "voltage": self.count_subscribers("voltage"),
+            # reference: readers matched by our own writer (discovered is not enough: a reader this writer has not
+            # matched yet misses the first blocks — a recorder after a restart of this node lost 3 of them)
+            counts = {"reference": min(self.count_subscribers("reference"), self.pub_ref.get_subscription_count()),
+                      "voltage": self.count_subscribers("voltage"),
                       "displacement": self.count_subscribers("displacement")}  # includes our own
             # lockstep needs the whole chain; realtime may feed a compensator (or any reader) alone
             writers = {"voltage": self.count_publishers("voltage"),
