@@ -35,15 +35,17 @@ def probe():
 
 
 def start(name: str, *ros_args: str, log_dir: Path, preexec_fn=None, tag: str = "",
-          env: dict | None = None) -> subprocess.Popen:
+          env: dict | None = None, script: Path | None = None) -> subprocess.Popen:
     """``start_node`` of test_nodes_integration with a ``preexec_fn`` (resource limits), a log tag (a restarted
-    node writes a second log) and extra environment variables."""
+    node writes a second log), extra environment variables and optionally a wrapper ``script`` instead of the
+    node's module."""
     log_path = log_dir / f"{name}{tag}.log"
     log = open(log_path, "wb")
     e = child_env()
     e["PYTHONUNBUFFERED"] = "1"
     e.update(env or {})
-    p = subprocess.Popen([sys.executable, "-m", f"piezo_ff_ros.nodes.{name}", "--ros-args", *ros_args],
+    cmd = [str(script)] if script is not None else ["-m", f"piezo_ff_ros.nodes.{name}"]
+    p = subprocess.Popen([sys.executable, *cmd, "--ros-args", *ros_args],
                          env=e, stdout=log, stderr=subprocess.STDOUT, preexec_fn=preexec_fn)
     p.log_path = log_path  # type: ignore[attr-defined]
     return p
@@ -189,7 +191,8 @@ class RealtimeGraph:
                                        "-p", "autostart:=true", "-p", "min_subscribers:=3",
                                        "-p", f"trajectory:='{CIRCLE}'"]}
 
-    def __init__(self, probe, tmp_path: Path, env: dict | None = None):
+    def __init__(self, probe, tmp_path: Path, env: dict | None = None, args: dict | None = None,
+                 script: dict | None = None):
         from sensor_msgs.msg import PointCloud2
 
         from piezo_ff_ros.nodes.common import BLOCK_QOS
@@ -202,14 +205,16 @@ class RealtimeGraph:
             BLOCK_QOS) for t in TOPICS}
         self.diags = diagnostics_of(probe, "driver")
         self.env = env or {}
+        self.args = args or {}                 # extra ros args per node
+        self.script = script or {}             # wrapper script per node
         self.procs: dict[str, subprocess.Popen] = {}
         self.starts: dict[str, int] = {}
 
     def start(self, name: str) -> None:
         n = self.starts.get(name, 0)
         self.starts[name] = n + 1
-        self.procs[name] = start(name, *self.ARGS[name](self.out), log_dir=self.tmp, tag=f".{n}" if n else "",
-                                 env=self.env if name == "trajectory" else None)
+        self.procs[name] = start(name, *self.ARGS[name](self.out), *self.args.get(name, []), log_dir=self.tmp,
+                                 tag=f".{n}" if n else "", env=self.env, script=self.script.get(name))
 
     def start_all(self) -> None:
         for name in ("recorder", "driver", "compensator", "trajectory"):
@@ -260,6 +265,14 @@ def wait_recorded(probe, directory: Path, topic: str, stamp: int, timeout: float
     while not recorded():
         assert time.monotonic() < deadline, f"{topic} from {stamp} never recorded"
         probe.spin_for(0.5)
+
+
+def recorded_blocks(path: Path, topic: str) -> list:
+    """The block arrays of ``topic`` in the recording, in file order."""
+    from piezo_ff_ros.core.recording.blocks import deserialize_block
+    from piezo_ff_ros.core.recording.mcap_io import scan_mcap
+
+    return [deserialize_block(raw)[1] for _, _, raw in scan_mcap(path).messages.get(topic, [])]
 
 
 #: the topic whose stream a node's death interrupts
@@ -337,3 +350,56 @@ def test_kill9_and_restart_of_compensator_driver_and_trajectory(tmp_path, probe)
     assert all(0 <= m < 1.0 * FS for m in missed.values()), missed
     # the driver's voltage_applied: every sample it output once (its safe ramps included), gaps only where dead
     assert run.meta["blocks"]["displacement"]["duplicates"] == 0
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# stalled compensator: SIGSTOP … SIGCONT
+
+STALL_S = 1.0
+
+
+def test_stalled_compensator_driver_goes_safe_and_resumes(tmp_path, probe):
+    """The compensator process is frozen (SIGSTOP) for 1 s, then continued (SIGCONT).
+
+    The driver gets no voltage: after ``limits.stale_timeout`` (0.2 s) it ramps to its safe state (0 V within the
+    ``safe_ramp``: 1000 samples) — ``safe`` on /diagnostics.  The reference blocks queue in DDS meanwhile (reliable,
+    depth 100 = 5 s of 50 ms blocks: none is lost in a 1 s stall); on SIGCONT the compensator works through the
+    backlog and the driver resumes (``resumes`` 1).  Lost: the voltage blocks whose stamps the safe ramp already
+    used — the ramp's 1000 samples, dropped as late and counted (``late_samples``) — and nothing else: the recorded
+    ``voltage`` has no gap, ``displacement`` none either (the ramp fills the place of the dropped block)."""
+    g = RealtimeGraph(probe, tmp_path)
+    g.start_all()
+    try:
+        g.wait_blocks("displacement", 0.0, 90, "the graph running (displacement blocks)", n=10)
+        d0 = g.diag_after(lambda d: d[2].get("state") == "active", 30, "driver active")
+        late0 = int(d0[2]["late_samples"])
+        comp = g.procs["compensator"]
+        t_stop = time.monotonic()
+        comp.send_signal(signal.SIGSTOP)
+        try:
+            safe = g.diag_after(lambda d: d[2].get("state") == "safe", 30, "the driver's safe state")
+            t_safe = time.monotonic()
+            probe.spin_for(max(0.0, STALL_S - (t_safe - t_stop)))
+        finally:
+            comp.send_signal(signal.SIGCONT)
+        t_cont = time.monotonic()
+        d = g.diag_after(lambda d: int(d[2].get("resumes", 0)) >= 1, 30, "the driver resuming")
+        g.wait_blocks("displacement", time.monotonic(), 30, "displacement after the stall", n=10)
+        d = g.diag_after(lambda d: d[2].get("state") == "active", 30, "driver active")
+    finally:
+        codes = g.stop_all()
+    assert codes == {"trajectory": 0, "compensator": 0, "driver": 0, "recorder": 0}, codes
+    late = int(d[2]["late_samples"]) - late0
+    ramp_applied = [s for w, s, n in g.arrivals["voltage_applied"] if t_stop < w < t_cont]
+    report = {"stall_s": round(t_cont - t_stop, 2), "safe_after_s": round(t_safe - t_stop, 2),
+              "late_samples": late, "resumes": int(d[2]["resumes"]), "gap_samples": int(d[2]["gap_samples"]),
+              "level_when_safe": safe[0], "message_when_safe": safe[1]}
+    print("SIGSTOP compensator:", json.dumps(report))
+    assert report["safe_after_s"] < 0.2 + 1.0            # stale_timeout, plus the probe's and DDS' latency
+    assert ramp_applied, "no voltage_applied during the stall (the safe ramp)"
+    assert late == 1000 and report["gap_samples"] == 0, report   # exactly the ramp's samples, no gap
+    run = read_with_all_readers(g.out)["run"]
+    assert _gaps(run, "voltage") == [] and _gaps(run, "reference") == [], run.meta["blocks"]
+    assert _gaps(run, "displacement") == [], run.meta["blocks"]["displacement"]
+    # the safe ramp is in the recording: a voltage_applied block that ends at the safe voltage, 0 V
+    assert any(np.all(b[-1] == 0.0) for b in recorded_blocks(g.out, "/voltage_applied"))
