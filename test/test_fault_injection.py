@@ -403,3 +403,85 @@ def test_stalled_compensator_driver_goes_safe_and_resumes(tmp_path, probe):
     assert _gaps(run, "displacement") == [], run.meta["blocks"]["displacement"]
     # the safe ramp is in the recording: a voltage_applied block that ends at the safe voltage, 0 V
     assert any(np.all(b[-1] == 0.0) for b in recorded_blocks(g.out, "/voltage_applied"))
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# wall-clock steps in the realtime trajectory node
+
+#: runs the trajectory node with ``time.time_ns`` = the wall clock + the offset [ns] in $PIEZO_FF_CLOCK_OFFSET_FILE:
+#: what a wall-clock step (NTP, an operator) does to the node.  Its pacing uses the monotonic clock (a step does
+#: not touch it); its stamps follow ``time.time_ns`` when a play starts — and at every loop of a looping trajectory.
+CLOCK_WRAPPER = """
+import os, sys, time
+from pathlib import Path
+_real, _file = time.time_ns, Path(os.environ["PIEZO_FF_CLOCK_OFFSET_FILE"])
+def _stepped():
+    try:
+        return _real() + int(_file.read_text() or 0)
+    except (OSError, ValueError):
+        return _real()
+time.time_ns = _stepped
+from piezo_ff_ros.nodes.trajectory import main
+sys.exit(main())
+"""
+LOOP = json.dumps({"type": "circle", "radius": 1.0e-5, "frequency": 5.0, "revolutions": 5})   # 1 s per loop
+
+
+def test_wall_clock_steps_in_the_realtime_trajectory(tmp_path, probe):
+    """The trajectory node's wall clock steps +0.5 s, then +3 s more, then back −3 s, while it loops a 1 s circle.
+
+    Each step shows at the next loop (stamps = wall clock at the loop's start, never going back: ``k_stream`` only
+    grows).  Forward +0.5 s (< max_gap 1 s): the stream's stamps jump 0.5 s; the driver holds its last voltage for
+    the missing samples (``gap_samples`` + the jump, WARN).  Forward +3 s (> max_gap): the driver holds the block
+    back, the next one confirms the jump and the map is re-based (``rebases`` + 1; no hold, nothing lost on the
+    device; it went safe after stale_timeout meanwhile only if the stream paused — it did not).  Backward −3 s:
+    the stamps go on from where they were: nothing dropped (``late_samples`` unchanged), no gap.  Lost: no sample
+    of the trajectory (each loop plays whole); the stamps jump by the step (+ the loop's own lag)."""
+    wrapper = tmp_path / "clock_step_trajectory.py"
+    wrapper.write_text(CLOCK_WRAPPER)
+    offset = tmp_path / "clock_offset_ns"
+    offset.write_text("0")
+    g = RealtimeGraph(probe, tmp_path, env={"PIEZO_FF_CLOCK_OFFSET_FILE": str(offset)},
+                      args={"trajectory": ["-p", "loop:=true", "-p", f"trajectory:='{LOOP}'"]},
+                      script={"trajectory": wrapper})
+    g.start_all()
+    steps = [0.5, 3.0, -3.0]
+    seen = []
+    try:
+        g.wait_blocks("displacement", 0.0, 90, "the graph running (displacement blocks)", n=10)
+        for step in steps:
+            d0 = g.diag_after(lambda d: d[2].get("state") == "active", 30, "driver active")
+            t = time.monotonic()
+            offset.write_text(str(int(offset.read_text()) + int(step * 1e9)))
+            g.wait_blocks("reference", t, 30, "two loops after the step", n=int(2.5 * FS / BLOCK_RT))
+            d1 = g.diag_after(lambda d: d[2].get("state") == "active", 30, "driver active")
+            seen.append((step, t, d0[2], d1[2]))
+    finally:
+        codes = g.stop_all()
+    assert codes == {"trajectory": 0, "compensator": 0, "driver": 0, "recorder": 0}, codes
+    ref = sorted((s, n) for _, s, n in g.arrivals["reference"])
+    jumps = [(s1 - (s0 + n0 * DT_NS)) // DT_NS for (s0, n0), (s1, _) in zip(ref, ref[1:])]
+    assert min(jumps) >= 0, "the reference stamps went back"
+    report = []
+    for step, t, d0, d1 in seen:
+        after = sorted((s, n) for w, s, n in g.arrivals["reference"] if w > t)
+        i = ref.index(after[0])
+        jump = max(jumps[max(i - 1, 0):i + int(2.5 * FS / BLOCK_RT)]) / FS   # the largest jump in two loops
+        delta = {k: int(d1[k]) - int(d0[k]) for k in ("gap_samples", "rebases", "late_samples", "resumes")}
+        report.append({"step_s": step, "stamp_jump_s": round(jump, 3), **delta})
+    print("clock steps:", json.dumps(report))
+    fwd_small, fwd_big, back = report
+    # the jump is the step, less what the stream led the clock by (its blocks are stamped ahead, ≤ 0.2 s here),
+    # plus the loop's lag
+    assert 0.5 - 0.2 <= fwd_small["stamp_jump_s"] < 0.5 + 0.3, fwd_small
+    assert fwd_small["rebases"] == 0 and fwd_small["gap_samples"] >= fwd_small["stamp_jump_s"] * FS - 1, fwd_small
+    assert fwd_small["gap_samples"] <= (fwd_small["stamp_jump_s"] + 0.1) * FS, fwd_small   # held, counted
+    assert 3.0 - 0.2 <= fwd_big["stamp_jump_s"] < 3.0 + 0.3 and fwd_big["rebases"] == 1, fwd_big   # re-based
+    assert fwd_big["gap_samples"] < 0.3 * FS, fwd_big
+    assert back["stamp_jump_s"] < 0.3 and back["late_samples"] == 0 and back["rebases"] == 0, back
+    for r in report:
+        assert r["late_samples"] == 0, r   # no block dropped by any step
+    run = read_with_all_readers(g.out)["run"]
+    # the recording shows the stream as played: the re-based jump as a gap, the small jump held (no hole on the
+    # device, but no reference either: a gap in reference and voltage as well)
+    assert any(abs(gp - fwd_big["stamp_jump_s"] * FS) < 0.3 * FS for gp in _gaps(run, "reference"))
