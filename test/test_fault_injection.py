@@ -174,6 +174,7 @@ def test_recorder_disk_full_stops_cleanly_with_an_error_and_a_readable_file(tmp_
 # the full graph in realtime: kill -9 and restart of compensator, driver, trajectory
 
 BLOCK_RT = 1000           # 50 ms blocks
+STALE = 0.5               # the driver's limits.stale_timeout [s]
 #: a 60 s circle, not looped: within one play the stamps are continuous (a loop re-reads the wall clock)
 CIRCLE = json.dumps({"type": "circle", "radius": 1.0e-5, "frequency": 5.0, "revolutions": 300})
 TOPICS = ("reference", "voltage", "displacement", "voltage_applied")
@@ -185,10 +186,12 @@ class RealtimeGraph:
     block it receives, ``arrivals[topic] = [(monotonic time, stamp, n)]``, and the driver's /diagnostics."""
 
     ARGS = {"recorder": lambda out: ["-p", f"output:={out}", "-p", "flush_interval:=0.2"],
-            "driver": lambda out: ["-p", "limits.stale_timeout:=0.2", "-p", "diagnostics_period:=0.1"],
+            # stale_timeout 0.5 s: short, yet longer than the pauses a loaded 2-core machine gives the stream
+            "driver": lambda out: ["-p", f"limits.stale_timeout:={STALE}", "-p", "diagnostics_period:=0.1"],
             "compensator": lambda out: ["-p", "cascade.vibration:=false"],
             "trajectory": lambda out: ["-p", "mode:=realtime", "-p", f"block_size:={BLOCK_RT}",
                                        "-p", "autostart:=true", "-p", "min_subscribers:=3",
+                                       "-p", "lockstep_timeout:=120.0",   # also how long it waits for the graph
                                        "-p", f"trajectory:='{CIRCLE}'"]}
 
     def __init__(self, probe, tmp_path: Path, env: dict | None = None, args: dict | None = None,
@@ -252,14 +255,17 @@ def _gaps(run, role: str) -> list[int]:
     return [int(b - a) for a, b in sorted(run.meta["blocks"][role]["gaps"])]
 
 
-def wait_recorded(probe, directory: Path, topic: str, stamp: int, timeout: float) -> None:
+def wait_recorded(probe, directory: Path, topic: str, stamp: int, timeout: float, name: str = "run.mcap") -> None:
     """Until the recording (read while being written: our reader stops at the last flushed chunk) holds a block
     of ``topic`` stamped ``stamp`` or later."""
     from piezo_ff_ros.core.recording.blocks import deserialize_block
     from piezo_ff_ros.core.recording.mcap_io import scan_mcap
 
     def recorded() -> bool:
-        msgs = scan_mcap(directory / "run.mcap").messages.get(topic, [])
+        try:
+            msgs = scan_mcap(directory / name).messages.get(topic, [])
+        except (OSError, ValueError):   # not there yet, or not even its header written yet
+            return False
         return bool(msgs) and deserialize_block(msgs[-1][2])[0] >= stamp
     deadline = time.monotonic() + timeout
     while not recorded():
@@ -355,15 +361,15 @@ def test_kill9_and_restart_of_compensator_driver_and_trajectory(tmp_path, probe)
 # ------------------------------------------------------------------------------------------------------------------
 # stalled compensator: SIGSTOP … SIGCONT
 
-STALL_S = 1.0
+STALL_S = 1.5
 
 
 def test_stalled_compensator_driver_goes_safe_and_resumes(tmp_path, probe):
-    """The compensator process is frozen (SIGSTOP) for 1 s, then continued (SIGCONT).
+    """The compensator process is frozen (SIGSTOP) for 1.5 s, then continued (SIGCONT).
 
-    The driver gets no voltage: after ``limits.stale_timeout`` (0.2 s) it ramps to its safe state (0 V within the
+    The driver gets no voltage: after ``limits.stale_timeout`` (0.5 s) it ramps to its safe state (0 V within the
     ``safe_ramp``: 1000 samples) — ``safe`` on /diagnostics.  The reference blocks queue in DDS meanwhile (reliable,
-    depth 100 = 5 s of 50 ms blocks: none is lost in a 1 s stall); on SIGCONT the compensator works through the
+    depth 100 = 5 s of 50 ms blocks: none is lost in a 1.5 s stall); on SIGCONT the compensator works through the
     backlog and the driver resumes (``resumes`` 1).  Lost: the voltage blocks whose stamps the safe ramp already
     used — the ramp's 1000 samples, dropped as late and counted (``late_samples``) — and nothing else: the recorded
     ``voltage`` has no gap, ``displacement`` none either (the ramp fills the place of the dropped block)."""
@@ -395,7 +401,7 @@ def test_stalled_compensator_driver_goes_safe_and_resumes(tmp_path, probe):
               "late_samples": late, "resumes": int(d[2]["resumes"]), "gap_samples": int(d[2]["gap_samples"]),
               "level_when_safe": safe[0], "message_when_safe": safe[1]}
     print("SIGSTOP compensator:", json.dumps(report))
-    assert report["safe_after_s"] < 0.2 + 1.0            # stale_timeout, plus the probe's and DDS' latency
+    assert STALE <= report["safe_after_s"] < STALE + 1.0   # stale_timeout, plus the probe's and DDS' latency
     assert ramp_applied, "no voltage_applied during the stall (the safe ramp)"
     assert late == 1000 and report["gap_samples"] == 0, report   # exactly the ramp's samples, no gap
     run = read_with_all_readers(g.out)["run"]
@@ -485,3 +491,63 @@ def test_wall_clock_steps_in_the_realtime_trajectory(tmp_path, probe):
     # the recording shows the stream as played: the re-based jump as a gap, the small jump held (no hole on the
     # device, but no reference either: a gap in reference and voltage as well)
     assert any(abs(gp - fwd_big["stamp_jump_s"] * FS) < 0.3 * FS for gp in _gaps(run, "reference"))
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# recorder: kill -9, piezo-ff recover, restart
+
+def test_recorder_kill9_recover_and_restart(tmp_path, probe):
+    """kill -9 of the recorder while the graph runs, then a new recorder on a new file.
+
+    The driver does not notice (it does not depend on the recorder: still ``active``, no resume, no gap).  The killed
+    file has no summary and no footer: ``piezo-ff recover`` rewrites it as a complete file that the three readers
+    open.  Lost from the recording: the messages after its last flushed chunk (``flush_interval`` 0.2 s: at most
+    that and one chunk in the making) and the recorder's downtime; the second file starts at its restart."""
+    from piezo_ff_ros.cli import main as cli_main
+
+    g = RealtimeGraph(probe, tmp_path, args={"driver": ["-p", "limits.stale_timeout:=2.0"]})   # no load stall
+    g.start_all()
+    try:
+        g.wait_blocks("displacement", 0.0, 90, "the graph running (displacement blocks)", n=10)
+        wait_recorded(probe, tmp_path, "/displacement", 0, 30)
+        probe.spin_for(1.5)
+        d0 = g.diag_after(lambda d: d[2].get("state") == "active", 30, "driver active")
+        t_kill = time.monotonic()
+        kill9(g.procs["recorder"])
+        last_sent = g.end_before("displacement", t_kill)
+        g.args["recorder"] = ["-p", f"output:={tmp_path / 'run2.mcap'}"]
+        g.start("recorder")
+        t_up = time.monotonic()
+        probe.spin_until(lambda: (tmp_path / "run2.mcap").exists(), 60, "the second recording")
+        wait_recorded(probe, tmp_path, "/displacement", 0, 60, name="run2.mcap")
+        t_rec = time.monotonic()
+        probe.spin_for(1.0)
+        d1 = g.diag_after(lambda d: True, 30, "driver status")
+    finally:
+        codes = g.stop_all()
+    assert codes == {"trajectory": 0, "compensator": 0, "driver": 0, "recorder": 0}, codes
+    assert d1[2]["state"] == "active" and d1[2]["resumes"] == d0[2]["resumes"], d1
+    assert d1[2]["gap_samples"] == d0[2]["gap_samples"] and d1[2]["late_samples"] == d0[2]["late_samples"], d1
+    killed = g.out
+    from mcap.reader import make_reader
+    with open(killed, "rb") as f, pytest.raises(Exception):
+        list(make_reader(f).iter_messages())          # what the recover command is for
+    fixed = tmp_path / "fixed.mcap"
+    assert cli_main(["recover", str(killed), "--out", str(fixed)]) == 0
+    first = read_with_all_readers(fixed)
+    second = read_with_all_readers(tmp_path / "run2.mcap")
+    for c in (first, second):
+        assert c["mcap"]["/displacement"] == c["rosbags"]["/displacement"] == c["piezo_ff"]["/displacement"] > 0
+    run1, run2 = first["run"], second["run"]
+    end1 = run1.meta["t0_ns"] + (run1.meta["k_offset"] + len(run1)) * DT_NS   # stamp past the last recorded sample
+    start2 = run2.meta["t0_ns"] + run2.meta["k_offset"] * DT_NS
+    lost_tail = (last_sent - end1) / 1e9          # sent before the kill, not in the killed file
+    between = (start2 - end1) / 1e9               # not in either file
+    print("recorder kill -9:", json.dumps({"lost_before_kill_s": round(lost_tail, 3), "lost_between_files_s":
+                                           round(between, 3), "restart_to_recording_s": round(t_rec - t_up, 2),
+                                           "displacement_blocks": [first["mcap"]["/displacement"],
+                                                                   second["mcap"]["/displacement"]]}))
+    for run in (run1, run2):
+        assert _gaps(run, "displacement") == [] and _gaps(run, "voltage") == [], run.meta["blocks"]
+    assert -0.1 <= lost_tail <= 0.2 + 0.5, lost_tail          # flush_interval + the chunk being built
+    assert 0 < between <= lost_tail + (t_rec - t_kill) + 0.5, between
