@@ -345,15 +345,16 @@ def test_kill9_and_restart_of_compensator_driver_and_trajectory(tmp_path, probe)
     run = counts["run"]
     gaps = {role: _gaps(run, role) for role in ("reference", "voltage", "displacement")}
     print("gaps in the recording [samples]:", gaps)
-    # each node's death is one gap of its output in the recording: the size the probe saw, plus what the recorder
-    # missed of the restarted publisher before discovering it (its writer does not wait for the recorder), < 1 s
+    # each node's death is one gap of its output in the recording.  The probe's figure and the recording's differ
+    # by what each observer missed of the restarted publisher before discovering it (the nodes' writers do not
+    # wait for them; the trajectory does wait for its readers, so its gap is exact): < 1 s either way
     ref_gap, (comp_gap, traj_gap), (_, drv_gap, _) = gaps["reference"], gaps["voltage"], gaps["displacement"]
-    missed = {"trajectory": ref_gap[0] - faults["trajectory"]["lost_samples"],
-              "compensator": comp_gap - faults["compensator"]["lost_samples"],
-              "driver": drv_gap - faults["driver"]["lost_samples"]}
-    print("recorder: samples missed from each restarted publisher before discovering it:", missed)
-    assert len(ref_gap) == 1 and traj_gap == faults["trajectory"]["lost_samples"], gaps   # waits for its readers
-    assert all(0 <= m < 1.0 * FS for m in missed.values()), missed
+    recorded = {"trajectory": ref_gap[0], "compensator": comp_gap, "driver": drv_gap}
+    print("lost in the recording [s]:", {k: v / FS for k, v in recorded.items()})
+    assert len(ref_gap) == 1 and traj_gap == ref_gap[0] == faults["trajectory"]["lost_samples"], gaps
+    for name, f in faults.items():
+        assert 0 < recorded[name] <= (f["downtime_s"] + max(f["in_flight_s"], 0) + 1.0) * FS, (name, recorded, f)
+        assert abs(recorded[name] - f["lost_samples"]) < 1.0 * FS, (name, recorded, f)
     # the driver's voltage_applied: every sample it output once (its safe ramps included), gaps only where dead
     assert run.meta["blocks"]["displacement"]["duplicates"] == 0
 
@@ -472,16 +473,16 @@ def test_wall_clock_steps_in_the_realtime_trajectory(tmp_path, probe):
     for step, t, d0, d1 in seen:
         after = sorted((s, n) for w, s, n in g.arrivals["reference"] if w > t)
         i = ref.index(after[0])
-        jump = max(jumps[max(i - 1, 0):i + int(2.5 * FS / BLOCK_RT)]) / FS   # the largest jump in two loops
+        jump = max(jumps[max(i - 1, 0):i + int(2.5 * FS / BLOCK_RT)])   # the largest jump in two loops [samples]
         delta = {k: int(d1[k]) - int(d0[k]) for k in ("gap_samples", "rebases", "late_samples", "resumes")}
-        report.append({"step_s": step, "stamp_jump_s": round(jump, 3), **delta})
+        report.append({"step_s": step, "stamp_jump_s": round(jump / FS, 3), "stamp_jump": jump, **delta})
     print("clock steps:", json.dumps(report))
     fwd_small, fwd_big, back = report
     # the jump is the step, less what the stream led the clock by (its blocks are stamped ahead, ≤ 0.2 s here),
     # plus the loop's lag
     assert 0.5 - 0.2 <= fwd_small["stamp_jump_s"] < 0.5 + 0.3, fwd_small
-    assert fwd_small["rebases"] == 0 and fwd_small["gap_samples"] >= fwd_small["stamp_jump_s"] * FS - 1, fwd_small
-    assert fwd_small["gap_samples"] <= (fwd_small["stamp_jump_s"] + 0.1) * FS, fwd_small   # held, counted
+    assert fwd_small["rebases"] == 0 and fwd_small["gap_samples"] >= fwd_small["stamp_jump"], fwd_small
+    assert fwd_small["gap_samples"] <= fwd_small["stamp_jump"] + 0.1 * FS, fwd_small   # held, counted
     assert 3.0 - 0.2 <= fwd_big["stamp_jump_s"] < 3.0 + 0.3 and fwd_big["rebases"] == 1, fwd_big   # re-based
     assert fwd_big["gap_samples"] < 0.3 * FS, fwd_big
     assert back["stamp_jump_s"] < 0.3 and back["late_samples"] == 0 and back["rebases"] == 0, back
