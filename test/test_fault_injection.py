@@ -552,3 +552,49 @@ def test_recorder_kill9_recover_and_restart(tmp_path, probe):
         assert _gaps(run, "displacement") == [] and _gaps(run, "voltage") == [], run.meta["blocks"]
     assert -0.1 <= lost_tail <= 0.2 + 0.5, lost_tail          # flush_interval + the chunk being built
     assert 0 < between <= lost_tail + (t_rec - t_kill) + 0.5, between
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# lockstep: the trajectory waits for each block's displacement — a node's death must not end the run
+
+def test_lockstep_run_survives_a_compensator_kill9_and_restart(tmp_path, probe):
+    """Lockstep (at most ``window`` blocks in flight, the next one sent when a displacement comes back): the
+    compensator is killed with -9 and restarted.  The blocks in flight died with it: they are never answered.
+    Expected: the trajectory gives them up after ``ack_timeout`` (counted: ``unanswered_blocks`` in its state),
+    keeps playing, and the run goes on with the restarted compensator — not a stall until ``lockstep_timeout``
+    and a failed run.  The driver went safe meanwhile and resumes.  Lost: the blocks sent while the compensator
+    was down (a window of 3 per ``ack_timeout``) — nothing else."""
+    from std_msgs.msg import String
+
+    from piezo_ff_ros.nodes.common import LATCHED_QOS
+
+    states = []
+    probe.node.create_subscription(String, "/trajectory/state", lambda m: states.append(json.loads(m.data)),
+                                   LATCHED_QOS)
+    g = RealtimeGraph(probe, tmp_path, args={"trajectory": ["-p", "mode:=lockstep", "-p", "window:=3",
+                                                            "-p", "lockstep_timeout:=60.0", "-p", "ack_timeout:=1.0",
+                                                            "-p", f"trajectory:='{LOOP}'", "-p", "loop:=true"]})
+    g.start_all()
+    try:
+        g.wait_blocks("displacement", 0.0, 90, "the graph running (displacement blocks)", n=10)
+        t_kill = time.monotonic()
+        kill9(g.procs["compensator"])
+        g.diag_after(lambda d: d[2].get("state") == "safe", 30, "the driver's safe state")
+        g.start("compensator")
+        g.wait_blocks("voltage", time.monotonic(), 90, "voltage from the restarted compensator", n=3)
+        g.wait_blocks("displacement", time.monotonic(), 60, "the lockstep run going on", n=20)
+        d = g.diag_after(lambda d: d[2].get("state") == "active", 30, "driver active")
+        t_back = time.monotonic()
+    finally:
+        codes = g.stop_all()
+    assert codes == {"trajectory": 0, "compensator": 0, "driver": 0, "recorder": 0}, codes
+    playing = [s for s in states if s["state"] == "playing"]
+    assert states and states[-1]["state"] in ("playing", "stopped"), states[-3:]
+    lost = max(int(s.get("unanswered_blocks", 0)) for s in states)
+    print("lockstep compensator kill -9:", json.dumps({"down_s": round(t_back - t_kill, 2), "unanswered_blocks": lost,
+                                                      "driver_resumes": d[2]["resumes"],
+                                                      "states": [s["state"] for s in states][-4:]}))
+    assert playing and 3 <= lost <= 3 * (1 + (t_back - t_kill) / 1.0), lost
+    assert int(d[2]["resumes"]) >= 1
+    run = read_with_all_readers(g.out)["run"]
+    assert run.meta["blocks"]["displacement"]["duplicates"] == 0
