@@ -346,12 +346,13 @@ def test_kill9_and_restart_of_compensator_driver_and_trajectory(tmp_path, probe)
     gaps = {role: _gaps(run, role) for role in ("reference", "voltage", "displacement")}
     print("gaps in the recording [samples]:", gaps)
     # each node's death is one gap of its output in the recording.  The probe's figure and the recording's differ
-    # by what each observer missed of the restarted publisher before discovering it (the nodes' writers do not
-    # wait for them; the trajectory does wait for its readers, so its gap is exact): < 1 s either way
+    # by what each observer missed of the restarted publisher before discovering it (the compensator's and the
+    # driver's writers do not wait for readers; the trajectory waits for 3 matched readers, but a dead node's reader
+    # still counts until its lease ends): < 1 s either way
     ref_gap, (comp_gap, traj_gap), (_, drv_gap, _) = gaps["reference"], gaps["voltage"], gaps["displacement"]
     recorded = {"trajectory": ref_gap[0], "compensator": comp_gap, "driver": drv_gap}
     print("lost in the recording [s]:", {k: v / FS for k, v in recorded.items()})
-    assert len(ref_gap) == 1 and traj_gap == ref_gap[0] == faults["trajectory"]["lost_samples"], gaps
+    assert len(ref_gap) == 1 and traj_gap == ref_gap[0], gaps   # no voltage where there was no reference
     for name, f in faults.items():
         assert 0 < recorded[name] <= (f["downtime_s"] + max(f["in_flight_s"], 0) + 1.0) * FS, (name, recorded, f)
         assert abs(recorded[name] - f["lost_samples"]) < 1.0 * FS, (name, recorded, f)
