@@ -4,13 +4,13 @@ checks that the recording stays readable (piezo-ff's reader, the ``mcap`` reader
 
 Faults: recorder disk full (``RLIMIT_FSIZE``, SIGXFSZ ignored so that the write fails with EFBIG); kill -9 and
 restart of the recorder (``piezo-ff recover`` on its file), of the compensator, of the driver and of the trajectory
-node; a stalled compensator (SIGSTOP … SIGCONT); wall-clock steps forward and backward in the realtime trajectory
-node.  docs/faults.md has the table of the figures.
+node (realtime, and the compensator in a lockstep run); a stalled compensator (SIGSTOP … SIGCONT); wall-clock steps
+forward and backward in the realtime trajectory node.  Run with ``-s`` for the figures; docs/faults.md has the
+table.
 """
 from __future__ import annotations
 
 import json
-import os
 import resource
 import signal
 import subprocess
@@ -23,8 +23,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from test_driver_node import _io, _stream  # noqa: E402
-from test_nodes_integration import AXES, DT_NS, FS, ROOT, Probe, child_env, stop_node  # noqa: E402
+from test_nodes_integration import AXES, DT_NS, FS, Probe, child_env, stop_node  # noqa: E402
 
 
 @pytest.fixture()
