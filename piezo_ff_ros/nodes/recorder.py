@@ -10,8 +10,13 @@ displacement, experiment, /diagnostics, /parameter_events; relative names resolv
 ``config_file``/``variant`` (the PiezoConfig stored in the metadata), ``metadata`` (extra JSON object),
 ``flush_interval`` [s], ``discovery_period`` [s] (how often topics of unknown type are looked up in the graph).
 Topic ``~/status`` (std_msgs/String, transient-local JSON: ``{"recording": path, "topics": {...}, "subscribed": [...],
-"publishers": {topic: matched publisher count}}``, republished when a count changes) lets a launcher wait until the
-recorder is actually connected to the publishers before a run starts.
+"publishers": {topic: matched publisher count}, "error": null or why recording stopped}``, republished when a count
+changes) lets a launcher wait until the recorder is actually connected to the publishers before a run starts.
+
+A write that fails (disk full, file-size limit, I/O error) stops the recording, not the node: the file is ended at
+its last complete chunk (readable by every MCAP reader, see :class:`~piezo_ff_ros.core.recording.mcap_io.
+RecordingStopped`), one ERROR is logged and ``/diagnostics`` reports ERROR (every second from then on) with what was
+kept and how many messages were dropped; the exit code at SIGINT is then 1 (the recording is incomplete).
 """
 from __future__ import annotations
 
@@ -22,13 +27,14 @@ import sys
 import time
 from pathlib import Path
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
 from ..core.config import load_config
-from ..core.recording.mcap_io import McapRecorder
-from .common import CONFIG_QOS, LATCHED_QOS, RECORD_QOS, run_node
+from ..core.recording.mcap_io import McapRecorder, RecordingStopped
+from .common import CONFIG_QOS, LATCHED_QOS, RECORD_QOS, diag_values, run_node
 
 DEFAULT_TOPICS = ["reference", "voltage", "displacement", "experiment", "/diagnostics", "/parameter_events",
                   "compensator/config", "voltage_applied"]
@@ -103,7 +109,10 @@ class RecorderNode(Node):
         self.subs = {}
         self.counts: dict[str, int] = {}
         self._matched: dict[str, int] = {}
+        self.error: str | None = None      # why recording stopped early
+        self.dropped = 0                    # messages received after that
         self.pub_status = self.create_publisher(String, "~/status", LATCHED_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._subscribe_known()
         self.create_timer(period, self._discover)
         self.get_logger().info(f"recording {sorted(self.topics)} to {out}")
@@ -146,6 +155,32 @@ class RecorderNode(Node):
             cls, topic, lambda data, info, t=topic: self._on_message(t, data, info), qos, raw=True)
 
     def _on_message(self, topic: str, data: bytes, info) -> None:
+        if self.error is not None:
+            self.dropped += 1
+            return
+        try:
+            self._record(topic, data, info)
+        except RecordingStopped as exc:
+            self._stopped(exc)
+
+    def _stopped(self, exc: RecordingStopped) -> None:
+        """Writing failed: the file is already ended (readable); say so once, then every second on /diagnostics."""
+        self.error = f"recording stopped: {exc}"
+        self.get_logger().error(self.error)
+        self._status()
+        self._publish_error()
+        self.create_timer(1.0, self._publish_error)
+
+    def _publish_error(self) -> None:
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        values = {"recording": str(self.rec.path), **self.rec.failure, "dropped_after_stop": self.dropped,
+                  **{f"count.{t}": n for t, n in self.counts.items()}}
+        arr.status = [DiagnosticStatus(level=DiagnosticStatus.ERROR, name=self.get_fully_qualified_name(),
+                                       message=self.error or "", hardware_id="recorder", values=diag_values(values))]
+        self.pub_diag.publish(arr)
+
+    def _record(self, topic: str, data: bytes, info) -> None:
         now = time.time_ns()
         if topic not in self.rec.topics:
             offered = [p.qos_profile for p in self.get_publishers_info_by_topic(topic)]
@@ -164,6 +199,8 @@ class RecorderNode(Node):
                 self._first_block(data)
             elif last == "config" and self.types.get(topic) == "std_msgs/msg/String":
                 self._config_version(data)
+        except RecordingStopped:
+            raise
         except Exception as exc:  # noqa: BLE001 - metadata is best effort; the message itself is recorded
             self.get_logger().warning(f"{topic}: metadata not updated ({exc})")
 
@@ -200,14 +237,22 @@ class RecorderNode(Node):
         self.pub_status.publish(String(data=json.dumps({"recording": str(self.rec.path),
                                                         "topics": {t: self.types.get(t) for t in self.topics},
                                                         "subscribed": sorted(t for t, s in self.subs.items() if s),
-                                                        "publishers": self._matched})))
+                                                        "publishers": self._matched, "error": self.error})))
 
     def finish(self):
         if not self.rec.closed:
-            self.rec.close()
-            size = self.rec.path.stat().st_size if self.rec.path.exists() else 0
-            print(f"recorder: wrote {self.rec.message_count} messages ({size} bytes) to {self.rec.path}: "
-                  + ", ".join(f"{t} {n}" for t, n in sorted(self.counts.items())), file=sys.stderr)
+            try:
+                self.rec.close()
+            except RecordingStopped as exc:
+                self.error = f"recording stopped: {exc}"
+            if self.error is None:
+                size = self.rec.path.stat().st_size if self.rec.path.exists() else 0
+                print(f"recorder: wrote {self.rec.message_count} messages ({size} bytes) to {self.rec.path}: "
+                      + ", ".join(f"{t} {n}" for t, n in sorted(self.counts.items())), file=sys.stderr)
+        if self.error is not None:   # exit code 1 (run_node), one line: the recording is incomplete
+            f = self.rec.failure
+            raise RuntimeError(f"{self.error}; {self.dropped} message(s) received afterwards dropped"
+                               if f else self.error)
 
 
 def main(argv=None) -> int:

@@ -13,8 +13,12 @@ text naming the field — and used from the next start):
   fast as the graph answers, deterministic and lossless: at most ``window`` blocks in flight, the next block is
   sent when the ``displacement`` for an earlier one came back);
 - ``block_size`` (samples, default 200), ``window`` (lockstep blocks in flight, default 4), ``sample_rate`` [Hz],
-  ``autostart`` (bool), ``loop`` (bool), ``lockstep_timeout`` [s] (no displacement for this long → stop with an
-  error), ``t0_ns`` (stamp of sample index 0; 0 = the wall clock at start-up), ``min_subscribers`` (playing starts
+  ``autostart`` (bool), ``loop`` (bool), ``lockstep_timeout`` [s] (no displacement for this long while blocks are
+  in flight → stop with an error; also how long playing waits for the graph), ``ack_timeout`` [s] (default 5;
+  lockstep: a block not answered for this long is given up — its node died, or the driver dropped it — counted as
+  ``unanswered_blocks`` in ``~/state`` with a WARN, so that a restarted compensator or driver rejoins the run; a
+  displacement for a later stamp gives up the earlier blocks at once, the driver's stream never going back),
+  ``t0_ns`` (stamp of sample index 0; 0 = the wall clock at start-up), ``min_subscribers`` (playing starts
   once ``reference``, ``voltage`` and ``displacement`` each have that many readers — 2 with a recorder — and, in
   lockstep, ``voltage`` and ``displacement`` a writer).
 
@@ -93,6 +97,7 @@ class TrajectoryNode(Node):
             "autostart": self.declare_parameter("autostart", False).value,
             "loop": self.declare_parameter("loop", False).value,
             "lockstep_timeout": self.declare_parameter("lockstep_timeout", 10.0).value,
+            "ack_timeout": self.declare_parameter("ack_timeout", 5.0).value,
             "t0_ns": self.declare_parameter("t0_ns", 0).value,
             "min_subscribers": self.declare_parameter("min_subscribers", 1).value,
             # reference preview [s]: play the trajectory this far ahead, so that a plant with an input delay (e.g.
@@ -111,7 +116,8 @@ class TrajectoryNode(Node):
         self.t0_ns = t0 // self.period_ns * self.period_ns
         self.k_stream = 0            # stream sample index of the next block (never goes back)
         self._cv = threading.Condition()
-        self._inflight: set[int] = set()
+        self._inflight: dict[int, float] = {}    # lockstep: stamp → when sent (monotonic)
+        self.unanswered = 0                       # lockstep blocks given up (never answered)
         self._last_ack = time.monotonic()
         self._play_thread = None
         self._stop = threading.Event()
@@ -151,7 +157,7 @@ class TrajectoryNode(Node):
                 if name in values and (isinstance(values[name], bool) or not isinstance(values[name], (int, float))
                                        or not 0.0 <= values[name] < math.inf):
                     raise ConfigError(name, f"must be a number of metres >= 0 (0: no check), got {values[name]!r}")
-            for name in ("sample_rate", "lockstep_timeout", "voltage_limit"):
+            for name in ("sample_rate", "lockstep_timeout", "ack_timeout", "voltage_limit"):
                 if name in values and (isinstance(values[name], bool) or not isinstance(values[name], (int, float))
                                        or not values[name] > 0):
                     raise ConfigError(name, f"must be a number > 0, got {values[name]!r}")
@@ -200,13 +206,30 @@ class TrajectoryNode(Node):
         stamp = stamp_to_ns(msg.header.stamp)
         end_k = (stamp - self.t0_ns) // self.period_ns + int(msg.width)
         with self._cv:
-            # a block is done once the device has passed it: answered, or dropped as late by a clocked device
-            # (its samples were already played) — it must not hold the window forever
-            self._inflight = {s for s in self._inflight if s > stamp}
+            self._inflight.pop(stamp, None)
+            # blocks stamped before this one will never be answered (dropped as late, or their node died)
+            self._give_up([s for s in self._inflight if s < stamp], "the driver answered a later block")
             self._last_ack = time.monotonic()
             # the driver may have published samples of its own (stale ramp): never reuse their indices
             self.k_stream = max(self.k_stream, end_k) if end_k > 0 else self.k_stream
             self._cv.notify_all()
+
+    def _give_up(self, stamps, why: str) -> None:
+        """Lockstep (under ``_cv``): stop waiting for these blocks; counted, WARN, in ``~/state``."""
+        if not stamps:
+            return
+        for s in stamps:
+            self._inflight.pop(s, None)
+        self.unanswered += len(stamps)
+        self.get_logger().warning(f"lockstep: {len(stamps)} block(s) never answered ({why}), given up: "
+                                  f"{self.unanswered} so far")
+        self.state["unanswered_blocks"] = self.unanswered
+        self.pub_state.publish(String(data=json.dumps(self.state)))
+
+    def _expire(self, ack_timeout: float) -> None:
+        now = time.monotonic()
+        self._give_up([s for s, t in self._inflight.items() if now - t > ack_timeout],
+                      f"no displacement within ack_timeout {ack_timeout} s")
 
     def _wait_graph(self, timeout: float, lockstep: bool) -> None:
         """Before playing: every block topic has ``min_subscribers`` readers (e.g. 2 = next node + recorder)."""
@@ -214,7 +237,10 @@ class TrajectoryNode(Node):
         deadline = time.monotonic() + timeout
         settle = False
         while not self._stop.is_set():
-            counts = {"reference": self.count_subscribers("reference"), "voltage": self.count_subscribers("voltage"),
+            # reference: readers matched by our own writer (discovered is not enough: a reader this writer has not
+            # matched yet misses the first blocks — a recorder after a restart of this node lost 3 of them)
+            counts = {"reference": min(self.count_subscribers("reference"), self.pub_ref.get_subscription_count()),
+                      "voltage": self.count_subscribers("voltage"),
                       "displacement": self.count_subscribers("displacement")}  # includes our own
             # lockstep needs the whole chain; realtime may feed a compensator (or any reader) alone
             writers = {"voltage": self.count_publishers("voltage"),
@@ -230,7 +256,7 @@ class TrajectoryNode(Node):
             time.sleep(0.5)  # graph discovery precedes endpoint matching by a little
 
     def _set_state(self, state, **extra):
-        self.state = {"state": state, "k": int(self.k_stream), **extra}
+        self.state = {"state": state, "k": int(self.k_stream), "unanswered_blocks": self.unanswered, **extra}
         self.pub_state.publish(String(data=json.dumps(self.state)))
 
     def _marker(self, name, k0, meta, k1=None):
@@ -245,6 +271,7 @@ class TrajectoryNode(Node):
         mode, n_blk, window = self.param("mode"), int(self.param("block_size")), int(self.param("window"))
         preview = int(round(float(self.param("preview_s")) * self.fs))  # samples played ahead
         loop, timeout = bool(self.param("loop")), float(self.param("lockstep_timeout"))
+        ack_timeout = float(self.param("ack_timeout"))
         total = traj.n_samples(fs)
         segs = traj.segments(fs) if isinstance(traj, Sequence) else []
         axes = list(traj.axes)
@@ -277,13 +304,15 @@ class TrajectoryNode(Node):
                         next_wall += n / fs
                     else:
                         with self._cv:
-                            self._last_ack = time.monotonic()
+                            if not self._inflight:   # the timeout runs while something is in flight
+                                self._last_ack = time.monotonic()
                             while len(self._inflight) >= window and not self._stop.is_set():
                                 self._cv.wait(0.1)
+                                self._expire(ack_timeout)
                                 if time.monotonic() - self._last_ack > timeout:
                                     raise TimeoutError(f"lockstep: no displacement for {timeout} s "
                                                        "(is the driver running?)")
-                            self._inflight.add(stamp)
+                            self._inflight[stamp] = time.monotonic()
                     self.pub_ref.publish(pack_block(block, axes, stamp))
                     with self._cv:
                         self.k_stream = max(self.k_stream, kk + n)
@@ -294,6 +323,7 @@ class TrajectoryNode(Node):
                         self._last_ack = time.monotonic()
                         while self._inflight and not self._stop.is_set():
                             self._cv.wait(0.1)
+                            self._expire(ack_timeout)
                             if time.monotonic() - self._last_ack > timeout:
                                 raise TimeoutError(f"lockstep: {len(self._inflight)} block(s) never answered")
                 if self._stop.is_set() or not loop:

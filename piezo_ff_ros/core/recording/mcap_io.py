@@ -23,7 +23,7 @@ import struct
 import sys
 import threading
 import time
-from collections import Counter, defaultdict
+from collections import Counter, defaultdict, deque
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -37,7 +37,7 @@ from .run import RunData
 
 __all__ = [
     "METADATA_NAME", "BLOCK_ROLES", "ros2msg_definition", "type_hash", "qos_profiles_yaml", "block_qos_profile",
-    "McapRecorder", "McapContents", "scan_mcap", "iter_mcap_records", "read_run",
+    "McapRecorder", "RecordingStopped", "McapContents", "scan_mcap", "iter_mcap_records", "read_run",
 ]
 
 METADATA_NAME = "piezo_ff_ros"  #: name of the MCAP Metadata record holding the run configuration
@@ -201,6 +201,15 @@ def qos_profiles_yaml(profiles: Iterable | None) -> str:
 # ----------------------------------------------------------------------------------------------------------------
 # writer
 
+class RecordingStopped(OSError):
+    """Writing failed (disk full, file-size limit, I/O error): the recorder ended the file at its last durable
+    record boundary (readable by every MCAP reader) and accepts nothing more.  ``info`` says what was kept."""
+
+    def __init__(self, text: str, info: dict):
+        super().__init__(text)
+        self.info = info
+
+
 def _metadata_value(v) -> str:
     if isinstance(v, str):
         return v
@@ -253,6 +262,7 @@ class McapRecorder:
             except PackageNotFoundError:
                 library = "piezo_ff_ros; mcap"
         self._writer.start(profile="ros2", library=library)
+        self._file.flush()
         self._lock = threading.Lock()
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, tuple[int, str]] = {}
@@ -264,6 +274,11 @@ class McapRecorder:
         self.message_count = 0
         self.bytes_in = 0
         self.closed = False
+        #: why writing stopped early (None while all is well); then ``failure`` holds what was kept
+        self.failed: str | None = None
+        self.failure: dict = {}
+        # record boundaries known to be on disk, with the message count up to each: where a failed file is cut
+        self._durable: deque[tuple[int, int]] = deque([(self._file.tell(), 0)], maxlen=32)
         if metadata:
             self.set_metadata(metadata)
 
@@ -303,12 +318,16 @@ class McapRecorder:
                 raise ValueError(f"topic {topic}: not registered (call register_topic first)") from None
             self._sequence[cid] += 1
             data = bytes(raw_cdr)
-            self._writer.add_message(channel_id=cid, log_time=int(log_time_ns), data=data,
-                                     publish_time=int(log_time_ns if publish_time_ns is None else publish_time_ns),
-                                     sequence=self._sequence[cid] & 0xFFFFFFFF)
-            self.message_count += 1
-            self.bytes_in += len(data)
-            self._maybe_flush()
+            try:
+                self._writer.add_message(channel_id=cid, log_time=int(log_time_ns), data=data,
+                                         publish_time=int(log_time_ns if publish_time_ns is None
+                                                          else publish_time_ns),
+                                         sequence=self._sequence[cid] & 0xFFFFFFFF)
+                self.message_count += 1
+                self.bytes_in += len(data)
+                self._maybe_flush()
+            except OSError as exc:
+                self._stop_on_error(exc)
 
     def set_metadata(self, metadata: Mapping[str, Any]) -> None:
         """Record run configuration (merged with earlier calls) as the ``piezo_ff_ros`` Metadata record.
@@ -321,14 +340,22 @@ class McapRecorder:
             self._check_open()
             new = {str(k): _metadata_value(v) for k, v in metadata.items()}
             self._metadata.update(new)
-            self._writer.add_metadata(METADATA_NAME, new)
-            self._file.flush()
+            try:
+                self._writer.add_metadata(METADATA_NAME, new)
+                self._file.flush()
+                self._mark_durable()
+            except OSError as exc:
+                self._stop_on_error(exc)
 
     def flush(self) -> None:
         """Close the open chunk and flush the file (the data so far survives a crash)."""
         with self._lock:
             if not self.closed:
-                self._writer.flush()
+                try:
+                    self._writer.flush()
+                    self._mark_durable()
+                except OSError as exc:
+                    self._stop_on_error(exc)
                 self._unflushed_since = None
                 self._last_pos = self._file.tell()
 
@@ -337,11 +364,13 @@ class McapRecorder:
         with self._lock:
             if self.closed:
                 return
-            self.closed = True
             try:
                 self._writer.finish()
-            finally:
-                self._file.close()
+                self._file.flush()
+            except OSError as exc:
+                self._stop_on_error(exc)
+            self.closed = True
+            self._file.close()
 
     # -- helpers -------------------------------------------------------------------------------------------------
     @property
@@ -350,13 +379,76 @@ class McapRecorder:
         return {t: tn for t, (_, tn) in self._channels.items()}
 
     def _check_open(self):
+        if self.failed is not None:
+            raise RecordingStopped(f"{self.path}: recording stopped ({self.failed})", self.failure)
         if self.closed:
             raise ValueError(f"{self.path}: recorder already closed")
+
+    def _mark_durable(self) -> None:
+        """After a successful flush: the file up to here is on disk and ends on a record boundary."""
+        pos = self._file.tell()
+        if pos != self._durable[-1][0]:
+            self._durable.append((pos, self.message_count))
+
+    def _stop_on_error(self, exc: OSError) -> None:
+        """A write failed (disk full, file-size limit, I/O error): end the file cleanly and raise
+        :class:`RecordingStopped`.
+
+        The bytes after the last durable record boundary (a chunk cut short, the writer's buffer) are dropped:
+        the file is truncated there and ended with a DataEnd and a Footer without summary section — valid MCAP that
+        the ``mcap`` and ``rosbags`` readers open (they read it linearly) and that ``piezo-ff recover`` can re-index
+        elsewhere.  Truncation frees the room the ending needs; if even that does not fit, an earlier boundary is
+        tried.  The open Python file is never flushed again (its descriptor is pointed at /dev/null first).
+        """
+        from mcap.data_stream import RecordBuilder
+        from mcap.records import DataEnd, Footer
+
+        reason = exc.strerror or str(exc)
+        fd = self._file.fileno()
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, fd)          # the buffered writer's leftovers go nowhere, never after our footer
+        finally:
+            os.close(null)
+        b = RecordBuilder()
+        DataEnd(0).write(b)
+        Footer(summary_start=0, summary_offset_start=0, summary_crc=0).write(b)
+        ending = b.end() + b"\x89MCAP0\r\n"
+        kept = None
+        out = os.open(self.path, os.O_WRONLY)
+        try:
+            for pos, count in reversed(self._durable):
+                try:
+                    os.ftruncate(out, pos)
+                    if os.pwrite(out, ending, pos) == len(ending):
+                        kept = (pos, count)
+                        break
+                except OSError:
+                    continue
+        finally:
+            os.close(out)
+        self.closed = True
+        try:
+            self._file.close()
+        except OSError:
+            pass
+        self.failed = reason
+        if kept is None:
+            self.failure = {"reason": reason, "readable": False, "kept_bytes": 0, "kept_messages": 0,
+                            "lost_messages": self.message_count}
+        else:
+            self.failure = {"reason": reason, "readable": True, "kept_bytes": kept[0] + len(ending),
+                            "kept_messages": kept[1], "lost_messages": self.message_count - kept[1]}
+        where = (f"ended at {self.failure['kept_bytes']} bytes with {self.failure['kept_messages']} messages "
+                 f"(the last complete chunk), readable" if kept else "could not be ended: use piezo-ff recover")
+        raise RecordingStopped(f"{self.path}: write failed ({reason}): {where}; "
+                               f"{self.failure['lost_messages']} message(s) written after it lost", self.failure)
 
     def _maybe_flush(self):
         pos = self._file.tell()
         if pos != self._last_pos:  # the writer has just written a full chunk: push it to the OS now
             self._file.flush()
+            self._mark_durable()
             self._last_pos = pos
             self._unflushed_since = None
             return
@@ -365,6 +457,7 @@ class McapRecorder:
             self._unflushed_since = now
         if self._flush_interval is not None and now - self._unflushed_since >= self._flush_interval:
             self._writer.flush()
+            self._mark_durable()
             self._last_pos = self._file.tell()
             self._unflushed_since = None
 
