@@ -38,8 +38,13 @@ def add_parser(sub) -> None:
                    help="also run the constrained-least-squares preview on the cases where the limits bind "
                         "(nominal truth; ≈ 6 min more)")
     p.add_argument("--corrections", metavar="DIR", help="store each learned correction (.npz per trajectory/truth)")
-    p.add_argument("--graph", metavar="DIR", help="also play the 20 µm circle at 10 Hz through the ROS node graph "
-                   "(cascade, then + preview as a compensator parameter), record to DIR/<method>/run.mcap, replay")
+    p.add_argument("--graph", metavar="DIR", help="also play the 20 µm circle at 10 Hz through the ROS node graph, "
+                   "recorded to DIR/.../run.mcap and replayed: cascade and + preview on the nominal truth; cascade, "
+                   "+ preview and + learning (learned through the graph from the measured displacement, stored to "
+                   "DIR/learning_asymmetric/correction.npz, played by the compensator's learning.file) on the "
+                   "asymmetric truth (≈ 6 graph runs, 2–4 min)")
+    p.add_argument("--graph-iterations", type=int, default=2, metavar="N",
+                   help="learning updates through the graph (default 2; each is one more graph run)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=run)
 
@@ -72,6 +77,10 @@ def run(args) -> int:
     bad = [t for t in truths if t not in TRUTHS]
     if bad or not truths:
         raise ValueError(f"--truths: unknown truth {bad[0] if bad else ''!r}; use some of {','.join(TRUTHS)}")
+    if not 1 <= args.graph_iterations <= 20:
+        raise ValueError(f"--graph-iterations must be in 1…20, got {args.graph_iterations}")
+    if args.graph and Path(args.graph).exists() and not Path(args.graph).is_dir():
+        raise ValueError(f"--graph {args.graph}: exists and is not a directory")
     if args.iterations is not None and not 0 <= args.iterations <= 100:
         raise ValueError(f"--iterations must be in 0…100, got {args.iterations}")
     t0 = time.perf_counter()
@@ -90,11 +99,14 @@ def run(args) -> int:
     result = run_benchmark(printed, identified, quick=args.quick, truths=truths, ilc=ilc,
                            constrained=args.constrained, progress=say, corrections_dir=args.corrections)
     if args.graph:
-        from .track_graph import run_graph_case
+        from .track_graph import run_graph_case, run_graph_learning
 
+        g = Path(args.graph)
         for preview in (False, True):
-            result["cases"].append(run_graph_case(Path(args.graph) / ("preview" if preview else "cascade"), preview,
-                                                  say))
+            result["cases"].append(run_graph_case(g / ("preview" if preview else "cascade"), preview, say))
+        result["cases"].append(run_graph_case(g / "cascade_asymmetric", False, say, truth="asymmetric"))
+        result["cases"].extend(run_graph_learning(g / "learning_asymmetric", "asymmetric", args.graph_iterations,
+                                                  say=say))
     result["targets"] = check_targets(result)
     print(format_table(result))
     if args.json:
