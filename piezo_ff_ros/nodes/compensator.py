@@ -446,7 +446,9 @@ class CompensatorNode(Node):
             self.cfg = cfg
             if self.front.active:   # the preview inverts the running cascade: rebuild it for the new one
                 with self._lock:
+                    old = self.front
                     self.front = TrackingFront(cfg, controller_matrices(self.hs.active), self._front_values)
+                    self.front.continue_from(old)
             self.get_logger().info(f"configuration v{version} active")
             self.publish_diagnostics()
 
