@@ -91,7 +91,8 @@ def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str =
     noise_std, seed
         The simulated sensor's noise [m] and its seed (the driver's ``noise_std``, ``seed``).
     timeout : float
-        Seconds for the graph to come up and for the play to finish (each).
+        Seconds for each phase, counted from its own start: the graph coming up (the compensator synthesises H∞),
+        the play, the recording holding the whole segment.
     domain_id : int, optional
         ROS domain of the graph (default: derived by :func:`~piezo_ff_ros.ros.env.apply_ros_env_defaults`).
 
@@ -100,8 +101,6 @@ def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str =
     GraphRun
         Displacement and voltage on the compensator's stream index.
     """
-    from ..core.analysis import segment_signals
-    from ..core.recording.run import load_run
     from ..core.tracking.preview import PreviewConfig
     from ..ros.launcher import GraphLauncher
 
@@ -121,30 +120,37 @@ def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str =
     if learning_file:
         comp += ["-p", f"learning.file:={learning_file}"]
     traj = ["-p", "mode:=lockstep", "-p", "autostart:=true", "-p", "min_subscribers:=2", "-p", f"preview_s:={preview_s}",
-            "-p", f"lockstep_timeout:={timeout}",  # the compensator may still be synthesising H∞ on a loaded machine
-            "-p", f"trajectory:='{json.dumps(spec)}'"]
-    # lockstep on a shared machine: a first block (JIT compilation) may take longer than the 0.2 s stale timeout
-    drv = ["-p", "limits.stale_timeout:=5.0", "-p", f"noise_std:={float(noise_std)}", "-p", f"seed:={int(seed)}"]
+            "-p", f"lockstep_timeout:={timeout}", "-p", f"trajectory:='{json.dumps(spec)}'"]
+    # lockstep: the chain pauses whenever a process is descheduled (a loaded machine, a lazy JIT compilation); the
+    # simulated driver must not take such a pause for a dead stream and ramp to its safe state in the middle of
+    # the trial (its own samples would break the segment): the longest stale timeout the config allows
+    drv = ["-p", "limits.stale_timeout:=60.0", "-p", f"noise_std:={float(noise_std)}", "-p", f"seed:={int(seed)}"]
     if truth_file:
         drv += ["-p", f"config_file:={truth_file}"]
     g = GraphLauncher({"recorder": ["-p", f"output:={mcap}"], "driver": drv, "compensator": comp, "trajectory": traj},
                       log_dir=out_dir / "logs", domain_id=domain_id)
+    n = len(r)
     t0 = time.monotonic()
     g.start(timeout=timeout)
     try:
+        t_play = time.monotonic()
         while "trajectory finished" not in g.procs["trajectory"].log():
             g.check_alive()
-            if "trajectory failed" in g.procs["trajectory"].log() or time.monotonic() - t0 > timeout:
+            if "trajectory failed" in g.procs["trajectory"].log() or time.monotonic() - t_play > timeout:
                 raise RuntimeError(f"graph case: the trajectory did not finish:\n{g.procs['trajectory'].log()[-800:]}")
             time.sleep(0.2)
+        # the trajectory has its last displacement back, the recorder may still be behind (it writes every message):
+        # stop it only once the file (flushed every second, readable while written) holds the whole segment
+        t_rec = time.monotonic()
+        while _recorded_segment(mcap, n) is None:
+            g.check_alive()
+            if time.monotonic() - t_rec > timeout:
+                raise RuntimeError(f"graph case: the recording does not hold the whole segment after {timeout:g} s")
+            time.sleep(0.5)
     finally:
         g.stop()
-    run = load_run(mcap)
-    recorded, warnings = segment_signals(run)
-    if SEGMENT not in recorded:
-        raise RuntimeError(f"graph case: segment not recorded ({warnings})")
-    _, ref_ahead, u, y = recorded[SEGMENT]
-    n = len(r)
+    seg = _recorded_segment(mcap, n, strict=True)
+    _, ref_ahead, u, y = seg
     if len(y) != n:
         raise RuntimeError(f"graph case: {len(y)} samples recorded, {n} played")
     # the recorded reference at stream index k carries r[k + L] (held at the end): the alignment the errors and the
@@ -158,6 +164,27 @@ def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str =
     say(f"graph {'preview' if preview else 'cascade'}{' + learning' if learning_file else ''}"
         f"{' (truth ' + Path(truth_file).stem + ')' if truth_file else ''}: {n} samples, {dt:.1f} s")
     return GraphRun(y=np.asarray(y, float), u=np.asarray(u, float), mcap=mcap, preview_s=preview_s, seconds=dt)
+
+
+def _recorded_segment(mcap: Path, n: int, strict: bool = False):
+    """The recorded segment ``(t, reference, u, y)`` when the MCAP holds all its ``n`` samples, else None (or, with
+    ``strict``, a RuntimeError saying what is missing)."""
+    from ..core.analysis import segment_signals
+    from ..core.recording.run import load_run
+
+    try:
+        recorded, warnings = segment_signals(load_run(mcap))
+    except Exception as exc:  # noqa: BLE001 - a file still being written may end anywhere
+        if strict:
+            raise RuntimeError(f"graph case: {mcap}: {exc}") from None
+        return None
+    seg = recorded.get(SEGMENT)
+    if seg is None or len(seg[3]) != n or not all(np.all(np.isfinite(a)) for a in seg[1:]):
+        if strict:
+            got = "absent" if seg is None else f"{len(seg[3])} of {n} samples"
+            raise RuntimeError(f"graph case: segment {SEGMENT} not recorded whole ({got}; {warnings})")
+        return None
+    return seg
 
 
 def _row(run: GraphRun, method: str, truth: str, r: np.ndarray, mask: np.ndarray) -> dict:
