@@ -13,16 +13,19 @@ def _play(pacer, times):
     return [pacer.tick(t) for t in times]
 
 
-@pytest.mark.parametrize("tick_s,jitter_s", [(0.005, 0.0), (0.005, 0.004), (0.001, 0.0), (0.0093, 0.003)])
-def test_average_rate_is_the_sample_rate_whatever_the_timer(tick_s, jitter_s):
-    """Over 2 s of ticks (any period below the backlog bound, random lateness) the blocks played are the blocks due."""
+@pytest.mark.parametrize("block,tick_s,jitter_s", [(200, 0.005, 0.0), (200, 0.005, 0.004), (200, 0.001, 0.0),
+                                                    (200, 0.0093, 0.003), (200, 0.05, 0.02), (1, 0.001, 0.0005),
+                                                    (20000, 0.05, 0.0)])
+def test_average_rate_is_the_sample_rate_whatever_the_timer(block, tick_s, jitter_s):
+    """Over 2 s of ticks (any period below the lateness bound, random lateness, blocks from 1 sample to 1 s) the
+    blocks played are exactly the blocks due."""
     rng = np.random.default_rng(0)
-    p = HoldPacer(FS, 200, 0.2)
+    p = HoldPacer(FS, block, 0.2)
     p.set_point([1e-6, 2e-6])
-    t = np.arange(0.0, 2.0, tick_s) + rng.uniform(0, jitter_s, int(math.ceil(2.0 / tick_s)))[: len(np.arange(0.0, 2.0, tick_s))]
-    t = np.maximum.accumulate(t) + 10.0
+    base = np.arange(0.0, 2.0, tick_s)
+    t = np.maximum.accumulate(base + rng.uniform(0, jitter_s, len(base))) + 10.0
     blocks = sum(_play(p, t))
-    due = math.floor((t[-1] - t[0]) * FS / 200) + 1
+    due = math.floor((t[-1] - t[0]) * FS / block + 1e-9) + 1
     assert blocks == due
     assert p.restarts == 0
 
@@ -71,7 +74,7 @@ def test_block_size_change_and_clear():
 
 
 @pytest.mark.parametrize("kwargs,field", [({"sample_rate": 0}, "sample_rate"), ({"block_size": 2.5}, "block_size"),
-                                          ({"hold_timeout": -1}, "hold_timeout"),
+                                          ({"hold_timeout": -1}, "hold_timeout"), ({"max_late_s": 0}, "max_late_s"),
                                           ({"sample_rate": float("nan")}, "sample_rate")])
 def test_bad_settings_name_the_field(kwargs, field):
     with pytest.raises(ValueError, match=rf"^{field}"):

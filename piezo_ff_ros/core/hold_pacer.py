@@ -4,9 +4,9 @@ The compensator plays a held ``reference_point`` as blocks of ``block_size`` sam
 while no ``reference`` block arrived for ``max(hold_timeout, 2 · block period)``.  The node calls :meth:`HoldPacer.tick`
 from an executor timer (any period, any jitter); the pacer counts the samples due since the hold started and
 answers with the number of whole blocks to play now, so the average rate is the sample rate whatever the timer's
-lateness.  A tick later than ``max_backlog_blocks`` blocks (the process was stalled) does not replay the backlog in
-a burst: the schedule restarts from that tick (the same as the raw thread it replaces, which reset its deadline
-when late).  Pure logic, no ROS: the clock is an argument.
+period or lateness.  A tick more than ``max_late_s`` behind the schedule (the process was stalled) does not replay
+the backlog in a burst: the schedule restarts from that tick (as the raw thread it replaces reset its deadline when
+late).  Pure logic, no ROS: the clock is an argument.
 """
 from __future__ import annotations
 
@@ -39,14 +39,14 @@ class HoldPacer:
         Samples per played block.
     hold_timeout : float
         The held point plays once no reference block came for this long [s] (at least two block periods).
-    max_backlog_blocks : int
-        Blocks due at one tick beyond which the backlog is dropped and the schedule restarts.
+    max_late_s : float
+        Lateness [s] beyond which the backlog is dropped and the schedule restarts (at least one block period).
     """
 
     sample_rate: float
     block_size: int = 200
     hold_timeout: float = 0.2
-    max_backlog_blocks: int = 4
+    max_late_s: float = 0.1
     point: np.ndarray | None = field(default=None, init=False)
     _last_block: float = field(default=-math.inf, init=False)
     _start: float | None = field(default=None, init=False)
@@ -57,7 +57,7 @@ class HoldPacer:
         self.sample_rate = _positive(self.sample_rate, "sample_rate")
         self.block_size = _positive(self.block_size, "block_size", integer=True)
         self.hold_timeout = _positive(self.hold_timeout, "hold_timeout", allow_zero=True)
-        self.max_backlog_blocks = _positive(self.max_backlog_blocks, "max_backlog_blocks", integer=True)
+        self.max_late_s = _positive(self.max_late_s, "max_late_s")
 
     @property
     def block_period(self) -> float:
@@ -99,7 +99,7 @@ class HoldPacer:
         if self._start is None:          # the hold starts: its first block is due now
             self._start, self._played = now, 0
         due = int(math.floor((now - self._start) * self.sample_rate / self.block_size + 1e-9)) + 1 - self._played
-        if due > self.max_backlog_blocks:   # stalled: restart the schedule here rather than burst the backlog
+        if (due - 1) * self.block_period > max(self.max_late_s, self.block_period):   # stalled: no burst, restart
             self.restarts += 1
             self._start, self._played, due = now, 0, 1
         due = max(due, 0)
