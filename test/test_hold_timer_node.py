@@ -38,6 +38,7 @@ def test_held_point_is_paced_by_an_executor_timer():
     node.pub_u.publish = lambda msg: sent.append((time.monotonic(), stamp_to_ns(msg.header.stamp), msg.width))
     try:
         assert threading.active_count() == threads_before      # no hold thread
+        assert node._hold_timer.is_canceled()                   # nothing held: no wake-ups
         _run(node, ex, 0.3)
         assert sent == []                                       # nothing held: nothing played
         msg = PointStamped()
@@ -53,6 +54,14 @@ def test_held_point_is_paced_by_an_executor_timer():
         node.set_parameters([Parameter("block_size", Parameter.Type.INTEGER, 400)])
         _run(node, ex, 0.5)
         assert {w for _, _, w in sent[n200:]} == {400}
+        from std_srvs.srv import Trigger
+
+        node.on_reset(Trigger.Request(), Trigger.Response())    # reset: the held point is forgotten, timer off
+        assert node._hold_timer.is_canceled()
+        n_reset = len(sent)
+        _run(node, ex, 0.2)
+        assert len(sent) == n_reset
+        sent = sent[:n_reset]
         ks = [s for _, s, _ in sent]
         widths = [w for _, _, w in sent]
         assert all(b - a == w * DT_NS for a, b, w in zip(ks, ks[1:], widths))  # one contiguous stream

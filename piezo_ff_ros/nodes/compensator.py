@@ -262,8 +262,10 @@ class CompensatorNode(Node):
         self.create_service(Trigger, "~/reset", self.on_reset)
         self.create_timer(0.05, self.poll)
         self.create_timer(1.0, self.publish_diagnostics)
-        # the held reference_point: one executor timer, paced by the core HoldPacer (no thread of its own)
+        # the held reference_point: one executor timer, paced by the core HoldPacer (no thread of its own); it runs
+        # only while a point is held, so a streaming or idle compensator has no extra wake-ups
         self._hold_timer = self.create_timer(self._hold_tick_period(), self._on_hold_tick)
+        self._hold_timer.cancel()
         self.get_logger().info(f"compensator ready: config v{self.hs.version}, stages "
                                f"{ {k: getattr(cfg.cascade, k) for k in ('vibration', 'creep', 'hysteresis')} }")
 
@@ -397,6 +399,8 @@ class CompensatorNode(Node):
                 self.pacer.set_block_size(self.block_size)
                 self.destroy_timer(self._hold_timer)
                 self._hold_timer = self.create_timer(self._hold_tick_period(), self._on_hold_tick)
+                if self.pacer.point is None:
+                    self._hold_timer.cancel()
             elif p.name == "hold_timeout":
                 self.hold_timeout = float(p.value)
                 self.pacer.hold_timeout = self.hold_timeout
@@ -561,6 +565,8 @@ class CompensatorNode(Node):
             self.get_logger().error("reference_point rejected: NaN/Inf")
             return
         self.pacer.set_point(p)
+        if self._hold_timer.is_canceled():
+            self._hold_timer.reset()
 
     def _hold_tick_period(self) -> float:
         """The hold timer's period [s]: half a block (the pacer absorbs the timer's jitter), within 1…50 ms."""
@@ -576,6 +582,7 @@ class CompensatorNode(Node):
             self.hs.reset()
             self.front.reset()
             self.pacer.clear()
+            self._hold_timer.cancel()
             self._next_stamp = None
             self._expected_k = None
         response.success, response.message = True, f"compensator states reset (config v{self.hs.version})"
