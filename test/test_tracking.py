@@ -238,6 +238,46 @@ def test_learned_correction_store_replay_and_refusals(tmp_path):
         load_correction(tmp_path / "junk.npz")
 
 
+def test_front_rebuilt_for_a_new_cascade_keeps_the_correction_index(tmp_path, paper_config):
+    """A cascade swap rebuilds the front (the preview inverts the running cascade); the learned correction belongs
+    to the trajectory's sample index and must go on from where it was, not restart at 0."""
+    from piezo_ff_ros.core.tracking.front import TrackingFront
+
+    corr = np.random.default_rng(1).normal(0, 1e-7, (900, 2))
+    p = save_correction(tmp_path / "c", corr, paper_config.sample_rate, {"type": "circle"})
+    values = {"learning.file": str(p)}
+    x = np.zeros((300, 2))
+    whole = TrackingFront(paper_config, None, values)
+    ref = np.vstack([whole.process(x), whole.process(x), whole.process(x)])
+    a = TrackingFront(paper_config, None, values)
+    first = a.process(x)
+    b = TrackingFront(paper_config, None, values)
+    b.continue_from(a)
+    got = np.vstack([first, b.process(x), b.process(x)])
+    np.testing.assert_array_equal(got, ref)
+    np.testing.assert_array_equal(got, corr[:900])
+
+
+def test_table_states_the_voltage_limit_found():
+    """Cases whose exact shaped reference asks more than the amplifier are named with the voltage asked, the limit,
+    the clipped peak and the resulting error floor; the slew used is compared with its limit."""
+    from piezo_ff_ros.cli.track import physical_limit_lines
+
+    def row(size, f, asked, peak, rms, slew):
+        return {"trajectory": "circle", "size_um": size, "frequency_hz": f, "method": "preview", "truth": "nominal",
+                "asked_peak_voltage_v": asked, "peak_voltage_v": peak, "rms_error_um": rms,
+                "peak_slew_v_per_s": slew}
+
+    res = {"conditions": {"voltage_limit_v": 200.0, "slew_limit_v_per_s": 1e7},
+           "cases": [row(20, 1, 155.2, 155.2, 0.0002, 2e3), row(30, 1, 218.4, 200.0, 1.25, 5e4)]}
+    text = "\n".join(physical_limit_lines(res))
+    assert "±200 V" in text and "circle 30 µm 1 Hz 218 V" in text and "1.25 µm RMS floor" in text
+    assert "circle 20 µm 1 Hz" in text and "155 V asked" in text
+    assert "50 V/ms used" in text and "0.5 % of it" in text
+    res["cases"] = res["cases"][:1]
+    assert "never binds" in physical_limit_lines(res)[0]
+
+
 # -- the command -------------------------------------------------------------------------------------------------------
 
 def test_track_cli_quick_json_contract(tmp_path, capsys):
@@ -260,7 +300,8 @@ def test_track_cli_quick_json_contract(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv,msg", [(["--json", "."], "is a directory"), (["--truths", "martian"], "unknown truth"),
-                                      (["--iterations", "-1"], "--iterations")])
+                                      (["--iterations", "-1"], "--iterations"),
+                                      (["--graph-iterations", "0"], "--graph-iterations")])
 def test_track_cli_bad_options_give_one_line_errors(argv, msg, capsys):
     from piezo_ff_ros.cli import main
 

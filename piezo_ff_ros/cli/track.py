@@ -38,8 +38,13 @@ def add_parser(sub) -> None:
                    help="also run the constrained-least-squares preview on the cases where the limits bind "
                         "(nominal truth; ≈ 6 min more)")
     p.add_argument("--corrections", metavar="DIR", help="store each learned correction (.npz per trajectory/truth)")
-    p.add_argument("--graph", metavar="DIR", help="also play the 20 µm circle at 10 Hz through the ROS node graph "
-                   "(cascade, then + preview as a compensator parameter), record to DIR/<method>/run.mcap, replay")
+    p.add_argument("--graph", metavar="DIR", help="also play the 20 µm circle at 10 Hz through the ROS node graph, "
+                   "recorded to DIR/.../run.mcap and replayed: cascade and + preview on the nominal truth; cascade, "
+                   "+ preview and + learning (learned through the graph from the measured displacement, stored to "
+                   "DIR/learning_asymmetric/correction.npz, played by the compensator's learning.file) on the "
+                   "asymmetric truth (≈ 6 graph runs, 2–4 min)")
+    p.add_argument("--graph-iterations", type=int, default=2, metavar="N",
+                   help="learning updates through the graph (default 2; each is one more graph run)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=run)
 
@@ -72,6 +77,10 @@ def run(args) -> int:
     bad = [t for t in truths if t not in TRUTHS]
     if bad or not truths:
         raise ValueError(f"--truths: unknown truth {bad[0] if bad else ''!r}; use some of {','.join(TRUTHS)}")
+    if not 1 <= args.graph_iterations <= 20:
+        raise ValueError(f"--graph-iterations must be in 1…20, got {args.graph_iterations}")
+    if args.graph and Path(args.graph).exists() and not Path(args.graph).is_dir():
+        raise ValueError(f"--graph {args.graph}: exists and is not a directory")
     if args.iterations is not None and not 0 <= args.iterations <= 100:
         raise ValueError(f"--iterations must be in 0…100, got {args.iterations}")
     t0 = time.perf_counter()
@@ -90,11 +99,14 @@ def run(args) -> int:
     result = run_benchmark(printed, identified, quick=args.quick, truths=truths, ilc=ilc,
                            constrained=args.constrained, progress=say, corrections_dir=args.corrections)
     if args.graph:
-        from .track_graph import run_graph_case
+        from .track_graph import run_graph_case, run_graph_learning
 
+        g = Path(args.graph)
         for preview in (False, True):
-            result["cases"].append(run_graph_case(Path(args.graph) / ("preview" if preview else "cascade"), preview,
-                                                  say))
+            result["cases"].append(run_graph_case(g / ("preview" if preview else "cascade"), preview, say))
+        result["cases"].append(run_graph_case(g / "cascade_asymmetric", False, say, truth="asymmetric"))
+        result["cases"].extend(run_graph_learning(g / "learning_asymmetric", "asymmetric", args.graph_iterations,
+                                                  say=say))
     result["targets"] = check_targets(result)
     print(format_table(result))
     if args.json:
@@ -148,20 +160,46 @@ def check_targets(result: dict) -> dict:
     return out
 
 
+def physical_limit_lines(result: dict) -> list[str]:
+    """The voltage and slew limits found: what the exact shaped references ask (model = plant) vs the amplifier."""
+    cond = result["conditions"]
+    vlim, slim = cond["voltage_limit_v"], cond["slew_limit_v_per_s"]
+    nominal = [c for c in result["cases"] if c["method"] == "preview" and c["truth"] == "nominal"
+               and not c.get("variant") and not c.get("graph") and "asked_peak_voltage_v" in c]
+    lines = []
+    if nominal:
+        bound = [c for c in nominal if c["asked_peak_voltage_v"] > vlim]
+        free = [c for c in nominal if c["asked_peak_voltage_v"] <= vlim]
+        lines.append(f"physical limits (model = plant): voltage ±{vlim:g} V — " + (
+            "voltage-bound: the exact shaped reference asks " + ", ".join(
+                f"{_label(c)} {c['asked_peak_voltage_v']:.0f} V (clipped to {c['peak_voltage_v']:.0f} V → "
+                f"{c['rms_error_um']:.3g} µm RMS floor)" for c in bound) if bound else "never binds"))
+        if free:
+            top = max(free, key=lambda c: c["asked_peak_voltage_v"])
+            lines.append(f"  within the limit: at most {top['asked_peak_voltage_v']:.0f} V asked ({_label(top)})")
+    peak = max(result["cases"], key=lambda c: c["peak_slew_v_per_s"], default=None)
+    if peak is not None:
+        lines.append(f"  slew limit {slim / 1e3:g} V/ms: at most {peak['peak_slew_v_per_s'] / 1e3:.3g} V/ms used "
+                     f"({_label(peak)}, {peak['method']}: {100 * peak['peak_slew_v_per_s'] / slim:.2g} % of it)")
+    return lines
+
+
+def _label(c: dict) -> str:
+    return f"{c['trajectory']} {c['size_um']:g} µm {c['frequency_hz']:g} Hz"
+
+
 def format_table(result: dict) -> str:
-    lines = [f"{'trajectory':<22}{'truth':<12}{'method':<14}{'RMS µm':>10}{'max µm':>10}{'peak V':>9}{'slew V/ms':>11}"]
+    vlim = result["conditions"]["voltage_limit_v"]
+    lines = [f"{'trajectory':<22}{'truth':<12}{'method':<16}{'RMS µm':>10}{'max µm':>10}{'peak V':>9}{'slew V/ms':>11}"]
     for c in result["cases"]:
         label = f"{c['trajectory']} {c['size_um']:g} µm {c['frequency_hz']:g} Hz"
         meth = c["method"] + ("*" if c.get("variant") else "") + (" (graph)" if c.get("graph") else "")
-        lines.append(f"{label:<22}{c['truth']:<12}{meth:<14}{c['rms_error_um']:>10.4g}{c['max_error_um']:>10.4g}"
-                     f"{c['peak_voltage_v']:>9.1f}{c['peak_slew_v_per_s'] / 1e3:>11.2f}")
+        clip = "†" if c["peak_voltage_v"] >= vlim - 1e-6 else " "
+        lines.append(f"{label:<22}{c['truth']:<12}{meth:<16}{c['rms_error_um']:>10.4g}{c['max_error_um']:>10.4g}"
+                     f"{c['peak_voltage_v']:>8.1f}{clip}{c['peak_slew_v_per_s'] / 1e3:>11.2f}")
     lines.append("* preview with the receding-horizon constrained least-squares (the limits bind)")
-    asked = [c for c in result["cases"] if c["method"] == "preview" and c["truth"] == "nominal"
-             and not c.get("variant") and c.get("asked_peak_voltage_v", 0.0) > result["conditions"]["voltage_limit_v"]]
-    if asked:
-        lines.append("voltage-bound (exact shaped reference asks, model = plant): " + ", ".join(
-            f"{c['trajectory']} {c['size_um']:g} µm {c['frequency_hz']:g} Hz {c['asked_peak_voltage_v']:.0f} V"
-            for c in asked))
+    lines.append(f"† the voltage reached the amplifier's ±{vlim:g} V limit (clipped)")
+    lines.extend(physical_limit_lines(result))
     lim = result["limits"]
     lines.append("")
     lines.append("preview horizon needed (circle 20 µm 10 Hz, model = plant): " + ", ".join(

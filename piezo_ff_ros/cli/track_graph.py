@@ -1,70 +1,273 @@
-"""The graph case of ``piezo-ff track --graph``: the same circle through the ROS node graph, recorded, replayed.
+"""The graph cases of ``piezo-ff track --graph``: the 20 µm circle at 10 Hz through the ROS node graph, recorded,
+replayed — cascade, + preview, and + a correction learned through the graph.
 
-Driver (simulated PT230.94 = the printed model: the nominal truth), compensator (cascade, with or without the
-preview stage as a runtime parameter), trajectory (lockstep, reference fed ``preview_s`` ahead) and recorder run
-as processes on a private domain (:class:`~piezo_ff_ros.ros.launcher.GraphLauncher`).  The MCAP is read back with
-:func:`~piezo_ff_ros.core.recording.run.load_run` and cut into segments by the existing analysis
-(:func:`~piezo_ff_ros.core.analysis.segment_signals`); the recorded reference is the one fed ahead, so it is
-shifted back by the preview before the error is read (last revolution).
+Driver (simulated positioner: the printed model for the ``nominal`` truth, or the ``asymmetric`` truth given to
+the driver as its own config file while the compensator keeps the printed model), compensator (cascade, the
+preview and the learned correction as runtime parameters ``preview.enabled`` / ``learning.file``), trajectory
+(lockstep, reference fed ``preview_s`` ahead) and recorder run as processes on a private domain
+(:class:`~piezo_ff_ros.ros.launcher.GraphLauncher`).  The reference is the benchmark's own (0.1 s smoothstep
+lead-in, then 4 revolutions; :func:`~piezo_ff_ros.core.tracking.benchmark.reference_with_lead_in`), played from a
+table file sample-exactly as one experiment segment.  The MCAP is read back with
+:func:`~piezo_ff_ros.core.recording.run.load_run` and cut by the existing analysis
+(:func:`~piezo_ff_ros.core.analysis.segment_signals`); the recorded reference is the one fed ahead, which is checked
+sample by sample against the table shifted by the preview (so the alignment the learning relies on is verified on
+every trial).  Errors are read on the benchmark's window (the last revolution).
+
+Learning through the graph (:func:`run_graph_learning`) is the commissioning procedure: each trial plays the
+trajectory through the graph with ``learning.file`` = the current correction Δ_j (none for the first: the preview
+alone), the *measured* displacement (the driver's sensor topic, from the MCAP) gives ``e_j = r − y_j``, and the
+update ``Δ_{j+1} = Q·(Δ_j + γ·T̂⁻¹·e_j)`` (:class:`~piezo_ff_ros.core.tracking.ilc.IterativeLearning`, with its
+guard) is stored per trajectory (:func:`~piezo_ff_ros.core.tracking.ilc.save_correction`).  The best correction is
+then played by the compensator node from its file, the sensor unused by anything but the error report.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
-CIRCLE = {"type": "sequence", "segments": [{"name": "circle20_10hz", "meta": {"input": "reference"}, "trajectory": {
-    "type": "circle", "radius": 2.0e-5, "frequency": 10.0, "revolutions": 4}}]}
+SEGMENT = "circle20_10hz"
+GRAPH_TRUTHS = ("nominal", "asymmetric")
 
 
-def run_graph_case(out_dir: Path, preview: bool, say=lambda s: None, timeout: float = 180.0,
-                   domain_id: int | None = None) -> dict:
-    """Play the 20 µm circle at 10 Hz through the graph; returns a case row (``truth: nominal``, ``graph: true``)."""
-    from ..core.analysis import segment_signals
-    from ..core.recording.run import load_run
+@dataclass
+class GraphRun:
+    """One play of the reference through the graph, on the compensator's stream index (0 = its first sample)."""
+
+    y: np.ndarray            #: measured displacement [N, axes] [m]
+    u: np.ndarray            #: voltage [N, axes] [V]
+    mcap: Path
+    preview_s: float
+    seconds: float
+
+
+def graph_case():
+    """The benchmark case played through the graph and its reference: ``(case, r [N, axes], mask [N])``."""
+    from ..core.config import load_config
+    from ..core.tracking.benchmark import Case, evaluation_window, reference_with_lead_in
+    from ..core.trajectories import Circle
+
+    fs = load_config(None, None).sample_rate
+    case = Case("circle", 20, 10.0, Circle(radius=20e-6, frequency=10.0, revolutions=4))
+    r, n_lead = reference_with_lead_in(case, fs)
+    return case, r, evaluation_window(case, r, n_lead, fs)
+
+
+def truth_config_file(truth: str, out_dir: Path) -> str:
+    """The driver's config for ``truth``: '' (the packaged printed model) or a YAML file written to ``out_dir``."""
+    if truth == "nominal":
+        return ""
+    if truth not in GRAPH_TRUTHS:
+        raise ValueError(f"graph truth: unknown {truth!r}; use one of {', '.join(GRAPH_TRUTHS)}")
+    from ..core.config import load_config
+    from ..core.reproduce import truth_plant
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / f"truth_{truth}.yaml"
+    path.write_text(truth_plant(load_config(None, None), truth).cfg.to_yaml())
+    return str(path)
+
+
+def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str = "", truth_file: str = "",
+               noise_std: float = 0.0, seed: int = 0, say: Callable[[str], None] = lambda s: None,
+               timeout: float = 300.0, domain_id: int | None = None) -> GraphRun:
+    """Play the table ``r`` [N, axes] once through driver, compensator, trajectory and recorder; read the MCAP back.
+
+    Parameters
+    ----------
+    out_dir : Path
+        Receives ``reference.npy``, ``run.mcap`` and ``logs/``.
+    r : ndarray
+        The reference at the graph's sample rate, from rest.
+    preview, learning_file
+        The compensator's ``preview.enabled`` and ``learning.file``.
+    truth_file : str
+        The driver's ``config_file`` ('' = the packaged printed model: model = plant).
+    noise_std, seed
+        The simulated sensor's noise [m] and its seed (the driver's ``noise_std``, ``seed``).
+    timeout : float
+        Seconds for each phase, counted from its own start: the graph coming up (the compensator synthesises H∞),
+        the play, the recording holding the whole segment.
+    domain_id : int, optional
+        ROS domain of the graph (default: derived by :func:`~piezo_ff_ros.ros.env.apply_ros_env_defaults`).
+
+    Returns
+    -------
+    GraphRun
+        Displacement and voltage on the compensator's stream index.
+    """
     from ..core.tracking.preview import PreviewConfig
     from ..ros.launcher import GraphLauncher
 
     fs = 20000.0
-    preview_s = PreviewConfig().preview_samples(fs) / fs if preview else 0.0
+    L = PreviewConfig().preview_samples(fs) if preview else 0
+    preview_s = L / fs
+    out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    table = out_dir / "reference.npy"
+    np.save(table, np.asarray(r, float))
     mcap = out_dir / "run.mcap"
     if mcap.exists():
         mcap.unlink()
+    spec = {"type": "sequence", "segments": [{"name": SEGMENT, "meta": {"input": "reference"}, "trajectory": {
+        "type": "table", "file": str(table), "sample_rate": fs}}]}
     comp = ["-p", f"preview.enabled:={'true' if preview else 'false'}"]
+    if learning_file:
+        comp += ["-p", f"learning.file:={learning_file}"]
     traj = ["-p", "mode:=lockstep", "-p", "autostart:=true", "-p", "min_subscribers:=2", "-p", f"preview_s:={preview_s}",
-            "-p", "lockstep_timeout:=120.0",  # the compensator may still be synthesising H∞ on a loaded machine
-            "-p", f"trajectory:='{json.dumps(CIRCLE)}'"]
-    # lockstep on a shared machine: a first block (JIT compilation) may take longer than the 0.2 s stale timeout
-    drv = ["-p", "limits.stale_timeout:=5.0"]
+            "-p", f"lockstep_timeout:={timeout}", "-p", f"trajectory:='{json.dumps(spec)}'"]
+    # lockstep: the chain pauses whenever a process is descheduled (a loaded machine, a lazy JIT compilation); the
+    # simulated driver must not take such a pause for a dead stream and ramp to its safe state in the middle of
+    # the trial (its own samples would break the segment): the longest stale timeout the config allows
+    drv = ["-p", "limits.stale_timeout:=60.0", "-p", f"noise_std:={float(noise_std)}", "-p", f"seed:={int(seed)}"]
+    if truth_file:
+        drv += ["-p", f"config_file:={truth_file}"]
     g = GraphLauncher({"recorder": ["-p", f"output:={mcap}"], "driver": drv, "compensator": comp, "trajectory": traj},
                       log_dir=out_dir / "logs", domain_id=domain_id)
+    n = len(r)
     t0 = time.monotonic()
-    g.start()
+    g.start(timeout=timeout)
     try:
+        t_play = time.monotonic()
         while "trajectory finished" not in g.procs["trajectory"].log():
             g.check_alive()
-            if "trajectory failed" in g.procs["trajectory"].log() or time.monotonic() - t0 > timeout:
+            if "trajectory failed" in g.procs["trajectory"].log() or time.monotonic() - t_play > timeout:
                 raise RuntimeError(f"graph case: the trajectory did not finish:\n{g.procs['trajectory'].log()[-800:]}")
             time.sleep(0.2)
+        # the trajectory has its last displacement back, the recorder may still be behind (it writes every message):
+        # stop it only once the file (flushed every second, readable while written) holds the whole segment
+        t_rec = time.monotonic()
+        while _recorded_segment(mcap, n) is None:
+            g.check_alive()
+            if time.monotonic() - t_rec > timeout:
+                raise RuntimeError(f"graph case: the recording does not hold the whole segment after {timeout:g} s")
+            time.sleep(0.5)
     finally:
         g.stop()
-    run = load_run(mcap)
-    recorded, warnings = segment_signals(run)
-    if "circle20_10hz" not in recorded:
-        raise RuntimeError(f"graph case: segment not recorded ({warnings})")
-    _, ref_ahead, u, y = recorded["circle20_10hz"]
-    L = int(round(preview_s * fs))
-    n = len(y)
-    r = np.full_like(ref_ahead, np.nan)
-    r[L:] = ref_ahead[: n - L]                      # the reference at k was published at k − L
-    last = slice(n - int(round(fs / 10.0)), n)
-    e = np.linalg.norm(y[last] - r[last], axis=1)
-    say(f"graph {'preview' if preview else 'cascade'}: {n} samples, {time.monotonic() - t0:.1f} s")
-    return {"trajectory": "circle", "size_um": 20, "frequency_hz": 10.0, "method": "preview" if preview else "cascade",
-            "truth": "nominal", "graph": True, "rms_error_um": float(np.sqrt(np.mean(e ** 2)) * 1e6),
-            "max_error_um": float(e.max() * 1e6), "peak_voltage_v": float(np.abs(u).max()),
-            "peak_slew_v_per_s": float(np.abs(np.diff(u, axis=0)).max() * fs), "mcap": str(mcap),
-            "preview_s": preview_s}
+    seg = _recorded_segment(mcap, n, strict=True)
+    _, ref_ahead, u, y = seg
+    if len(y) != n:
+        raise RuntimeError(f"graph case: {len(y)} samples recorded, {n} played")
+    # the recorded reference at stream index k carries r[k + L] (held at the end): the alignment the errors and the
+    # learned correction (indexed from the compensator's first sample) rely on
+    expected = r[np.minimum(np.arange(n) + L, n - 1)]
+    off = float(np.max(np.abs(ref_ahead - expected)))
+    if not off <= 1e-12:
+        raise RuntimeError(f"graph case: the recorded reference is not the table shifted by {L} samples "
+                           f"(max difference {off:.3g} m)")
+    dt = time.monotonic() - t0
+    say(f"graph {'preview' if preview else 'cascade'}{' + learning' if learning_file else ''}"
+        f"{' (truth ' + Path(truth_file).stem + ')' if truth_file else ''}: {n} samples, {dt:.1f} s")
+    return GraphRun(y=np.asarray(y, float), u=np.asarray(u, float), mcap=mcap, preview_s=preview_s, seconds=dt)
+
+
+def _recorded_segment(mcap: Path, n: int, strict: bool = False):
+    """The recorded segment ``(t, reference, u, y)`` when the MCAP holds all its ``n`` samples, else None (or, with
+    ``strict``, a RuntimeError saying what is missing)."""
+    from ..core.analysis import segment_signals
+    from ..core.recording.run import load_run
+
+    try:
+        recorded, warnings = segment_signals(load_run(mcap))
+    except Exception as exc:  # noqa: BLE001 - a file still being written may end anywhere
+        if strict:
+            raise RuntimeError(f"graph case: {mcap}: {exc}") from None
+        return None
+    seg = recorded.get(SEGMENT)
+    if seg is None or len(seg[3]) != n or not all(np.all(np.isfinite(a)) for a in seg[1:]):
+        if strict:
+            got = "absent" if seg is None else f"{len(seg[3])} of {n} samples"
+            raise RuntimeError(f"graph case: segment {SEGMENT} not recorded whole ({got}; {warnings})")
+        return None
+    return seg
+
+
+def _row(run: GraphRun, method: str, truth: str, r: np.ndarray, mask: np.ndarray) -> dict:
+    from ..core.tracking.benchmark import _metrics
+
+    return {"trajectory": "circle", "size_um": 20, "frequency_hz": 10.0, "method": method, "truth": truth,
+            "graph": True, **_metrics(run.y, r, run.u, mask, 20000.0), "mcap": str(run.mcap),
+            "preview_s": run.preview_s, "window_samples": int(mask.sum())}
+
+
+def run_graph_case(out_dir: Path, preview: bool, say: Callable[[str], None] = lambda s: None, timeout: float = 300.0,
+                   domain_id: int | None = None, truth: str = "nominal") -> dict:
+    """Play the 20 µm circle at 10 Hz through the graph, cascade alone or + preview; returns a case row
+    (``graph: true``)."""
+    _, r, mask = graph_case()
+    out_dir = Path(out_dir)
+    run = play_graph(out_dir, r, preview, truth_file=truth_config_file(truth, out_dir), say=say, timeout=timeout,
+                     domain_id=domain_id)
+    return _row(run, "preview" if preview else "cascade", truth, r, mask)
+
+
+def run_graph_learning(out_dir: Path, truth: str = "asymmetric", iterations: int = 2, noise_std: float = 0.0,
+                       say: Callable[[str], None] = lambda s: None, timeout: float = 300.0,
+                       domain_id: int | None = None) -> list[dict]:
+    """Learn a correction through the graph (trials measured by the driver's sensor) and play it from its file.
+
+    Parameters
+    ----------
+    out_dir : Path
+        ``trial_<j>/`` per trial (correction, reference table, MCAP, logs), ``play/`` for the final play and
+        ``correction.npz`` (the stored correction).
+    truth : str
+        The driver's plant: ``nominal`` or ``asymmetric`` (the compensator keeps the printed model).
+    iterations : int
+        Learning updates (trials = iterations + 1, more when the guard steps in).
+    noise_std : float
+        Sensor noise in the learning trials [m]; the final play is noise-free, so that its figures are of the
+        true displacement.
+
+    Returns
+    -------
+    list of dict
+        Two case rows (``graph: true``): ``preview`` (the first trial: Δ = 0) and ``learning`` (the stored
+        correction played by the compensator node), the latter with ``rms_history_um`` per trial and
+        ``correction_file``.
+    """
+    from ..core.config import load_config
+    from ..core.tracking.benchmark import _Model
+    from ..core.tracking.ilc import ILCConfig, IterativeLearning, save_correction
+    from ..core.tracking.preview import PreviewConfig
+
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or not 1 <= iterations <= 20:
+        raise ValueError(f"graph learning iterations: expected an integer in 1…20, got {iterations!r}")
+    out_dir = Path(out_dir)
+    case, r, mask = graph_case()
+    truth_file = truth_config_file(truth, out_dir)
+    printed = load_config(None, None)
+    say("graph learning: build the model's compensated stage (the learning operator T̂⁻¹)")
+    model = _Model.build(printed, PreviewConfig())
+    spec = {"trajectory": case.traj.to_dict(), "lead_in_s": 0.1}
+    trials: list[tuple[np.ndarray, GraphRun]] = []
+
+    def run_trial(delta: np.ndarray) -> np.ndarray:
+        j = len(trials)
+        d = out_dir / f"trial_{j}"
+        d.mkdir(parents=True, exist_ok=True)
+        lf = "" if not np.any(delta) else str(save_correction(d / "correction.npz", delta, printed.sample_rate, spec,
+                                                                 {"truth": truth, "trial": j, "source": "graph"}))
+        run = play_graph(d, r, True, learning_file=lf, truth_file=truth_file, noise_std=noise_std, seed=j,
+                         say=say, timeout=timeout, domain_id=domain_id)
+        trials.append((np.array(delta, float), run))
+        return run.y
+
+    learner = IterativeLearning(model.compensated, dataclasses.replace(ILCConfig(), iterations=iterations))
+    res = learner.learn(run_trial, r)
+    stored = save_correction(out_dir / "correction.npz", res.correction, printed.sample_rate, spec,
+                             {"truth": truth, "source": "graph", "trials": len(trials), **res.to_json()})
+    play = next((run for delta, run in trials if noise_std == 0.0 and np.array_equal(delta, res.correction)
+                 and np.any(delta)), None)
+    if play is None:   # noisy trials (or the best is Δ = 0): one more play, sensor noise off
+        play = play_graph(out_dir / "play", r, True, learning_file=str(stored), truth_file=truth_file, say=say,
+                          timeout=timeout, domain_id=domain_id)
+    preview_row = _row(trials[0][1], "preview", truth, r, mask)
+    learn_row = {**_row(play, "learning", truth, r, mask), "correction_file": str(stored), "trials": len(trials),
+                 "iterations": iterations, "learning": res.to_json()}
+    return [preview_row, learn_row]

@@ -17,7 +17,8 @@ numbers, a range.
 
 Other parameters: ``config_file`` and ``variant`` (read-only: the base configuration), ``crossfade`` [s] (output
 crossfade at a swap), ``block_size`` (samples per block generated from a held ``reference_point``),
-``hold_timeout`` [s] (the held point is played only while no ``reference`` block arrived for this long),
+``hold_timeout`` [s] (the held point is played only while no ``reference`` block arrived for this long; played
+from one executor timer, paced by :class:`~piezo_ff_ros.core.hold_pacer.HoldPacer`),
 ``bypass`` (bool: the reference blocks are voltages [V] forwarded unchanged, for open-loop characterisation such as
 the paper's S0 experiments; the cascade is not run).
 ``resync`` (bool, default true): follow ``voltage_applied`` (the driver's applied voltage, same block layout
@@ -54,6 +55,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from ..core.config import ConfigError, load_config
+from ..core.hold_pacer import HoldPacer
 from ..core.hot_swap import HotSwapCascade
 from ..core.param_map import config_to_params, is_config_param, needs_synthesis, params_to_config
 from ..core.tracking.front import FRONT_DEFAULTS, TrackingFront, front_settings, is_front_param
@@ -248,7 +250,7 @@ class CompensatorNode(Node):
         self._announced_version = None
         self._next_stamp = None
         self._last_block_wall = 0.0
-        self._hold_point = None
+        self.pacer = HoldPacer(cfg.sample_rate, self.block_size, self.hold_timeout)
         self._last_ws_warn = 0.0
 
         self.pub_u = self.create_publisher(PointCloud2, "voltage", BLOCK_QOS)
@@ -260,9 +262,10 @@ class CompensatorNode(Node):
         self.create_service(Trigger, "~/reset", self.on_reset)
         self.create_timer(0.05, self.poll)
         self.create_timer(1.0, self.publish_diagnostics)
-        self._stop = threading.Event()
-        self._hold_thread = threading.Thread(target=self._hold_loop, daemon=True)
-        self._hold_thread.start()
+        # the held reference_point: one executor timer, paced by the core HoldPacer (no thread of its own); it runs
+        # only while a point is held, so a streaming or idle compensator has no extra wake-ups
+        self._hold_timer = self.create_timer(self._hold_tick_period(), self._on_hold_tick)
+        self._hold_timer.cancel()
         self.get_logger().info(f"compensator ready: config v{self.hs.version}, stages "
                                f"{ {k: getattr(cfg.cascade, k) for k in ('vibration', 'creep', 'hysteresis')} }")
 
@@ -393,8 +396,14 @@ class CompensatorNode(Node):
                     self.hs.crossfade_samples = int(round(self.crossfade * self.cfg.sample_rate))
             elif p.name == "block_size":
                 self.block_size = int(p.value)
+                self.pacer.set_block_size(self.block_size)
+                self.destroy_timer(self._hold_timer)
+                self._hold_timer = self.create_timer(self._hold_tick_period(), self._on_hold_tick)
+                if self.pacer.point is None:
+                    self._hold_timer.cancel()
             elif p.name == "hold_timeout":
                 self.hold_timeout = float(p.value)
+                self.pacer.hold_timeout = self.hold_timeout
             elif p.name == "bypass":
                 self.bypass = bool(p.value)
             elif p.name == "resync":
@@ -446,7 +455,9 @@ class CompensatorNode(Node):
             self.cfg = cfg
             if self.front.active:   # the preview inverts the running cascade: rebuild it for the new one
                 with self._lock:
+                    old = self.front
                     self.front = TrackingFront(cfg, controller_matrices(self.hs.active), self._front_values)
+                    self.front.continue_from(old)
             self.get_logger().info(f"configuration v{version} active")
             self.publish_diagnostics()
 
@@ -475,6 +486,7 @@ class CompensatorNode(Node):
         # after a pause (no block for hold_timeout) a jump in the stamps is a new stream, not lost blocks
         restart = now - self._last_block_wall > max(self.hold_timeout, 0.5)
         self._last_block_wall = now
+        self.pacer.note_block(now)
         self._process_and_publish(block, stamp, from_topic=True, restart=restart)
 
     def _clamp_to_workspace(self, block: np.ndarray) -> np.ndarray:
@@ -494,7 +506,7 @@ class CompensatorNode(Node):
         return out
 
     def _process_and_publish(self, block, stamp, from_topic: bool = False, restart: bool = False) -> None:
-        # one lock around state, counters, stamps and publish: the held-point thread and the executor both come here
+        # one lock around state, counters, stamps and publish (the background H∞ build swaps the cascade under it)
         with self._lock:
             if stamp is None:   # held point: continue the sample stream (or start it on the wall clock)
                 stamp = self._next_stamp if self._next_stamp is not None else \
@@ -552,35 +564,25 @@ class CompensatorNode(Node):
         if not np.all(np.isfinite(p)):
             self.get_logger().error("reference_point rejected: NaN/Inf")
             return
-        self._hold_point = np.array(p, float)
+        self.pacer.set_point(p)
+        if self._hold_timer.is_canceled():
+            self._hold_timer.reset()
 
-    def _hold_loop(self) -> None:
-        """Play a held ``reference_point`` as blocks, paced by the wall clock (sleep-until)."""
-        period = None
-        nxt = time.monotonic()
-        while not self._stop.is_set():
-            n = self.block_size
-            period = n / self.cfg.sample_rate
-            nxt += period
-            delay = nxt - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            else:
-                nxt = time.monotonic()
-            point = self._hold_point
-            if point is None or time.monotonic() - self._last_block_wall < max(self.hold_timeout, 2 * period):
-                continue
-            try:
-                self._process_and_publish(np.tile(point, (n, 1)), None)
-            except Exception as exc:  # noqa: BLE001 - context shut down while stopping
-                if not self._stop.is_set():
-                    self.get_logger().error(f"held point: {exc}")
+    def _hold_tick_period(self) -> float:
+        """The hold timer's period [s]: half a block (the pacer absorbs the timer's jitter), within 1…50 ms."""
+        return min(max(0.5 * self.pacer.block_period, 0.001), 0.05)
+
+    def _on_hold_tick(self) -> None:
+        """Timer: play the held point's blocks that are due (:class:`~piezo_ff_ros.core.hold_pacer.HoldPacer`)."""
+        for _ in range(self.pacer.tick(time.monotonic())):
+            self._process_and_publish(self.pacer.block(), None)
 
     def on_reset(self, request, response):
         with self._lock:
             self.hs.reset()
             self.front.reset()
-            self._hold_point = None
+            self.pacer.clear()
+            self._hold_timer.cancel()
             self._next_stamp = None
             self._expected_k = None
         response.success, response.message = True, f"compensator states reset (config v{self.hs.version})"
@@ -629,8 +631,7 @@ class CompensatorNode(Node):
         self.pub_diag.publish(arr)
 
     def stop(self) -> None:
-        self._stop.set()
-        self._hold_thread.join(timeout=1.0)
+        self._hold_timer.cancel()
 
 
 def _short(d: dict) -> str:

@@ -71,6 +71,12 @@ class TrackingFront:
             if st is not None:
                 st.reset()
 
+    def continue_from(self, other: "TrackingFront") -> None:
+        """Take over ``other``'s position in the learned correction (a rebuild for a new cascade: the correction
+        belongs to the trajectory's sample index, not to the cascade)."""
+        if self.learned is not None and other.learned is not None:
+            self.learned.k = other.learned.k
+
     def process(self, block: np.ndarray) -> np.ndarray:
         x = block
         if self.preview is not None:
