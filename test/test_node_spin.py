@@ -45,3 +45,25 @@ def test_a_callback_fault_while_running_is_fatal_in_one_line(capfd):
     err = capfd.readouterr().err
     assert "Traceback" not in err
     assert err.strip().splitlines()[-1] == "spin_probe: fatal: boom"
+
+
+def test_a_stop_while_the_node_is_being_built_is_clean(capfd):
+    """SIGINT during a slow start-up (the fault-injection run saw a traceback and exit -2 from the driver)."""
+    from piezo_ff_ros.nodes.common import run_node
+
+    def slow_start():
+        raise KeyboardInterrupt   # what SIGINT raises in the main thread while the node is being constructed
+
+    assert run_node("slow", slow_start, argv=[]) == 0
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and err.strip().splitlines()[-1] == "slow: stopped while starting"
+
+
+def test_a_bad_config_while_building_is_exit_2_in_one_line(capfd):
+    from piezo_ff_ros.nodes.common import run_node
+
+    def bad():
+        raise ValueError("limits.voltage: must be > 0, got -1")
+
+    assert run_node("drv", bad, argv=[]) == 2
+    assert capfd.readouterr().err.strip().splitlines()[-1] == "drv: error: limits.voltage: must be > 0, got -1"

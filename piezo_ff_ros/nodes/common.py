@@ -148,6 +148,10 @@ def run_node(name: str, make_node, on_exit=None, argv=None) -> int:
     try:
         rclpy.init(args=args)
         node = make_node()
+    except (KeyboardInterrupt, ExternalShutdownException):   # SIGINT/SIGTERM while starting: a clean stop
+        print(f"{name}: stopped while starting", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 0
     except Exception as exc:  # noqa: BLE001 - bad config/parameter: one clear line, no traceback
         print(f"{name}: error: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
