@@ -333,7 +333,7 @@ def run_mode(mode: str, seconds: float, args, out: Path) -> dict:
     codes = g.stop(timeout=60)
     wall = w1 - w0
     res.update({
-        "state": end_state.get("state"), "error": error, "exit_codes": codes,
+        "state": end_state.get("state"), "error": error or end_state.get("error"), "exit_codes": codes,
         "wall_s": round(wall, 2), "loadavg_end": loadavg(),
         "loadavg_1min_during": {"mean": round(float(np.mean([v[0] for v in loads])), 2),
                                 "max": round(float(np.max([v[0] for v in loads])), 2)},
