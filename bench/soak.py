@@ -176,6 +176,18 @@ def package_check(path: Path) -> dict:
     return out
 
 
+def package_check_subprocess(path: Path) -> dict:
+    """:func:`package_check` in a child process, so that its peak RSS (``reader_peak_rss_MB``) is the reader's own."""
+    import subprocess
+
+    r = subprocess.run([sys.executable, __file__, "--read-only", str(path)], capture_output=True, text=True,
+                       env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        return json.loads(r.stdout.strip().splitlines()[-1])
+    except (ValueError, IndexError):
+        return {"ok": False, "error": f"reader process exited {r.returncode}: {r.stderr.strip()[-500:]}"}
+
+
 def _um(tracking):
     """Tracking figures [m] → µm for the printed report (keys get a ``_um`` suffix)."""
     if not tracking:
@@ -350,7 +362,7 @@ def run_mode(mode: str, seconds: float, args, out: Path) -> dict:
     res["recorded_bytes"] = mcap.stat().st_size if mcap.exists() else 0
     # analysis of the file
     res["mcap_reader"] = mcap_check(mcap)
-    pkg = package_check(mcap)
+    pkg = package_check_subprocess(mcap)
     res["package_reader"] = pkg
     sig = pkg.get("signal_s") or 0.0
     res["signal_s"] = sig
@@ -364,7 +376,6 @@ def run_mode(mode: str, seconds: float, args, out: Path) -> dict:
         "recording_read_run": pkg.get("lost_samples"),
         "driver": {k: drv.get(k) for k in ("gap_samples", "late_samples", "starved_samples")}}
     res["finished_utc"] = utc()
-    res["reader_peak_rss_MB"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     if not args.keep and mcap.exists():
         mcap.unlink()
         res["mcap_deleted"] = True
@@ -384,7 +395,8 @@ def brief(res: dict) -> str:
                                    for n, v in r["rss"].items()),
              f"   recorded {r['recorded_bytes'] / 1e6:.1f} MB; mcap reader ok={r['mcap_reader']['ok']} "
              f"({r['mcap_reader'].get('messages')} msgs, {r['mcap_reader'].get('error')}), package reader "
-             f"ok={r['package_reader']['ok']} ({r['package_reader'].get('error')})",
+             f"ok={r['package_reader']['ok']} ({r['package_reader'].get('error')}, peak RSS "
+             f"{r['package_reader'].get('reader_peak_rss_MB')} MB)",
              f"   replay {json.dumps(r['package_reader'].get('replay'))}"]
     return "\n".join(lines)
 
@@ -409,7 +421,13 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-lockstep", action="store_true")
     ap.add_argument("--skip-realtime", action="store_true")
     ap.add_argument("--keep", action="store_true", help="keep the MCAP files")
+    ap.add_argument("--read-only", metavar="MCAP", help=argparse.SUPPRESS)  # internal: package_check in a child
     args = ap.parse_args(argv)
+    if args.read_only:
+        res = package_check(Path(args.read_only))
+        res["reader_peak_rss_MB"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+        print(json.dumps(res, default=str))
+        return 0
     for name in ("lockstep_seconds", "realtime_seconds", "sample_period", "lockstep_timeout"):
         v = getattr(args, name)
         if not (math.isfinite(v) and v > 0):
@@ -417,6 +435,10 @@ def main(argv=None) -> int:
     if not 1 <= args.block <= 20000:
         ap.error(f"--block: must be 1…20000 samples, got {args.block}")
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        ap.error(f"--out: {out} exists and is not a directory")
+    if args.json and (Path(args.json).is_dir() or not Path(args.json).resolve().parent.is_dir()):
+        ap.error(f"--json: {args.json} is a directory or its directory does not exist")
     out.mkdir(parents=True, exist_ok=True)
     result = {"command": " ".join([Path(sys.executable).name, *sys.argv]), "date_utc": utc(),
               "loadavg_start": loadavg(), "cpus": os.cpu_count(), "nice": os.nice(0), "ros_domain": _DOMAIN}
