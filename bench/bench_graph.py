@@ -25,23 +25,9 @@ from piezo_ff_ros.ros.env import apply_ros_env_defaults  # noqa: E402
 
 apply_ros_env_defaults(force_domain=True)
 
-import numpy as np  # noqa: E402
 
-CLK = os.sysconf("SC_CLK_TCK")
-
-
-def cpu_seconds(pid: int) -> float:
-    with open(f"/proc/{pid}/stat") as f:
-        parts = f.read().rsplit(")", 1)[1].split()
-    return (int(parts[11]) + int(parts[12])) / CLK
-
-
-def have_hinf() -> bool:
-    try:
-        import piezo_ff_ros.core.synthesis.hinf  # noqa: F401
-        return True
-    except ImportError:
-        return False
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _graph_common import cpu_seconds, have_hinf, percentiles_ms  # noqa: E402
 
 
 def run_realtime(args, out: Path, vib: bool) -> dict:
@@ -90,7 +76,7 @@ def run_realtime(args, out: Path, vib: bool) -> dict:
     node.destroy_node()
     rclpy.try_shutdown()
     codes = g.stop()
-    lat = np.array([t_disp[s] - t_ref[s] for s in t_ref if s in t_disp]) * 1e3
+    lat = [t_disp[s] - t_ref[s] for s in t_ref if s in t_disp]
     from piezo_ff_ros.core.recording.mcap_io import read_run
 
     run = read_run(mcap)
@@ -102,8 +88,7 @@ def run_realtime(args, out: Path, vib: bool) -> dict:
         "recorded_samples": int(len(run)),
         "lost_samples": {r: int(b["missing_samples"]) for r, b in blocks.items()},
         "gaps": {r: len(b["gaps"]) for r, b in blocks.items()},
-        "latency_ms": {"p50": round(float(np.percentile(lat, 50)), 3), "p99": round(float(np.percentile(lat, 99)), 3),
-                       "max": round(float(lat.max()), 3), "n": int(lat.size)},
+        "latency_ms": percentiles_ms(lat),
         "cpu_fraction_of_one_core": {n: round((cpu1[n] - cpu0[n]) / wall, 3) for n in pids},
         "recorder_bytes_per_s": round((size1 - size0) / wall),
         "exit_codes": codes,

@@ -1011,9 +1011,11 @@ def read_run(path, *, namespace: str | None = None, sample_rate: float | None = 
             axes = canonical_axes(axes)  # columns by name, in the fixed x, y, z order whatever the writer's order
     decoded: dict[str, list[tuple[int, np.ndarray]]] = {}
     malformed: Counter = Counter()
+    topic_counts = {t: len(contents.messages.get(t, [])) for t in contents.topics}
     for role, topic in roles.items():
         out = decoded[role] = []
-        for _, _, raw in contents.messages.get(topic, []):
+        raws = contents.messages.pop(topic, [])  # decoded below: the raw bytes are released topic by topic
+        for _, _, raw in raws:
             try:
                 if axes is None:  # no metadata: the first block's field names, in the fixed x, y, z order
                     axes = canonical_axes(deserialize_block(raw)[2])
@@ -1024,6 +1026,7 @@ def read_run(path, *, namespace: str | None = None, sample_rate: float | None = 
                 malformed[role] += 1
                 continue
             out.append((stamp, block))
+        del raws
     if axes is None or not any(decoded.values()):
         raise ValueError(f"{path}: the block topics {sorted(roles.values())} hold no decodable block")
 
@@ -1084,7 +1087,8 @@ def read_run(path, *, namespace: str | None = None, sample_rate: float | None = 
     k_end = max(index_of(s) + len(b) for blks in decoded.values() for s, b in blks)
     length = int(k_end - k_first)
     arrays, covered, info = {}, {}, {}
-    for role, blks in decoded.items():
+    for role in list(decoded):
+        blks = decoded.pop(role)  # placed below: each role's decoded blocks are released once in its array
         arr = np.full((length, len(axes)), np.nan)
         cov = np.zeros(length, dtype=bool)
         dup = conflicts = off_grid = 0
@@ -1172,7 +1176,7 @@ def read_run(path, *, namespace: str | None = None, sample_rate: float | None = 
     meta = {
         "source": str(path), "format": "rosbag2" if Path(path).is_dir() else "mcap", "profile": contents.profile,
         "library": contents.library, "truncated": contents.truncated, "truncation_error": contents.error,
-        "topics": {t: {"type": tn, "count": len(contents.messages.get(t, []))} for t, tn in contents.topics.items()},
+        "topics": {t: {"type": tn, "count": topic_counts.get(t, 0)} for t, tn in contents.topics.items()},
         "sample_rate": fs, "dt_ns": int(dt_ns), "t0_ns": int(t0_ns), "k_offset": k_offset, "axes": tuple(axes),
         "blocks": info, "segments": segments, "metadata": md, "diagnostics": diagnostics, "warnings": warnings,
         "trimmed": {"head": int(start), "tail": int(length - stop)}, "loss": contents.loss_summary(),
