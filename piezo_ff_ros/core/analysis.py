@@ -31,12 +31,8 @@ __all__ = ["find_evaluate", "segment_signals", "tracking_summary", "analyze_run"
 DEFAULT_VOLTAGE_LIMIT = 200.0  #: [V] when the recording does not say (core.config LimitsConfig default)
 
 
-try:  # the shared record type (a NamedTuple: also unpacks as (t, reference, u, y))
-    from .experiments import Recorded as _Recorded
-except ImportError:  # pragma: no cover - experiments module absent
-    from collections import namedtuple
-
-    _Recorded = namedtuple("Recorded", "t reference u y")
+# the shared record type (a NamedTuple: also unpacks as (t, reference, u, y))
+from .experiments import Recorded as _Recorded
 
 
 def find_evaluate() -> Callable | None:

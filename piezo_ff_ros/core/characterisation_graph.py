@@ -67,7 +67,7 @@ def graph_playable(traj: Trajectory, fs: float) -> Trajectory:
     if isinstance(traj, Sequence):
         return Sequence([(n, graph_playable(t, fs), m) for n, t, m in traj.segments_], axes=traj.axes)
     if isinstance(traj, Ramp):
-        return _ramp_staircase(traj.start, traj.end, traj.n_samples(fs), fs, traj.axes)
+        return _ramp_staircase(traj.start, traj.end, int(traj.n_samples(fs)), fs, traj.axes)
     if isinstance(traj, Sum):
         parts = traj.parts
         if (len(traj.axes) == 2 and len(parts) == 2 and all(isinstance(p, Sine) for p in parts)

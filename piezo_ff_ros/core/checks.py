@@ -3,6 +3,8 @@ and the derived facts that decide whether the cascade can work (Dp/K invertibili
 the provable DC bound on the H∞ optimum).  ``piezo-ff check [CONFIG]`` prints it."""
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from .compensators.creep import creep_inverse_poles
@@ -32,7 +34,8 @@ def _tf_facts(tf) -> dict:
 
 def config_report(cfg: PiezoConfig) -> dict:
     ax = cfg.axes
-    out = {"name": cfg.name, "variant": cfg.variant, "sample_rate": cfg.sample_rate, "creep_Cr": {}, "dynamics_G_L": {}}
+    out: dict[str, Any] = {"name": cfg.name, "variant": cfg.variant, "sample_rate": cfg.sample_rate,
+                           "creep_Cr": {}, "dynamics_G_L": {}}
     for label, tfm in (("creep_Cr", cfg.creep.Cr), ("dynamics_G_L", cfg.dynamics.G_L)):
         for i, a in enumerate(ax):
             for j, b in enumerate(ax):

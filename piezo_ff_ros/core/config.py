@@ -508,18 +508,18 @@ class PiezoConfig:
     def from_dict(d: Mapping, variant: str | None = None) -> "PiezoConfig":
         if not isinstance(d, Mapping):
             raise ConfigError("config", f"top level must be a mapping, got {type(d).__name__}")
-        d = copy.deepcopy(dict(d))
-        _unknown_keys(d, [f.name for f in fields(PiezoConfig)] + ["units", "variants", "description"], "")
-        variants = _section(d, "variants")
-        d.pop("variants", None)
-        chosen = variant or d.pop("variant", None) or "printed"
-        d.pop("variant", None)
+        data: dict[str, Any] = copy.deepcopy(dict(d))
+        _unknown_keys(data, [f.name for f in fields(PiezoConfig)] + ["units", "variants", "description"], "")
+        variants = _section(data, "variants")
+        data.pop("variants", None)
+        chosen = variant or data.pop("variant", None) or "printed"
+        data.pop("variant", None)
         for vname, v in variants.items():
             if not isinstance(v, Mapping):
                 raise ConfigError(f"variants.{vname}", "expected a mapping {description, set}")
             _unknown_keys(v, ("description", "set"), f"variants.{vname}")
             for path in _section(v, "set", f"variants.{vname}"):  # every variant, selected or not: a typo shows now
-                cur = d
+                cur: Any = data
                 for k in str(path).split(".")[:-1]:
                     cur = cur.get(k) if isinstance(cur, dict) else None
                 if not isinstance(cur, dict):
@@ -528,8 +528,8 @@ class PiezoConfig:
             if chosen not in variants:
                 raise ConfigError("variant", f"unknown variant {chosen!r}; available: {['printed', *variants]}")
             for path, value in _section(variants[chosen], "set", f"variants.{chosen}").items():
-                _set_path(d, path, value)
-        units = _section(d, "units")
+                _set_path(data, path, value)
+        units = _section(data, "units")
         _unknown_keys(units, ("length", "voltage"), "units")
         try:
             L = length_scale(units.get("length", "m"))
@@ -538,28 +538,28 @@ class PiezoConfig:
         if units.get("voltage", "V") not in VOLTAGE_UNITS:
             raise ConfigError("units.voltage", f"{units['voltage']!r} is not supported: give voltages in V (Dp, A "
                                                "in <length>/V, B, Gamma in 1/V, limits in V)")
-        raw_axes = d.get("axes", ["x", "y"])
+        raw_axes = data.get("axes", ["x", "y"])
         if not isinstance(raw_axes, (list, tuple)) or not all(isinstance(a, str) and a for a in raw_axes):
             raise ConfigError("axes", f"expected a list of axis names like [x, y], got {raw_axes!r}")
         axes = tuple(raw_axes)
         if not axes or len(set(axes)) != len(axes):
             raise ConfigError("axes", f"need at least one axis and distinct names, got {list(axes)}")
         for key in ("name", "source"):
-            if key in d and not isinstance(d[key], str):
-                raise ConfigError(key, f"expected a string, got {d[key]!r}")
-        hyst = BoucWenConfig.from_dict(_section(d, "hysteresis", required=True), L)
-        cr = _section(d, "creep", required=True)
+            if key in data and not isinstance(data[key], str):
+                raise ConfigError(key, f"expected a string, got {data[key]!r}")
+        hyst = BoucWenConfig.from_dict(_section(data, "hysteresis", required=True), L)
+        cr = _section(data, "creep", required=True)
         _unknown_keys(cr, ("K", "Cr"), "creep")
         if "K" not in cr:
             raise ConfigError("creep.K", "missing")
         creep = CreepConfig(K=_matrix(cr["K"], "creep.K", (len(axes), len(axes))),
                             Cr=_tf_matrix_from_dict(cr.get("Cr", {}), axes, "creep.Cr"))
-        dyn = _section(d, "dynamics", required=True)
+        dyn = _section(data, "dynamics", required=True)
         _unknown_keys(dyn, ("G_L",), "dynamics")
         if "G_L" not in dyn:
             raise ConfigError("dynamics.G_L", "missing")
         dynamics = DynamicsConfig(_tf_matrix_from_dict(dyn["G_L"], axes, "dynamics.G_L"))
-        vib = _section(d, "vibration")
+        vib = _section(data, "vibration")
         _unknown_keys(vib, [f.name for f in fields(HinfConfig)], "vibration")
         W2 = vib.get("W2", 1.0)
         W2 = tuple(_number(w, "vibration.W2") for w in (W2 if isinstance(W2, (list, tuple)) else [W2] * len(axes)))
@@ -571,10 +571,10 @@ class PiezoConfig:
                                k_o=_number(vib.get("k_o", 1.0), "vibration.k_o"), W2=W2,
                                order=_integer(vib.get("order", 12), "vibration.order"),
                                gamma_max=_number(vib.get("gamma_max", 1.0), "vibration.gamma_max"), controller=ctrl)
-        casc = _section(d, "cascade")
+        casc = _section(data, "cascade")
         _unknown_keys(casc, [f.name for f in fields(CascadeConfig)], "cascade")
         cascade = CascadeConfig(**casc)
-        lim = dict(_section(d, "limits"))
+        lim = dict(_section(data, "limits"))
         _unknown_keys(lim, [f.name for f in fields(LimitsConfig)], "limits")
         ws = lim.pop("workspace", None)
         if ws is not None:
@@ -585,10 +585,10 @@ class PiezoConfig:
             if len(ws) != len(axes):
                 raise ConfigError("limits.workspace", f"{len(ws)} ranges for {len(axes)} axes")
         limits = LimitsConfig(**{k: _number(v, f"limits.{k}") for k, v in lim.items()}, workspace=ws)
-        cfg = PiezoConfig(name=str(d.get("name", "piezo")), axes=axes,
-                          sample_rate=_number(d.get("sample_rate", 20000.0), "sample_rate"), hysteresis=hyst,
+        cfg = PiezoConfig(name=str(data.get("name", "piezo")), axes=axes,
+                          sample_rate=_number(data.get("sample_rate", 20000.0), "sample_rate"), hysteresis=hyst,
                           creep=creep, dynamics=dynamics, vibration=vibration, cascade=cascade, limits=limits,
-                          source=str(d.get("source", "")), variant=chosen)
+                          source=str(data.get("source", "")), variant=chosen)
         return cfg.validate()
 
     def to_dict(self, length_unit: str = "um") -> dict:

@@ -58,10 +58,13 @@ AMPLITUDE = 20 * UM    #: [m] steps and compensated sines (IV-C, V, VI)
 
 
 class Recorded(NamedTuple):
-    """One experiment's signals: ``t`` [N] s, ``reference`` [N, axes], ``u`` [N, axes] V, ``y`` [N, axes] m."""
+    """One experiment's signals: ``t`` [N] s, ``reference`` [N, axes], ``u`` [N, axes] V, ``y`` [N, axes] m.
+
+    ``reference`` is None only for a recorded segment without one (:func:`~piezo_ff_ros.core.analysis.segment_signals`
+    with ``complete_only=False``)."""
 
     t: np.ndarray
-    reference: np.ndarray
+    reference: np.ndarray | None
     u: np.ndarray
     y: np.ndarray
 
@@ -221,9 +224,10 @@ def run_experiment(exp: Experiment, cfg: PiezoConfig, plant, design=None, block:
     ``HinfDesign`` or ``(A, B, C, D)``) is the vibration compensator when the experiment uses it.
     """
     fs = cfg.sample_rate
-    n_total = exp.trajectory.n_samples(fs)
-    if math.isinf(n_total):
+    n_samples = exp.trajectory.n_samples(fs)
+    if math.isinf(n_samples):
         raise ValueError(f"{exp.name}: endless trajectory cannot be simulated")
+    n_total = int(n_samples)
     dec = max(1, int(exp.record_decimation))
     block = max(dec, (int(block) // dec) * dec)
     if exp.input == "voltage":

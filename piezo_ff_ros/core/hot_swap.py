@@ -233,6 +233,7 @@ class HotSwapCascade:
             self.failed_builds += 1
             self.last_error = f"configuration v{p.version} not applied: {p.error}"
             return False
+        assert p.cascade is not None, "a build that raised nothing has set its cascade"
         self._swap(p.cascade, p.cfg, p.version)
         return True
 
@@ -295,7 +296,7 @@ class HotSwapCascade:
                 self._inflight_samples = 0
                 self._conf = (k0, self.active, self.active.state(CompensatorCascade.PLANT_STAGES))
         if self._fade is not None:
-            y, taps = self._process_fading(x)
+            y, taps = self._process_fading(x, self._fade)
         else:
             y, taps = self.active.process(x, taps=True)
         if x.shape[0]:
@@ -303,7 +304,7 @@ class HotSwapCascade:
             self._last_in = x[-1].copy()
             self._last_taps = {k: v[-1].copy() for k, v in taps.items()} if self.active.cfg.cascade.order == "paper" \
                 else None
-        if track:
+        if track and k0 is not None:   # (track implies k0 is not None)
             self._inflight.append(_InFlight(k0, y.copy(), self.active,
                                             self.active.state(CompensatorCascade.PLANT_STAGES)))
             self._inflight_samples += x.shape[0]
@@ -313,18 +314,19 @@ class HotSwapCascade:
                 self._conf = None
         return y
 
-    def _process_fading(self, x: np.ndarray) -> tuple[np.ndarray, dict]:
-        fade, active = self._fade, self.active
+    def _process_fading(self, x: np.ndarray, fade: _Fade) -> tuple[np.ndarray, dict]:
+        active = self.active
         leaves = fade.leaves()
         n = x.shape[0]
-        if all(_same_hysteresis(c, active) for c in leaves):
+        shared = active.hysteresis
+        if shared is not None and all(_same_hysteresis(c, active) for c in leaves):
             # fade the hysteresis inverse's input Y_H and run the one inverse: it stays exactly on the voltage
             # sent; every creep inverse follows the mixed Y_H (what the plant's creep receives)
             pre = [c.creep.state() if c.creep is not None else None for c in leaves]
             fronts = [c.process_front(x) for c in leaves]
             yh = fade.mix([f[0] for f in fronts], n)
-            y = active.hysteresis.process(yh)
-            hyst = active.hysteresis.state()
+            y = shared.process(yh)
+            hyst = shared.state()
             for c, p, (own, _) in zip(leaves, pre, fronts):
                 if c is not active:
                     c.hysteresis.load_state(hyst)

@@ -12,7 +12,7 @@ well conditioned, otherwise through a dense ZOH (``scipy.linalg.expm``) in a sin
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -42,7 +42,7 @@ class FactoredTF:
     den: tuple = ()
 
     @staticmethod
-    def from_dict(d: dict) -> "FactoredTF":
+    def from_dict(d: Mapping[str, Any]) -> "FactoredTF":
         return FactoredTF(float(d.get("k", d.get("gain", 0.0))),
                           tuple(tuple(float(c) for c in f) for f in d.get("num", [])),
                           tuple(tuple(float(c) for c in f) for f in d.get("den", [])))

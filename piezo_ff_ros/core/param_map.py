@@ -159,7 +159,7 @@ def params_to_config(params: Mapping[str, Any], base: PiezoConfig) -> PiezoConfi
                     continue
                 cur = entries.get(a + b, {"k": 0.0, "num": [], "den": []})
                 k = _as_float(f"{base_key}.k", get(f"{base_key}.k", cur["k"]))
-                tf = {"k": k}
+                tf: dict[str, Any] = {"k": k}
                 for part in ("num", "den"):
                     coeffs = get(f"{base_key}.{part}", [c for f in cur[part] for c in f])
                     degs = get(f"{base_key}.{part}_deg", [len(f) - 1 for f in cur[part]])

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Mapping
+from typing import Any, Mapping, NamedTuple
 
 import numpy as np
 
@@ -77,6 +77,15 @@ def _pct(v):
     return None if v is None or not np.isfinite(v) else 100.0 * float(v)
 
 
+class _Signals(NamedTuple):
+    """One experiment's signals as :func:`evaluate` reads them: float arrays, 2-D, finite, reference present."""
+
+    t: np.ndarray
+    reference: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+
+
 def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None = None, design=None,
              robust: bool = False, conditions: dict | None = None,
              reference_model_tau: float | None = None) -> dict:
@@ -113,7 +122,7 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
     axes = _axis_names(recorded, exps)
     bins = 200 if robust else None
     lowpass = 3000.0 if robust else None
-    out = {"before": {k: {a: None for a in axes} for k in KEYS},
+    out: dict[str, Any] = {"before": {k: {a: None for a in axes} for k in KEYS},
            "after": {k: {a: None for a in axes} for k in KEYS},
            "hinf": _hinf_section(design), "paper": PAPER, "independent": INDEPENDENT, "tracking": {},
            "settling_time_s": {"before": {a: None for a in axes}, "after": {a: None for a in axes}},
@@ -121,7 +130,7 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
            "creep_over_Am_percent": {"before": {a: None for a in axes}, "after": {a: None for a in axes}},
            "details": {}, "errors": {}, "conditions": dict(conditions or {}), "robust_readings": bool(robust)}
 
-    def rec(name) -> Recorded | None:
+    def rec(name: str) -> _Signals | None:
         if name not in recorded:
             return None
         t, r, u, y = recorded[name]
@@ -133,7 +142,7 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
             y = y[:, None]
         if not (np.all(np.isfinite(y)) and np.all(np.isfinite(r))):
             raise ValueError(f"{name}: recorded signals contain NaN or inf")
-        return Recorded(np.asarray(t, float), r, np.asarray(u, float), y)
+        return _Signals(np.asarray(t, float), r, np.asarray(u, float), y)
 
     # hysteresis (IV-A before, IV-C after) and the range-based cross-coupling (Table II before)
     ranges = {}

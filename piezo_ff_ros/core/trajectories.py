@@ -142,7 +142,7 @@ class Trajectory:
         n = self.n_samples(fs)
         if math.isinf(n):
             raise ValueError(f"{self.kind}: endless trajectory; use block(k0, n, fs)")
-        return np.arange(n) / fs, self.block(0, n, fs)
+        return np.arange(n) / fs, self.block(0, int(n), fs)
 
     def bound(self) -> tuple:
         """An upper bound of ``|value|`` per axis over the whole trajectory (for workspace checks); ``inf`` when a
@@ -413,7 +413,8 @@ class Raster(Trajectory):
     def bound(self) -> tuple:
         fi = self.axes.index(self.fast_axis)
         half = [0.0, 0.0]
-        half[fi], half[1 - fi] = 0.5 * self.width, 0.5 * self.height
+        height = self.width if self.height is None else self.height   # set in __post_init__, never None after
+        half[fi], half[1 - fi] = 0.5 * self.width, 0.5 * height
         return tuple(abs(c) + h for c, h in zip(self.centre, half))
 
     def _values(self, k, fs):
@@ -486,7 +487,7 @@ class Table(Trajectory):
     kind = "table"
     length_fields = ("values",)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
         fs = _finite(self.sample_rate, "sample_rate", positive=True)
         object.__setattr__(self, "sample_rate", fs)
@@ -508,6 +509,7 @@ class Table(Trajectory):
         if len(bad):
             raise ConfigError("file" if self.file else "values", f"row {int(bad[0][0])}: not a finite number")
         arr.setflags(write=False)
+        self._table: np.ndarray    # not a dataclass field: the array read from values/file, set once here
         object.__setattr__(self, "_table", arr)
 
     def __eq__(self, other):
@@ -797,6 +799,7 @@ class Sequence(Trajectory):
     """
 
     kind = "sequence"
+    segments_: tuple[tuple[str, Trajectory, dict[str, Any]], ...]   #: (name, trajectory, meta) per segment
 
     def __init__(self, segments, axes=None):
         segs = []
@@ -851,7 +854,7 @@ class Sequence(Trajectory):
 
     def n_samples(self, fs: float):
         fs = _finite(fs, "fs", positive=True)
-        total = 0
+        total: float | int = 0
         for _, traj, _ in self.segments_:
             n = traj.n_samples(fs)
             if math.isinf(n):
@@ -865,7 +868,7 @@ class Sequence(Trajectory):
         for i, (name, traj, meta) in enumerate(self.segments_):
             n = traj.n_samples(fs)
             out.append(Segment(i, name, traj, meta, start, start + n))
-            start = start + n if not math.isinf(n) else start
+            start = start + int(n) if not math.isinf(n) else start
         return out
 
     def segment(self, name: str, fs: float) -> Segment:
@@ -1014,10 +1017,12 @@ def check_workspace(traj: Trajectory, workspace_m: float, voltage_limit: float |
         return
     if isinstance(traj, Sequence):
         for i, (name, t, meta) in enumerate(traj.segments_):
-            volts = _in_volts(meta)
-            if volts and voltage_limit is None:
-                continue
-            check_workspace(t, voltage_limit if volts else workspace_m, None,
+            limit = workspace_m
+            if _in_volts(meta):
+                if voltage_limit is None:
+                    continue
+                limit = voltage_limit
+            check_workspace(t, limit, None,
                             prefix=f"{prefix}.segments[{i}].trajectory", fs=fs)
         return
     field_name = traj.length_fields[0] if traj.length_fields else "value"

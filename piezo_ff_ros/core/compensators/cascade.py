@@ -14,6 +14,7 @@ from ..config import PiezoConfig
 from .creep import CreepCompensator
 from .hysteresis import HysteresisCompensator
 from .vibration import VibrationCompensator
+from ..stage import Stage
 
 __all__ = ["CompensatorCascade"]
 
@@ -99,7 +100,8 @@ class CompensatorCascade:
         self.hysteresis = HysteresisCompensator(cfg.hysteresis, cc.hysteresis_loop, **lim) if cc.hysteresis else None
         Dp_pinv = np.linalg.pinv(np.array(cfg.hysteresis.Dp, float))
         if cc.order == "paper":
-            chain = [self.vibration, self.creep, self.hysteresis if self.hysteresis else _Gain(Dp_pinv)]
+            chain: list[Stage | None] = [self.vibration, self.creep,
+                                         self.hysteresis if self.hysteresis else _Gain(Dp_pinv)]
             self.tap_names = ["yl", "yh", "u"]
         else:
             chain = [_Linearizer(self.hysteresis) if self.hysteresis else None, self.vibration, self.creep,

@@ -14,9 +14,10 @@ class VibrationCompensator:
     """Streaming ``Y_R [m] → Y_L [m]`` through C(s) given as a continuous state space (A, B, C, D)."""
 
     def __init__(self, A, B, C, D, dt: float):
-        self.continuous = tuple(np.atleast_2d(np.asarray(m, float)) for m in (A, B, C, D))
+        Ac, Bc, Cc, Dc = (np.atleast_2d(np.asarray(m, float)) for m in (A, B, C, D))
+        self.continuous = (Ac, Bc, Cc, Dc)
         self.dt = dt
-        self.ss = DiscreteModalSS.zoh_from_ss(*self.continuous, dt)
+        self.ss = DiscreteModalSS.zoh_from_ss(Ac, Bc, Cc, Dc, dt)
         self.filter = LTIFilter(self.ss)
 
     @staticmethod

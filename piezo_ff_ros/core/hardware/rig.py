@@ -70,7 +70,7 @@ class BackendRig:
         before = self._guard_changed()
         lost0 = core.lost_samples()
         checking = True     # loss counts until the last block is in; holds after it are not part of the run
-        stamp0 = core.next_stamp if core.book.started else 0
+        stamp0 = (core.next_stamp or 0) if core.book.started else 0   # next_stamp is None only before the start
         want = {}
         got = {}
         deadline = self.now() + u.shape[0] / fs + self.timeout

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import bisect
 from dataclasses import dataclass, field
+from typing import Any
 
 __all__ = ["StreamBook", "StreamCounters", "Decision"]
 
@@ -63,7 +64,7 @@ class StreamBook:
         self._seg_d: list[int] = []
         self._seg_stamp: list[int] = []
         self.counters = StreamCounters()
-        self.candidate = None          # (stamp, n, payload) held back
+        self.candidate: tuple[int, int, Any] | None = None   # (stamp, n, payload) held back
         self.last_block_n = 0
 
     @property
@@ -123,6 +124,8 @@ class StreamBook:
             self.last_block_n = n
             return Decision("first")
         expected = self.stamp_of(w)
+        if expected is None:
+            raise ValueError(f"device index {w} lies before the first segment of the stream (starts at {self._seg_d[0]})")
         off = stamp - expected
         if off % self.period_ns:
             raise ValueError(f"stamp {stamp} is not on the sample grid of the stream (period {self.period_ns} ns)")
