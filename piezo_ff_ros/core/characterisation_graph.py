@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .characterisation import Ramp, Sum
 from .trajectories import TRAJECTORY_TYPES, Circle, Sequence, Sine, Staircase, Trajectory
@@ -29,7 +30,7 @@ from .trajectories import TRAJECTORY_TYPES, Circle, Sequence, Sine, Staircase, T
 __all__ = ["graph_playable", "from_rest"]
 
 
-def _ramp_staircase(start, end, n: int, fs: float, axes) -> Staircase:
+def _ramp_staircase(start: ArrayLike, end: ArrayLike, n: int, fs: float, axes: tuple[str, ...]) -> Staircase:
     a, b = np.asarray(start, float), np.asarray(end, float)
     levels = [tuple((a + (k + 1) / n * (b - a)).tolist()) for k in range(n)]
     return Staircase(levels=levels, dwell=1.0 / fs, axes=axes)

@@ -32,7 +32,7 @@ from .identification.dynamics import identify_dynamics
 from .identification.pipeline import (REFIT_TAG, build_config, fits_report, part_fits, plant_fit,
                                       refit_hysteresis_without_creep, synthesize_for)
 from .recording.run import RunData
-from .stage import Stage
+from .stage import Processor, Stage
 from .trajectories import Trajectory
 
 if TYPE_CHECKING:  # imported where used (the simulation and the evaluation are loaded on demand)
@@ -148,7 +148,7 @@ class SimRig(RigLimits):
     """A core simulated plant (``process``/``reset``, e.g. :class:`~piezo_ff_ros.core.models.plant.Plant`) with the
     compensators the commissioning configures in front of it."""
 
-    def __init__(self, plant, sample_rate: float, axes: Sequence[str] = ("x", "y"),
+    def __init__(self, plant: Processor, sample_rate: float, axes: Sequence[str] = ("x", "y"),
                  voltage_limit: float = float("inf"), slew_limit: float = float("inf")) -> None:
         self.plant = plant
         self.sample_rate = float(sample_rate)
@@ -208,7 +208,7 @@ class CommissionResult:
     config: PiezoConfig
     design: object
     hinf_note: str | None
-    report: dict
+    report: dict[str, Any]
     runs: list[RunData] = field(default_factory=list)
 
 
@@ -319,7 +319,7 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
     df = identify_dynamics(dfit, dval, order=dynamics_order, axes=axes, progress=say)
     timing["identify_dynamics"] = time.perf_counter() - t0
     cfg = build_config(base, hf, cf, df, fs, axes)
-    report: dict = {"fit_percent": fits_report(hf, cf, df, axes), "orders": {"creep": cf.orders,
+    report: dict[str, Any] = {"fit_percent": fits_report(hf, cf, df, axes), "orders": {"creep": cf.orders,
                                                                               "dynamics": df.orders}}
 
     say("plant: held-out fit of the identified whole-plant model on the recorded voltage record")
@@ -349,8 +349,8 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
     return CommissionResult(config=cfg, design=design, hinf_note=note, report=report, runs=runs)
 
 
-def verify(rig: Rig, cfg: PiezoConfig, design: object, experiments: Sequence[Experiment], conditions: Mapping,
-           robust: bool = False, progress: Progress | None = None) -> dict:
+def verify(rig: Rig, cfg: PiezoConfig, design: object, experiments: Sequence[Experiment],
+           conditions: Mapping[str, Any], robust: bool = False, progress: Progress | None = None) -> dict[str, Any]:
     """The paper's tests played on ``rig`` with ``cfg``'s cascade; Tables I/II (:func:`~.reproduce.evaluate`)."""
     from .reproduce import evaluate
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar, Iterable, Mapping
 
 import numpy as np
 
@@ -801,7 +801,7 @@ class Sequence(Trajectory):
     kind = "sequence"
     segments_: tuple[tuple[str, Trajectory, dict[str, Any]], ...]   #: (name, trajectory, meta) per segment
 
-    def __init__(self, segments, axes=None):
+    def __init__(self, segments: Iterable[Any], axes: Iterable[str] | None = None) -> None:
         segs = []
         names = set()
         for i, seg in enumerate(segments):

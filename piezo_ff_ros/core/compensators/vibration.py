@@ -2,10 +2,13 @@
 rate after exact zero-order-hold discretisation (modal form, carried state)."""
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..lti import DiscreteModalSS, LTIFilter
-from ..stage import transfer_linear_state
+from ..stage import StageState, transfer_linear_state
 
 __all__ = ["VibrationCompensator"]
 
@@ -13,7 +16,7 @@ __all__ = ["VibrationCompensator"]
 class VibrationCompensator:
     """Streaming ``Y_R [m] → Y_L [m]`` through C(s) given as a continuous state space (A, B, C, D)."""
 
-    def __init__(self, A, B, C, D, dt: float):
+    def __init__(self, A: ArrayLike, B: ArrayLike, C: ArrayLike, D: ArrayLike, dt: float) -> None:
         Ac, Bc, Cc, Dc = (np.atleast_2d(np.asarray(m, float)) for m in (A, B, C, D))
         self.continuous = (Ac, Bc, Cc, Dc)
         self.dt = dt
@@ -21,7 +24,20 @@ class VibrationCompensator:
         self.filter = LTIFilter(self.ss)
 
     @staticmethod
-    def from_control(sys, dt: float) -> "VibrationCompensator":
+    def from_control(sys: Any, dt: float) -> "VibrationCompensator":
+        """The compensator for a python-control system (anything ``control.ss`` accepts).
+
+        Parameters
+        ----------
+        sys : control.StateSpace or control.TransferFunction
+            The continuous controller C(s).
+        dt : float
+            Sample time [s].
+
+        Returns
+        -------
+        VibrationCompensator
+        """
         import control
 
         s = control.ss(sys)
@@ -49,9 +65,9 @@ class VibrationCompensator:
         """The filter state ``x`` (modal coordinates of :attr:`ss`), a copy."""
         return {"x": self.filter.x.copy()}
 
-    def load_state(self, state) -> None:
+    def load_state(self, state: StageState) -> None:
         self.filter.x[:] = state["x"]
 
-    def continue_from(self, old: "VibrationCompensator", u_last=None) -> None:
+    def continue_from(self, old: "VibrationCompensator", u_last: np.ndarray | None = None) -> None:
         """Bumpless takeover from ``old`` (see :func:`~piezo_ff_ros.core.stage.transfer_linear_state`)."""
         self.filter.x[:] = transfer_linear_state(old.ss, old.filter.x, self.ss, u_last)[0]

@@ -10,6 +10,7 @@ slew-limited does not describe the requested input, and ``strict=True`` makes th
 from __future__ import annotations
 
 import time
+from typing import Callable
 
 import numpy as np
 
@@ -43,7 +44,8 @@ class BackendRig:
     """
 
     def __init__(self, backend: StreamingBackend, settings: DriverSettings, block: int = 200, settle: float = 1.0,
-                 strict: bool = False, timeout: float = 10.0, now=time.monotonic, sleep=time.sleep):
+                 strict: bool = False, timeout: float = 10.0, now: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
         if not backend.info.has_sensor:
             raise RigError(f"{backend.info.name} has no sensor: commissioning measures the displacement; "
                            "configure the sensor channels or identify from recordings")

@@ -36,7 +36,8 @@ class StreamCounters:
     out_of_sequence_blocks: int = 0  #: jump candidates that the next block did not confirm (dropped)
     rebases: int = 0                 #: confirmed jumps (the stamp ↔ device map re-based)
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, int]:
+        """The counters by name (a copy)."""
         return dict(self.__dict__)
 
 
@@ -47,7 +48,7 @@ class Decision:
     kind: str                  #: apply | gap | late | trim | pending | confirm | first
     fill: int = 0              #: hold samples to write before the block (gap)
     skip: int = 0              #: leading samples of the block to drop (trim)
-    replay: tuple = field(default=())  #: (stamp, n, payload) of a confirmed candidate to apply first
+    replay: tuple[Any, ...] = field(default=())  #: (stamp, n, payload) of a confirmed candidate to apply first
 
 
 class StreamBook:
@@ -93,7 +94,7 @@ class StreamBook:
             return None
         return self._seg_d[-1] + (int(stamp) - self._seg_stamp[-1]) // self.period_ns
 
-    def split(self, d0: int, n: int):
+    def split(self, d0: int, n: int) -> list[tuple[int, int, int]]:
         """``[(offset, count, stamp)]`` covering device samples ``d0 … d0+n-1`` that have stamps, one per segment."""
         out = []
         i = bisect.bisect_right(self._seg_d, d0) - 1
@@ -115,7 +116,7 @@ class StreamBook:
                 break
         return out
 
-    def classify(self, stamp: int, n: int, w: int, payload=None) -> Decision:
+    def classify(self, stamp: int, n: int, w: int, payload: Any = None) -> Decision:
         """Classify a block of ``n`` samples stamped ``stamp`` against the write cursor ``w`` (see the module doc)."""
         c = self.counters
         c.blocks_in += 1

@@ -341,7 +341,7 @@ def _biquad_run(x, b0, b1, b2, a1, a2, z, out):  # pragma: no cover - compiled
             out[t, j] = yi
 
 
-def _bandpass_coeffs(freq: float, damping: float, dt: float):
+def _bandpass_coeffs(freq: float, damping: float, dt: float) -> tuple[float, float, float, float, float]:
     """Bilinear (prewarped at ω) discretisation of ``2ζωs/(s² + 2ζωs + ω²)`` (unit gain at the peak)."""
     w = 2 * math.pi * freq
     K = w / math.tan(w * dt / 2)
@@ -354,7 +354,7 @@ def _bandpass_coeffs(freq: float, damping: float, dt: float):
     return b0, b1, b2, a1, a2
 
 
-def _highpass_coeffs(freq: float, damping: float, dt: float):
+def _highpass_coeffs(freq: float, damping: float, dt: float) -> tuple[float, float, float, float, float]:
     """Bilinear (prewarped at ω) discretisation of ``s²/(s² + 2ζωs + ω²)`` (0 at DC, 1 far above ω)."""
     w = 2 * math.pi * freq
     K = w / math.tan(w * dt / 2)
