@@ -474,13 +474,16 @@ class LTIFilter:
 
     @property
     def n_in(self) -> int:
+        """Number of input columns."""
         return self.ss.n_in
 
     @property
     def n_out(self) -> int:
+        """Number of output columns."""
         return self.ss.n_out
 
     def reset(self) -> None:
+        """All states back to rest."""
         self.x[:] = 0.0
 
     def process(self, u: np.ndarray) -> np.ndarray:

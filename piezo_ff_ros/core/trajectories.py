@@ -112,6 +112,7 @@ class Trajectory:
 
     @property
     def n_axes(self) -> int:
+        """Number of axes."""
         return len(self.axes)
 
     def n_samples(self, fs: float) -> float | int:

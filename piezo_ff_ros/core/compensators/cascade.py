@@ -135,14 +135,17 @@ class CompensatorCascade:
 
     @property
     def n_axes(self) -> int:
+        """Number of axes."""
         return self.cfg.n_axes
 
     @property
     def n_in(self) -> int:
+        """Number of input columns."""
         return self.cfg.n_axes
 
     @property
     def n_out(self) -> int:
+        """Number of output columns."""
         return self.cfg.n_axes
 
     def stages(self) -> dict[str, Stage]:
@@ -194,6 +197,7 @@ class CompensatorCascade:
         return h.bw_state.u_prev.copy()
 
     def reset(self) -> None:
+        """All states back to rest."""
         for st in self._chain:
             if st is not None:
                 st.reset()

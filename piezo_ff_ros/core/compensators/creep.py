@@ -60,16 +60,20 @@ class CreepCompensator:
 
     @property
     def n_in(self) -> int:
+        """Number of input columns."""
         return int(self.Kinv.shape[1])
 
     @property
     def n_out(self) -> int:
+        """Number of output columns."""
         return int(self.Kinv.shape[0])
 
     def reset(self) -> None:
+        """All states back to rest."""
         self.x[:] = 0.0
 
     def process(self, yl: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         yl = np.ascontiguousarray(yl, dtype=float)
         yh = np.empty_like(yl)
         if yl.ndim != 2 or yl.shape[1] != self.n_in:
@@ -86,6 +90,7 @@ class CreepCompensator:
         return {"x": self.x.copy()}
 
     def load_state(self, state: StageState) -> None:
+        """Copy ``state`` (as returned by :meth:`state`) into this stage."""
         self.x[:] = state["x"]
 
     def follow(self, yh: np.ndarray) -> None:

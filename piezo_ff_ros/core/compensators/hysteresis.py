@@ -49,19 +49,23 @@ class HysteresisCompensator:
 
     @property
     def n_in(self) -> int:
+        """Number of input columns."""
         return self.cfg.n_out
 
     @property
     def n_out(self) -> int:
+        """Number of output columns."""
         return self.cfg.n_in
 
     def reset(self) -> None:
+        """All states back to rest."""
         self.bw_state = BoucWenState(self.cfg.n_out, self.cfg.n_in)
         self._signs[:] = 1.0
         self.fallbacks = 0
         self.saturated = 0
 
     def process(self, yh: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         yh = np.ascontiguousarray(yh, dtype=float)
         if yh.ndim != 2 or yh.shape[1] != self.n_in:
             raise ValueError(f"expected a block of shape [N, {self.n_in}], got {yh.shape}")
@@ -86,6 +90,7 @@ class HysteresisCompensator:
         return {"h": s.h.copy(), "u_prev": s.u_prev.copy(), "started": s.started.copy(), "signs": self._signs.copy()}
 
     def load_state(self, state: StageState) -> None:
+        """Copy ``state`` (as returned by :meth:`state`) into this stage."""
         s = self.bw_state
         s.h[:] = state["h"]
         s.u_prev[:] = state["u_prev"]

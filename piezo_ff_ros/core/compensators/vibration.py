@@ -45,10 +45,12 @@ class VibrationCompensator:
 
     @property
     def n_in(self) -> int:
+        """Number of input columns."""
         return self.ss.n_in
 
     @property
     def n_out(self) -> int:
+        """Number of output columns."""
         return self.ss.n_out
 
     @property
@@ -56,9 +58,11 @@ class VibrationCompensator:
         return self.ss.n_states
 
     def reset(self) -> None:
+        """All states back to rest."""
         self.filter.reset()
 
     def process(self, yr: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         return self.filter.process(yr)
 
     def state(self) -> dict[str, np.ndarray]:
@@ -66,6 +70,7 @@ class VibrationCompensator:
         return {"x": self.filter.x.copy()}
 
     def load_state(self, state: StageState) -> None:
+        """Copy ``state`` (as returned by :meth:`state`) into this stage."""
         self.filter.x[:] = state["x"]
 
     def continue_from(self, old: "VibrationCompensator", u_last: np.ndarray | None = None) -> None:

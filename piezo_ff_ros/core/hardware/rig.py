@@ -57,6 +57,7 @@ class BackendRig:
 
     @property
     def n_axes(self) -> int:
+        """Number of axes."""
         return self.core.s.n_axes
 
     def _guard_changed(self) -> int:

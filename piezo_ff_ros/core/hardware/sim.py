@@ -118,6 +118,7 @@ class LockstepSim(_SimBase):
         return 0
 
     def reset(self) -> bool:
+        """All states back to rest."""
         if self.plant is not None:
             self.plant.reset()
         self._k = 0

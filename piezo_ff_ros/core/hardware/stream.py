@@ -62,6 +62,7 @@ class StreamBook:
         self.reset()
 
     def reset(self) -> None:
+        """Forget the stream: no segment, counters at zero, no jump candidate."""
         self._seg_d: list[int] = []
         self._seg_stamp: list[int] = []
         self.counters = StreamCounters()

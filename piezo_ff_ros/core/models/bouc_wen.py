@@ -49,13 +49,16 @@ class BoucWenModel:
 
     @property
     def n_in(self) -> int:
+        """Number of input columns."""
         return self.cfg.n_in
 
     @property
     def n_out(self) -> int:
+        """Number of output columns."""
         return self.cfg.n_out
 
     def reset(self) -> None:
+        """All states back to rest."""
         self.state = BoucWenState(self.cfg.n_out, self.cfg.n_in)
 
     @overload

@@ -42,16 +42,20 @@ class CreepModel:
 
     @property
     def n_in(self) -> int:
+        """Number of input columns."""
         return int(self.K.shape[1])
 
     @property
     def n_out(self) -> int:
+        """Number of output columns."""
         return int(self.K.shape[0])
 
     def reset(self) -> None:
+        """All states back to rest."""
         self.cr.reset()
 
     def process(self, yh: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         yh = np.ascontiguousarray(yh, dtype=float)
         y: np.ndarray = yh @ self.K.T + self.cr.process(yh)
         return y

@@ -54,9 +54,11 @@ class Plant:
 
     @property
     def n_axes(self) -> int:
+        """Number of axes."""
         return self.cfg.n_axes
 
     def reset(self) -> None:
+        """All states back to rest."""
         for st in (self.hysteresis, self.creep, self.dynamics, *self.pre, *self.post):
             if st is not None:
                 st.reset()
