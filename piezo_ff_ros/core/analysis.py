@@ -17,9 +17,10 @@ from __future__ import annotations
 
 import importlib
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import metrics
 from .recording.run import RunData
@@ -31,15 +32,14 @@ __all__ = ["find_evaluate", "segment_signals", "tracking_summary", "analyze_run"
 DEFAULT_VOLTAGE_LIMIT = 200.0  #: [V] when the recording does not say (core.config LimitsConfig default)
 
 
-try:  # the shared record type (a NamedTuple: also unpacks as (t, reference, u, y))
-    from .experiments import Recorded as _Recorded
-except ImportError:  # pragma: no cover - experiments module absent
-    from collections import namedtuple
+# the shared record type (a NamedTuple: also unpacks as (t, reference, u, y))
+from .experiments import Recorded as _Recorded
 
-    _Recorded = namedtuple("Recorded", "t reference u y")
+#: the paper evaluation ``evaluate(recorded, ...) -> dict`` (:func:`~piezo_ff_ros.core.reproduce.evaluate`)
+Evaluate = Callable[..., dict[str, Any]]
 
 
-def find_evaluate() -> Callable | None:
+def find_evaluate() -> Evaluate | None:
     """The shared paper evaluation ``evaluate(recorded) -> dict`` if it is installed, else ``None``."""
     for mod_name in ("piezo_ff_ros.core.experiments", "piezo_ff_ros.core.reproduce"):
         try:
@@ -48,17 +48,19 @@ def find_evaluate() -> Callable | None:
             continue
         fn = getattr(mod, "evaluate", None)
         if callable(fn):
-            return fn
+            found: Evaluate = fn
+            return found
     return None
 
 
-def segment_signals(run: RunData, complete_only: bool = True) -> tuple[dict, list[str]]:
+def segment_signals(run: RunData, complete_only: bool = True) -> tuple[dict[str, _Recorded], list[str]]:
     """``{name: (t, reference, u, y)}`` for the run's experiment segments (t starts at 0 in each segment).
 
     Segments with gaps, cut off by the start/end of the recording, or without a reference are left out (listed
     in the returned warnings) when ``complete_only``.  A segment name seen twice gets a ``#2`` suffix.
     """
-    recorded, warnings = {}, []
+    recorded: dict[str, _Recorded] = {}
+    warnings: list[str] = []
     for seg in run.meta.get("segments", []):
         name = seg["name"]
         a, b = seg["start"], seg["stop"]
@@ -80,8 +82,21 @@ def segment_signals(run: RunData, complete_only: bool = True) -> tuple[dict, lis
     return recorded, warnings
 
 
-def tracking_summary(reference, y) -> dict | None:
-    """Tracking errors [m] over the rows where both signals are finite (``None`` if there are none)."""
+def tracking_summary(reference: ArrayLike | None, y: ArrayLike) -> dict[str, Any] | None:
+    """Tracking errors [m] over the rows where both signals are finite (``None`` if there are none).
+
+    Parameters
+    ----------
+    reference : array [N, axes] or None
+        The reference [m]; None gives None.
+    y : array [N, axes]
+        The displacement [m].
+
+    Returns
+    -------
+    dict or None
+        :func:`~piezo_ff_ros.core.metrics.tracking_errors` of the finite rows, plus ``samples``.
+    """
     if reference is None:
         return None
     r, yy = np.asarray(reference, float), np.asarray(y, float)
@@ -114,7 +129,7 @@ def _voltage_limit(run: RunData) -> float:
     return DEFAULT_VOLTAGE_LIMIT
 
 
-def _driver_counters(diagnostics: dict) -> dict:
+def _driver_counters(diagnostics: Mapping[str, Any]) -> dict[str, float]:
     """Numeric diagnostic values (saturation, slew, dropped, late, rejected …), last value per status/key."""
     out = {}
     for name, st in diagnostics.get("status", {}).items():
@@ -126,7 +141,7 @@ def _driver_counters(diagnostics: dict) -> dict:
     return out
 
 
-def analyze_run(run: RunData, evaluate: Callable | None = None) -> dict:
+def analyze_run(run: RunData, evaluate: Evaluate | None = None) -> dict[str, Any]:
     """Analyse a recorded run; returns a JSON-ready dict.
 
     Parameters
@@ -148,7 +163,7 @@ def analyze_run(run: RunData, evaluate: Callable | None = None) -> dict:
     """
     meta = run.meta
     warnings = list(meta.get("warnings", []))
-    result: dict = {}
+    result: dict[str, Any] = {}
     recorded, seg_warn = segment_signals(run)
     warnings += seg_warn
     if recorded:
@@ -202,10 +217,11 @@ def analyze_run(run: RunData, evaluate: Callable | None = None) -> dict:
         "truncated": bool(meta.get("truncated", False)),
         "warnings": warnings,
     }
-    return _jsonable(result)
+    ready: dict[str, Any] = _jsonable(result)
+    return ready
 
 
-def plot_run(run: RunData, out_dir, max_points: int = 20000) -> list[Path]:
+def plot_run(run: RunData, out_dir: str | Path, max_points: int = 20000) -> list[Path]:
     """PNG plots (Agg): one per segment (or one for the whole run without markers) — reference and displacement
     per axis [µm] and the tracking error [µm] — and the voltages.  Returns the written paths."""
     import matplotlib
@@ -248,7 +264,7 @@ def plot_run(run: RunData, out_dir, max_points: int = 20000) -> list[Path]:
     return written
 
 
-def format_report(result: dict) -> str:
+def format_report(result: Mapping[str, Any]) -> str:
     """Human-readable summary of :func:`analyze_run`'s result (tracking in µm, counts)."""
     rp = result["replay"]
     lines = [f"{rp['source']}: {rp['samples']} samples, {rp['duration_s']:.3f} s at {rp['sample_rate']:.0f} Hz, "
@@ -263,7 +279,7 @@ def format_report(result: dict) -> str:
         counters = ", ".join(f"{k}={v:g}" for k, v in rp["diagnostics"]["counters"].items())
         lines.append(f"  diagnostics: {rp['diagnostics']['messages']} messages; last counters: {counters or '-'}")
 
-    def fmt(tr):
+    def fmt(tr: Mapping[str, Any] | None) -> str:
         if not tr:
             return "n/a"
         rms = "/".join(f"{to_um(v):.4g}" for v in tr["rms"])

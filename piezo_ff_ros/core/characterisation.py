@@ -27,13 +27,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Sequence, cast
 
 import numpy as np
 
 from .config import ConfigError
 from .recording.run import RunData
-from .trajectories import Hold, Sequence, Sine, Trajectory
+from .stage import Processor
+from .trajectories import Hold, Sine, Trajectory
+from .trajectories import Sequence as TrajSequence
 
 __all__ = ["CharacterisationSettings", "Ramp", "Sum", "hysteresis_trajectories", "creep_trajectories", "dynamics_trajectories",
            "plant_validation_trajectory", "run_open_loop"]
@@ -57,7 +59,7 @@ class CharacterisationSettings:
     plant_validation_step: float = 120.0       #: V, step of the validation step pair (x up, y down at 2/3)
     plant_validation_hold: float = 4.0         #: s, each of step up / step down
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ("sine_amplitude", "sine_frequency", "validation_fraction", "creep_step", "creep_duration",
                      "dynamics_step", "dynamics_duration",
                      "plant_validation_amplitude", "plant_validation_duration", "plant_validation_step",
@@ -77,19 +79,22 @@ class CharacterisationSettings:
             raise ConfigError("step_ramp", "must be shorter than the step durations")
 
 
-def hysteresis_trajectories(s: CharacterisationSettings, axes=("x", "y")) -> dict:
+def hysteresis_trajectories(s: CharacterisationSettings,
+                            axes: Sequence[str] = ("x", "y")) -> dict[str, list[tuple[str, Trajectory]]]:
     """``{'fit': [(name, traj), …], 'validation': [...]}`` of voltage trajectories [V] for S0."""
+    axes_t = tuple(axes)
     T = s.sine_periods / s.sine_frequency
-    fit = [(f"sine_{a}", Sine(amplitude=s.sine_amplitude, frequency=s.sine_frequency, axis=a, duration=T, axes=axes))
-           for a in axes]
+    fit: list[tuple[str, Trajectory]] = [
+        (f"sine_{a}", Sine(amplitude=s.sine_amplitude, frequency=s.sine_frequency, axis=a, duration=T, axes=axes_t))
+        for a in axes]
     both = _sum(axes, [Sine(amplitude=s.sine_amplitude, frequency=s.sine_frequency, axis=a, phase=i * np.pi / 2,
-                            duration=T, axes=axes) for i, a in enumerate(axes)])
+                            duration=T, axes=axes_t) for i, a in enumerate(axes)])
     fit.append(("sine_all", both))
     va = s.validation_fraction * s.sine_amplitude
     # held out: both axes at once at another amplitude and phase, a quarter period apart (a circle, which the
     # trajectory node plays sample-exactly: the same run on every rig)
     val = _sum(axes, [Sine(amplitude=va, frequency=s.sine_frequency, axis=a, phase=0.4 + np.pi / 2 * i,
-                           duration=1.0 / s.sine_frequency, axes=axes) for i, a in enumerate(axes)])
+                           duration=1.0 / s.sine_frequency, axes=axes_t) for i, a in enumerate(axes)])
     return {"fit": fit, "validation": [("sine_validation", val)]}
 
 
@@ -97,11 +102,11 @@ def hysteresis_trajectories(s: CharacterisationSettings, axes=("x", "y")) -> dic
 class Sum(Trajectory):
     """Sum of trajectories with the same axes, each held at its last value after its own end."""
 
-    parts: tuple = ()
+    parts: tuple[Any, ...] = ()   #: the Trajectory parts
 
     kind = "sum"
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
         parts = tuple(self.parts)
         if not parts:
@@ -113,10 +118,10 @@ class Sum(Trajectory):
 
     @property
     def duration(self) -> float:
-        return max(p.duration for p in self.parts)
+        return float(max(p.duration for p in self.parts))
 
-    def _values(self, k, fs):
-        return sum(p.at_index(k, fs) for p in self.parts)
+    def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
+        return cast(np.ndarray, sum(p.at_index(k, fs) for p in self.parts))   # parts is never empty
 
 
 @dataclass(frozen=True)
@@ -130,7 +135,7 @@ class Ramp(Trajectory):
     kind = "ramp"
     length_fields = ("start", "end")
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
         n = self.n_axes
         object.__setattr__(self, "start", tuple(np.broadcast_to(np.asarray(self.start, float), (n,)).tolist()))
@@ -138,22 +143,24 @@ class Ramp(Trajectory):
         if not (math.isfinite(self.duration) and self.duration > 0):
             raise ConfigError("duration", f"must be a positive finite number, got {self.duration!r}")
 
-    def _values(self, k, fs):
+    def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
         n = self.n_samples(fs)
         frac = np.clip((np.asarray(k, float) + 1.0) / n, 0.0, 1.0)[:, None]  # last sample reaches `end`
         a, b = np.array(self.start), np.array(self.end)
-        return a[None, :] + frac * (b - a)[None, :]
+        out: np.ndarray = a[None, :] + frac * (b - a)[None, :]
+        return out
 
 
-def _sum(axes, parts):
+def _sum(axes: Sequence[str], parts: Sequence[Trajectory]) -> Sum:
     return Sum(parts=tuple(parts), axes=tuple(axes))
 
 
-def _up_down(step, duration, lead, axes, a, ramp):
+def _up_down(step: float, duration: float, lead: float, axes: tuple[str, ...], a: str,
+             ramp: float) -> tuple[TrajSequence, float]:
     """Rest ``lead`` s, ramp up to ``step`` on axis ``a``, hold, ramp down, rest: ``(sequence, down_start_s)``."""
     amp = tuple(step if b == a else 0.0 for b in axes)
     zero = tuple(0.0 for _ in axes)
-    segs = []
+    segs: list[tuple[str, Trajectory]] = []
     if lead > 0:
         segs.append(("lead", Hold(value=zero, duration=lead, axes=axes)))
     if ramp > 0:
@@ -162,18 +169,20 @@ def _up_down(step, duration, lead, axes, a, ramp):
     if ramp > 0:
         segs.append(("down", Ramp(start=amp, end=zero, duration=ramp, axes=axes)))
     segs.append(("hold_down", Hold(value=zero, duration=duration - ramp, axes=axes)))
-    return Sequence(segs, axes=axes), lead + duration
+    return TrajSequence(segs, axes=axes), lead + duration
 
 
-def creep_trajectories(s: CharacterisationSettings, axes=("x", "y")) -> list:
+def creep_trajectories(s: CharacterisationSettings,
+                       axes: Sequence[str] = ("x", "y")) -> list[tuple[str, TrajSequence, float]]:
     """Step up/down per axis [m] for S_H: ``[(name, traj, score_start_seconds)]``."""
-    return [(f"creep_step_{a}",) + _up_down(s.creep_step, s.creep_duration, s.creep_lead, axes, a, s.step_ramp)
+    return [(f"creep_step_{a}",) + _up_down(s.creep_step, s.creep_duration, s.creep_lead, tuple(axes), a, s.step_ramp)
             for a in axes]
 
 
-def dynamics_trajectories(s: CharacterisationSettings, axes=("x", "y")) -> list:
+def dynamics_trajectories(s: CharacterisationSettings,
+                          axes: Sequence[str] = ("x", "y")) -> list[tuple[str, TrajSequence, float]]:
     """Step up/down per axis [m] for S_L: ``[(name, traj, score_start_seconds)]``."""
-    return [(f"dynamics_step_{a}",) + _up_down(s.dynamics_step, s.dynamics_duration, s.dynamics_lead, axes, a,
+    return [(f"dynamics_step_{a}",) + _up_down(s.dynamics_step, s.dynamics_duration, s.dynamics_lead, tuple(axes), a,
                                                 s.step_ramp) for a in axes]
 
 
@@ -186,7 +195,7 @@ PLANT_VALIDATION_LINES = {
 }
 
 
-def plant_validation_trajectory(s: CharacterisationSettings, axes=("x", "y")) -> Sequence:
+def plant_validation_trajectory(s: CharacterisationSettings, axes: Sequence[str] = ("x", "y")) -> TrajSequence:
     """Held-out voltage record [V] for the identified model of the whole plant S0.
 
     A multisine on every axis at full level (``plant_validation_amplitude`` peak-sum, ``plant_validation_duration``
@@ -198,8 +207,8 @@ def plant_validation_trajectory(s: CharacterisationSettings, axes=("x", "y")) ->
     n = len(axes)
     zero = tuple(0.0 for _ in axes)
 
-    def multisine(level, duration):
-        parts = []
+    def multisine(level: float, duration: float) -> Sum:
+        parts: list[Trajectory] = []
         for i, a in enumerate(axes):
             for f, rel in PLANT_VALIDATION_LINES[i % 2]:
                 f_i = f + 0.1 * (i // 2)   # more than two axes: shift the lines so no two axes share one
@@ -210,18 +219,18 @@ def plant_validation_trajectory(s: CharacterisationSettings, axes=("x", "y")) ->
 
     T = round(s.plant_validation_duration, 1)
     step = tuple(s.plant_validation_step * (1.0 if i % 2 == 0 else -2.0 / 3.0) for i in range(n))
-    segs = [("multisine_full", multisine(1.0, T)), ("multisine_half", multisine(0.5, round(T / 2, 1)))]
+    segs: list[tuple[str, Trajectory]] = [("multisine_full", multisine(1.0, T)), ("multisine_half", multisine(0.5, round(T / 2, 1)))]
     if s.step_ramp > 0:
         segs.append(("step_up", Ramp(start=zero, end=step, duration=s.step_ramp, axes=axes)))
     segs.append(("hold_up", Hold(value=step, duration=s.plant_validation_hold, axes=axes)))
     if s.step_ramp > 0:
         segs.append(("step_down", Ramp(start=step, end=zero, duration=s.step_ramp, axes=axes)))
     segs.append(("hold_down", Hold(value=zero, duration=s.plant_validation_hold, axes=axes)))
-    return Sequence(segs, axes=axes)
+    return TrajSequence(segs, axes=axes)
 
 
-def run_open_loop(system, traj, fs: float, name: str, axes, block: int = 200_000, reference_is_input=True,
-                  chain=()) -> RunData:
+def run_open_loop(system: Processor, traj: Trajectory, fs: float, name: str, axes: Sequence[str],
+                  block: int = 200_000, reference_is_input: bool = True, chain: Sequence[Processor] = ()) -> RunData:
     """Play ``traj`` through ``chain`` (compensator stages, each ``process``) then ``system`` (``process``).
 
     Returns a RunData with ``u`` = voltage reaching the system, ``y`` its output and ``reference`` = the trajectory

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .characterisation import Ramp, Sum
 from .trajectories import TRAJECTORY_TYPES, Circle, Sequence, Sine, Staircase, Trajectory
@@ -29,7 +30,7 @@ from .trajectories import TRAJECTORY_TYPES, Circle, Sequence, Sine, Staircase, T
 __all__ = ["graph_playable", "from_rest"]
 
 
-def _ramp_staircase(start, end, n: int, fs: float, axes) -> Staircase:
+def _ramp_staircase(start: ArrayLike, end: ArrayLike, n: int, fs: float, axes: tuple[str, ...]) -> Staircase:
     a, b = np.asarray(start, float), np.asarray(end, float)
     levels = [tuple((a + (k + 1) / n * (b - a)).tolist()) for k in range(n)]
     return Staircase(levels=levels, dwell=1.0 / fs, axes=axes)
@@ -67,7 +68,7 @@ def graph_playable(traj: Trajectory, fs: float) -> Trajectory:
     if isinstance(traj, Sequence):
         return Sequence([(n, graph_playable(t, fs), m) for n, t, m in traj.segments_], axes=traj.axes)
     if isinstance(traj, Ramp):
-        return _ramp_staircase(traj.start, traj.end, traj.n_samples(fs), fs, traj.axes)
+        return _ramp_staircase(traj.start, traj.end, int(traj.n_samples(fs)), fs, traj.axes)
     if isinstance(traj, Sum):
         parts = traj.parts
         if (len(traj.axes) == 2 and len(parts) == 2 and all(isinstance(p, Sine) for p in parts)

@@ -3,15 +3,18 @@ and the derived facts that decide whether the cascade can work (Dp/K invertibili
 the provable DC bound on the H∞ optimum).  ``piezo-ff check [CONFIG]`` prints it."""
 from __future__ import annotations
 
+from typing import Any, Mapping
+
 import numpy as np
 
 from .compensators.creep import creep_inverse_poles
 from .config import PiezoConfig
+from .lti import FactoredTF
 
 __all__ = ["config_report", "format_config_report"]
 
 
-def _tf_facts(tf) -> dict:
+def _tf_facts(tf: FactoredTF) -> dict[str, Any]:
     p = tf.cancelled().poles()
     z = tf.cancelled().zeros()
     wn = np.abs(p)
@@ -30,9 +33,23 @@ def _tf_facts(tf) -> dict:
     }
 
 
-def config_report(cfg: PiezoConfig) -> dict:
+def config_report(cfg: PiezoConfig) -> dict[str, Any]:
+    """The sanity facts of ``cfg`` (see the module docstring), JSON-ready.
+
+    Parameters
+    ----------
+    cfg : PiezoConfig
+        The configuration to check.
+
+    Returns
+    -------
+    dict
+        ``name``, ``variant``, ``sample_rate``, per-entry facts of ``creep_Cr`` and ``dynamics_G_L``, and the
+        ``hysteresis``, ``creep`` and ``dynamics`` summaries.
+    """
     ax = cfg.axes
-    out = {"name": cfg.name, "variant": cfg.variant, "sample_rate": cfg.sample_rate, "creep_Cr": {}, "dynamics_G_L": {}}
+    out: dict[str, Any] = {"name": cfg.name, "variant": cfg.variant, "sample_rate": cfg.sample_rate,
+                           "creep_Cr": {}, "dynamics_G_L": {}}
     for label, tfm in (("creep_Cr", cfg.creep.Cr), ("dynamics_G_L", cfg.dynamics.G_L)):
         for i, a in enumerate(ax):
             for j, b in enumerate(ax):
@@ -53,7 +70,19 @@ def config_report(cfg: PiezoConfig) -> dict:
     return out
 
 
-def format_config_report(rep: dict) -> str:
+def format_config_report(rep: Mapping[str, Any]) -> str:
+    """:func:`config_report` as printed lines (``piezo-ff check``).
+
+    Parameters
+    ----------
+    rep : mapping
+        A :func:`config_report` result.
+
+    Returns
+    -------
+    str
+        The report, one fact per line.
+    """
     lines = [f"config {rep['name']} (variant {rep['variant']}), fs = {rep['sample_rate']:g} Hz"]
     for label in ("creep_Cr", "dynamics_G_L"):
         lines.append(f"  {label}:")

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Callable, Mapping, Protocol, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
 
@@ -32,7 +32,11 @@ from .identification.dynamics import identify_dynamics
 from .identification.pipeline import (REFIT_TAG, build_config, fits_report, part_fits, plant_fit,
                                       refit_hysteresis_without_creep, synthesize_for)
 from .recording.run import RunData
+from .stage import Processor, Stage
 from .trajectories import Trajectory
+
+if TYPE_CHECKING:  # imported where used (the simulation and the evaluation are loaded on demand)
+    from .experiments import Experiment, Recorded
 
 __all__ = ["CommissioningError", "PlannedRun", "Rig", "RigLimits", "SimRig", "CommissionResult",
            "characterisation_plan", "check_voltage_runs", "commission", "verify"]
@@ -89,8 +93,8 @@ class Rig(Protocol):
         """Play ``runs`` from rest one after the other; ``{name: RunData}`` with ``u`` the voltage applied,
         ``y`` the measured displacement, ``reference`` the trajectory's samples, all at :attr:`sample_rate`."""
 
-    def run_experiments(self, cfg: PiezoConfig, design: object, experiments: Sequence[object],
-                        progress: Progress) -> dict[str, tuple]:
+    def run_experiments(self, cfg: PiezoConfig, design: object, experiments: Sequence[Experiment],
+                        progress: Progress) -> Mapping[str, tuple[Any, ...]]:
         """The paper's verification experiments: ``{name: (t, reference, u, y)}``."""
 
 
@@ -144,13 +148,13 @@ class SimRig(RigLimits):
     """A core simulated plant (``process``/``reset``, e.g. :class:`~piezo_ff_ros.core.models.plant.Plant`) with the
     compensators the commissioning configures in front of it."""
 
-    def __init__(self, plant, sample_rate: float, axes: Sequence[str] = ("x", "y"),
+    def __init__(self, plant: Processor, sample_rate: float, axes: Sequence[str] = ("x", "y"),
                  voltage_limit: float = float("inf"), slew_limit: float = float("inf")) -> None:
         self.plant = plant
         self.sample_rate = float(sample_rate)
         self.axes = tuple(axes)
         super().__init__(voltage_limit, slew_limit)
-        self._chain: list = []
+        self._chain: list[Stage] = []
 
     @property
     def has_sensor(self) -> bool:
@@ -168,7 +172,7 @@ class SimRig(RigLimits):
         unknown = set(stages) - {"creep", "hysteresis"}
         if unknown:
             raise CommissioningError(f"characterisation through {sorted(unknown)} is not part of the sequence")
-        chain = []
+        chain: list[Stage] = []
         if "creep" in stages:
             chain.append(CreepCompensator(cfg.creep, 1.0 / self.sample_rate))
         if "hysteresis" in stages:
@@ -179,8 +183,8 @@ class SimRig(RigLimits):
         return {r.name: run_open_loop(self.plant, r.trajectory, self.sample_rate, r.name, self.axes,
                                       chain=self._chain) for r in runs}
 
-    def run_experiments(self, cfg: PiezoConfig, design: object, experiments: Sequence[object],
-                        progress: Progress) -> dict[str, tuple]:
+    def run_experiments(self, cfg: PiezoConfig, design: object, experiments: Sequence[Experiment],
+                        progress: Progress) -> dict[str, Recorded]:
         from .experiments import simulate_experiments
 
         return simulate_experiments(cfg, design=design, plant=self.plant, experiments=list(experiments),
@@ -204,7 +208,7 @@ class CommissionResult:
     config: PiezoConfig
     design: object
     hinf_note: str | None
-    report: dict
+    report: dict[str, Any]
     runs: list[RunData] = field(default_factory=list)
 
 
@@ -315,7 +319,7 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
     df = identify_dynamics(dfit, dval, order=dynamics_order, axes=axes, progress=say)
     timing["identify_dynamics"] = time.perf_counter() - t0
     cfg = build_config(base, hf, cf, df, fs, axes)
-    report: dict = {"fit_percent": fits_report(hf, cf, df, axes), "orders": {"creep": cf.orders,
+    report: dict[str, Any] = {"fit_percent": fits_report(hf, cf, df, axes), "orders": {"creep": cf.orders,
                                                                               "dynamics": df.orders}}
 
     say("plant: held-out fit of the identified whole-plant model on the recorded voltage record")
@@ -345,8 +349,8 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
     return CommissionResult(config=cfg, design=design, hinf_note=note, report=report, runs=runs)
 
 
-def verify(rig: Rig, cfg: PiezoConfig, design: object, experiments: Sequence[object], conditions: Mapping,
-           robust: bool = False, progress: Progress | None = None) -> dict:
+def verify(rig: Rig, cfg: PiezoConfig, design: object, experiments: Sequence[Experiment],
+           conditions: Mapping[str, Any], robust: bool = False, progress: Progress | None = None) -> dict[str, Any]:
     """The paper's tests played on ``rig`` with ``cfg``'s cascade; Tables I/II (:func:`~.reproduce.evaluate`)."""
     from .reproduce import evaluate
 

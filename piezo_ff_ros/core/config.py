@@ -13,7 +13,7 @@ import copy
 import math
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import yaml
@@ -37,16 +37,20 @@ __all__ = [
 ]
 
 
+#: a matrix as a config holds it: rows of floats (hashable, immutable)
+Matrix = tuple[tuple[float, ...], ...]
+
+
 class ConfigError(ValueError):
     """A configuration value is invalid; ``field`` is its dotted name."""
 
-    def __init__(self, field_name: str, message: str):
+    def __init__(self, field_name: str, message: str) -> None:
         super().__init__(f"{field_name}: {message}")
         self.field = field_name
         self.reason = message
 
 
-def _matrix(value, name: str, shape: tuple[int, int] | None = None) -> tuple:
+def _matrix(value: Any, name: str, shape: tuple[int, int] | None = None) -> Matrix:
     try:
         a = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -64,7 +68,7 @@ def _matrix(value, name: str, shape: tuple[int, int] | None = None) -> tuple:
     return tuple(tuple(float(v) for v in row) for row in a)
 
 
-def _arr(m: tuple) -> np.ndarray:
+def _arr(m: Matrix) -> np.ndarray:
     return np.array(m, dtype=float)
 
 
@@ -87,7 +91,7 @@ MIN_SAMPLE_RATE, MAX_SAMPLE_RATE = 100.0, 10.0e6
 VOLTAGE_UNITS = ("V",)
 
 
-def _unknown_keys(d: Mapping, allowed, prefix: str) -> None:
+def _unknown_keys(d: Mapping[Any, Any], allowed: Sequence[Any], prefix: str) -> None:
     """Refuse keys not in ``allowed`` (a misspelling must not be silently ignored), suggesting the closest one."""
     import difflib
 
@@ -99,7 +103,7 @@ def _unknown_keys(d: Mapping, allowed, prefix: str) -> None:
             raise ConfigError(name, f"unknown key; {hint}(allowed: {', '.join(sorted(map(str, allowed)))})")
 
 
-def _section(d: Mapping, key: str, prefix: str = "", required: bool = False) -> dict:
+def _section(d: Mapping[str, Any], key: str, prefix: str = "", required: bool = False) -> dict[str, Any]:
     """``d[key]`` as a dict (``{}`` when absent or null); ``ConfigError`` naming it if it is not a mapping."""
     name = f"{prefix}.{key}" if prefix else key
     v = d.get(key)
@@ -112,7 +116,7 @@ def _section(d: Mapping, key: str, prefix: str = "", required: bool = False) -> 
     return dict(v)
 
 
-def _number(value, name: str) -> float:
+def _number(value: Any, name: str) -> float:
     """A real number (numeric strings such as YAML's ``1e-3`` included, booleans not)."""
     if isinstance(value, bool) or value is None:
         raise ConfigError(name, f"expected a number, got {value!r}")
@@ -122,7 +126,7 @@ def _number(value, name: str) -> float:
         raise ConfigError(name, f"expected a number, got {value!r}"[:200]) from None
 
 
-def _integer(value, name: str) -> int:
+def _integer(value: Any, name: str) -> int:
     """An integer; a float is accepted only when it is integral (``12.0``), never rounded (``12.5``)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(name, f"expected an integer, got {value!r}")
@@ -131,7 +135,7 @@ def _integer(value, name: str) -> int:
     return int(value)
 
 
-def _bounded(m: tuple, name: str, bound: float, unit: str) -> None:
+def _bounded(m: Matrix, name: str, bound: float, unit: str) -> None:
     a = np.abs(_arr(m))
     if a.size and a.max() > bound:
         i, j = np.unravel_index(int(np.argmax(a)), a.shape)
@@ -156,27 +160,31 @@ class BoucWenConfig:
     terms: both break the odd symmetry ``(U, h) → (−U, −h)`` of the classical model; zero gives the classical one.
     """
 
-    Dp: tuple
-    A: tuple
-    B: tuple
-    Gamma: tuple
-    Delta1: tuple | None = None
-    Delta2: tuple | None = None
-    input_map: tuple | None = None
+    Dp: Matrix
+    A: Matrix
+    B: Matrix
+    Gamma: Matrix
+    Delta1: Matrix | None = None
+    Delta2: Matrix | None = None
+    input_map: Matrix | None = None
 
     @property
     def n_out(self) -> int:
+        """Number of outputs (displacements)."""
         return len(self.Dp)
 
     @property
     def n_in(self) -> int:
+        """Number of inputs (voltages)."""
         return len(self.Dp[0])
 
     @property
     def generalized(self) -> bool:
-        return any(m is not None and np.any(_arr(m)) for m in (self.Delta1, self.Delta2))
+        """True when Delta1 or Delta2 is non-zero (the asymmetric model)."""
+        return any(m is not None and bool(np.any(_arr(m))) for m in (self.Delta1, self.Delta2))
 
     def arrays(self) -> dict[str, np.ndarray]:
+        """``Dp``, ``A``, ``B``, ``Gamma``, ``Delta1``, ``Delta2`` (zero when absent) and ``P`` as float arrays."""
         n, k = self.n_out, self.n_in
         z = np.zeros((n, n))
         P = _arr(self.input_map) if self.input_map is not None else np.eye(n, k)
@@ -185,6 +193,7 @@ class BoucWenConfig:
                 "Delta2": _arr(self.Delta2) if self.Delta2 is not None else z.copy(), "P": P}
 
     def validate(self, prefix: str = "hysteresis") -> "BoucWenConfig":
+        """``self`` if every matrix has its shape, is finite and plausible, and Dp is invertible; else ConfigError."""
         n, k = self.n_out, self.n_in
         _matrix(self.Dp, f"{prefix}.Dp", (n, k))
         _matrix(self.A, f"{prefix}.A", (n, k))
@@ -207,10 +216,11 @@ class BoucWenConfig:
         return self
 
     @staticmethod
-    def from_dict(d: Mapping, length: float = 1.0, prefix: str = "hysteresis") -> "BoucWenConfig":
+    def from_dict(d: Mapping[str, Any], length: float = 1.0, prefix: str = "hysteresis") -> "BoucWenConfig":
+        """From the YAML form; ``length`` [m] per length unit scales Dp and A.  Validated."""
         _unknown_keys(d, [f.name for f in fields(BoucWenConfig)], prefix)
 
-        def get(name, scale=1.0, required=True):
+        def get(name: str, scale: float = 1.0, required: bool = True) -> Matrix | None:
             if name not in d or d[name] is None:
                 if required:
                     raise ConfigError(f"{prefix}.{name}", "missing")
@@ -218,12 +228,18 @@ class BoucWenConfig:
             m = _matrix(d[name], f"{prefix}.{name}")
             return tuple(tuple(v * scale for v in row) for row in m)
 
-        cfg = BoucWenConfig(Dp=get("Dp", length), A=get("A", length), B=get("B"), Gamma=get("Gamma"),
+        def need(name: str, scale: float = 1.0) -> Matrix:
+            m = get(name, scale)
+            assert m is not None   # required: get raised otherwise
+            return m
+
+        cfg = BoucWenConfig(Dp=need("Dp", length), A=need("A", length), B=need("B"), Gamma=need("Gamma"),
                             Delta1=get("Delta1", required=False), Delta2=get("Delta2", required=False),
                             input_map=get("input_map", required=False))
         return cfg.validate(prefix)
 
-    def to_dict(self, length: float = 1.0) -> dict:
+    def to_dict(self, length: float = 1.0) -> dict[str, Any]:
+        """The YAML form, Dp and A divided by ``length`` [m per unit]."""
         out = {"Dp": (_arr(self.Dp) / length).tolist(), "A": (_arr(self.A) / length).tolist(),
                "B": _arr(self.B).tolist(), "Gamma": _arr(self.Gamma).tolist()}
         for name in ("Delta1", "Delta2", "input_map"):
@@ -232,13 +248,13 @@ class BoucWenConfig:
         return out
 
 
-def _tf_matrix_from_dict(d: Mapping | Any, axes: tuple[str, ...], prefix: str) -> TFMatrix:
+def _tf_matrix_from_dict(d: Any, axes: tuple[str, ...], prefix: str) -> TFMatrix:
     n = len(axes)
     rows = [[FactoredTF(0.0) for _ in range(n)] for _ in range(n)]
     if isinstance(d, (list, tuple)):
         if len(d) != n or any(len(r) != n for r in d):
             raise ConfigError(prefix, f"expected a {n}x{n} nested list of transfer functions")
-        items = {(i, j): d[i][j] for i in range(n) for j in range(n)}
+        items: dict[tuple[int, int], Any] = {(i, j): d[i][j] for i in range(n) for j in range(n)}
     elif isinstance(d, Mapping):
         items = {}
         for key, val in d.items():
@@ -273,7 +289,7 @@ def _tf_matrix_from_dict(d: Mapping | Any, axes: tuple[str, ...], prefix: str) -
     return TFMatrix.from_nested(rows)
 
 
-def _axis_pair(key: str, axes: tuple[str, ...]):
+def _axis_pair(key: str, axes: tuple[str, ...]) -> tuple[int, int] | None:
     for i, a in enumerate(axes):
         for j, b in enumerate(axes):
             if key in (a + b, f"{a},{b}", f"{a}_{b}"):
@@ -281,7 +297,7 @@ def _axis_pair(key: str, axes: tuple[str, ...]):
     return None
 
 
-def _tf_matrix_to_dict(tfm: TFMatrix, axes: tuple[str, ...]) -> dict:
+def _tf_matrix_to_dict(tfm: TFMatrix, axes: tuple[str, ...]) -> dict[str, Any]:
     out = {}
     for i, a in enumerate(axes):
         for j, b in enumerate(axes):
@@ -291,7 +307,7 @@ def _tf_matrix_to_dict(tfm: TFMatrix, axes: tuple[str, ...]) -> dict:
     return out
 
 
-def _check_tf_matrix(tfm: TFMatrix, prefix: str, axes, strictly_proper: bool) -> None:
+def _check_tf_matrix(tfm: TFMatrix, prefix: str, axes: Sequence[str], strictly_proper: bool) -> None:
     n = len(axes)
     for i in range(n):
         for j in range(n):
@@ -317,10 +333,11 @@ def _check_tf_matrix(tfm: TFMatrix, prefix: str, axes, strictly_proper: bool) ->
 class CreepConfig:
     """Multivariable creep ``Y = [K + Cr(s)]·Y_H`` (Eq. 8–11); K and Cr dimensionless."""
 
-    K: tuple
+    K: Matrix
     Cr: TFMatrix
 
-    def validate(self, axes, prefix: str = "creep") -> "CreepConfig":
+    def validate(self, axes: Sequence[str], prefix: str = "creep") -> "CreepConfig":
+        """``self`` if K is n×n and invertible and Cr n×n, strictly proper and stable; else ConfigError."""
         n = len(axes)
         K = _arr(_matrix(self.K, f"{prefix}.K", (n, n)))
         if abs(np.linalg.det(K)) < 1e-9 or np.linalg.cond(K) > 1e9:
@@ -338,7 +355,8 @@ class DynamicsConfig:
 
     G_L: TFMatrix
 
-    def validate(self, axes, prefix: str = "dynamics") -> "DynamicsConfig":
+    def validate(self, axes: Sequence[str], prefix: str = "dynamics") -> "DynamicsConfig":
+        """``self`` if G_L is n×n, strictly proper, stable, with an invertible DC gain; else ConfigError."""
         n = len(axes)
         if self.G_L.shape != (n, n):
             raise ConfigError(f"{prefix}.G_L", f"expected {n}x{n}")
@@ -360,12 +378,13 @@ class HinfConfig:
     t_r: float = 0.025
     eps_s: float = 0.01
     k_o: float = 1.0
-    W2: tuple = (1.0, 1.0)
+    W2: tuple[float, ...] = (1.0, 1.0)
     order: int = 12
     gamma_max: float = 1.0
-    controller: Mapping | None = None
+    controller: Mapping[str, Any] | None = None
 
-    def validate(self, axes, prefix: str = "vibration") -> "HinfConfig":
+    def validate(self, axes: Sequence[object], prefix: str = "vibration") -> "HinfConfig":
+        """``self`` if the weights are positive and finite and a given controller is stable; else ConfigError."""
         n = len(axes)
         for name, lo in (("t_r", 0.0), ("eps_s", 0.0), ("k_o", 0.0), ("gamma_max", 0.0)):
             v = getattr(self, name)
@@ -408,6 +427,7 @@ class CascadeConfig:
     respect_limits: bool = True
 
     def validate(self, prefix: str = "cascade") -> "CascadeConfig":
+        """``self`` if ``order`` and ``hysteresis_loop`` are known and the switches booleans; else ConfigError."""
         if self.order not in ("paper", "commuted"):
             raise ConfigError(f"{prefix}.order", f"must be 'paper' or 'commuted', got {self.order!r}")
         if self.hysteresis_loop not in ("exact", "delayed"):
@@ -427,9 +447,10 @@ class LimitsConfig:
     stale_timeout: float = 0.2      #: no block for this long → ramp to the safe state [s]
     safe_voltage: float = 0.0       #: the safe state [V]
     #: reference limits per axis, ((min, max), …) [m] (YAML: in the config's length unit); None = unlimited
-    workspace: tuple | None = None
+    workspace: tuple[tuple[float, float], ...] | None = None
 
     def validate(self, prefix: str = "limits") -> "LimitsConfig":
+        """``self`` if every limit is finite and plausible for a piezo drive; else ConfigError."""
         for name in ("voltage", "slew", "stale_timeout"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
@@ -455,7 +476,7 @@ class PiezoConfig:
     """Everything about one positioner: axes, sample rate, the three models, H∞ weights, cascade, limits."""
 
     name: str
-    axes: tuple
+    axes: tuple[str, ...]
     sample_rate: float
     hysteresis: BoucWenConfig
     creep: CreepConfig
@@ -468,13 +489,16 @@ class PiezoConfig:
 
     @property
     def dt(self) -> float:
+        """Sample period [s]."""
         return 1.0 / self.sample_rate
 
     @property
     def n_axes(self) -> int:
+        """Number of axes."""
         return len(self.axes)
 
     def validate(self) -> "PiezoConfig":
+        """``self`` if every section is valid and consistent with the axes; else ConfigError naming the field."""
         if not self.axes or len(set(self.axes)) != len(self.axes):
             raise ConfigError("axes", f"need distinct axis names, got {list(self.axes)}")
         if isinstance(self.sample_rate, bool) or not (isinstance(self.sample_rate, (int, float))
@@ -501,25 +525,44 @@ class PiezoConfig:
         return self
 
     def with_sample_rate(self, fs: float) -> "PiezoConfig":
+        """The same configuration at sample rate ``fs`` [Hz] (validated)."""
         return replace(self, sample_rate=float(fs)).validate()
 
     # -- dict / YAML ----------------------------------------------------------------------------------------------
     @staticmethod
-    def from_dict(d: Mapping, variant: str | None = None) -> "PiezoConfig":
+    def from_dict(d: Mapping[str, Any], variant: str | None = None) -> "PiezoConfig":
+        """From the YAML form (any length unit, ``variants`` applied); validated, SI inside.
+
+        Parameters
+        ----------
+        d : mapping
+            The parsed YAML.
+        variant : str, optional
+            A name in ``variants`` (default: the file's ``variant`` key, else ``printed``).
+
+        Returns
+        -------
+        PiezoConfig
+
+        Raises
+        ------
+        ConfigError
+            Naming the first invalid field.
+        """
         if not isinstance(d, Mapping):
             raise ConfigError("config", f"top level must be a mapping, got {type(d).__name__}")
-        d = copy.deepcopy(dict(d))
-        _unknown_keys(d, [f.name for f in fields(PiezoConfig)] + ["units", "variants", "description"], "")
-        variants = _section(d, "variants")
-        d.pop("variants", None)
-        chosen = variant or d.pop("variant", None) or "printed"
-        d.pop("variant", None)
+        data: dict[str, Any] = copy.deepcopy(dict(d))
+        _unknown_keys(data, [f.name for f in fields(PiezoConfig)] + ["units", "variants", "description"], "")
+        variants = _section(data, "variants")
+        data.pop("variants", None)
+        chosen = variant or data.pop("variant", None) or "printed"
+        data.pop("variant", None)
         for vname, v in variants.items():
             if not isinstance(v, Mapping):
                 raise ConfigError(f"variants.{vname}", "expected a mapping {description, set}")
             _unknown_keys(v, ("description", "set"), f"variants.{vname}")
             for path in _section(v, "set", f"variants.{vname}"):  # every variant, selected or not: a typo shows now
-                cur = d
+                cur: Any = data
                 for k in str(path).split(".")[:-1]:
                     cur = cur.get(k) if isinstance(cur, dict) else None
                 if not isinstance(cur, dict):
@@ -528,8 +571,8 @@ class PiezoConfig:
             if chosen not in variants:
                 raise ConfigError("variant", f"unknown variant {chosen!r}; available: {['printed', *variants]}")
             for path, value in _section(variants[chosen], "set", f"variants.{chosen}").items():
-                _set_path(d, path, value)
-        units = _section(d, "units")
+                _set_path(data, path, value)
+        units = _section(data, "units")
         _unknown_keys(units, ("length", "voltage"), "units")
         try:
             L = length_scale(units.get("length", "m"))
@@ -538,28 +581,28 @@ class PiezoConfig:
         if units.get("voltage", "V") not in VOLTAGE_UNITS:
             raise ConfigError("units.voltage", f"{units['voltage']!r} is not supported: give voltages in V (Dp, A "
                                                "in <length>/V, B, Gamma in 1/V, limits in V)")
-        raw_axes = d.get("axes", ["x", "y"])
+        raw_axes = data.get("axes", ["x", "y"])
         if not isinstance(raw_axes, (list, tuple)) or not all(isinstance(a, str) and a for a in raw_axes):
             raise ConfigError("axes", f"expected a list of axis names like [x, y], got {raw_axes!r}")
         axes = tuple(raw_axes)
         if not axes or len(set(axes)) != len(axes):
             raise ConfigError("axes", f"need at least one axis and distinct names, got {list(axes)}")
         for key in ("name", "source"):
-            if key in d and not isinstance(d[key], str):
-                raise ConfigError(key, f"expected a string, got {d[key]!r}")
-        hyst = BoucWenConfig.from_dict(_section(d, "hysteresis", required=True), L)
-        cr = _section(d, "creep", required=True)
+            if key in data and not isinstance(data[key], str):
+                raise ConfigError(key, f"expected a string, got {data[key]!r}")
+        hyst = BoucWenConfig.from_dict(_section(data, "hysteresis", required=True), L)
+        cr = _section(data, "creep", required=True)
         _unknown_keys(cr, ("K", "Cr"), "creep")
         if "K" not in cr:
             raise ConfigError("creep.K", "missing")
         creep = CreepConfig(K=_matrix(cr["K"], "creep.K", (len(axes), len(axes))),
                             Cr=_tf_matrix_from_dict(cr.get("Cr", {}), axes, "creep.Cr"))
-        dyn = _section(d, "dynamics", required=True)
+        dyn = _section(data, "dynamics", required=True)
         _unknown_keys(dyn, ("G_L",), "dynamics")
         if "G_L" not in dyn:
             raise ConfigError("dynamics.G_L", "missing")
         dynamics = DynamicsConfig(_tf_matrix_from_dict(dyn["G_L"], axes, "dynamics.G_L"))
-        vib = _section(d, "vibration")
+        vib = _section(data, "vibration")
         _unknown_keys(vib, [f.name for f in fields(HinfConfig)], "vibration")
         W2 = vib.get("W2", 1.0)
         W2 = tuple(_number(w, "vibration.W2") for w in (W2 if isinstance(W2, (list, tuple)) else [W2] * len(axes)))
@@ -571,10 +614,10 @@ class PiezoConfig:
                                k_o=_number(vib.get("k_o", 1.0), "vibration.k_o"), W2=W2,
                                order=_integer(vib.get("order", 12), "vibration.order"),
                                gamma_max=_number(vib.get("gamma_max", 1.0), "vibration.gamma_max"), controller=ctrl)
-        casc = _section(d, "cascade")
+        casc = _section(data, "cascade")
         _unknown_keys(casc, [f.name for f in fields(CascadeConfig)], "cascade")
         cascade = CascadeConfig(**casc)
-        lim = dict(_section(d, "limits"))
+        lim = dict(_section(data, "limits"))
         _unknown_keys(lim, [f.name for f in fields(LimitsConfig)], "limits")
         ws = lim.pop("workspace", None)
         if ws is not None:
@@ -585,15 +628,16 @@ class PiezoConfig:
             if len(ws) != len(axes):
                 raise ConfigError("limits.workspace", f"{len(ws)} ranges for {len(axes)} axes")
         limits = LimitsConfig(**{k: _number(v, f"limits.{k}") for k, v in lim.items()}, workspace=ws)
-        cfg = PiezoConfig(name=str(d.get("name", "piezo")), axes=axes,
-                          sample_rate=_number(d.get("sample_rate", 20000.0), "sample_rate"), hysteresis=hyst,
+        cfg = PiezoConfig(name=str(data.get("name", "piezo")), axes=axes,
+                          sample_rate=_number(data.get("sample_rate", 20000.0), "sample_rate"), hysteresis=hyst,
                           creep=creep, dynamics=dynamics, vibration=vibration, cascade=cascade, limits=limits,
-                          source=str(d.get("source", "")), variant=chosen)
+                          source=str(data.get("source", "")), variant=chosen)
         return cfg.validate()
 
-    def to_dict(self, length_unit: str = "um") -> dict:
+    def to_dict(self, length_unit: str = "um") -> dict[str, Any]:
+        """The YAML form with lengths in ``length_unit`` (:meth:`from_dict` reads it back)."""
         L = length_scale(length_unit)
-        vib = {"t_r": self.vibration.t_r, "eps_s": self.vibration.eps_s, "k_o": self.vibration.k_o,
+        vib: dict[str, Any] = {"t_r": self.vibration.t_r, "eps_s": self.vibration.eps_s, "k_o": self.vibration.k_o,
                "W2": list(self.vibration.W2), "order": self.vibration.order, "gamma_max": self.vibration.gamma_max}
         if self.vibration.controller is not None:
             vib["controller"] = {k: np.asarray(v, float).tolist() for k, v in self.vibration.controller.items()}
@@ -615,13 +659,14 @@ class PiezoConfig:
         }
 
     def to_yaml(self, path: str | Path | None = None, length_unit: str = "um") -> str:
+        """:meth:`to_dict` as YAML text, also written to ``path`` when given."""
         text = yaml.safe_dump(self.to_dict(length_unit), sort_keys=False, default_flow_style=None, width=120)
         if path is not None:
             Path(path).write_text(text)
         return text
 
 
-def _set_path(d: dict, path: str, value) -> None:
+def _set_path(d: dict[str, Any], path: str, value: Any) -> None:
     keys = path.split(".")
     cur = d
     for k in keys[:-1]:
@@ -653,7 +698,7 @@ def default_config_path() -> Path:
 class DuplicateKeyError(ValueError):
     """A YAML mapping holds the same key twice (``line`` is 1-based)."""
 
-    def __init__(self, key, line: int):
+    def __init__(self, key: Any, line: int) -> None:
         super().__init__(f"line {line}: duplicate key {key!r}")
         self.key, self.line = key, line
 
@@ -661,7 +706,8 @@ class DuplicateKeyError(ValueError):
 class UniqueKeyLoader(yaml.SafeLoader):
     """``yaml.SafeLoader`` that refuses duplicate keys (the plain loader keeps the last value, silently)."""
 
-    def construct_mapping(self, node, deep=False):
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        """The mapping of ``node``; :class:`DuplicateKeyError` on a repeated key."""
         self.flatten_mapping(node)
         seen = set()
         for key_node, _ in node.value:
@@ -697,9 +743,9 @@ def load_config(path: str | Path | None = None, variant: str | None = None) -> P
     return PiezoConfig.from_dict(data, variant=variant)
 
 
-def flatten(d: Mapping, prefix: str = "") -> dict[str, Any]:
+def flatten(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     """``{'a': {'b': 1}}`` → ``{'a.b': 1}`` (lists are leaves)."""
-    out = {}
+    out: dict[str, Any] = {}
     for k, v in d.items():
         key = f"{prefix}.{k}" if prefix else str(k)
         if isinstance(v, Mapping):
@@ -709,8 +755,9 @@ def flatten(d: Mapping, prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def unflatten(flat: Mapping[str, Any]) -> dict:
-    out: dict = {}
+def unflatten(flat: Mapping[str, Any]) -> dict[str, Any]:
+    """``{'a.b': 1}`` → ``{'a': {'b': 1}}`` (the inverse of :func:`flatten`)."""
+    out: dict[str, Any] = {}
     for key, v in flat.items():
         cur = out
         parts = key.split(".")

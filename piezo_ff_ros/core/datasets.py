@@ -17,11 +17,15 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Union
 
 import numpy as np
 
 from .recording.run import RunData
 from .units import UM
+
+#: a dataset root: a path, or None for :func:`shared_data_dir`
+PathLike = Union[str, "os.PathLike[str]"]
 
 __all__ = ["shared_data_dir", "DboRuns", "load_dbo", "FsmLevel", "load_fsm", "load_boucwen_benchmark",
            "DBO_ATTRIBUTION", "FSM_ATTRIBUTION", "BOUCWEN_ATTRIBUTION"]
@@ -43,7 +47,7 @@ def shared_data_dir() -> Path:
     return Path(__file__).resolve().parents[3] / "shared" / "data"
 
 
-def _dir(root, name) -> Path:
+def _dir(root: PathLike | None, name: str) -> Path:
     d = Path(root) if root is not None else shared_data_dir()
     d = d / name if (d / name).is_dir() else d
     if not d.is_dir():
@@ -65,11 +69,11 @@ class DboRuns:
 
     model: RunData
     test: RunData
-    segments: dict
+    segments: dict[str, Any]
     delay: int = 1
 
 
-def load_dbo(root=None) -> DboRuns:
+def load_dbo(root: PathLike | None = None) -> DboRuns:
     """Load ``Model_Vi_Do.dat`` and ``Test_Vi_Do_Di.dat`` (200 Hz) in SI: voltage col 1 [V], sensor col 5 [µm → m]."""
     d = _dir(root, "dbo_piezo_micromanipulator")
     fs = 200.0
@@ -116,7 +120,7 @@ class FsmLevel:
         return out
 
 
-def load_fsm(level_mV: int, root=None) -> FsmLevel:
+def load_fsm(level_mV: int, root: PathLike | None = None) -> FsmLevel:
     """Load one amplitude level (100, 200 or 300 mV) of the CubeSpec FSM benchmark (already V and m)."""
     if level_mV not in (100, 200, 300):
         raise ValueError(f"level_mV: expected 100, 200 or 300, got {level_mV!r}")
@@ -135,7 +139,7 @@ def load_fsm(level_mV: int, root=None) -> FsmLevel:
 # boucwen_benchmark
 # ----------------------------------------------------------------------------------------------------------------
 
-def load_boucwen_benchmark(root=None) -> dict[str, RunData]:
+def load_boucwen_benchmark(root: PathLike | None = None) -> dict[str, RunData]:
     """Estimation (``estimation``) and validation (``multisine``, ``sinesweep``) runs; input force [N], y [m]."""
     import scipy.io
 

@@ -33,7 +33,8 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Callable, NamedTuple
+from typing import Any, Callable, NamedTuple
+from typing import Sequence as Seq
 
 import numpy as np
 
@@ -41,6 +42,7 @@ from .compensators.cascade import CompensatorCascade
 from .config import PiezoConfig
 from .models.plant import Plant
 from .trajectories import Circle, Sequence, Sine, Step, Trajectory
+from .stage import Processor
 from .units import UM
 
 __all__ = ["Experiment", "Recorded", "paper_experiments", "experiment_sequence", "simulate_experiments",
@@ -58,10 +60,13 @@ AMPLITUDE = 20 * UM    #: [m] steps and compensated sines (IV-C, V, VI)
 
 
 class Recorded(NamedTuple):
-    """One experiment's signals: ``t`` [N] s, ``reference`` [N, axes], ``u`` [N, axes] V, ``y`` [N, axes] m."""
+    """One experiment's signals: ``t`` [N] s, ``reference`` [N, axes], ``u`` [N, axes] V, ``y`` [N, axes] m.
+
+    ``reference`` is None only for a recorded segment without one (:func:`~piezo_ff_ros.core.analysis.segment_signals`
+    with ``complete_only=False``)."""
 
     t: np.ndarray
-    reference: np.ndarray
+    reference: np.ndarray | None
     u: np.ndarray
     y: np.ndarray
 
@@ -102,16 +107,16 @@ class Experiment:
     trajectory: Trajectory
     metric: str
     axis: str | None = None
-    params: dict = field(default_factory=dict)
+    params: dict[str, Any] = field(default_factory=dict)
     record_decimation: int = 1
     description: str = ""
 
     @property
-    def stages(self) -> tuple:
+    def stages(self) -> tuple[str, ...]:
         """Compensator stages switched on (``()`` for S0 and the open loop)."""
         return STAGE_SETS[self.system]
 
-    def meta(self) -> dict:
+    def meta(self) -> dict[str, Any]:
         """Plain-dict description for a :class:`Sequence` segment / ROS parameters (no trajectory)."""
         return {"experiment": self.name, "section": self.section, "system": self.system, "input": self.input,
                 "stages": list(self.stages), "metric": self.metric, "axis": self.axis,
@@ -119,7 +124,7 @@ class Experiment:
 
 
 def paper_experiments(cfg: PiezoConfig | None = None, creep_duration: float = 600.0, hysteresis_periods: int = 2,
-                      circle_radii=(20 * UM, 30 * UM), circle_frequency: float = 1.0,
+                      circle_radii: Seq[float] = (20 * UM, 30 * UM), circle_frequency: float = 1.0,
                       circle_revolutions: float = 2.0, step_hold: float = STEP_HOLD) -> list[Experiment]:
     """The paper's experiment list (Sections IV-A/C, V-A/C, VI-A/C, VII-B), in the paper's order.
 
@@ -147,7 +152,7 @@ def paper_experiments(cfg: PiezoConfig | None = None, creep_duration: float = 60
     hyst_T = period * int(hysteresis_periods)
     exps: list[Experiment] = []
 
-    def step(a):  # step amplitude per axis: 20 µm on the driven axis, 0 on the others
+    def step(a: str) -> dict[str, float]:  # step amplitude per axis: 20 µm on the driven axis, 0 on the others
         return {a: AMPLITUDE}
 
     for a in axes:
@@ -213,7 +218,7 @@ def _stage_config(cfg: PiezoConfig, exp: Experiment) -> PiezoConfig:
     return dataclasses.replace(cfg, cascade=cascade)
 
 
-def run_experiment(exp: Experiment, cfg: PiezoConfig, plant, design=None, block: int = 20000,
+def run_experiment(exp: Experiment, cfg: PiezoConfig, plant: Processor, design: Any = None, block: int = 20000,
                    cascade: CompensatorCascade | None = None) -> Recorded:
     """Play one experiment from rest through its compensators into ``plant`` (reset first); return the record.
 
@@ -221,9 +226,10 @@ def run_experiment(exp: Experiment, cfg: PiezoConfig, plant, design=None, block:
     ``HinfDesign`` or ``(A, B, C, D)``) is the vibration compensator when the experiment uses it.
     """
     fs = cfg.sample_rate
-    n_total = exp.trajectory.n_samples(fs)
-    if math.isinf(n_total):
+    n_samples = exp.trajectory.n_samples(fs)
+    if math.isinf(n_samples):
         raise ValueError(f"{exp.name}: endless trajectory cannot be simulated")
+    n_total = int(n_samples)
     dec = max(1, int(exp.record_decimation))
     block = max(dec, (int(block) // dec) * dec)
     if exp.input == "voltage":
@@ -265,7 +271,7 @@ def run_experiment(exp: Experiment, cfg: PiezoConfig, plant, design=None, block:
     return Recorded(T, R, U, Y)
 
 
-def simulate_experiments(cfg: PiezoConfig, design=None, plant=None, experiments: list[Experiment] | None = None,
+def simulate_experiments(cfg: PiezoConfig, design: Any = None, plant: Processor | None = None, experiments: list[Experiment] | None = None,
                          creep_duration: float = 600.0, block: int = 20000,
                          progress: Callable[[str], None] | None = None) -> dict[str, Recorded]:
     """Run the paper's experiments on the core cascade + a simulated plant (no ROS).

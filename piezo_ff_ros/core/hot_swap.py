@@ -38,12 +38,18 @@ import json
 import threading
 from collections import deque
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable, Union
 
 import numpy as np
 
 from .compensators.cascade import CompensatorCascade
 from .config import PiezoConfig
+from .stage import StageState
+
+#: builds a cascade for a configuration (and an optional controller / H∞ design)
+CascadeFactory = Callable[..., CompensatorCascade]
+#: the plant-side state of a cascade (``CompensatorCascade.state(PLANT_STAGES)``)
+_PlantState = dict[str, StageState]
 
 __all__ = ["HotSwapCascade", "synthesis_key"]
 
@@ -55,15 +61,20 @@ def synthesis_key(cfg: PiezoConfig) -> str:
     return json.dumps({"G_L": d["dynamics"], "vib": vib}, sort_keys=True)
 
 
-def _lin_steady_gain(A, B, C, D):
+def _lin_steady_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray) -> np.ndarray:
     n = A.shape[0]
     if n == 0:
         return D.copy()
-    return C @ np.linalg.solve(np.eye(n) - A, B) + D
+    g: np.ndarray = C @ np.linalg.solve(np.eye(n) - A, B) + D
+    return g
+
+
+def _default_factory(cfg: PiezoConfig, controller: Any = None) -> CompensatorCascade:
+    return CompensatorCascade(cfg, controller=controller)
 
 
 class _Pending:
-    def __init__(self, version: int, cfg: PiezoConfig):
+    def __init__(self, version: int, cfg: PiezoConfig) -> None:
         self.version = version
         self.cfg = cfg
         self.cascade: CompensatorCascade | None = None
@@ -74,20 +85,21 @@ class _Pending:
 class _Fade:
     """Crossfade from ``old`` (a cascade or a running fade) to ``new`` over ``length`` samples."""
 
-    def __init__(self, old, new: CompensatorCascade, length: int):
+    def __init__(self, old: Union[CompensatorCascade, "_Fade"], new: CompensatorCascade, length: int) -> None:
         self.old, self.new, self.length, self.done = old, new, int(length), 0
 
-    def leaves(self) -> list:
+    def leaves(self) -> list[CompensatorCascade]:
         olds = self.old.leaves() if isinstance(self.old, _Fade) else [self.old]
         return olds + [self.new]
 
-    def mix(self, signals: list, n: int) -> np.ndarray:
+    def mix(self, signals: list[np.ndarray], n: int) -> np.ndarray:
         """Mix of the leaves' signals (in :meth:`leaves` order) over the next ``n`` samples (no advance)."""
         k = len(signals) - 1
         y_old = self.old.mix(signals[:k], n) if isinstance(self.old, _Fade) else signals[0]
         y_new = signals[k]
         w = np.minimum((self.done + 1 + np.arange(n)) / self.length, 1.0)[:, None]
-        return y_old + w * (y_new - y_old)
+        y: np.ndarray = y_old + w * (y_new - y_old)
+        return y
 
     def advance(self, n: int) -> None:
         self.done += n
@@ -110,7 +122,7 @@ class _InFlight:
     k0: int
     u: np.ndarray                 # the voltages sent for samples k0 … k0 + N − 1
     cascade: CompensatorCascade   # the cascade whose plant-side state ``state_after`` is
-    state_after: dict             # plant-side state after these samples, had they been applied as sent
+    state_after: _PlantState      # plant-side state after these samples, had they been applied as sent
 
 
 class HotSwapCascade:
@@ -130,8 +142,8 @@ class HotSwapCascade:
     """
 
     def __init__(self, cfg: PiezoConfig, crossfade_samples: int = 200,
-                 factory: Callable | None = None, max_inflight_samples: int = 400_000):
-        self.factory = factory or (lambda c, controller=None: CompensatorCascade(c, controller=controller))
+                 factory: CascadeFactory | None = None, max_inflight_samples: int = 400_000) -> None:
+        self.factory: CascadeFactory = factory or _default_factory
         self.crossfade_samples = int(crossfade_samples)
         self._designs: dict[str, object] = {}
         self._lock = threading.Lock()
@@ -146,9 +158,9 @@ class HotSwapCascade:
         self._fade: _Fade | None = None
         self._running = False                 # a block was processed since construction/reset
         self._last_in: np.ndarray | None = None
-        self._last_taps: dict | None = None
+        self._last_taps: dict[str, np.ndarray] | None = None
         # re-synchronisation on the applied voltage
-        self._conf: tuple | None = None       # (k, cascade, plant-side state): consistent with applied samples < k
+        self._conf: tuple[int, CompensatorCascade, _PlantState] | None = None   # (k, cascade, plant-side state): consistent with applied samples < k
         self._inflight: deque[_InFlight] = deque()
         self._inflight_samples = 0
         self.max_inflight_samples = int(max_inflight_samples)
@@ -161,7 +173,7 @@ class HotSwapCascade:
         self.applied_ignored = 0    #: applied blocks for samples already accounted for (or not tracked)
 
     # -- building ------------------------------------------------------------------------------------------------
-    def _controller_for(self, cfg: PiezoConfig):
+    def _controller_for(self, cfg: PiezoConfig) -> object | None:
         if not cfg.cascade.vibration or cfg.vibration.controller is not None:
             return None
         with self._lock:
@@ -169,8 +181,8 @@ class HotSwapCascade:
 
     def needs_background(self, cfg: PiezoConfig) -> bool:
         """True when building ``cfg`` means an H∞ synthesis (not in the design cache)."""
-        return (cfg.cascade.vibration and cfg.vibration.controller is None
-                and self._controller_for(cfg) is None)
+        return bool(cfg.cascade.vibration and cfg.vibration.controller is None
+                    and self._controller_for(cfg) is None)
 
     def _build(self, cfg: PiezoConfig) -> CompensatorCascade:
         casc = self.factory(cfg, controller=self._controller_for(cfg))
@@ -194,7 +206,7 @@ class HotSwapCascade:
         if background is None:
             background = self.needs_background(cfg)
 
-        def work():
+        def work() -> None:
             try:
                 pend.cascade = self._build(cfg)
             except Exception as exc:  # noqa: BLE001 - any build failure keeps the old cascade
@@ -233,6 +245,7 @@ class HotSwapCascade:
             self.failed_builds += 1
             self.last_error = f"configuration v{p.version} not applied: {p.error}"
             return False
+        assert p.cascade is not None, "a build that raised nothing has set its cascade"
         self._swap(p.cascade, p.cfg, p.version)
         return True
 
@@ -287,7 +300,7 @@ class HotSwapCascade:
         self.poll()
         x = np.ascontiguousarray(block, dtype=float)
         track = k0 is not None and self.active.can_follow and x.shape[0] > 0
-        if track:
+        if track and k0 is not None:   # (track implies k0 is not None)
             end = self._inflight[-1].k0 + len(self._inflight[-1].u) if self._inflight else \
                 (self._conf[0] if self._conf is not None else None)
             if end != k0:   # first block, or the reference stream restarted / jumped: track from here
@@ -295,7 +308,7 @@ class HotSwapCascade:
                 self._inflight_samples = 0
                 self._conf = (k0, self.active, self.active.state(CompensatorCascade.PLANT_STAGES))
         if self._fade is not None:
-            y, taps = self._process_fading(x)
+            y, taps = self._process_fading(x, self._fade)
         else:
             y, taps = self.active.process(x, taps=True)
         if x.shape[0]:
@@ -303,7 +316,7 @@ class HotSwapCascade:
             self._last_in = x[-1].copy()
             self._last_taps = {k: v[-1].copy() for k, v in taps.items()} if self.active.cfg.cascade.order == "paper" \
                 else None
-        if track:
+        if track and k0 is not None:   # (track implies k0 is not None)
             self._inflight.append(_InFlight(k0, y.copy(), self.active,
                                             self.active.state(CompensatorCascade.PLANT_STAGES)))
             self._inflight_samples += x.shape[0]
@@ -313,22 +326,23 @@ class HotSwapCascade:
                 self._conf = None
         return y
 
-    def _process_fading(self, x: np.ndarray) -> tuple[np.ndarray, dict]:
-        fade, active = self._fade, self.active
+    def _process_fading(self, x: np.ndarray, fade: _Fade) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        active = self.active
         leaves = fade.leaves()
         n = x.shape[0]
-        if all(_same_hysteresis(c, active) for c in leaves):
+        shared = active.hysteresis
+        if shared is not None and all(_same_hysteresis(c, active) for c in leaves):
             # fade the hysteresis inverse's input Y_H and run the one inverse: it stays exactly on the voltage
             # sent; every creep inverse follows the mixed Y_H (what the plant's creep receives)
             pre = [c.creep.state() if c.creep is not None else None for c in leaves]
             fronts = [c.process_front(x) for c in leaves]
             yh = fade.mix([f[0] for f in fronts], n)
-            y = active.hysteresis.process(yh)
-            hyst = active.hysteresis.state()
+            y = shared.process(yh)
+            hyst = shared.state()
             for c, p, (own, _) in zip(leaves, pre, fronts):
-                if c is not active:
+                if c is not active and c.hysteresis is not None:   # (not None: _same_hysteresis)
                     c.hysteresis.load_state(hyst)
-                if c.creep is not None and not np.array_equal(own, yh):
+                if c.creep is not None and p is not None and not np.array_equal(own, yh):
                     c.creep.load_state(p)
                     c.creep.follow(yh)
             taps = {**fronts[-1][1], "yh": yh, "u": y}
@@ -341,13 +355,13 @@ class HotSwapCascade:
                 xc = x[i:i + _FADE_CHUNK]
                 leaves = fade.leaves()
                 before = [c.state(CompensatorCascade.PLANT_STAGES) for c in leaves]
-                own = []
+                outs = []
                 for c in leaves[:-1]:
-                    own.append(c.process(xc))
+                    outs.append(c.process(xc))
                 y_new, t_new = active.process(xc, taps=True)
-                own.append(y_new)
-                yc = fade.mix(own, xc.shape[0])
-                for c, st, o in zip(leaves, before, own):
+                outs.append(y_new)
+                yc = fade.mix(outs, xc.shape[0])
+                for c, st, o in zip(leaves, before, outs):
                     if c.can_follow and not np.array_equal(o, yc):
                         c.load_state(st)
                         c.follow_applied(yc)
@@ -394,7 +408,7 @@ class HotSwapCascade:
         self.resyncs += 1
         return "resync"
 
-    def _resync(self, k_conf, casc, st, k0, u) -> None:
+    def _resync(self, k_conf: int, casc: CompensatorCascade, st: _PlantState, k0: int, u: np.ndarray) -> None:
         c = copy.deepcopy(casc)
         c.load_state(st)
         if k0 > k_conf:  # samples nobody reported: the amplifier held its last voltage
@@ -433,7 +447,8 @@ class HotSwapCascade:
     def crossfading(self) -> bool:
         return self._fade is not None
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
+        """Counters and versions for ``/diagnostics``."""
         return {"config_version": self.version, "pending_version": self.pending_version, "swaps": self.swaps,
                 "failed_builds": self.failed_builds, "crossfading": self.crossfading, "last_error": self.last_error,
                 "resyncs": self.resyncs, "applied_blocks": self.applied_blocks,
@@ -449,18 +464,19 @@ def _same_hysteresis(c: CompensatorCascade, active: CompensatorCascade) -> bool:
             and a.cascade.respect_limits == b.cascade.respect_limits and a.limits == b.limits and a.dt == b.dt)
 
 
-def _settle(name, st, u) -> np.ndarray:
+def _settle(name: str, st: Any, u: np.ndarray) -> np.ndarray:
     """Put a linear stage at its steady state for the constant input ``u``; return its steady output."""
     if name == "vibration":
         ss = st.ss
         st.filter.settle_to(u)
-        return _lin_steady_gain(ss.A, ss.B, ss.C, ss.D) @ u
+        y: np.ndarray = _lin_steady_gain(ss.A, ss.B, ss.C, ss.D) @ u
+        return y
     # creep compensator: yh = K⁻¹(yl − C x), x = (I − A)⁻¹ B yh  ⇒  yh = (K + C (I − A)⁻¹ B)⁻¹ yl
     ss = st.ss
     K = np.linalg.inv(st.Kinv)
     n = ss.n_states
     G = ss.C @ np.linalg.solve(np.eye(n) - ss.A, ss.B) if n else np.zeros_like(K)
-    yh = np.linalg.solve(K + G, u)
+    yh: np.ndarray = np.linalg.solve(K + G, u)
     if n:
         st.x[:] = np.linalg.solve(np.eye(n) - ss.A, ss.B @ yh)
     return yh

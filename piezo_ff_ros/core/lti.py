@@ -12,10 +12,11 @@ well conditioned, otherwise through a dense ZOH (``scipy.linalg.expm``) in a sin
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import scipy.linalg
+from numpy.typing import ArrayLike
 
 from ._jit import njit
 
@@ -28,6 +29,11 @@ __all__ = [
 
 _PAIR_TOL = 1e-9
 
+#: one polynomial factor in s, highest power first
+Factor = tuple[float, ...]
+#: a real modal block (A_blk, B_blk, C_blk)
+_Block = tuple[np.ndarray, np.ndarray, np.ndarray]
+
 
 @dataclass(frozen=True)
 class FactoredTF:
@@ -38,47 +44,65 @@ class FactoredTF:
     """
 
     gain: float
-    num: tuple = ()
-    den: tuple = ()
+    num: tuple[Factor, ...] = ()
+    den: tuple[Factor, ...] = ()
 
     @staticmethod
-    def from_dict(d: dict) -> "FactoredTF":
+    def from_dict(d: Mapping[str, Any]) -> "FactoredTF":
+        """From ``{k (or gain): float, num: [[…], …], den: [[…], …]}`` (the YAML form).
+
+        Parameters
+        ----------
+        d : mapping
+            The entry; missing keys mean gain 0 and no factors.
+
+        Returns
+        -------
+        FactoredTF
+        """
         return FactoredTF(float(d.get("k", d.get("gain", 0.0))),
                           tuple(tuple(float(c) for c in f) for f in d.get("num", [])),
                           tuple(tuple(float(c) for c in f) for f in d.get("den", [])))
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
+        """The YAML form (see :meth:`from_dict`)."""
         return {"k": float(self.gain), "num": [list(f) for f in self.num], "den": [list(f) for f in self.den]}
 
     # -- algebra -------------------------------------------------------------------------------------------------
     def zeros(self) -> np.ndarray:
+        """Roots of the numerator factors (complex)."""
         return _roots_of_factors(self.num)
 
     def poles(self) -> np.ndarray:
+        """Roots of the denominator factors (complex)."""
         return _roots_of_factors(self.den)
 
     @property
     def order(self) -> int:
+        """Degree of the denominator."""
         return sum(len(f) - 1 for f in self.den)
 
     @property
     def relative_degree(self) -> int:
+        """Degree of the denominator minus degree of the numerator."""
         return self.order - sum(len(f) - 1 for f in self.num)
 
     def is_zero(self) -> bool:
+        """True for the zero transfer function (gain 0)."""
         return self.gain == 0.0
 
-    def eval(self, s) -> np.ndarray:
+    def eval(self, s: ArrayLike) -> np.ndarray:
         """Frequency response at complex points ``s`` (array)."""
-        s = np.asarray(s, dtype=complex)
-        out = np.full(s.shape, self.gain, dtype=complex)
+        sv = np.asarray(s, dtype=complex)
+        out: np.ndarray = np.full(sv.shape, self.gain, dtype=complex)
         for f in self.num:
-            out = out * np.polyval(f, s)
+            out = out * np.polyval(f, sv)
         for f in self.den:
-            out = out / np.polyval(f, s)
+            out = out / np.polyval(f, sv)
         return out
 
     def dc_gain(self) -> float:
+        """``H(0)``."""
         return float(np.real(self.eval(np.array([0.0]))[0]))
 
     def leading_gain(self) -> float:
@@ -90,7 +114,7 @@ class FactoredTF:
             g /= f[0]
         return g
 
-    def duplicated_factors(self) -> list[tuple]:
+    def duplicated_factors(self) -> list[Factor]:
         """Factors printed both in the numerator and the denominator (they cancel)."""
         den = list(self.den)
         dup = []
@@ -109,9 +133,11 @@ class FactoredTF:
         return FactoredTF(self.gain, tuple(num), tuple(den))
 
     def scaled(self, factor: float) -> "FactoredTF":
+        """The same transfer function with its gain multiplied by ``factor``."""
         return FactoredTF(self.gain * factor, self.num, self.den)
 
     def is_stable(self) -> bool:
+        """True when every pole is in the open left half-plane."""
         p = self.poles()
         return bool(np.all(p.real < 0.0))
 
@@ -142,7 +168,7 @@ class FactoredTF:
         return p, c, float(d)
 
 
-def _roots_of_factors(factors) -> np.ndarray:
+def _roots_of_factors(factors: Sequence[Factor]) -> np.ndarray:
     roots = [np.roots(np.asarray(f, float)) for f in factors if len(f) > 1]
     return np.concatenate(roots).astype(complex) if roots else np.zeros(0, complex)
 
@@ -151,34 +177,38 @@ def _roots_of_factors(factors) -> np.ndarray:
 class TFMatrix:
     """A matrix of SISO :class:`FactoredTF` entries, ``entries[i][j]`` from input j to output i."""
 
-    entries: tuple
+    entries: tuple[tuple[FactoredTF, ...], ...]
 
     @staticmethod
     def from_nested(rows: Sequence[Sequence[FactoredTF]]) -> "TFMatrix":
+        """From rows of entries (``rows[i][j]``: input j to output i)."""
         return TFMatrix(tuple(tuple(r) for r in rows))
 
     @property
     def shape(self) -> tuple[int, int]:
+        """``(n_out, n_in)``."""
         return len(self.entries), len(self.entries[0])
 
-    def __getitem__(self, ij) -> FactoredTF:
+    def __getitem__(self, ij: tuple[int, int]) -> FactoredTF:
         i, j = ij
         return self.entries[i][j]
 
-    def eval(self, s) -> np.ndarray:
+    def eval(self, s: ArrayLike) -> np.ndarray:
         """Frequency response, shape ``[len(s), n_out, n_in]``."""
-        s = np.atleast_1d(np.asarray(s, complex))
+        sv = np.atleast_1d(np.asarray(s, complex))
         n, m = self.shape
-        out = np.empty((len(s), n, m), complex)
+        out = np.empty((len(sv), n, m), complex)
         for i in range(n):
             for j in range(m):
-                out[:, i, j] = self.entries[i][j].eval(s)
+                out[:, i, j] = self.entries[i][j].eval(sv)
         return out
 
     def dc_gain(self) -> np.ndarray:
-        return np.real(self.eval(np.array([0.0]))[0])
+        """``H(0)``, shape ``[n_out, n_in]``."""
+        g: np.ndarray = np.real(self.eval(np.array([0.0]))[0])
+        return g
 
-    def to_control(self):
+    def to_control(self) -> Any:
         """A ``control.StateSpace`` realisation: the per-entry modal realisations stacked (not minimal)."""
         import control
 
@@ -190,7 +220,8 @@ class TFMatrix:
 # Continuous modal realisation (real block-diagonal) of a TF matrix
 # ----------------------------------------------------------------------------------------------------------------
 
-def _real_blocks_from_modes(p, b_rows, c_cols, pair_on=None):
+def _real_blocks_from_modes(p: ArrayLike, b_rows: np.ndarray, c_cols: np.ndarray,
+                            pair_on: ArrayLike | None = None) -> list[_Block]:
     """Group complex modes into real 1×1 / 2×2 blocks.
 
     ``p[i]`` is the (continuous or discrete) eigenvalue of mode i, ``b_rows[i]`` (n_in,) and ``c_cols[i]`` (n_out,)
@@ -202,7 +233,7 @@ def _real_blocks_from_modes(p, b_rows, c_cols, pair_on=None):
     """
     p = np.asarray(p, complex)
     q = p if pair_on is None else np.asarray(pair_on, complex)
-    blocks = []
+    blocks: list[_Block] = []
     used = np.zeros(len(p), bool)
     for i in range(len(p)):
         if used[i]:
@@ -227,10 +258,23 @@ def _real_blocks_from_modes(p, b_rows, c_cols, pair_on=None):
     return blocks
 
 
-def continuous_modal_realisation(tfm: TFMatrix):
-    """Real block-diagonal continuous (A, B, C, D) stacking every entry's modes."""
+def continuous_modal_realisation(tfm: TFMatrix) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Real block-diagonal continuous (A, B, C, D) stacking every entry's modes.
+
+    Parameters
+    ----------
+    tfm : TFMatrix
+        The transfer-function matrix (distinct poles per entry).
+
+    Returns
+    -------
+    A, B, C, D : numpy.ndarray
+        The (not minimal) realisation.
+    """
     n_out, n_in = tfm.shape
-    As, Bs, Cs = [], [], []
+    As: list[np.ndarray] = []
+    Bs: list[np.ndarray] = []
+    Cs: list[np.ndarray] = []
     D = np.zeros((n_out, n_in))
     for i in range(n_out):
         for j in range(n_in):
@@ -270,18 +314,22 @@ class DiscreteModalSS:
 
     @property
     def n_states(self) -> int:
-        return self.A.shape[0]
+        """Number of states."""
+        return int(self.A.shape[0])
 
     @property
     def n_in(self) -> int:
-        return self.B.shape[1]
+        """Number of inputs."""
+        return int(self.B.shape[1])
 
     @property
     def n_out(self) -> int:
-        return self.C.shape[0]
+        """Number of outputs."""
+        return int(self.C.shape[0])
 
     @property
     def strictly_proper(self) -> bool:
+        """True when D is zero (the output at k depends on inputs up to k − 1 only)."""
         return not np.any(self.D)
 
     # -- construction -----------------------------------------------------------------------------------------
@@ -289,7 +337,7 @@ class DiscreteModalSS:
     def zoh_from_tf_matrix(tfm: TFMatrix, dt: float) -> "DiscreteModalSS":
         """Each SISO entry discretised on its own by exact zero-order hold, stacked."""
         n_out, n_in = tfm.shape
-        blocks = []
+        blocks: list[_Block] = []
         D = np.zeros((n_out, n_in))
         for i in range(n_out):
             for j in range(n_in):
@@ -307,9 +355,29 @@ class DiscreteModalSS:
         return DiscreteModalSS._assemble(blocks, D, n_in, n_out, dt)
 
     @staticmethod
-    def zoh_from_ss(A, B, C, D, dt: float, cond_limit: float = 1e8) -> "DiscreteModalSS":
-        """Exact ZOH of a continuous MIMO state space; modal when the eigenvectors are well conditioned."""
-        A, B, C, D = (np.atleast_2d(np.asarray(x, float)) for x in (A, B, C, D))
+    def zoh_from_ss(A: ArrayLike, B: ArrayLike, C: ArrayLike, D: ArrayLike, dt: float,
+                    cond_limit: float = 1e8) -> "DiscreteModalSS":
+        """Exact ZOH of a continuous MIMO state space; modal when the eigenvectors are well conditioned.
+
+        Parameters
+        ----------
+        A, B, C, D : array_like
+            The continuous state space.
+        dt : float
+            Sample time [s].
+        cond_limit : float
+            Largest condition number of the eigenvector matrix for the modal route (else a dense ``expm``).
+
+        Returns
+        -------
+        DiscreteModalSS
+        """
+        Ad, Bd, Cd, Dd = (np.atleast_2d(np.asarray(x, float)) for x in (A, B, C, D))
+        return DiscreteModalSS._zoh_from_arrays(Ad, Bd, Cd, Dd, dt, cond_limit)
+
+    @staticmethod
+    def _zoh_from_arrays(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, dt: float,
+                         cond_limit: float) -> "DiscreteModalSS":
         n_out, n_in = D.shape
         n = A.shape[0]
         if n == 0:
@@ -332,7 +400,7 @@ class DiscreteModalSS:
         return DiscreteModalSS._assemble([(E[:n, :n], E[:n, n:], C)], D, n_in, n_out, dt)
 
     @staticmethod
-    def _assemble(blocks, D, n_in, n_out, dt) -> "DiscreteModalSS":
+    def _assemble(blocks: Sequence[_Block], D: ArrayLike, n_in: int, n_out: int, dt: float) -> "DiscreteModalSS":
         if not blocks:
             return DiscreteModalSS(np.zeros((0, 0)), np.zeros((0, n_in)), np.zeros((n_out, 0)),
                                    np.asarray(D, float), np.zeros(0, np.int64), dt)
@@ -344,17 +412,20 @@ class DiscreteModalSS:
                                np.ascontiguousarray(np.asarray(D, float)), sizes, float(dt))
 
     def dc_gain(self) -> np.ndarray:
+        """Static gain ``C (I − A)⁻¹ B + D``, shape ``[n_out, n_in]``."""
         n = self.n_states
         if n == 0:
             return self.D.copy()
-        return self.C @ np.linalg.solve(np.eye(n) - self.A, self.B) + self.D
+        g: np.ndarray = self.C @ np.linalg.solve(np.eye(n) - self.A, self.B) + self.D
+        return g
 
     def is_stable(self) -> bool:
+        """True when every eigenvalue of A is inside the unit circle."""
         if self.n_states == 0:
             return True
         return bool(np.max(np.abs(np.linalg.eigvals(self.A))) < 1.0)
 
-    def packed(self):
+    def packed(self) -> tuple[np.ndarray, np.ndarray]:
         """Arrays for the compiled kernel: A stored row-wise per block (``[n, max_block]``) and offsets."""
         n = self.n_states
         smax = int(self.sizes.max()) if n else 1
@@ -377,19 +448,19 @@ class DiscreteModalSS:
         return self.n_states == 0 or int(self.sizes.max()) <= 2
 
 
-def _zoh_scalar(p: np.ndarray, dt: float):
+def _zoh_scalar(p: ArrayLike, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """ZOH of x' = p x + u: a = exp(p dt), beta = (exp(p dt) − 1)/p (→ dt for p = 0)."""
-    p = np.asarray(p, complex)
-    a = np.exp(p * dt)
-    small = np.abs(p * dt) < 1e-12
-    beta = np.where(small, dt, np.expm1(p * dt) / np.where(small, 1.0, p))
+    pc = np.asarray(p, complex)
+    a = np.exp(pc * dt)
+    small = np.abs(pc * dt) < 1e-12
+    beta = np.where(small, dt, np.expm1(pc * dt) / np.where(small, 1.0, pc))
     return a, beta
 
 
 class LTIFilter:
     """Streaming MIMO filter for a :class:`DiscreteModalSS`; ``process`` blocks of shape ``[N, n_in]``."""
 
-    def __init__(self, ss: DiscreteModalSS):
+    def __init__(self, ss: DiscreteModalSS) -> None:
         self.ss = ss
         self._Ablk, self._offsets = ss.packed()
         # two inputs, two outputs and 1×1/2×2 blocks (every 2-axis modal filter): the unrolled kernel
@@ -403,16 +474,20 @@ class LTIFilter:
 
     @property
     def n_in(self) -> int:
+        """Number of input columns."""
         return self.ss.n_in
 
     @property
     def n_out(self) -> int:
+        """Number of output columns."""
         return self.ss.n_out
 
     def reset(self) -> None:
+        """All states back to rest."""
         self.x[:] = 0.0
 
     def process(self, u: np.ndarray) -> np.ndarray:
+        """Filter the block ``u`` [N, n_in] → [N, n_out] (state carried between blocks)."""
         u = np.ascontiguousarray(u, dtype=float)
         y = np.empty((u.shape[0], self.ss.n_out))
         if u.ndim != 2 or u.shape[1] != self.ss.n_in:
@@ -428,7 +503,8 @@ class LTIFilter:
 
     def output_now(self) -> np.ndarray:
         """C x (the strictly proper part of the next output)."""
-        return self.ss.C @ self.x
+        y: np.ndarray = self.ss.C @ self.x
+        return y
 
     def settle_to(self, u_const: np.ndarray) -> None:
         """Put the state at its steady state for a constant input (for bumpless start from a held value)."""
@@ -437,7 +513,8 @@ class LTIFilter:
             self.x[:] = np.linalg.solve(np.eye(n) - self.ss.A, self.ss.B @ np.asarray(u_const, float))
 
 
-def _pad_to_2x2(Ablk, io, offsets, sizes):
+def _pad_to_2x2(Ablk: np.ndarray, io: np.ndarray, offsets: np.ndarray,
+                sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Block b's A and io rows at 2b, 2b+1; a 1×1 block gets a second state with all-zero coefficients.
 
     Also returns ``feeds[b]``: bit 0 set if block b reaches output 0 (a non-zero in its C row), bit 1 for output 1
@@ -455,7 +532,8 @@ def _pad_to_2x2(Ablk, io, offsets, sizes):
 
 
 @njit(cache=True)
-def _bank_run_2x2_padded(A_pad, offsets, sizes, io_pad, feeds, D, x, u, y):  # pragma: no cover - compiled
+def _bank_run_2x2_padded(A_pad: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, io_pad: np.ndarray,
+                         feeds: np.ndarray, D: np.ndarray, x: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
     """``_bank_run_2x2`` with every block 2×2 (padded by :func:`_pad_to_2x2`): no size branch in the loop.
 
     The state is gathered into the padded layout for the call and scattered back after it (``x`` stays the
@@ -499,7 +577,8 @@ def _bank_run_2x2_padded(A_pad, offsets, sizes, io_pad, feeds, D, x, u, y):  # p
 
 
 @njit(cache=True)
-def _bank_run_2x2(Ablk, offsets, sizes, io, D, x, u, y):  # pragma: no cover - compiled
+def _bank_run_2x2(Ablk: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, io: np.ndarray, D: np.ndarray,
+                  x: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
     """``_bank_run`` for two inputs, two outputs and 1×1 / 2×2 blocks, unrolled (≈ 2.7× faster).
 
     One pass over the blocks per sample: each block adds its old state to the outputs, then steps in place
@@ -539,7 +618,8 @@ def _bank_run_2x2(Ablk, offsets, sizes, io, D, x, u, y):  # pragma: no cover - c
 
 
 @njit(cache=True)
-def _bank_run(Ablk, offsets, sizes, B, C, D, x, u, y):  # pragma: no cover - compiled
+def _bank_run(Ablk: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray,
+              x: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
     N = u.shape[0]
     n_in = u.shape[1]
     n_out = y.shape[1]

@@ -26,8 +26,10 @@ that a replay of recorded signals gives the same numbers):
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = [
     "peak_to_peak", "last_period", "hysteresis_ratio", "step_levels", "creep_ratio", "overshoot_ratio",
@@ -41,7 +43,7 @@ CREEP_FINAL_WINDOW = 1.0   #: [s] averaging window for the creep A_m (end of the
 STEP_FINAL_WINDOW = 0.05   #: [s] averaging window for a step's final value A_f
 
 
-def _vec(x, name) -> np.ndarray:
+def _vec(x: ArrayLike, name: str) -> np.ndarray:
     a = np.asarray(x, dtype=float).reshape(-1)
     if a.size == 0:
         raise ValueError(f"{name}: empty signal")
@@ -50,15 +52,15 @@ def _vec(x, name) -> np.ndarray:
     return a
 
 
-def _pair(t, y):
-    t = _vec(t, "t")
-    y = _vec(y, "y")
-    if t.shape != y.shape:
-        raise ValueError(f"t and y differ in length ({t.size} vs {y.size})")
-    return t, y
+def _pair(t: ArrayLike, y: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    tv = _vec(t, "t")
+    yv = _vec(y, "y")
+    if tv.shape != yv.shape:
+        raise ValueError(f"t and y differ in length ({tv.size} vs {yv.size})")
+    return tv, yv
 
 
-def _window_mean(t, y, t0, t1, what):
+def _window_mean(t: np.ndarray, y: np.ndarray, t0: float, t1: float, what: str) -> float:
     sel = (t >= t0) & (t <= t1)
     if not np.any(sel):
         # a window shorter than the sample period: take the nearest sample
@@ -69,13 +71,13 @@ def _window_mean(t, y, t0, t1, what):
     return float(np.mean(y[sel]))
 
 
-def peak_to_peak(y) -> float:
+def peak_to_peak(y: ArrayLike) -> float:
     """``max(y) − min(y)``."""
-    y = _vec(y, "y")
-    return float(y.max() - y.min())
+    yv = _vec(y, "y")
+    return float(yv.max() - yv.min())
 
 
-def last_period(t, period: float, *signals):
+def last_period(t: ArrayLike, period: float, *signals: ArrayLike) -> tuple[np.ndarray, ...]:
     """Slice the last full ``period`` seconds of a record: returns the sliced ``signals`` (arrays along axis 0)."""
     t = _vec(t, "t")
     if period <= 0 or not math.isfinite(period):
@@ -88,8 +90,8 @@ def last_period(t, period: float, *signals):
     return tuple(np.asarray(s)[i0:] for s in signals)
 
 
-def hysteresis_ratio(u, y, period_t=None, period: float | None = None, grid: int = 2001,
-                     bins: int | None = None) -> dict:
+def hysteresis_ratio(u: ArrayLike, y: ArrayLike, period_t: ArrayLike | None = None, period: float | None = None,
+                     grid: int = 2001, bins: int | None = None) -> dict[str, float]:
     """Hysteresis amplitude ``h/H`` of an input/output loop (paper Fig. 4 and Section VII-A).
 
     Parameters
@@ -154,7 +156,7 @@ def hysteresis_ratio(u, y, period_t=None, period: float | None = None, grid: int
     return {"h": h, "H": H, "ratio": h / H if H > 0 else math.nan, "u_at_max": float(g[int(np.argmax(width))])}
 
 
-def _bin_means(x, y, edges):
+def _bin_means(x: np.ndarray, y: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
     counts = np.bincount(idx, minlength=len(edges) - 1)
     sums = np.bincount(idx, weights=y, minlength=len(edges) - 1)
@@ -162,19 +164,19 @@ def _bin_means(x, y, edges):
         return sums / np.maximum(counts, 1), counts
 
 
-def step_levels(t, y, t_step: float) -> tuple[np.ndarray, np.ndarray, float]:
+def step_levels(t: ArrayLike, y: ArrayLike, t_step: float) -> tuple[np.ndarray, np.ndarray, float]:
     """Times and displacements relative to the step: ``(t − t_step, y − y_before, y_before)``.
 
     ``y_before`` is the mean of the samples before the step (0 if the record starts at the step).
     """
-    t, y = _pair(t, y)
-    before = t < t_step
-    y0 = float(np.mean(y[before])) if np.any(before) else 0.0
-    return t - t_step, y - y0, y0
+    tv, yv = _pair(t, y)
+    before = tv < t_step
+    y0 = float(np.mean(yv[before])) if np.any(before) else 0.0
+    return tv - t_step, yv - y0, y0
 
 
-def creep_ratio(t, y, t_step: float = 0.0, t_creep: float | None = None, t_transient: float = T_TRANSIENT,
-                window: float = AF_WINDOW, final_window: float = CREEP_FINAL_WINDOW) -> dict:
+def creep_ratio(t: ArrayLike, y: ArrayLike, t_step: float = 0.0, t_creep: float | None = None, t_transient: float = T_TRANSIENT,
+                window: float = AF_WINDOW, final_window: float = CREEP_FINAL_WINDOW) -> dict[str, float]:
     """Creep ``(A_m − A_f)/A_f`` of a step response (paper Fig. 7/10, Section VII-A).
 
     ``A_f``: mean displacement over ``[t_transient, t_transient + window]`` after the step (after the fast
@@ -196,8 +198,8 @@ def creep_ratio(t, y, t_step: float = 0.0, t_creep: float | None = None, t_trans
             "ratio_over_Am": (A_m - A_f) / A_m if A_m != 0 else math.nan}
 
 
-def overshoot_ratio(t, y, t_step: float = 0.0, final_window: float = STEP_FINAL_WINDOW,
-                    lowpass_hz: float | None = None) -> dict:
+def overshoot_ratio(t: ArrayLike, y: ArrayLike, t_step: float = 0.0, final_window: float = STEP_FINAL_WINDOW,
+                    lowpass_hz: float | None = None) -> dict[str, float]:
     """Overshoot ``(A_m − A_f)/A_f`` of a step response (paper Fig. 11/14, Section VII-A).
 
     ``A_f``: final value, mean over the last ``final_window`` seconds; ``A_m``: the extreme displacement after
@@ -222,7 +224,7 @@ def overshoot_ratio(t, y, t_step: float = 0.0, final_window: float = STEP_FINAL_
             "t_peak": float(tr[after][i])}
 
 
-def _zero_phase_lowpass(t, y, cutoff_hz: float) -> np.ndarray:
+def _zero_phase_lowpass(t: np.ndarray, y: np.ndarray, cutoff_hz: float) -> np.ndarray:
     from scipy import signal
 
     if len(t) < 30:
@@ -234,16 +236,17 @@ def _zero_phase_lowpass(t, y, cutoff_hz: float) -> np.ndarray:
     # padding with the edge values: no start-up transient at the step or at the end
     pad = min(len(y) - 1, int(3 * fs / cutoff_hz) + 1)
     yp = np.concatenate([np.full(pad, y[0]), y, np.full(pad, y[-1])])
-    return signal.sosfiltfilt(sos, yp, padtype=None)[pad:pad + len(y)]
+    out: np.ndarray = signal.sosfiltfilt(sos, yp, padtype=None)[pad:pad + len(y)]
+    return out
 
 
-def cross_coupling_range_ratio(y_cross, y_direct, smooth: int = 1) -> float:
+def cross_coupling_range_ratio(y_cross: ArrayLike, y_direct: ArrayLike, smooth: int = 1) -> float:
     """``H^xy / H^xx``: range of an axis when only the other axis is driven over its range when driven itself.
 
     ``smooth`` > 1: ranges of centred moving averages of that many samples (noise-robust variant).
     """
-    def rng(v):
-        v = _vec(v, "y")
+    def rng(x: ArrayLike) -> float:
+        v = _vec(x, "y")
         if smooth > 1:
             v = np.convolve(v, np.ones(int(smooth)) / int(smooth), mode="valid")
         return float(v.max() - v.min())
@@ -257,7 +260,7 @@ def cross_coupling_final_ratio(A_f_cross: float, A_f_direct: float) -> float:
     return abs(A_f_cross / A_f_direct) if A_f_direct != 0 else math.nan
 
 
-def settling_time(t, y, t_step: float = 0.0, band: float = 0.02, final: float | None = None,
+def settling_time(t: ArrayLike, y: ArrayLike, t_step: float = 0.0, band: float = 0.02, final: float | None = None,
                   final_window: float = STEP_FINAL_WINDOW) -> float:
     """Time after the step from which the response stays within ``band·|final|`` of its final value.
 
@@ -278,22 +281,23 @@ def settling_time(t, y, t_step: float = 0.0, band: float = 0.02, final: float | 
     return float(ta[last + 1])
 
 
-def static_error(t, y, reference, final_window: float = STEP_FINAL_WINDOW) -> dict:
+def static_error(t: ArrayLike, y: ArrayLike, reference: ArrayLike,
+                 final_window: float = STEP_FINAL_WINDOW) -> dict[str, float]:
     """Steady-state error at the end of a record: ``{"error": mean(y − r), "relative": mean(y − r)/mean(r)}``.
 
     Means over the last ``final_window`` seconds.
     """
-    t, y = _pair(t, y)
+    tv, yv = _pair(t, y)
     r = _vec(reference, "reference")
-    if r.shape != y.shape:
-        raise ValueError(f"reference and y differ in length ({r.size} vs {y.size})")
-    sel = t >= t[-1] - final_window
-    e = float(np.mean(y[sel] - r[sel]))
+    if r.shape != yv.shape:
+        raise ValueError(f"reference and y differ in length ({r.size} vs {yv.size})")
+    sel = tv >= tv[-1] - final_window
+    e = float(np.mean(yv[sel] - r[sel]))
     rm = float(np.mean(r[sel]))
     return {"error": e, "relative": e / rm if rm != 0 else math.nan}
 
 
-def tracking_errors(reference, y, mask=None) -> dict:
+def tracking_errors(reference: ArrayLike, y: ArrayLike, mask: ArrayLike | None = None) -> dict[str, Any]:
     """RMS and maximum tracking error.
 
     Parameters

@@ -41,7 +41,7 @@ def needs_synthesis(name: str) -> bool:
     return name.startswith(("vibration.", "dynamics.")) and not name.startswith("vibration.controller.")
 
 
-def _flat(m) -> list[float]:
+def _flat(m: Any) -> list[float]:
     return [float(v) for v in np.asarray(m, float).ravel()]
 
 
@@ -84,18 +84,18 @@ def config_to_params(cfg: PiezoConfig) -> dict[str, Any]:
 
 
 # -- parameters → config -------------------------------------------------------------------------------------------
-def _as_float(name, v) -> float:
+def _as_float(name: str, v: Any) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise ConfigError(name, f"expected a number, got {v!r}")
     return float(v)
 
 
-def _as_float_list(name, v) -> list[float]:
+def _as_float_list(name: str, v: Any) -> list[float]:
     if v is None:
         return []
     if isinstance(v, (str, bytes)) or not hasattr(v, "__len__"):
         raise ConfigError(name, f"expected an array of numbers, got {v!r}")
-    out = []
+    out: list[float] = []
     for x in v:
         if isinstance(x, bool) or not isinstance(x, (int, float)):
             raise ConfigError(name, f"expected an array of numbers, got element {x!r}")
@@ -103,7 +103,7 @@ def _as_float_list(name, v) -> list[float]:
     return out
 
 
-def _as_matrix(name, v, rows: int) -> list[list[float]]:
+def _as_matrix(name: str, v: Any, rows: int) -> list[list[float]]:
     flat = _as_float_list(name, v)
     if not flat or len(flat) % rows:
         raise ConfigError(name, f"{len(flat)} values do not make a matrix of {rows} rows (flat, row-major)")
@@ -111,7 +111,7 @@ def _as_matrix(name, v, rows: int) -> list[list[float]]:
     return [flat[i * cols:(i + 1) * cols] for i in range(rows)]
 
 
-def _as_factors(name, coeffs, degrees) -> list[list[float]]:
+def _as_factors(name: str, coeffs: Any, degrees: Any) -> list[list[float]]:
     flat = _as_float_list(name, coeffs)
     if degrees is None:
         degrees = []
@@ -121,7 +121,8 @@ def _as_factors(name, coeffs, degrees) -> list[list[float]]:
     if sum(g + 1 for g in degrees) != len(flat):
         raise ConfigError(name, f"{len(flat)} coefficients but the degrees {list(degrees)} need "
                                 f"{sum(g + 1 for g in degrees)}")
-    out, i = [], 0
+    out: list[list[float]] = []
+    i = 0
     for g in degrees:
         out.append(flat[i:i + g + 1])
         i += g + 1
@@ -137,7 +138,10 @@ def params_to_config(params: Mapping[str, Any], base: PiezoConfig) -> PiezoConfi
     for name in p:
         if is_config_param(name) and name not in known:
             raise ConfigError(name, "unknown parameter")
-    get = lambda k, default=None: p.get(k, default)  # noqa: E731
+
+    def get(k: str, default: Any = None) -> Any:
+        return p.get(k, default)
+
     hyst = d["hysteresis"]
     base_arrays = base.hysteresis.arrays()
     for name in _HYST:
@@ -159,7 +163,7 @@ def params_to_config(params: Mapping[str, Any], base: PiezoConfig) -> PiezoConfi
                     continue
                 cur = entries.get(a + b, {"k": 0.0, "num": [], "den": []})
                 k = _as_float(f"{base_key}.k", get(f"{base_key}.k", cur["k"]))
-                tf = {"k": k}
+                tf: dict[str, Any] = {"k": k}
                 for part in ("num", "den"):
                     coeffs = get(f"{base_key}.{part}", [c for f in cur[part] for c in f])
                     degs = get(f"{base_key}.{part}_deg", [len(f) - 1 for f in cur[part]])
@@ -200,10 +204,10 @@ def params_to_config(params: Mapping[str, Any], base: PiezoConfig) -> PiezoConfi
             for m, (r, c) in shapes.items():
                 if len(mats[m]) != r * c:
                     raise ConfigError(f"vibration.controller.{m}", f"{len(mats[m])} values, expected {r}x{c}")
-                a = np.array(mats[m], float).reshape(r, c)
-                if not np.all(np.isfinite(a)):
+                mat = np.array(mats[m], float).reshape(r, c)
+                if not np.all(np.isfinite(mat)):
                     raise ConfigError(f"vibration.controller.{m}", "contains NaN or Inf")
-                ctrl[m] = a.tolist()
+                ctrl[m] = mat.tolist()
             vib["controller"] = ctrl
     casc = d["cascade"]
     for name in ("hysteresis", "creep", "vibration", "respect_limits"):

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -35,6 +35,9 @@ from . import metrics as M
 from .config import PiezoConfig
 from .experiments import Experiment, Recorded, paper_experiments, simulate_experiments
 from .units import UM
+
+if TYPE_CHECKING:
+    from .models.plant import Plant
 
 __all__ = ["PAPER", "INDEPENDENT", "evaluate", "reproduce", "format_tables", "truth_plant", "ASYMMETRIC_DELTA"]
 
@@ -66,20 +69,29 @@ INDEPENDENT = {
 ASYMMETRIC_DELTA = {"Delta1": (0.0008, 0.0005), "Delta2": (0.0004, 0.0003)}
 
 
-def _axis_names(recorded: Mapping, experiments) -> tuple:
+def _axis_names(recorded: Mapping[str, Any], experiments: Sequence[Experiment]) -> tuple[str, ...]:
     for e in experiments:
         if e.name in recorded:
             return tuple(e.trajectory.axes)
     return ("x", "y")
 
 
-def _pct(v):
+def _pct(v: float | None) -> float | None:
     return None if v is None or not np.isfinite(v) else 100.0 * float(v)
 
 
-def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None = None, design=None,
-             robust: bool = False, conditions: dict | None = None,
-             reference_model_tau: float | None = None) -> dict:
+class _Signals(NamedTuple):
+    """One experiment's signals as :func:`evaluate` reads them: float arrays, 2-D, finite, reference present."""
+
+    t: np.ndarray
+    reference: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+
+
+def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Experiment] | None = None,
+             design: Any = None, robust: bool = False, conditions: Mapping[str, Any] | None = None,
+             reference_model_tau: float | None = None) -> dict[str, Any]:
     """Compute the paper's tables from recorded signals.
 
     Parameters
@@ -113,7 +125,7 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
     axes = _axis_names(recorded, exps)
     bins = 200 if robust else None
     lowpass = 3000.0 if robust else None
-    out = {"before": {k: {a: None for a in axes} for k in KEYS},
+    out: dict[str, Any] = {"before": {k: {a: None for a in axes} for k in KEYS},
            "after": {k: {a: None for a in axes} for k in KEYS},
            "hinf": _hinf_section(design), "paper": PAPER, "independent": INDEPENDENT, "tracking": {},
            "settling_time_s": {"before": {a: None for a in axes}, "after": {a: None for a in axes}},
@@ -121,7 +133,7 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
            "creep_over_Am_percent": {"before": {a: None for a in axes}, "after": {a: None for a in axes}},
            "details": {}, "errors": {}, "conditions": dict(conditions or {}), "robust_readings": bool(robust)}
 
-    def rec(name) -> Recorded | None:
+    def rec(name: str) -> _Signals | None:
         if name not in recorded:
             return None
         t, r, u, y = recorded[name]
@@ -133,7 +145,7 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
             y = y[:, None]
         if not (np.all(np.isfinite(y)) and np.all(np.isfinite(r))):
             raise ValueError(f"{name}: recorded signals contain NaN or inf")
-        return Recorded(np.asarray(t, float), r, np.asarray(u, float), y)
+        return _Signals(np.asarray(t, float), r, np.asarray(u, float), y)
 
     # hysteresis (IV-A before, IV-C after) and the range-based cross-coupling (Table II before)
     ranges = {}
@@ -176,10 +188,10 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
                 res = M.creep_ratio(r.t, r.y[:, i], t_step=t_step)
                 out[phase]["creep_percent"][a] = _pct(res["ratio"])
                 out["creep_over_Am_percent"][phase][a] = _pct(res["ratio_over_Am"])
-                cross = {b: M.creep_ratio(r.t, r.y[:, j], t_step=t_step) for j, b in enumerate(axes) if b != a}
+                cross_creep = {b: M.creep_ratio(r.t, r.y[:, j], t_step=t_step) for j, b in enumerate(axes) if b != a}
                 out["details"][name] = {"A_f_m": res["A_f"], "A_m_m": res["A_m"], "creep_time_s": float(r.t[-1] - t_step),
-                                        "cross_A_f_m": {b: c["A_f"] for b, c in cross.items()},
-                                        "cross_A_m_m": {b: c["A_m"] for b, c in cross.items()}}
+                                        "cross_A_f_m": {b: c["A_f"] for b, c in cross_creep.items()},
+                                        "cross_A_m_m": {b: c["A_m"] for b, c in cross_creep.items()}}
                 if phase == "after":
                     ref_final = float(r.reference[-1, i])
                     out["static_error_percent"]["S_L"][a] = _pct(_rel(res["A_m"] - ref_final, ref_final))
@@ -242,20 +254,21 @@ def evaluate(recorded: Mapping[str, tuple], experiments: list[Experiment] | None
     return out
 
 
-def _rel(num, den):
+def _rel(num: float, den: float) -> float | None:
     return num / den if den != 0 else None
 
 
-def _first_order_zoh(t, x, tau):
+def _first_order_zoh(t: np.ndarray, x: np.ndarray, tau: float) -> np.ndarray:
     """1/(τs + 1) after exact zero-order hold at the record's sample period, from rest (output lags one sample)."""
     from scipy import signal
 
     dt = float(np.median(np.diff(t)))
     a = math.exp(-dt / tau)
-    return signal.lfilter([0.0, 1.0 - a], [1.0, -a], np.asarray(x, float), axis=0)
+    y: np.ndarray = signal.lfilter([0.0, 1.0 - a], [1.0, -a], np.asarray(x, float), axis=0)
+    return y
 
 
-def _hinf_section(design) -> dict:
+def _hinf_section(design: Any) -> dict[str, Any]:
     keys = ("gamma", "order_full", "order_reduced")
     if design is None:
         return {k: None for k in keys}
@@ -272,7 +285,7 @@ def _hinf_section(design) -> dict:
     return out
 
 
-def truth_plant(cfg: PiezoConfig, truth: str = "nominal", noise_std: float = 0.0, seed: int = 0):
+def truth_plant(cfg: PiezoConfig, truth: str = "nominal", noise_std: float = 0.0, seed: int = 0) -> Plant:
     """The simulated actuator: ``'nominal'`` (= the compensators' model) or ``'asymmetric'`` (generalized
     Bouc-Wen with :data:`ASYMMETRIC_DELTA` added), with white sensor noise of ``noise_std`` metres."""
     from .models.plant import Plant
@@ -294,9 +307,10 @@ def truth_plant(cfg: PiezoConfig, truth: str = "nominal", noise_std: float = 0.0
     return Plant(tcfg, noise_std=noise_std, seed=seed)
 
 
-def reproduce(cfg: PiezoConfig, design=None, truth: str = "nominal", noise_std: float = 0.0,
-              creep_duration: float = 600.0, experiments: list[Experiment] | None = None, progress=None,
-              robust: bool | None = None, amplifier: str = "ideal") -> tuple[dict, dict]:
+def reproduce(cfg: PiezoConfig, design: Any = None, truth: str = "nominal", noise_std: float = 0.0,
+              creep_duration: float = 600.0, experiments: list[Experiment] | None = None,
+              progress: Callable[[str], None] | None = None, robust: bool | None = None,
+              amplifier: str = "ideal") -> tuple[dict[str, Any], dict[str, Recorded]]:
     """Simulate the paper's experiments on a truth plant and evaluate them: ``(result, recorded)``.
 
     ``robust`` defaults to True when there is sensor noise (see :func:`evaluate`).  ``amplifier``: ``'ideal'``
@@ -315,7 +329,7 @@ def reproduce(cfg: PiezoConfig, design=None, truth: str = "nominal", noise_std: 
     recorded = simulate_experiments(cfg, design=design, plant=plant, experiments=exps, progress=progress)
     if robust is None:
         robust = noise_std > 0
-    cond = {"config": cfg.name, "sample_rate_hz": cfg.sample_rate, "truth": truth, "noise_std_m": noise_std,
+    cond: dict[str, Any] = {"config": cfg.name, "sample_rate_hz": cfg.sample_rate, "truth": truth, "noise_std_m": noise_std,
             "creep_duration_s": creep_duration, "amplifier": amplifier}
     if amplifier == "limited":
         cond["voltage_limit_v"] = cfg.limits.voltage
@@ -324,11 +338,11 @@ def reproduce(cfg: PiezoConfig, design=None, truth: str = "nominal", noise_std: 
                     reference_model_tau=cfg.vibration.t_r / 3.0), recorded
 
 
-def _f(v, width=8, digits=2):
+def _f(v: float | None, width: int = 8, digits: int = 2) -> str:
     return f"{'—':>{width}}" if v is None else f"{v:{width}.{digits}f}"
 
 
-def format_tables(result: dict, label: str = "this run", axes=("x", "y")) -> str:
+def format_tables(result: Mapping[str, Any], label: str = "this run", axes: Sequence[str] = ("x", "y")) -> str:
     """Table I and Table II side by side with the paper's (and the independent reading's) figures."""
     P, I = result.get("paper", PAPER), result.get("independent", INDEPENDENT)
     lines = []

@@ -21,14 +21,27 @@ the state of the one it replaces.
 """
 from __future__ import annotations
 
-from typing import Mapping, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Stage", "StageState", "transfer_linear_state", "free_response_match"]
+if TYPE_CHECKING:
+    from .lti import DiscreteModalSS
+
+__all__ = ["Stage", "StageState", "Processor", "transfer_linear_state", "free_response_match"]
 
 #: a stage's state: named arrays (copies)
 StageState = Mapping[str, np.ndarray]
+
+
+class Processor(Protocol):
+    """The least a streaming block processor offers (a plant, an effect): ``process(block) -> block``, ``reset()``."""
+
+    def process(self, block: np.ndarray, /) -> np.ndarray:
+        """Run one block; the state moves on by ``block.shape[0]`` samples."""
+
+    def reset(self) -> None:
+        """All states back to rest."""
 
 
 @runtime_checkable
@@ -56,7 +69,7 @@ class Stage(Protocol):
         """Copy ``state`` (as returned by :meth:`state` of a stage of the same shape) into this stage."""
 
 
-def _blocks(ss) -> list[tuple[int, int]]:
+def _blocks(ss: DiscreteModalSS) -> list[tuple[int, int]]:
     """(offset, size) of every diagonal block of a DiscreteModalSS."""
     out, off = [], 0
     for s in ss.sizes:
@@ -65,15 +78,15 @@ def _blocks(ss) -> list[tuple[int, int]]:
     return out
 
 
-def _same_block(ss_a, oa, ss_b, ob, s, rtol: float) -> bool:
+def _same_block(ss_a: DiscreteModalSS, oa: int, ss_b: DiscreteModalSS, ob: int, s: int, rtol: float) -> bool:
     Aa = ss_a.A[oa:oa + s, oa:oa + s]
     Ab = ss_b.A[ob:ob + s, ob:ob + s]
     Ba = ss_a.B[oa:oa + s]
     Bb = ss_b.B[ob:ob + s]
     scale_a = max(np.max(np.abs(Aa)), 1e-300)
     scale_b = max(np.max(np.abs(Ba)), 1e-300)
-    return (np.max(np.abs(Aa - Ab)) <= rtol * scale_a and Ba.shape == Bb.shape
-            and np.max(np.abs(Ba - Bb), initial=0.0) <= rtol * scale_b)
+    return bool(np.max(np.abs(Aa - Ab)) <= rtol * scale_a and Ba.shape == Bb.shape
+                and np.max(np.abs(Ba - Bb), initial=0.0) <= rtol * scale_b)
 
 
 def _stein_cross(A2: np.ndarray, A1: np.ndarray, Q: np.ndarray) -> np.ndarray:
@@ -87,9 +100,25 @@ def _stein_cross(A2: np.ndarray, A1: np.ndarray, Q: np.ndarray) -> np.ndarray:
     return np.real(V2 @ Y @ np.linalg.inv(V1))
 
 
-def free_response_match(A_new, C_new, A_old, C_old, x_old) -> np.ndarray:
+def free_response_match(A_new: np.ndarray, C_new: np.ndarray, A_old: np.ndarray, C_old: np.ndarray,
+                        x_old: np.ndarray) -> np.ndarray:
     """The state of ``(A_new, C_new)`` whose free response ``C_new A_new^k x`` best matches ``C_old A_old^k x_old``
-    (least squares over k = 0…∞, minimum-norm where modes are unobservable)."""
+    (least squares over k = 0…∞, minimum-norm where modes are unobservable).
+
+    Parameters
+    ----------
+    A_new, C_new : ndarray
+        The new realisation's state and output matrices (discrete, stable).
+    A_old, C_old : ndarray
+        The old realisation's state and output matrices.
+    x_old : ndarray
+        The old state.
+
+    Returns
+    -------
+    ndarray
+        The new state (minimum norm where the new modes are unobservable).
+    """
     n = A_new.shape[0]
     if n == 0:
         return np.zeros(0)
@@ -97,24 +126,35 @@ def free_response_match(A_new, C_new, A_old, C_old, x_old) -> np.ndarray:
     X = _stein_cross(A_new, A_old, C_new.T @ C_old) if A_old.shape[0] else np.zeros((n, 0))
     rhs = X @ x_old if A_old.shape[0] else np.zeros(n)
     W = 0.5 * (W + W.T)
-    sol, *_ = np.linalg.lstsq(W, rhs, rcond=1e-12)
+    sol: np.ndarray = np.linalg.lstsq(W, rhs, rcond=1e-12)[0]
     return sol
 
 
-def _steady_state(ss, u) -> np.ndarray:
+def _steady_state(ss: DiscreteModalSS, u: np.ndarray | None) -> np.ndarray:
     n = ss.n_states
     if n == 0 or u is None:
         return np.zeros(n)
     return np.linalg.solve(np.eye(n) - ss.A, ss.B @ np.asarray(u, float))
 
 
-def transfer_linear_state(ss_old, x_old: np.ndarray, ss_new, u_last: np.ndarray | None = None,
+def transfer_linear_state(ss_old: DiscreteModalSS, x_old: np.ndarray, ss_new: DiscreteModalSS, u_last: np.ndarray | None = None,
                           rtol: float = 1e-9) -> tuple[np.ndarray, int]:
     """State for ``ss_new`` continuing ``ss_old`` in state ``x_old`` (see the module docstring).
 
     ``u_last`` (the stage's last input), when given, makes the fit of the new modes work on deviations from each
     realisation's own steady state for that input: a held input then gives the new stage's steady state (its
     output moves only by the change of DC gain), and a model-equal realisation still gets the transformed state.
+
+    Parameters
+    ----------
+    ss_old, ss_new : DiscreteModalSS
+        The replaced and the replacing stage's discrete modal realisations.
+    x_old : ndarray
+        The replaced stage's state.
+    u_last : ndarray, optional
+        The stage's last input (see above).
+    rtol : float
+        Relative tolerance for two modal blocks to count as equal.
 
     Returns
     -------

@@ -20,9 +20,10 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar, Iterable, Mapping
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .config import ConfigError
 from .units import length_scale
@@ -35,7 +36,7 @@ __all__ = [
 DEFAULT_AXES = ("x", "y")
 
 
-def _finite(value, name: str, positive: bool = False, nonneg: bool = False) -> float:
+def _finite(value: Any, name: str, positive: bool = False, nonneg: bool = False) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -49,7 +50,7 @@ def _finite(value, name: str, positive: bool = False, nonneg: bool = False) -> f
     return v
 
 
-def _duration(value, name: str = "duration") -> float:
+def _duration(value: Any, name: str = "duration") -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -59,14 +60,14 @@ def _duration(value, name: str = "duration") -> float:
     return v
 
 
-def _axes(value) -> tuple:
+def _axes(value: Iterable[Any]) -> tuple[str, ...]:
     axes = tuple(str(a) for a in value)
     if not axes or len(set(axes)) != len(axes):
         raise ConfigError("axes", f"must be a non-empty list of distinct names, got {value!r}")
     return axes
 
 
-def _axis_index(axes: tuple, axis, name: str = "axis") -> int | None:
+def _axis_index(axes: tuple[str, ...], axis: Any, name: str = "axis") -> int | None:
     """Index of ``axis`` in ``axes``; ``None``/``"all"`` means every axis."""
     if axis is None or axis == "all":
         return None
@@ -75,7 +76,7 @@ def _axis_index(axes: tuple, axis, name: str = "axis") -> int | None:
     return axes.index(axis)
 
 
-def _per_axis(value, axes: tuple, name: str) -> tuple:
+def _per_axis(value: Any, axes: tuple[str, ...], name: str) -> tuple[float, ...]:
     """A scalar (same on every axis), a list (one per axis) or a mapping ``{axis: value}`` → tuple per axis."""
     if isinstance(value, Mapping):
         unknown = set(value) - set(axes)
@@ -95,13 +96,13 @@ def _per_axis(value, axes: tuple, name: str) -> tuple:
 class Trajectory:
     """Base class.  Subclasses implement :meth:`_values` (time → ``[n, axes]``) and set ``duration``."""
 
-    axes: tuple = field(default=DEFAULT_AXES, kw_only=True)
+    axes: tuple[str, ...] = field(default=DEFAULT_AXES, kw_only=True)
 
     kind = "trajectory"
     #: fields holding lengths (scaled by a spec's ``unit`` key)
-    length_fields: ClassVar[tuple] = ()
+    length_fields: ClassVar[tuple[str, ...]] = ()
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         object.__setattr__(self, "axes", _axes(self.axes))
 
     # -- interface -------------------------------------------------------------------------------------------
@@ -111,6 +112,7 @@ class Trajectory:
 
     @property
     def n_axes(self) -> int:
+        """Number of axes."""
         return len(self.axes)
 
     def n_samples(self, fs: float) -> float | int:
@@ -142,14 +144,14 @@ class Trajectory:
         n = self.n_samples(fs)
         if math.isinf(n):
             raise ValueError(f"{self.kind}: endless trajectory; use block(k0, n, fs)")
-        return np.arange(n) / fs, self.block(0, n, fs)
+        return np.arange(n) / fs, self.block(0, int(n), fs)
 
-    def bound(self) -> tuple:
+    def bound(self) -> tuple[float, ...]:
         """An upper bound of ``|value|`` per axis over the whole trajectory (for workspace checks); ``inf`` when a
         generator does not know one (then :func:`peak` samples it)."""
         return tuple(math.inf for _ in self.axes)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """Plain dictionary (SI units) that :func:`from_dict` turns back into an equal trajectory."""
         d = {"type": self.kind}
         for f in dataclasses.fields(self):
@@ -158,18 +160,19 @@ class Trajectory:
         return d
 
     # -- helpers for subclasses ------------------------------------------------------------------------------
-    def _t(self, k, fs):
-        return k / fs
+    def _t(self, k: np.ndarray, fs: float) -> np.ndarray:
+        t: np.ndarray = k / fs
+        return t
 
     def _values(self, k: np.ndarray, fs: float) -> np.ndarray:  # pragma: no cover - overridden
         raise NotImplementedError
 
-    def _axis_bound(self, peak: float, axis, off_axis: float) -> tuple:
+    def _axis_bound(self, peak: float, axis: Any, off_axis: float) -> tuple[float, ...]:
         idx = _axis_index(self.axes, axis)
         return tuple(peak if idx is None or i == idx else (0.0 if idx is not None else off_axis)
                      for i in range(self.n_axes))
 
-    def _on_axis(self, values: np.ndarray, axis, offset: float = 0.0) -> np.ndarray:
+    def _on_axis(self, values: np.ndarray, axis: Any, offset: float = 0.0) -> np.ndarray:
         out = np.zeros((len(values), self.n_axes))
         idx = _axis_index(self.axes, axis)
         if idx is None:
@@ -179,7 +182,7 @@ class Trajectory:
         return out
 
 
-def _plain(v):
+def _plain(v: Any) -> Any:
     if isinstance(v, tuple):
         return [_plain(x) for x in v]
     if isinstance(v, float) and math.isinf(v):
@@ -197,15 +200,15 @@ class Hold(Trajectory):
     kind = "hold"
     length_fields = ("value",)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "value", _per_axis(self.value, self.axes, "value"))
         object.__setattr__(self, "duration", _duration(self.duration))
 
-    def bound(self) -> tuple:
+    def bound(self) -> tuple[float, ...]:
         return tuple(abs(v) for v in self.value)
 
-    def _values(self, k, fs):
+    def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
         return np.broadcast_to(np.array(self.value), (len(k), self.n_axes))
 
 
@@ -223,7 +226,7 @@ class Sine(Trajectory):
     kind = "sine"
     length_fields = ("amplitude", "offset")
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
         for name in ("amplitude", "offset", "phase"):
             object.__setattr__(self, name, _finite(getattr(self, name), name))
@@ -231,10 +234,10 @@ class Sine(Trajectory):
         object.__setattr__(self, "duration", _duration(self.duration))
         _axis_index(self.axes, self.axis)
 
-    def bound(self) -> tuple:
+    def bound(self) -> tuple[float, ...]:
         return self._axis_bound(abs(self.offset) + abs(self.amplitude), self.axis, abs(self.offset))
 
-    def _values(self, k, fs):
+    def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
         t = self._t(k, fs)
         return self._on_axis(self.amplitude * np.sin(2 * np.pi * self.frequency * t + self.phase), self.axis,
                              self.offset)
@@ -251,7 +254,7 @@ class Step(Trajectory):
     kind = "step"
     length_fields = ("amplitude",)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "amplitude", _per_axis(self.amplitude, self.axes, "amplitude"))
         object.__setattr__(self, "t_step", _finite(self.t_step, "t_step", nonneg=True))
@@ -265,12 +268,13 @@ class Step(Trajectory):
         """First sample index at the step level."""
         return int(math.ceil(self.t_step * fs - 1e-9))
 
-    def bound(self) -> tuple:
+    def bound(self) -> tuple[float, ...]:
         return tuple(abs(v) for v in self.amplitude)
 
-    def _values(self, k, fs):
+    def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
         on = (k >= self.step_index(fs)).astype(float)
-        return on[:, None] * np.array(self.amplitude)[None, :]
+        out: np.ndarray = on[:, None] * np.array(self.amplitude)[None, :]
+        return out
 
 
 @dataclass(frozen=True)
@@ -284,7 +288,7 @@ class Staircase(Trajectory):
     kind = "staircase"
     length_fields = ("levels",)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "dwell", _finite(self.dwell, "dwell", positive=True))
         idx = _axis_index(self.axes, self.axis)
@@ -308,10 +312,10 @@ class Staircase(Trajectory):
     def duration(self) -> float:
         return self.dwell * len(self.levels)
 
-    def bound(self) -> tuple:
+    def bound(self) -> tuple[float, ...]:
         return tuple(float(v) for v in np.abs(np.array(self.levels)).max(axis=0))
 
-    def _values(self, k, fs):
+    def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
         per_level = self.dwell * fs
         i = np.minimum(np.floor(k / per_level + 1e-9).astype(np.int64), len(self.levels) - 1)
         return np.array(self.levels)[i]
@@ -333,7 +337,7 @@ class Circle(Trajectory):
     kind = "circle"
     length_fields = ("radius", "centre")
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
         if self.n_axes != 2:
             raise ConfigError("axes", f"a circle needs exactly 2 axes, got {list(self.axes)}")
@@ -347,19 +351,20 @@ class Circle(Trajectory):
     def duration(self) -> float:
         return self.revolutions / self.frequency
 
-    def bound(self) -> tuple:
+    def bound(self) -> tuple[float, ...]:
         return tuple(abs(c) + self.radius for c in self.centre)
 
-    def _values(self, k, fs):
+    def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
         theta = 2 * np.pi * self.frequency * self._t(k, fs) + self.phase
         return np.column_stack([self.centre[0] + self.radius * np.sin(theta),
                                 self.centre[1] + self.radius * np.cos(theta)])
 
 
-def _triangle_antiderivative(phi):
+def _triangle_antiderivative(phi: np.ndarray) -> np.ndarray:
     """Periodic antiderivative of the zero-mean triangle (−1 at phase 0, +1 at phase ½), period 1."""
     p = phi - np.floor(phi)
-    return np.where(p <= 0.5, -p + 2 * p * p, 3 * (p - 0.5) - 2 * (p * p - 0.25))
+    out: np.ndarray = np.where(p <= 0.5, -p + 2 * p * p, 3 * (p - 0.5) - 2 * (p * p - 0.25))
+    return out
 
 
 @dataclass(frozen=True)
@@ -384,7 +389,7 @@ class Raster(Trajectory):
     kind = "raster"
     length_fields = ("width", "height", "centre")
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
         if self.n_axes != 2:
             raise ConfigError("axes", f"a raster scan needs exactly 2 axes, got {list(self.axes)}")
@@ -410,19 +415,21 @@ class Raster(Trajectory):
     def duration(self) -> float:
         return self.lines / self.line_rate
 
-    def bound(self) -> tuple:
+    def bound(self) -> tuple[float, ...]:
         fi = self.axes.index(self.fast_axis)
         half = [0.0, 0.0]
-        half[fi], half[1 - fi] = 0.5 * self.width, 0.5 * self.height
+        height = self.width if self.height is None else self.height   # set in __post_init__, never None after
+        half[fi], half[1 - fi] = 0.5 * self.width, 0.5 * height
         return tuple(abs(c) + h for c, h in zip(self.centre, half))
 
-    def _values(self, k, fs):
+    def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
         t = self._t(k, fs)
         phi = t * self.line_rate
         w = self.turnaround
         smooth = (_triangle_antiderivative(phi + w / 2) - _triangle_antiderivative(phi - w / 2)) / w
         fast = 0.5 * self.width * smooth / (1 - w)
-        slow = self.height * (np.clip(t / self.duration, 0.0, 1.0) - 0.5)
+        height = self.width if self.height is None else self.height   # set in __post_init__, never None after
+        slow = height * (np.clip(t / self.duration, 0.0, 1.0) - 0.5)
         fi = self.axes.index(self.fast_axis)
         out = np.empty((len(k), 2))
         out[:, fi] = self.centre[fi] + fast
@@ -445,7 +452,7 @@ class Spiral(Trajectory):
     kind = "spiral"
     length_fields = ("radius", "centre")
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
         if self.n_axes != 2:
             raise ConfigError("axes", f"a spiral needs exactly 2 axes, got {list(self.axes)}")
@@ -459,10 +466,10 @@ class Spiral(Trajectory):
     def duration(self) -> float:
         return self.revolutions / self.frequency
 
-    def bound(self) -> tuple:
+    def bound(self) -> tuple[float, ...]:
         return tuple(abs(c) + self.radius for c in self.centre)
 
-    def _values(self, k, fs):
+    def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
         t = self._t(k, fs)
         rho = self.radius * np.clip(t / self.duration, 0.0, 1.0)
         theta = 2 * np.pi * self.frequency * t
@@ -486,7 +493,7 @@ class Table(Trajectory):
     kind = "table"
     length_fields = ("values",)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
         fs = _finite(self.sample_rate, "sample_rate", positive=True)
         object.__setattr__(self, "sample_rate", fs)
@@ -508,38 +515,41 @@ class Table(Trajectory):
         if len(bad):
             raise ConfigError("file" if self.file else "values", f"row {int(bad[0][0])}: not a finite number")
         arr.setflags(write=False)
+        self._table: np.ndarray    # not a dataclass field: the array read from values/file, set once here
         object.__setattr__(self, "_table", arr)
 
-    def __eq__(self, other):
+    def __eq__(self, other: object) -> bool:
         return (isinstance(other, Table) and self.axes == other.axes and self.sample_rate == other.sample_rate
                 and np.array_equal(self._table, other._table))
 
-    def __hash__(self):
+    def __hash__(self) -> int:
         return hash(("table", self.axes, self.sample_rate, self._table.shape))
 
     @property
     def duration(self) -> float:
         return len(self._table) / self.sample_rate
 
-    def n_samples(self, fs: float):
+    def n_samples(self, fs: float) -> float | int:
         fs = _finite(fs, "fs", positive=True)
         if fs == self.sample_rate:
             return len(self._table)
         return super().n_samples(fs)
 
-    def bound(self) -> tuple:
+    def bound(self) -> tuple[float, ...]:
         return tuple(float(v) for v in np.abs(self._table).max(axis=0))
 
-    def _values(self, k, fs):
+    def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
         if fs == self.sample_rate:
-            return self._table[np.minimum(k, len(self._table) - 1)]
+            held: np.ndarray = self._table[np.minimum(k, len(self._table) - 1)]
+            return held
         pos = k * (self.sample_rate / fs)
         i0 = np.minimum(np.floor(pos).astype(np.int64), len(self._table) - 1)
         i1 = np.minimum(i0 + 1, len(self._table) - 1)
         a = (pos - i0)[:, None]
-        return (1 - a) * self._table[i0] + a * self._table[i1]
+        out: np.ndarray = (1 - a) * self._table[i0] + a * self._table[i1]
+        return out
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         d = {"type": self.kind, "axes": list(self.axes), "sample_rate": self.sample_rate}
         if self.file:
             d["file"] = self.file
@@ -548,7 +558,7 @@ class Table(Trajectory):
         return d
 
 
-def _read_table(path: str, axes: tuple) -> np.ndarray:
+def _read_table(path: str, axes: tuple[str, ...]) -> np.ndarray:
     from pathlib import Path
 
     p = Path(path)
@@ -556,7 +566,8 @@ def _read_table(path: str, axes: tuple) -> np.ndarray:
         raise ConfigError("file", f"{path}: no such file")
     try:
         if p.suffix == ".npy":
-            return np.load(p, allow_pickle=False).astype(float)
+            arr: np.ndarray = np.load(p, allow_pickle=False).astype(float)
+            return arr
         with p.open() as fh:
             first = fh.readline()
         names = [c.strip() for c in first.replace(";", ",").split(",")]
@@ -622,7 +633,7 @@ class PRBS(Trajectory):
     kind = "prbs"
     length_fields = ("amplitude", "offset")
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "amplitude", _finite(self.amplitude, "amplitude"))
         object.__setattr__(self, "offset", _finite(self.offset, "offset"))
@@ -636,17 +647,18 @@ class PRBS(Trajectory):
             raise ConfigError("seed", f"expected an integer, got {self.seed!r}") from None
         object.__setattr__(self, "duration", _duration(self.duration))
         _axis_index(self.axes, self.axis)
+        self._chips: np.ndarray   # not a dataclass field: the ±1 chip sequence, set once here
         object.__setattr__(self, "_chips", 2.0 * _m_sequence(self.order) - 1.0)
 
     @property
     def period(self) -> float:
         """Sequence period [s]."""
-        return (2 ** self.order - 1) / self.clock_rate
+        return float((2 ** self.order - 1) / self.clock_rate)
 
-    def bound(self) -> tuple:
+    def bound(self) -> tuple[float, ...]:
         return self._axis_bound(abs(self.offset) + abs(self.amplitude), self.axis, abs(self.offset))
 
-    def _values(self, k, fs):
+    def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
         chips = self._chips
         n = len(chips)
         chip_index = np.floor(k * (self.clock_rate / fs) + 1e-9).astype(np.int64) + self.seed
@@ -678,7 +690,7 @@ class Multisine(Trajectory):
     kind = "multisine"
     length_fields = ("amplitude", "offset")
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "amplitude", _finite(self.amplitude, "amplitude", nonneg=True))
         object.__setattr__(self, "offset", _finite(self.offset, "offset"))
@@ -709,11 +721,11 @@ class Multisine(Trajectory):
             return -np.pi * i * (i - 1) / n
         return np.random.default_rng(self.seed).uniform(0, 2 * np.pi, n)
 
-    def bound(self) -> tuple:
+    def bound(self) -> tuple[float, ...]:
         peak = abs(self.offset) + self.amplitude * math.sqrt(2.0 / self.n_tones) * self.n_tones
         return self._axis_bound(peak, self.axis, abs(self.offset))
 
-    def _values(self, k, fs):
+    def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
         t = self._t(k, fs)
         a = self.amplitude * math.sqrt(2.0 / self.n_tones)
         v = np.zeros(len(t))
@@ -740,7 +752,7 @@ class Chirp(Trajectory):
     kind = "chirp"
     length_fields = ("amplitude", "offset")
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "amplitude", _finite(self.amplitude, "amplitude"))
         object.__setattr__(self, "offset", _finite(self.offset, "offset"))
@@ -754,16 +766,17 @@ class Chirp(Trajectory):
             raise ConfigError("method", f"must be 'linear' or 'logarithmic', got {self.method!r}")
         _axis_index(self.axes, self.axis)
 
-    def instantaneous_frequency(self, t):
+    def instantaneous_frequency(self, t: ArrayLike) -> np.ndarray:
+        """The sweep's frequency [Hz] at times ``t`` [s]."""
         t = np.asarray(t, float)
         if self.method == "linear":
             return self.f0 + (self.f1 - self.f0) * t / self.duration
         return self.f0 * (self.f1 / self.f0) ** (t / self.duration)
 
-    def bound(self) -> tuple:
+    def bound(self) -> tuple[float, ...]:
         return self._axis_bound(abs(self.offset) + abs(self.amplitude), self.axis, abs(self.offset))
 
-    def _values(self, k, fs):
+    def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
         t = self._t(k, fs)
         T = self.duration
         if self.method == "linear":
@@ -783,7 +796,7 @@ class Segment:
     index: int
     name: str
     trajectory: Trajectory
-    meta: dict
+    meta: dict[str, Any]
     start: int
     stop: float | int
 
@@ -797,8 +810,9 @@ class Sequence(Trajectory):
     """
 
     kind = "sequence"
+    segments_: tuple[tuple[str, Trajectory, dict[str, Any]], ...]   #: (name, trajectory, meta) per segment
 
-    def __init__(self, segments, axes=None):
+    def __init__(self, segments: Iterable[Any], axes: Iterable[str] | None = None) -> None:
         segs = []
         names = set()
         for i, seg in enumerate(segments):
@@ -829,16 +843,16 @@ class Sequence(Trajectory):
         object.__setattr__(self, "axes", ax)
         object.__setattr__(self, "segments_", tuple(segs))
 
-    def __setattr__(self, name, value):  # keep it immutable like the other trajectories
+    def __setattr__(self, name: str, value: Any) -> None:  # keep it immutable like the other trajectories
         raise dataclasses.FrozenInstanceError(f"cannot assign to field {name!r}")
 
-    def __eq__(self, other):
+    def __eq__(self, other: object) -> bool:
         return isinstance(other, Sequence) and self.axes == other.axes and self.segments_ == other.segments_
 
-    def __hash__(self):
+    def __hash__(self) -> int:
         return hash(("sequence", self.axes, tuple(n for n, _, _ in self.segments_)))
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return f"Sequence({[n for n, _, _ in self.segments_]})"
 
     @property
@@ -849,9 +863,9 @@ class Sequence(Trajectory):
     def duration(self) -> float:
         return float(sum(t.duration for _, t, _ in self.segments_))
 
-    def n_samples(self, fs: float):
+    def n_samples(self, fs: float) -> float | int:
         fs = _finite(fs, "fs", positive=True)
-        total = 0
+        total: float | int = 0
         for _, traj, _ in self.segments_:
             n = traj.n_samples(fs)
             if math.isinf(n):
@@ -865,7 +879,7 @@ class Sequence(Trajectory):
         for i, (name, traj, meta) in enumerate(self.segments_):
             n = traj.n_samples(fs)
             out.append(Segment(i, name, traj, meta, start, start + n))
-            start = start + n if not math.isinf(n) else start
+            start = start + int(n) if not math.isinf(n) else start
         return out
 
     def segment(self, name: str, fs: float) -> Segment:
@@ -888,7 +902,7 @@ class Sequence(Trajectory):
         stops = np.array([s.stop for s in segs[:-1]], dtype=float)
         return np.searchsorted(stops, np.asarray(k), side="right")
 
-    def at_index(self, k, fs):
+    def at_index(self, k: ArrayLike, fs: float) -> np.ndarray:
         fs = _finite(fs, "fs", positive=True)
         k = np.asarray(k, dtype=np.int64)
         segs = self.segments(fs)
@@ -900,16 +914,16 @@ class Sequence(Trajectory):
                 out[sel] = seg.trajectory.at_index(k[sel] - seg.start, fs)
         return out
 
-    def bound(self) -> tuple:
+    def bound(self) -> tuple[float, ...]:
         return tuple(float(v) for v in np.max([t.bound() for _, t, _ in self.segments_], axis=0))
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {"type": "sequence", "axes": list(self.axes),
                 "segments": [{"name": n, "trajectory": t.to_dict(), "meta": _plain_meta(m)}
                              for n, t, m in self.segments_]}
 
 
-def _plain_meta(m):
+def _plain_meta(m: Any) -> Any:
     if isinstance(m, Mapping):
         return {str(k): _plain_meta(v) for k, v in m.items()}
     if isinstance(m, (list, tuple)):
@@ -921,7 +935,7 @@ TRAJECTORY_TYPES = {cls.kind: cls for cls in (Hold, Sine, Step, Staircase, Circl
                                               Spiral, Table)}
 
 
-def _scale_lengths(value, s):
+def _scale_lengths(value: Any, s: float) -> Any:
     if value is None:
         return None
     if isinstance(value, Mapping):
@@ -931,7 +945,7 @@ def _scale_lengths(value, s):
     return float(value) * s
 
 
-def from_dict(spec: Mapping, prefix: str = "trajectory") -> Trajectory:
+def from_dict(spec: Mapping[str, Any], prefix: str = "trajectory") -> Trajectory:
     """Build a trajectory from ``{"type": <kind>, <field>: value, ...}`` (as produced by ``to_dict``).
 
     ``unit`` (optional, e.g. ``"um"``) scales the length-like fields (amplitude, offset, radius, width …) of a
@@ -985,7 +999,7 @@ def from_dict(spec: Mapping, prefix: str = "trajectory") -> Trajectory:
         raise ConfigError(prefix, str(exc)) from None
 
 
-def peak(traj: Trajectory, fs: float = 20000.0, max_samples: int = 4_000_000) -> tuple:
+def peak(traj: Trajectory, fs: float = 20000.0, max_samples: int = 4_000_000) -> tuple[float, ...]:
     """``max |value|`` per axis: sampled exactly at ``fs`` when finite and at most ``max_samples`` long, else
     :meth:`Trajectory.bound` (an upper bound)."""
     n = traj.n_samples(fs)
@@ -997,7 +1011,7 @@ def peak(traj: Trajectory, fs: float = 20000.0, max_samples: int = 4_000_000) ->
     return tuple(float(v) for v in out)
 
 
-def _in_volts(meta: Mapping) -> bool:
+def _in_volts(meta: Mapping[str, Any]) -> bool:
     return meta.get("input") == "voltage" or meta.get("stage") in ("hysteresis", "plant")
 
 
@@ -1014,10 +1028,12 @@ def check_workspace(traj: Trajectory, workspace_m: float, voltage_limit: float |
         return
     if isinstance(traj, Sequence):
         for i, (name, t, meta) in enumerate(traj.segments_):
-            volts = _in_volts(meta)
-            if volts and voltage_limit is None:
-                continue
-            check_workspace(t, voltage_limit if volts else workspace_m, None,
+            limit = workspace_m
+            if _in_volts(meta):
+                if voltage_limit is None:
+                    continue
+                limit = voltage_limit
+            check_workspace(t, limit, None,
                             prefix=f"{prefix}.segments[{i}].trajectory", fs=fs)
         return
     field_name = traj.length_fields[0] if traj.length_fields else "value"

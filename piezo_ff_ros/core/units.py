@@ -6,6 +6,10 @@ reports and plots.
 """
 from __future__ import annotations
 
+from typing import TypeVar
+
+import numpy as np
+
 LENGTH_SCALE = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "nm": 1e-9}
 
 UM = 1e-6  #: one micrometre in metres
@@ -19,6 +23,20 @@ def length_scale(unit: str) -> float:
         raise ValueError(f"unknown length unit {unit!r}; use one of {sorted(LENGTH_SCALE)}") from None
 
 
-def to_um(x):
-    """Metres → micrometres (for reports and plots only)."""
+_X = TypeVar("_X", float, np.ndarray)
+
+
+def to_um(x: _X) -> _X:
+    """Metres → micrometres (for reports and plots only).
+
+    Parameters
+    ----------
+    x : float or ndarray
+        Length(s) in metres.
+
+    Returns
+    -------
+    float or ndarray
+        The same length(s) in micrometres.
+    """
     return x / UM

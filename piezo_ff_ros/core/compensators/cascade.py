@@ -8,12 +8,19 @@ Each stage can be switched off (then it is the identity, and the hysteresis stag
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any, Literal, Sequence, overload
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..config import PiezoConfig
 from .creep import CreepCompensator
 from .hysteresis import HysteresisCompensator
 from .vibration import VibrationCompensator
+from ..stage import Stage, StageState
+
+if TYPE_CHECKING:
+    from ..synthesis.hinf import HinfDesign
 
 __all__ = ["CompensatorCascade"]
 
@@ -21,34 +28,35 @@ __all__ = ["CompensatorCascade"]
 class _Gain:
     """A static matrix (stateless stage)."""
 
-    def __init__(self, M):
+    def __init__(self, M: ArrayLike) -> None:
         self.M = np.asarray(M, float)
 
     @property
     def n_in(self) -> int:
-        return self.M.shape[1]
+        return int(self.M.shape[1])
 
     @property
     def n_out(self) -> int:
-        return self.M.shape[0]
+        return int(self.M.shape[0])
 
-    def reset(self):
+    def reset(self) -> None:
         pass
 
-    def process(self, x):
-        return np.ascontiguousarray(x, float) @ self.M.T
+    def process(self, x: np.ndarray) -> np.ndarray:
+        y: np.ndarray = np.ascontiguousarray(x, float) @ self.M.T
+        return y
 
-    def state(self) -> dict:
+    def state(self) -> dict[str, np.ndarray]:
         return {}
 
-    def load_state(self, state) -> None:
+    def load_state(self, state: StageState) -> None:
         pass
 
 
 class _Linearizer:
     """Hysteresis compensator followed by Dp: ``Y_b = Dp·U_h`` (length in, length out)."""
 
-    def __init__(self, comp: HysteresisCompensator):
+    def __init__(self, comp: HysteresisCompensator) -> None:
         self.comp = comp
         self.Dp = np.array(comp.cfg.Dp, float)
 
@@ -58,18 +66,19 @@ class _Linearizer:
 
     @property
     def n_out(self) -> int:
-        return self.Dp.shape[0]
+        return int(self.Dp.shape[0])
 
-    def reset(self):
+    def reset(self) -> None:
         self.comp.reset()
 
-    def process(self, x):
-        return self.comp.process(x) @ self.Dp.T
+    def process(self, x: np.ndarray) -> np.ndarray:
+        y: np.ndarray = self.comp.process(x) @ self.Dp.T
+        return y
 
-    def state(self) -> dict:
+    def state(self) -> dict[str, np.ndarray]:
         return self.comp.state()
 
-    def load_state(self, state) -> None:
+    def load_state(self, state: StageState) -> None:
         self.comp.load_state(state)
 
 
@@ -85,12 +94,12 @@ class CompensatorCascade:
         ``cfg.vibration.controller`` or else is synthesised (H∞, then balanced truncation).
     """
 
-    def __init__(self, cfg: PiezoConfig, controller=None):
+    def __init__(self, cfg: PiezoConfig, controller: Any = None) -> None:
         self.cfg = cfg
         dt = cfg.dt
         cc = cfg.cascade
-        self.design = None
-        self.vibration = None
+        self.design: HinfDesign | None = None
+        self.vibration: VibrationCompensator | None = None
         if cc.vibration:
             A, B, C, D = self._controller_matrices(cfg, controller)
             self.vibration = VibrationCompensator(A, B, C, D, dt)
@@ -99,7 +108,8 @@ class CompensatorCascade:
         self.hysteresis = HysteresisCompensator(cfg.hysteresis, cc.hysteresis_loop, **lim) if cc.hysteresis else None
         Dp_pinv = np.linalg.pinv(np.array(cfg.hysteresis.Dp, float))
         if cc.order == "paper":
-            chain = [self.vibration, self.creep, self.hysteresis if self.hysteresis else _Gain(Dp_pinv)]
+            chain: list[Stage | None] = [self.vibration, self.creep,
+                                         self.hysteresis if self.hysteresis else _Gain(Dp_pinv)]
             self.tap_names = ["yl", "yh", "u"]
         else:
             chain = [_Linearizer(self.hysteresis) if self.hysteresis else None, self.vibration, self.creep,
@@ -107,7 +117,7 @@ class CompensatorCascade:
             self.tap_names = ["yb", "ya", "yh", "u"]
         self._chain = chain
 
-    def _controller_matrices(self, cfg, controller):
+    def _controller_matrices(self, cfg: PiezoConfig, controller: Any) -> tuple[ArrayLike, ...]:
         if controller is None and cfg.vibration.controller is not None:
             c = cfg.vibration.controller
             return tuple(np.atleast_2d(np.asarray(c[k], float)) for k in ("A", "B", "C", "D"))
@@ -120,32 +130,36 @@ class CompensatorCascade:
             self.design = controller
             controller = controller.controller
         if hasattr(controller, "A"):
-            return controller.A, controller.B, controller.C, controller.D
+            return controller.A, controller.B, controller.C, controller.D   # a control.StateSpace
         return tuple(controller)
 
     @property
     def n_axes(self) -> int:
+        """Number of axes."""
         return self.cfg.n_axes
 
     @property
     def n_in(self) -> int:
+        """Number of input columns."""
         return self.cfg.n_axes
 
     @property
     def n_out(self) -> int:
+        """Number of output columns."""
         return self.cfg.n_axes
 
-    def stages(self) -> dict:
+    def stages(self) -> dict[str, Stage]:
         """The enabled compensator stages by name (``vibration``, ``creep``, ``hysteresis``)."""
         return {k: getattr(self, k) for k in self.STAGES if getattr(self, k) is not None}
 
     STAGES = ("vibration", "creep", "hysteresis")
 
-    def state(self, names=STAGES) -> dict:
+    def state(self, names: Sequence[str] = STAGES) -> dict[str, StageState]:
         """The state of every enabled stage among ``names`` (``{stage: {array name: copy}}``)."""
         return {k: st.state() for k, st in self.stages().items() if k in names}
 
-    def load_state(self, state) -> None:
+    def load_state(self, state: dict[str, StageState]) -> None:
+        """Load :meth:`state`'s result (``{stage: {array name: array}}``) into the enabled stages."""
         for k, st_state in state.items():
             getattr(self, k).load_state(st_state)
 
@@ -183,25 +197,48 @@ class CompensatorCascade:
         return h.bw_state.u_prev.copy()
 
     def reset(self) -> None:
+        """All states back to rest."""
         for st in self._chain:
             if st is not None:
                 st.reset()
 
-    def process_front(self, yr: np.ndarray) -> tuple[np.ndarray, dict]:
+    def process_front(self, yr: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Every stage but the last (paper order: ``Y_R → Y_H``); returns the signal and the taps so far."""
         x = np.ascontiguousarray(yr, dtype=float)
-        out = {}
+        out: dict[str, np.ndarray] = {}
         for name, st in zip(self.tap_names[:-1], self._chain[:-1]):
             if st is not None:
                 x = st.process(x)
             out[name] = x
         return x, out
 
-    def process(self, yr: np.ndarray, taps: bool = False):
+    @overload
+    def process(self, yr: np.ndarray, taps: Literal[False] = ...) -> np.ndarray: ...
+    @overload
+    def process(self, yr: np.ndarray, taps: Literal[True]) -> tuple[np.ndarray, dict[str, np.ndarray]]: ...
+
+    def process(self, yr: np.ndarray, taps: bool = False) -> np.ndarray | tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Run one reference block ``Y_R`` [N, axes] (m) → voltages ``U`` [N, axes] (V), state carried.
+
+        Parameters
+        ----------
+        yr : ndarray
+            The reference block.
+        taps : bool
+            Also return the intermediate signals by name (:attr:`tap_names`: ``yl``, ``yh``, ``u`` in paper order;
+            ``yb``, ``ya``, ``yh``, ``u`` commuted).
+
+        Returns
+        -------
+        u : ndarray
+            The voltages.
+        taps : dict
+            Only with ``taps=True``.
+        """
         x = np.ascontiguousarray(yr, dtype=float)
         if x.ndim != 2 or x.shape[1] != self.n_axes:
             raise ValueError(f"expected a reference block of shape [N, {self.n_axes}], got {x.shape}")
-        out = {}
+        out: dict[str, np.ndarray] = {}
         for name, st in zip(self.tap_names, self._chain):
             if st is not None:
                 x = st.process(x)

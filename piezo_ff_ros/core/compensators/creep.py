@@ -12,18 +12,32 @@ from .._jit import njit
 from ..config import CreepConfig
 from ..lti import DiscreteModalSS, LTIFilter
 from ..models.creep import discretise_creep
-from ..stage import transfer_linear_state
+from ..stage import StageState, transfer_linear_state
 
 __all__ = ["CreepCompensator", "creep_inverse_poles"]
 
 
 def creep_inverse_poles(cfg: CreepConfig, dt: float) -> np.ndarray:
-    """Poles (z-plane) of the compensator loop: eigenvalues of ``A − B·K⁻¹·C``."""
+    """Poles (z-plane) of the compensator loop: eigenvalues of ``A − B·K⁻¹·C``.
+
+    Parameters
+    ----------
+    cfg : CreepConfig
+        The creep model.
+    dt : float
+        Sample time [s].
+
+    Returns
+    -------
+    numpy.ndarray
+        The poles (complex); all inside the unit circle for a stable compensator.
+    """
     ss = discretise_creep(cfg, dt)
     Kinv = np.linalg.inv(np.array(cfg.K, float))
     if ss.n_states == 0:
         return np.zeros(0)
-    return np.linalg.eigvals(ss.A - ss.B @ Kinv @ ss.C)
+    poles: np.ndarray = np.linalg.eigvals(ss.A - ss.B @ Kinv @ ss.C)
+    return poles
 
 
 class CreepCompensator:
@@ -46,16 +60,20 @@ class CreepCompensator:
 
     @property
     def n_in(self) -> int:
-        return self.Kinv.shape[1]
+        """Number of input columns."""
+        return int(self.Kinv.shape[1])
 
     @property
     def n_out(self) -> int:
-        return self.Kinv.shape[0]
+        """Number of output columns."""
+        return int(self.Kinv.shape[0])
 
     def reset(self) -> None:
+        """All states back to rest."""
         self.x[:] = 0.0
 
     def process(self, yl: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         yl = np.ascontiguousarray(yl, dtype=float)
         yh = np.empty_like(yl)
         if yl.ndim != 2 or yl.shape[1] != self.n_in:
@@ -71,21 +89,23 @@ class CreepCompensator:
         """The Cr filter state ``x`` (modal coordinates of :attr:`ss`), a copy."""
         return {"x": self.x.copy()}
 
-    def load_state(self, state) -> None:
+    def load_state(self, state: StageState) -> None:
+        """Copy ``state`` (as returned by :meth:`state`) into this stage."""
         self.x[:] = state["x"]
 
     def follow(self, yh: np.ndarray) -> None:
         """Advance the state as if this stage had output ``yh`` (what the plant's creep actually received)."""
         self._cr.process(np.ascontiguousarray(yh, dtype=float))
 
-    def continue_from(self, old: "CreepCompensator", u_last=None) -> None:
+    def continue_from(self, old: "CreepCompensator", u_last: np.ndarray | None = None) -> None:
         """Bumpless takeover from ``old``: Cr's modes keep their input history (see
         :func:`~piezo_ff_ros.core.stage.transfer_linear_state`)."""
         self.x[:] = transfer_linear_state(old.ss, old.x, self.ss, u_last)[0]
 
 
 @njit
-def _inverse_affine_run(Kinv, Ablk, offsets, sizes, B, C, x, yl, yh):  # pragma: no cover - compiled
+def _inverse_affine_run(Kinv: np.ndarray, Ablk: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, B: np.ndarray,
+                        C: np.ndarray, x: np.ndarray, yl: np.ndarray, yh: np.ndarray) -> None:  # pragma: no cover - compiled
     N = yl.shape[0]
     n = yl.shape[1]
     ns = x.shape[0]
@@ -118,7 +138,8 @@ def _inverse_affine_run(Kinv, Ablk, offsets, sizes, B, C, x, yl, yh):  # pragma:
 
 
 @njit
-def _inverse_affine_run_2x2(Kinv, Ablk, offsets, sizes, io, x, yl, yh):  # pragma: no cover - compiled
+def _inverse_affine_run_2x2(Kinv: np.ndarray, Ablk: np.ndarray, offsets: np.ndarray, sizes: np.ndarray,
+                            io: np.ndarray, x: np.ndarray, yl: np.ndarray, yh: np.ndarray) -> None:  # pragma: no cover - compiled
     """``_inverse_affine_run`` unrolled for two axes and 1×1 / 2×2 blocks (``io[i] = (B[i, :], C[:, i])``).
 
     Sums run in the generic kernel's order, so the results are the same numbers.

@@ -17,6 +17,7 @@ import numpy as np
 from .._jit import njit
 from ..config import BoucWenConfig
 from ..models.bouc_wen import BoucWenState, _bw_increment, _bw_model_run, _bw_model_run_2x2
+from ..stage import StageState
 
 __all__ = ["HysteresisCompensator"]
 
@@ -48,19 +49,23 @@ class HysteresisCompensator:
 
     @property
     def n_in(self) -> int:
+        """Number of input columns."""
         return self.cfg.n_out
 
     @property
     def n_out(self) -> int:
+        """Number of output columns."""
         return self.cfg.n_in
 
     def reset(self) -> None:
+        """All states back to rest."""
         self.bw_state = BoucWenState(self.cfg.n_out, self.cfg.n_in)
         self._signs[:] = 1.0
         self.fallbacks = 0
         self.saturated = 0
 
     def process(self, yh: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         yh = np.ascontiguousarray(yh, dtype=float)
         if yh.ndim != 2 or yh.shape[1] != self.n_in:
             raise ValueError(f"expected a block of shape [N, {self.n_in}], got {yh.shape}")
@@ -84,7 +89,8 @@ class HysteresisCompensator:
         s = self.bw_state
         return {"h": s.h.copy(), "u_prev": s.u_prev.copy(), "started": s.started.copy(), "signs": self._signs.copy()}
 
-    def load_state(self, state) -> None:
+    def load_state(self, state: StageState) -> None:
+        """Copy ``state`` (as returned by :meth:`state`) into this stage."""
         s = self.bw_state
         s.h[:] = state["h"]
         s.u_prev[:] = state["u_prev"]
@@ -108,7 +114,8 @@ class HysteresisCompensator:
 
 
 @njit
-def _solve_small(M, r, x, a, b):  # pragma: no cover - compiled
+def _solve_small(M: np.ndarray, r: np.ndarray, x: np.ndarray, a: np.ndarray,
+                 b: np.ndarray) -> bool:  # pragma: no cover - compiled
     """Gaussian elimination with partial pivoting for a small dense system; False if singular.
 
     ``a`` (n×n) and ``b`` (n) are scratch for the factorisation: nothing is allocated per call.
@@ -147,7 +154,10 @@ def _solve_small(M, r, x, a, b):  # pragma: no cover - compiled
 
 
 @njit
-def _bw_comp_run(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exact, ulim, dulim, yh, u, counters):  # pragma: no cover
+def _bw_comp_run(Dp: np.ndarray, Dp_pinv: np.ndarray, A: np.ndarray, B: np.ndarray, G: np.ndarray, D1: np.ndarray,
+                 D2: np.ndarray, P: np.ndarray, h: np.ndarray, u_prev: np.ndarray, started: np.ndarray,
+                 signs: np.ndarray, exact: bool, ulim: float, dulim: float, yh: np.ndarray, u: np.ndarray,
+                 counters: np.ndarray) -> None:  # pragma: no cover
     N = yh.shape[0]
     n = h.shape[0]
     k = u_prev.shape[0]
@@ -242,8 +252,10 @@ def _bw_comp_run(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exa
 
 
 @njit
-def _bw_comp_run_2x2(Dp, Dp_pinv, A, B, G, D1, D2, P, h, u_prev, started, signs, exact, ulim, dulim, yh, u,
-                     counters):  # pragma: no cover - compiled
+def _bw_comp_run_2x2(Dp: np.ndarray, Dp_pinv: np.ndarray, A: np.ndarray, B: np.ndarray, G: np.ndarray, D1: np.ndarray,
+                     D2: np.ndarray, P: np.ndarray, h: np.ndarray, u_prev: np.ndarray, started: np.ndarray,
+                     signs: np.ndarray, exact: bool, ulim: float, dulim: float, yh: np.ndarray, u: np.ndarray,
+                     counters: np.ndarray) -> None:  # pragma: no cover - compiled
     """``_bw_comp_run`` unrolled for two axes: parameters, state and the 2×2 solves in registers.
 
     Same algorithm step by step (previous sign pattern first, Gaussian elimination with partial pivoting, same

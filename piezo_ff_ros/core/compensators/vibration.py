@@ -2,10 +2,13 @@
 rate after exact zero-order-hold discretisation (modal form, carried state)."""
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..lti import DiscreteModalSS, LTIFilter
-from ..stage import transfer_linear_state
+from ..stage import StageState, transfer_linear_state
 
 __all__ = ["VibrationCompensator"]
 
@@ -13,14 +16,28 @@ __all__ = ["VibrationCompensator"]
 class VibrationCompensator:
     """Streaming ``Y_R [m] → Y_L [m]`` through C(s) given as a continuous state space (A, B, C, D)."""
 
-    def __init__(self, A, B, C, D, dt: float):
-        self.continuous = tuple(np.atleast_2d(np.asarray(m, float)) for m in (A, B, C, D))
+    def __init__(self, A: ArrayLike, B: ArrayLike, C: ArrayLike, D: ArrayLike, dt: float) -> None:
+        Ac, Bc, Cc, Dc = (np.atleast_2d(np.asarray(m, float)) for m in (A, B, C, D))
+        self.continuous = (Ac, Bc, Cc, Dc)
         self.dt = dt
-        self.ss = DiscreteModalSS.zoh_from_ss(*self.continuous, dt)
+        self.ss = DiscreteModalSS.zoh_from_ss(Ac, Bc, Cc, Dc, dt)
         self.filter = LTIFilter(self.ss)
 
     @staticmethod
-    def from_control(sys, dt: float) -> "VibrationCompensator":
+    def from_control(sys: Any, dt: float) -> "VibrationCompensator":
+        """The compensator for a python-control system (anything ``control.ss`` accepts).
+
+        Parameters
+        ----------
+        sys : control.StateSpace or control.TransferFunction
+            The continuous controller C(s).
+        dt : float
+            Sample time [s].
+
+        Returns
+        -------
+        VibrationCompensator
+        """
         import control
 
         s = control.ss(sys)
@@ -28,10 +45,12 @@ class VibrationCompensator:
 
     @property
     def n_in(self) -> int:
+        """Number of input columns."""
         return self.ss.n_in
 
     @property
     def n_out(self) -> int:
+        """Number of output columns."""
         return self.ss.n_out
 
     @property
@@ -39,18 +58,21 @@ class VibrationCompensator:
         return self.ss.n_states
 
     def reset(self) -> None:
+        """All states back to rest."""
         self.filter.reset()
 
     def process(self, yr: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         return self.filter.process(yr)
 
     def state(self) -> dict[str, np.ndarray]:
         """The filter state ``x`` (modal coordinates of :attr:`ss`), a copy."""
         return {"x": self.filter.x.copy()}
 
-    def load_state(self, state) -> None:
+    def load_state(self, state: StageState) -> None:
+        """Copy ``state`` (as returned by :meth:`state`) into this stage."""
         self.filter.x[:] = state["x"]
 
-    def continue_from(self, old: "VibrationCompensator", u_last=None) -> None:
+    def continue_from(self, old: "VibrationCompensator", u_last: np.ndarray | None = None) -> None:
         """Bumpless takeover from ``old`` (see :func:`~piezo_ff_ros.core.stage.transfer_linear_state`)."""
         self.filter.x[:] = transfer_linear_state(old.ss, old.filter.x, self.ss, u_last)[0]

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -133,7 +134,7 @@ class StreamingBackend(abc.ABC):
         """Back to the initial state if the device can (a simulator can, hardware cannot); True if done."""
         return False
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         """Key/value status for ``/diagnostics``."""
         return {"backend": self.info.name}
 

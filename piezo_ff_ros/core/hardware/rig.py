@@ -10,6 +10,7 @@ slew-limited does not describe the requested input, and ``strict=True`` makes th
 from __future__ import annotations
 
 import time
+from typing import Callable
 
 import numpy as np
 
@@ -43,7 +44,8 @@ class BackendRig:
     """
 
     def __init__(self, backend: StreamingBackend, settings: DriverSettings, block: int = 200, settle: float = 1.0,
-                 strict: bool = False, timeout: float = 10.0, now=time.monotonic, sleep=time.sleep):
+                 strict: bool = False, timeout: float = 10.0, now: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
         if not backend.info.has_sensor:
             raise RigError(f"{backend.info.name} has no sensor: commissioning measures the displacement; "
                            "configure the sensor channels or identify from recordings")
@@ -55,6 +57,7 @@ class BackendRig:
 
     @property
     def n_axes(self) -> int:
+        """Number of axes."""
         return self.core.s.n_axes
 
     def _guard_changed(self) -> int:
@@ -70,7 +73,7 @@ class BackendRig:
         before = self._guard_changed()
         lost0 = core.lost_samples()
         checking = True     # loss counts until the last block is in; holds after it are not part of the run
-        stamp0 = core.next_stamp if core.book.started else 0
+        stamp0 = (core.next_stamp or 0) if core.book.started else 0   # next_stamp is None only before the start
         want = {}
         got = {}
         deadline = self.now() + u.shape[0] / fs + self.timeout

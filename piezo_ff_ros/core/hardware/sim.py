@@ -18,20 +18,23 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
+from ..stage import Processor
 from .contract import (ContractError, DeviceFault, DeviceInfo, Disconnect, LimitFault, Overrun, StreamingBackend,
                        Underrun)
 
 __all__ = ["LockstepSim", "ClockedSim", "inject_fault"]
 
-_FAULTS = {"underrun": Underrun, "overrun": Overrun, "disconnect": Disconnect, "limit": LimitFault}
+
+
+_FAULTS: dict[str, type[DeviceFault]] = {"underrun": Underrun, "overrun": Overrun, "disconnect": Disconnect, "limit": LimitFault}
 
 
 class _SimBase(StreamingBackend):
-    def __init__(self, info: DeviceInfo, plant=None):
+    def __init__(self, info: DeviceInfo, plant: Processor | None = None):
         self.info = info
         self.plant = plant
         self.started = False
@@ -69,19 +72,19 @@ class _SimBase(StreamingBackend):
         out, self._applied = self._applied, []
         return out
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {"backend": self.info.name, "clock": self.clock() if self.started else 0, **self.counters}
 
 
 class LockstepSim(_SimBase):
     """The simulator in lockstep: the device clock is the write cursor."""
 
-    def __init__(self, fs: float, n_axes: int, plant=None, name: str = "sim"):
+    def __init__(self, fs: float, n_axes: int, plant: Processor | None = None, name: str = "sim"):
         super().__init__(DeviceInfo(name=name, sample_rate_hz=float(fs), n_axes=int(n_axes), fifo_depth=1 << 30,
                                     has_sensor=plant is not None, clocked=False), plant)
         self._k = 0
 
-    def start(self, safe_voltage, prefill: int = 0) -> int:
+    def start(self, safe_voltage: np.ndarray, prefill: int = 0) -> int:
         self.started = True
         if prefill:
             self.write(self._k, np.tile(np.asarray(safe_voltage, dtype=float), (int(prefill), 1)))
@@ -115,6 +118,7 @@ class LockstepSim(_SimBase):
         return 0
 
     def reset(self) -> bool:
+        """All states back to rest."""
         if self.plant is not None:
             self.plant.reset()
         self._k = 0
@@ -150,7 +154,7 @@ class ClockedSim(_SimBase):
         Device seconds per second of ``now()`` (1 = real time; 10 = the device clock runs 10× faster).
     """
 
-    def __init__(self, fs: float, n_axes: int, plant=None, *, fifo_depth: int = 4000, latency_samples: int = 2,
+    def __init__(self, fs: float, n_axes: int, plant: Processor | None = None, *, fifo_depth: int = 4000, latency_samples: int = 2,
                  jitter_samples: int = 0, input_buffer: int | None = None, now: Callable[[], float] = time.monotonic,
                  seed: int = 0, name: str = "sim", time_scale: float = 1.0):
         if not (isinstance(time_scale, (int, float)) and math.isfinite(time_scale) and 1e-3 <= time_scale <= 1e3):
@@ -177,7 +181,7 @@ class ClockedSim(_SimBase):
         self._last = np.zeros(int(n_axes))
         self._dry = False
 
-    def start(self, safe_voltage, prefill: int = 0) -> int:
+    def start(self, safe_voltage: np.ndarray, prefill: int = 0) -> int:
         self._last = np.array(safe_voltage, dtype=float).reshape(self.info.n_axes)
         self.started = True
         if prefill:
@@ -309,13 +313,21 @@ class ClockedSim(_SimBase):
         self.started = False
         return not self._disconnected
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         st = super().status()
         st.update(write_ahead=self._widx - self._played, fifo_depth=self.info.fifo_depth,
                   latency_samples=self.latency)
         return st
 
 
-def inject_fault(backend, kind: str) -> None:
-    """Ask a simulator to raise a fault of ``kind`` on its next poll (fault-injection tests)."""
+def inject_fault(backend: _SimBase, kind: str) -> None:
+    """Ask a simulator to raise a fault of ``kind`` on its next poll (fault-injection tests).
+
+    Parameters
+    ----------
+    backend : LockstepSim or ClockedSim
+        The simulator.
+    kind : str
+        ``underrun``, ``overrun``, ``disconnect`` (permanent) or ``limit``.
+    """
     backend.inject(kind)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import bisect
 from dataclasses import dataclass, field
+from typing import Any
 
 __all__ = ["StreamBook", "StreamCounters", "Decision"]
 
@@ -35,7 +36,8 @@ class StreamCounters:
     out_of_sequence_blocks: int = 0  #: jump candidates that the next block did not confirm (dropped)
     rebases: int = 0                 #: confirmed jumps (the stamp ↔ device map re-based)
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, int]:
+        """The counters by name (a copy)."""
         return dict(self.__dict__)
 
 
@@ -46,7 +48,7 @@ class Decision:
     kind: str                  #: apply | gap | late | trim | pending | confirm | first
     fill: int = 0              #: hold samples to write before the block (gap)
     skip: int = 0              #: leading samples of the block to drop (trim)
-    replay: tuple = field(default=())  #: (stamp, n, payload) of a confirmed candidate to apply first
+    replay: tuple[Any, ...] = field(default=())  #: (stamp, n, payload) of a confirmed candidate to apply first
 
 
 class StreamBook:
@@ -60,10 +62,11 @@ class StreamBook:
         self.reset()
 
     def reset(self) -> None:
+        """Forget the stream: no segment, counters at zero, no jump candidate."""
         self._seg_d: list[int] = []
         self._seg_stamp: list[int] = []
         self.counters = StreamCounters()
-        self.candidate = None          # (stamp, n, payload) held back
+        self.candidate: tuple[int, int, Any] | None = None   # (stamp, n, payload) held back
         self.last_block_n = 0
 
     @property
@@ -92,7 +95,7 @@ class StreamBook:
             return None
         return self._seg_d[-1] + (int(stamp) - self._seg_stamp[-1]) // self.period_ns
 
-    def split(self, d0: int, n: int):
+    def split(self, d0: int, n: int) -> list[tuple[int, int, int]]:
         """``[(offset, count, stamp)]`` covering device samples ``d0 … d0+n-1`` that have stamps, one per segment."""
         out = []
         i = bisect.bisect_right(self._seg_d, d0) - 1
@@ -114,7 +117,7 @@ class StreamBook:
                 break
         return out
 
-    def classify(self, stamp: int, n: int, w: int, payload=None) -> Decision:
+    def classify(self, stamp: int, n: int, w: int, payload: Any = None) -> Decision:
         """Classify a block of ``n`` samples stamped ``stamp`` against the write cursor ``w`` (see the module doc)."""
         c = self.counters
         c.blocks_in += 1
@@ -123,6 +126,8 @@ class StreamBook:
             self.last_block_n = n
             return Decision("first")
         expected = self.stamp_of(w)
+        if expected is None:
+            raise ValueError(f"device index {w} lies before the first segment of the stream (starts at {self._seg_d[0]})")
         off = stamp - expected
         if off % self.period_ns:
             raise ValueError(f"stamp {stamp} is not on the sample grid of the stream (period {self.period_ns} ns)")

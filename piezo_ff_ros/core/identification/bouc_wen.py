@@ -123,7 +123,7 @@ class _Problem:
         return r
 
     ridge = 0.0
-    theta0 = None
+    theta0: np.ndarray | None = None
 
     def _output_error(self, th) -> np.ndarray:
         cfg, c = self.unpack(th)

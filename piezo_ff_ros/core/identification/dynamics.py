@@ -97,7 +97,7 @@ def _impulse_estimates(runs, n, L, smooth=0):
     return h
 
 
-def identify_dynamics(runs: Sequence[RunData], validation: Sequence[RunData] = (), order="auto",
+def identify_dynamics(runs: Sequence[RunData], validation: Sequence[RunData] = (), order: str | int | dict[str, int] = "auto",
                       max_order: int = 8, tol: float = 0.25, era_length: float = 0.05, max_nfev: int = 40,
                       axes: Sequence[str] | None = None,
                       progress: Callable[[str], None] | None = None) -> DynamicsFit:

@@ -1,6 +1,8 @@
 """Goodness of fit as MATLAB ``compare`` reports it (normalised RMSE, in percent)."""
 from __future__ import annotations
 
+from typing import Callable, Collection, Hashable, Mapping, TypeVar
+
 import numpy as np
 
 __all__ = ["fit_percent", "rmse"]
@@ -29,31 +31,76 @@ def fit_percent(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
     num = np.linalg.norm(y - y_hat, axis=0)
     den = np.linalg.norm(y - y.mean(axis=0), axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(den > 0, 100.0 * (1.0 - num / np.where(den > 0, den, 1.0)), np.nan)
+        fit: np.ndarray = np.where(den > 0, 100.0 * (1.0 - num / np.where(den > 0, den, 1.0)), np.nan)
+    return fit
 
 
 def rmse(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
-    """Root-mean-square error per output column."""
+    """Root-mean-square error per output column.
+
+    Parameters
+    ----------
+    y, y_hat : array [N] or [N, outputs]
+        Measured and simulated outputs (same units).
+
+    Returns
+    -------
+    numpy.ndarray
+        One RMSE per output, in the outputs' unit.
+    """
     y = np.asarray(y, float)
     y_hat = np.asarray(y_hat, float)
     if y.ndim == 1:
         y, y_hat = y[:, None], y_hat[:, None]
-    return np.sqrt(np.mean((y - y_hat) ** 2, axis=0))
+    err: np.ndarray = np.sqrt(np.mean((y - y_hat) ** 2, axis=0))
+    return err
 
 
-def greedy_order_search(excited, start_orders: dict, max_order: int, step, fit_with, score, tol: float,
-                        label, say=lambda msg: None):
+_K = TypeVar("_K", bound=Hashable)
+_M = TypeVar("_M")
+
+
+def _quiet(msg: str) -> None:
+    pass
+
+
+def greedy_order_search(excited: Collection[_K], start_orders: Mapping[_K, int], max_order: int,
+                        step: Callable[[int], int], fit_with: Callable[[dict[_K, int]], _M],
+                        score: Callable[[_M], Mapping[_K, float]], tol: float, label: Callable[[_K, int], str],
+                        say: Callable[[str], None] = _quiet) -> tuple[dict[_K, int], _M]:
     """Raise one entry's order at a time while its held-out fit improves by more than ``tol`` points.
 
     ``fit_with(orders) -> models``, ``score(models) -> {j: fit %}``, ``step(order) -> next order``,
     ``label(j, order) -> str`` for progress.  An entry whose raise does not pay is frozen; the search ends when a
     whole pass improves nothing (the paper stopped at orders 1–3 "when the matching percent does not anymore
-    increase substantially").  Returns ``(orders, models)``.
+    increase substantially").
+
+    Parameters
+    ----------
+    excited : collection
+        The entries whose order may rise.
+    start_orders : mapping
+        The starting order of every entry ``fit_with`` needs.
+    max_order : int
+        No entry goes above it.
+    step, fit_with, score, label : callable
+        See above.
+    tol : float
+        Minimum held-out fit gain [percentage points] for a raise to be kept.
+    say : callable, optional
+        Progress messages.
+
+    Returns
+    -------
+    orders : dict
+        The chosen order per entry.
+    models
+        ``fit_with(orders)``.
     """
     orders = dict(start_orders)
     models = fit_with(orders)
     cur = score(models)
-    frozen = set()
+    frozen: set[_K] = set()
     while True:
         improved = False
         for j in excited:

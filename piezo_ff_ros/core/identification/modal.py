@@ -259,8 +259,8 @@ def entry_to_factored(poles, coef, st: Structure) -> FactoredTF:
     # zeros: numerator polynomial det(sI − A + BC) − det(sI − A) (= C·adj(sI − A)·B), computed with s scaled by
     # the poles' geometric mean so that the coefficients stay O(1) (unscaled they span (10⁴)ⁿ)
     sigma = float(np.exp(np.mean(np.log(np.abs(p) + 1e-300))))
-    As, Cs = A / sigma, C / sigma
-    num_s = np.poly(As - B @ Cs) - np.poly(As)
+    As, Cscaled = A / sigma, C / sigma
+    num_s = np.poly(As - B @ Cscaled) - np.poly(As)
     num_s = num_s[1:]                                   # strictly proper: the sⁿ terms cancel exactly
     big = np.max(np.abs(num_s))
     lead = np.nonzero(np.abs(num_s) > 1e-9 * big)[0]
@@ -299,7 +299,7 @@ def _conj_close(z):
 
 
 def _factors(p, st: Structure):
-    fs = [(1.0, float(-p[m].real)) for m in range(st.n_real)]
+    fs: list[tuple[float, ...]] = [(1.0, float(-p[m].real)) for m in range(st.n_real)]
     for q in range(st.n_pairs):
         pm = p[st.n_real + q]
         fs.append((1.0, float(-2 * pm.real), float(abs(pm) ** 2)))

@@ -29,7 +29,7 @@ REFIT_TAG = "refit_without_creep"
 
 
 def split_runs(runs: Sequence[RunData]) -> dict:
-    out = {s: {"fit": [], "validation": []} for s in STAGES + ("plant",)}
+    out: dict[str, dict[str, list[RunData]]] = {s: {"fit": [], "validation": []} for s in STAGES + ("plant",)}
     for r in runs:
         st = r.meta.get("stage")
         role = r.meta.get("role", "fit")
@@ -207,7 +207,7 @@ def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg, gene
     """
     from ..compensators.creep import CreepCompensator
 
-    out = {"fit": [], "validation": []}
+    out: dict[str, list[RunData]] = {"fit": [], "validation": []}
     for r in hyst_runs:
         cc = CreepCompensator(creep_cfg, 1.0 / r.sample_rate)
         out["validation" if r.meta.get("role") == "validation" else "fit"].append(replace(r, y=cc.process(r.y)))

@@ -9,6 +9,8 @@ results are bit-identical whatever the block split.
 """
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import numpy as np
 
 from .._jit import njit
@@ -47,16 +49,40 @@ class BoucWenModel:
 
     @property
     def n_in(self) -> int:
+        """Number of input columns."""
         return self.cfg.n_in
 
     @property
     def n_out(self) -> int:
+        """Number of output columns."""
         return self.cfg.n_out
 
     def reset(self) -> None:
+        """All states back to rest."""
         self.state = BoucWenState(self.cfg.n_out, self.cfg.n_in)
 
-    def process(self, u: np.ndarray, return_h: bool = False):
+    @overload
+    def process(self, u: np.ndarray, return_h: Literal[False] = ...) -> np.ndarray: ...
+    @overload
+    def process(self, u: np.ndarray, return_h: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def process(self, u: np.ndarray, return_h: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        """Displacements ``y = Dp·u − h`` for the voltage block ``u`` [N, n_in] (state carried between blocks).
+
+        Parameters
+        ----------
+        u : ndarray
+            Voltages [V], shape [N, n_in].
+        return_h : bool
+            Also return the hysteresis term ``h`` [N, n_out].
+
+        Returns
+        -------
+        y : ndarray
+            [N, n_out] metres.
+        h : ndarray
+            Only with ``return_h``.
+        """
         u = np.ascontiguousarray(u, dtype=float)
         if u.ndim != 2 or u.shape[1] != self.n_in:
             raise ValueError(f"expected a block of shape [N, {self.n_in}], got {u.shape}")
@@ -69,7 +95,8 @@ class BoucWenModel:
 
 
 @njit
-def _bw_increment(A, B, G, D1, D2, P, h, du, dh, duh):  # pragma: no cover - compiled
+def _bw_increment(A: np.ndarray, B: np.ndarray, G: np.ndarray, D1: np.ndarray, D2: np.ndarray, P: np.ndarray,
+                  h: np.ndarray, du: np.ndarray, dh: np.ndarray, duh: np.ndarray) -> None:  # pragma: no cover - compiled
     """``dh`` ← the increment of h for the voltage step ``du``; ``duh`` is scratch (``P·du``), no allocation."""
     n = h.shape[0]
     k = du.shape[0]
@@ -90,7 +117,9 @@ def _bw_increment(A, B, G, D1, D2, P, h, du, dh, duh):  # pragma: no cover - com
 
 
 @njit
-def _bw_model_run(Dp, A, B, G, D1, D2, P, h, u_prev, started, u, y, hs):  # pragma: no cover - compiled
+def _bw_model_run(Dp: np.ndarray, A: np.ndarray, B: np.ndarray, G: np.ndarray, D1: np.ndarray, D2: np.ndarray,
+                  P: np.ndarray, h: np.ndarray, u_prev: np.ndarray, started: np.ndarray, u: np.ndarray, y: np.ndarray,
+                  hs: np.ndarray) -> None:  # pragma: no cover - compiled
     N = u.shape[0]
     k = u.shape[1]
     n = h.shape[0]
@@ -118,7 +147,9 @@ def _bw_model_run(Dp, A, B, G, D1, D2, P, h, u_prev, started, u, y, hs):  # prag
 
 
 @njit
-def _bw_model_run_2x2(Dp, A, B, G, D1, D2, P, h, u_prev, started, u, y, hs):  # pragma: no cover - compiled
+def _bw_model_run_2x2(Dp: np.ndarray, A: np.ndarray, B: np.ndarray, G: np.ndarray, D1: np.ndarray, D2: np.ndarray,
+                      P: np.ndarray, h: np.ndarray, u_prev: np.ndarray, started: np.ndarray, u: np.ndarray,
+                      y: np.ndarray, hs: np.ndarray) -> None:  # pragma: no cover - compiled
     """``_bw_model_run`` unrolled for two voltages and two outputs (the 2-axis tube): parameters and state in
     registers, ≈ 8× faster.  Every expression keeps the generic kernel's order of operations (``0.0 + …`` where
     it starts a sum from zero), so the results are the same numbers."""

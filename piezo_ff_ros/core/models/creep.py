@@ -14,6 +14,20 @@ __all__ = ["CreepModel", "discretise_creep"]
 
 
 def discretise_creep(cfg: CreepConfig, dt: float) -> DiscreteModalSS:
+    """Exact zero-order hold of ``Cr(s)`` at the sample time ``dt`` (each SISO entry on its own, modal form).
+
+    Parameters
+    ----------
+    cfg : CreepConfig
+        The creep model (``Cr`` is used; ``K`` acts directly and needs no discretisation).
+    dt : float
+        Sample time [s].
+
+    Returns
+    -------
+    DiscreteModalSS
+        The discrete realisation of ``Cr``.
+    """
     return DiscreteModalSS.zoh_from_tf_matrix(cfg.Cr, dt)
 
 
@@ -28,15 +42,20 @@ class CreepModel:
 
     @property
     def n_in(self) -> int:
-        return self.K.shape[1]
+        """Number of input columns."""
+        return int(self.K.shape[1])
 
     @property
     def n_out(self) -> int:
-        return self.K.shape[0]
+        """Number of output columns."""
+        return int(self.K.shape[0])
 
     def reset(self) -> None:
+        """All states back to rest."""
         self.cr.reset()
 
     def process(self, yh: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         yh = np.ascontiguousarray(yh, dtype=float)
-        return yh @ self.K.T + self.cr.process(yh)
+        y: np.ndarray = yh @ self.K.T + self.cr.process(yh)
+        return y

@@ -26,14 +26,18 @@ class DynamicsModel:
 
     @property
     def n_in(self) -> int:
+        """Number of input columns."""
         return self.filter.n_in
 
     @property
     def n_out(self) -> int:
+        """Number of output columns."""
         return self.filter.n_out
 
     def reset(self) -> None:
+        """All states back to rest."""
         self.filter.reset()
 
     def process(self, yl: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         return self.filter.process(yl)

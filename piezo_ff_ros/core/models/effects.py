@@ -15,12 +15,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._jit import njit
 from ..config import BoucWenConfig, PiezoConfig
+from ..stage import Processor
 from .plant import Plant
 from .bouc_wen import _bw_increment  # the core increment (same maths, no per-sample allocation)
 
@@ -46,14 +48,14 @@ LEVEL_REF = 10e-6
 DIRECTION_TAU = 2e-3
 
 
-def _block(x, n: int | None = None) -> np.ndarray:
+def _block(x: ArrayLike, n: int | None = None) -> np.ndarray:
     x = np.ascontiguousarray(x, dtype=float)
     if x.ndim != 2 or (n is not None and x.shape[1] != n):
         raise ValueError(f"expected a block of shape [N, {n if n is not None else 'axes'}], got {x.shape}")
     return x
 
 
-def _per_axis(value, n: int, name: str) -> np.ndarray:
+def _per_axis(value: Any, n: int, name: str) -> np.ndarray:
     a = np.atleast_1d(np.asarray(value, dtype=float))
     if a.size == 1:
         a = np.full(n, float(a[0]))
@@ -82,9 +84,11 @@ class InputDelay:
         self.reset()
 
     def reset(self) -> None:
-        self._hist = None  # last m + 1 input samples, oldest first
+        """All states back to rest."""
+        self._hist: np.ndarray | None = None  # last m + 1 input samples, oldest first
 
-    def process(self, u):
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         u = _block(u, self.n)
         m = self._m
         if self._hist is None:
@@ -102,7 +106,7 @@ class InputDelay:
 
 
 @njit
-def _slew_run(u, y_prev, started, max_step, out):  # pragma: no cover - compiled
+def _slew_run(u: np.ndarray, y_prev: np.ndarray, started: np.ndarray, max_step: float, out: np.ndarray) -> None:  # pragma: no cover - compiled
     N, n = u.shape
     for t in range(N):
         for j in range(n):
@@ -128,10 +132,12 @@ class AmplifierSlewLimit:
         self.reset()
 
     def reset(self) -> None:
+        """All states back to rest."""
         self._prev = np.zeros(self.n)
         self._started = np.zeros(1, np.bool_)
 
-    def process(self, u):
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         u = _block(u, self.n)
         out = np.empty_like(u)
         _slew_run(u, self._prev, self._started, self.rate * self.dt, out)
@@ -147,14 +153,18 @@ class AmplifierSaturation:
         self.limit, self.n = float(limit), n_axes
 
     def reset(self) -> None:
+        """All states back to rest."""
         pass
 
-    def process(self, u):
-        return np.clip(_block(u, self.n), -self.limit, self.limit)
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        res: np.ndarray = np.clip(_block(u, self.n), -self.limit, self.limit)
+        return res
 
 
 @njit
-def _ap2_run(u, state, started, g, a1, a2, out):  # pragma: no cover - compiled
+def _ap2_run(u: np.ndarray, state: np.ndarray, started: np.ndarray, g: np.ndarray, a1: np.ndarray, a2: np.ndarray,
+             out: np.ndarray) -> None:  # pragma: no cover - compiled
     """Per column j: ``y[k] = g_j·u[k] − a1_j·y[k−1] − a2_j·y[k−2]``, started settled at the first input."""
     N, n = u.shape
     for t in range(N):
@@ -199,7 +209,8 @@ class AmplifierBandwidth:
     (≈ (f/fc)²/2 at order 1) and rounds steps instead of shifting them.
     """
 
-    def __init__(self, cutoff, dt: float, n_axes: int = 2, order: int = 1, damping: float = 1 / math.sqrt(2)):
+    def __init__(self, cutoff: ArrayLike, dt: float, n_axes: int = 2, order: int = 1,
+                 damping: float = 1 / math.sqrt(2)) -> None:
         c = _per_axis(cutoff, n_axes, "amplifier_bandwidth.cutoff")
         if not np.all(c > 0):
             raise ValueError(f"amplifier_bandwidth.cutoff: must be > 0 Hz, got {cutoff!r}")
@@ -214,10 +225,12 @@ class AmplifierBandwidth:
         self.reset()
 
     def reset(self) -> None:
+        """All states back to rest."""
         self._state = np.zeros((2, self.n))
         self._started = np.zeros(1, np.bool_)
 
-    def process(self, u):
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         u = _block(u, self.n)
         out = np.empty_like(u)
         _ap2_run(u, self._state, self._started, self._g, self._a1, self._a2, out)
@@ -235,7 +248,7 @@ class GainMismatch:
     ``gains`` per axis; ``cross_gains`` an n×n matrix whose diagonal is ignored (default none).
     """
 
-    def __init__(self, gains, n_axes: int = 2, cross_gains=None):
+    def __init__(self, gains: ArrayLike, n_axes: int = 2, cross_gains: ArrayLike | None = None) -> None:
         self.n = n_axes
         self.gains = _per_axis(gains, n_axes, "gain_mismatch.gains")
         C = np.zeros((n_axes, n_axes)) if cross_gains is None else np.asarray(cross_gains, float)
@@ -247,11 +260,14 @@ class GainMismatch:
         self._diag = not np.any(C - np.diag(np.diag(C)))
 
     def reset(self) -> None:
+        """All states back to rest."""
         pass
 
-    def process(self, y):
+    def process(self, y: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         y = _block(y, self.n)
-        return y * self.gains if self._diag else y @ self.G.T
+        res: np.ndarray = y * self.gains if self._diag else y @ self.G.T
+        return res
 
 
 class ThermalDrift:
@@ -260,7 +276,7 @@ class ThermalDrift:
     ``amplitudes`` [m] per axis, ``time_constant`` τ [s].
     """
 
-    def __init__(self, amplitudes, time_constant: float, dt: float, n_axes: int = 2):
+    def __init__(self, amplitudes: ArrayLike, time_constant: float, dt: float, n_axes: int = 2) -> None:
         if not (math.isfinite(time_constant) and time_constant > 0):
             raise ValueError(f"thermal_drift.time_constant: must be > 0 s, got {time_constant!r}")
         self.n, self.dt, self.tau = n_axes, float(dt), float(time_constant)
@@ -268,6 +284,7 @@ class ThermalDrift:
         self.reset()
 
     def reset(self) -> None:
+        """All states back to rest."""
         self._k = 0
 
     def regressor(self, N: int, start: int = 0) -> np.ndarray:
@@ -275,15 +292,17 @@ class ThermalDrift:
         t = (np.arange(start, start + N, dtype=float)) * self.dt
         return -np.expm1(-t / self.tau)
 
-    def process(self, y):
+    def process(self, y: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         y = _block(y, self.n)
         shape = self.regressor(len(y), self._k)
         self._k += len(y)
-        return y + shape[:, None] * self.amplitudes
+        res: np.ndarray = y + shape[:, None] * self.amplitudes
+        return res
 
 
 @njit
-def _lp_bank_run(x, a, state, out):  # pragma: no cover - compiled
+def _lp_bank_run(x: np.ndarray, a: np.ndarray, state: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
     """Sum over a bank of unit-DC first-order low-passes (coefficients ``a``), per column; state [len(a), n]."""
     N, n = x.shape
     m = a.shape[0]
@@ -304,7 +323,8 @@ class CreepNonlinearity:
     at ``Y_ref`` = 10 µm.  ``gamma`` (per axis) is dimensionless, ``beta`` dimensionless.
     """
 
-    def __init__(self, gamma, beta: float, dt: float, n_axes: int = 2, taus: Sequence[float] = CREEP_TAUS):
+    def __init__(self, gamma: ArrayLike, beta: float, dt: float, n_axes: int = 2,
+                 taus: Sequence[float] = CREEP_TAUS) -> None:
         self.n, self.dt = n_axes, float(dt)
         self.gamma = _per_axis(gamma, n_axes, "creep_nonlinearity.gamma")
         if not math.isfinite(beta):
@@ -314,23 +334,28 @@ class CreepNonlinearity:
         self.reset()
 
     def reset(self) -> None:
+        """All states back to rest."""
         self._state = np.zeros((len(self._a), self.n))
         self._started = False
 
     @staticmethod
     def level_input(y: np.ndarray, beta: float) -> np.ndarray:
-        return y + beta * y * np.abs(y) / CREEP_YREF
+        res: np.ndarray = y + beta * y * np.abs(y) / CREEP_YREF
+        return res
 
-    def process(self, y):
+    def process(self, y: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         y = _block(y, self.n)
         v = self.level_input(y, self.beta)
         out = np.empty_like(v)
         _lp_bank_run(v, self._a, self._state, out)
-        return y + out * self.gamma
+        res: np.ndarray = y + out * self.gamma
+        return res
 
 
 @njit
-def _biquad_run(x, b0, b1, b2, a1, a2, z, out):  # pragma: no cover - compiled
+def _biquad_run(x: np.ndarray, b0: float, b1: float, b2: float, a1: float, a2: float, z: np.ndarray,
+                out: np.ndarray) -> None:  # pragma: no cover - compiled
     N, n = x.shape
     for t in range(N):
         for j in range(n):
@@ -341,7 +366,7 @@ def _biquad_run(x, b0, b1, b2, a1, a2, z, out):  # pragma: no cover - compiled
             out[t, j] = yi
 
 
-def _bandpass_coeffs(freq: float, damping: float, dt: float):
+def _bandpass_coeffs(freq: float, damping: float, dt: float) -> tuple[float, float, float, float, float]:
     """Bilinear (prewarped at ω) discretisation of ``2ζωs/(s² + 2ζωs + ω²)`` (unit gain at the peak)."""
     w = 2 * math.pi * freq
     K = w / math.tan(w * dt / 2)
@@ -354,7 +379,7 @@ def _bandpass_coeffs(freq: float, damping: float, dt: float):
     return b0, b1, b2, a1, a2
 
 
-def _highpass_coeffs(freq: float, damping: float, dt: float):
+def _highpass_coeffs(freq: float, damping: float, dt: float) -> tuple[float, float, float, float, float]:
     """Bilinear (prewarped at ω) discretisation of ``s²/(s² + 2ζωs + ω²)`` (0 at DC, 1 far above ω)."""
     w = 2 * math.pi * freq
     K = w / math.tan(w * dt / 2)
@@ -365,7 +390,7 @@ def _highpass_coeffs(freq: float, damping: float, dt: float):
     return b0, -2.0 * b0, b0, a1, a2
 
 
-def _modes_spec(freq, damping, dt: float, name: str):
+def _modes_spec(freq: ArrayLike, damping: ArrayLike, dt: float, name: str) -> tuple[np.ndarray, np.ndarray]:
     """Validated lists of mode frequencies and dampings (scalars mean one mode)."""
     f = np.atleast_1d(np.asarray(freq, float)).reshape(-1)
     z = np.atleast_1d(np.asarray(damping, float)).reshape(-1)
@@ -382,7 +407,7 @@ def _modes_spec(freq, damping, dt: float, name: str):
     return f, z
 
 
-def _mode_gains(gains, K: int, n: int, name: str) -> np.ndarray:
+def _mode_gains(gains: ArrayLike, K: int, n: int, name: str) -> np.ndarray:
     """Gains as [K, n, n] (output i, input j); a per-axis list (one mode) or [K][n] means diagonal."""
     g = np.asarray(gains, float)
     if g.ndim <= 1 and K == 1:
@@ -406,7 +431,8 @@ class UnmodelledMode:
     cross-coupled modes).
     """
 
-    def __init__(self, freq, damping, gains, dt: float, n_axes: int = 2, hp_gains=None):
+    def __init__(self, freq: ArrayLike, damping: ArrayLike, gains: ArrayLike, dt: float, n_axes: int = 2,
+                 hp_gains: ArrayLike | None = None) -> None:
         self.n, self.dt = n_axes, float(dt)
         self.freqs, self.dampings = _modes_spec(freq, damping, self.dt, "unmodelled_mode")
         self.freq, self.damping = float(self.freqs[0]), float(self.dampings[0])
@@ -419,24 +445,26 @@ class UnmodelledMode:
         self.reset()
 
     def reset(self) -> None:
+        """All states back to rest."""
         self._z = [np.zeros((2, self.n)) for _ in self._c]
         self._zh = [np.zeros((2, self.n)) for _ in self._c]
 
-    def highpass(self, y, m: int = 0):
+    def highpass(self, y: np.ndarray, m: int = 0) -> np.ndarray:
         """``HP_m`` of every column of ``y`` (advances mode ``m``'s high-pass state)."""
         y = _block(y, self.n)
         out = np.empty_like(y)
         _biquad_run(y, *self._ch[m], self._zh[m], out)
         return out
 
-    def bandpass(self, y, m: int = 0):
+    def bandpass(self, y: np.ndarray, m: int = 0) -> np.ndarray:
         """``BP_m`` of every column of ``y`` (advances mode ``m``'s state)."""
         y = _block(y, self.n)
         out = np.empty_like(y)
         _biquad_run(y, *self._c[m], self._z[m], out)
         return out
 
-    def process(self, y):
+    def process(self, y: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         y = _block(y, self.n)
         out = y.copy()
         for m in range(len(self._c)):
@@ -447,7 +475,7 @@ class UnmodelledMode:
 
 
 @njit
-def _level_run(y, a, state, started, out):  # pragma: no cover - compiled
+def _level_run(y: np.ndarray, a: float, state: np.ndarray, started: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
     N, n = y.shape
     for t in range(N):
         for j in range(n):
@@ -470,8 +498,8 @@ class AmplitudeDependentDynamics:
     ``gains``/``hp_gains``: as for :class:`UnmodelledMode`; ``level_gains``/``level_hp_gains``: ``[K][n]``.
     """
 
-    def __init__(self, freq, damping, gains, level_gains, dt: float, n_axes: int = 2, hp_gains=None,
-                 level_hp_gains=None):
+    def __init__(self, freq: ArrayLike, damping: ArrayLike, gains: ArrayLike, level_gains: ArrayLike, dt: float,
+                 n_axes: int = 2, hp_gains: ArrayLike | None = None, level_hp_gains: ArrayLike | None = None) -> None:
         self.n, self.dt = n_axes, float(dt)
         self.freqs, self.dampings = _modes_spec(freq, damping, self.dt, "amplitude_dependent_dynamics")
         K = len(self.freqs)
@@ -480,7 +508,7 @@ class AmplitudeDependentDynamics:
                                    _mode_gains(gains, K, n_axes, f"{name}.gains"), dt, n_axes,
                                    None if hp_gains is None else _mode_gains(hp_gains, K, n_axes, f"{name}.hp_gains"))
 
-        def diag(v, what):
+        def diag(v: ArrayLike, what: str) -> np.ndarray:
             return np.diagonal(_mode_gains(v, K, n_axes, f"{name}.{what}"), axis1=1, axis2=2).copy()
         self.Kl = diag(level_gains, "level_gains")
         self.Kh = np.zeros_like(self.Kl) if level_hp_gains is None else diag(level_hp_gains, "level_hp_gains")
@@ -488,18 +516,20 @@ class AmplitudeDependentDynamics:
         self.reset()
 
     def reset(self) -> None:
+        """All states back to rest."""
         self.base.reset()
         self._lev = np.zeros(self.n)
         self._started = np.zeros(1, np.bool_)
 
-    def level(self, y):
+    def level(self, y: np.ndarray) -> np.ndarray:
         """``A(t)`` of every column (advances the level state)."""
         y = _block(y, self.n)
         out = np.empty_like(y)
         _level_run(y, self._a, self._lev, self._started, out)
         return out / LEVEL_REF
 
-    def process(self, y):
+    def process(self, y: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         y = _block(y, self.n)
         lev = self.level(y)
         out = y.copy()
@@ -517,7 +547,7 @@ class BranchEvenTerm:
     descending branch bent differently, which a point-symmetric loop cannot have.  Part of
     ``hysteresis_asymmetry`` (parameters ``even``, ``branch_even``)."""
 
-    def __init__(self, even, branch_even, dt: float, n_axes: int = 2):
+    def __init__(self, even: ArrayLike, branch_even: ArrayLike, dt: float, n_axes: int = 2) -> None:
         self.n, self.dt = n_axes, float(dt)
         self.even = _per_axis(even, n_axes, "hysteresis_asymmetry.even")
         self.branch = _per_axis(branch_even, n_axes, "hysteresis_asymmetry.branch_even")
@@ -525,10 +555,11 @@ class BranchEvenTerm:
         self.reset()
 
     def reset(self) -> None:
+        """All states back to rest."""
         self._lp = np.zeros(self.n)
         self._started = np.zeros(1, np.bool_)
 
-    def terms(self, y):
+    def terms(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(q, D·q) of every column, q = Y²/LEVEL_REF (advances the direction state)."""
         y = _block(y, self.n)
         lp = np.empty_like(y)
@@ -536,14 +567,16 @@ class BranchEvenTerm:
         q = y * y / LEVEL_REF
         return q, np.sign(y - lp) * q
 
-    def process(self, y):
+    def process(self, y: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         y = _block(y, self.n)
         q, dq = self.terms(y)
-        return y + q * self.even + dq * self.branch
+        res: np.ndarray = y + q * self.even + dq * self.branch
+        return res
 
 
 @njit
-def _lp1_run(u, y_prev, started, a, out):  # pragma: no cover - compiled
+def _lp1_run(u: np.ndarray, y_prev: np.ndarray, started: np.ndarray, a: float, out: np.ndarray) -> None:  # pragma: no cover - compiled
     N, n = u.shape
     for t in range(N):
         for j in range(n):
@@ -559,8 +592,9 @@ def _lp1_run(u, y_prev, started, a, out):  # pragma: no cover - compiled
 # --------------------------------------------------------------------------------------------------------------
 
 @njit
-def _bw_rate_run(Dp, A, B, G, D1, D2, P, alpha, rate_ref, a_smooth, dt,
-                 h, u_prev, rate, started, u, y):  # pragma: no cover - compiled
+def _bw_rate_run(Dp: np.ndarray, A: np.ndarray, B: np.ndarray, G: np.ndarray, D1: np.ndarray, D2: np.ndarray,
+                 P: np.ndarray, alpha: float, rate_ref: float, a_smooth: float, dt: float, h: np.ndarray,
+                 u_prev: np.ndarray, rate: np.ndarray, started: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
     N = u.shape[0]
     k = u.shape[1]
     n = h.shape[0]
@@ -619,12 +653,14 @@ class HysteresisStage:
         self.reset()
 
     def reset(self) -> None:
+        """All states back to rest."""
         self._h = np.zeros(self.cfg.n_out)
         self._u_prev = np.zeros(self.cfg.n_in)
         self._rate = np.zeros(self.cfg.n_in)
         self._started = np.zeros(1, np.bool_)
 
-    def process(self, u):
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         u = _block(u, self.cfg.n_in)
         y = np.empty((len(u), self.cfg.n_out))
         _bw_rate_run(*self._p, self.alpha, RATE_REF, self._a_smooth, self.dt,
@@ -646,7 +682,7 @@ class EffectSpec:
 
     name: str
     position: str
-    params: Mapping[str, tuple]
+    params: Mapping[str, tuple[str, bool]]
     description: str
     signature: str
 
@@ -693,7 +729,7 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
 EFFECT_NAMES = tuple(EFFECTS)
 
 
-def _stage(name: str, p: Mapping, cfg: PiezoConfig):
+def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
     n, dt = cfg.n_axes, cfg.dt
     if name == "input_delay":
         return InputDelay(p["delay"], dt, n)
@@ -717,7 +753,7 @@ def _stage(name: str, p: Mapping, cfg: PiezoConfig):
     raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
 
 
-def asymmetric_hysteresis_config(hcfg: BoucWenConfig, delta1, delta2) -> BoucWenConfig:
+def asymmetric_hysteresis_config(hcfg: BoucWenConfig, delta1: ArrayLike, delta2: ArrayLike) -> BoucWenConfig:
     """The nominal Bouc-Wen with diagonal generalized terms ``Δ1 = diag(delta1)``, ``Δ2 = diag(delta2)`` added."""
     n = hcfg.n_out
     p = hcfg.arrays()
@@ -726,14 +762,15 @@ def asymmetric_hysteresis_config(hcfg: BoucWenConfig, delta1, delta2) -> BoucWen
     return replace(hcfg, Delta1=tuple(map(tuple, D1)), Delta2=tuple(map(tuple, D2)))
 
 
-def build_plant(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping]] = (), noise_std: float = 0.0,
+def build_plant(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[str, Any]]] = (), noise_std: float = 0.0,
                 seed: int = 0) -> Plant:
     """The nominal plant of ``cfg`` with ``effects`` = ``[(name, params), …]`` added (see :data:`EFFECTS`).
 
     Voltage-side effects are applied in the order given, then the hysteresis (generalized/rate-dependent when
     those effects are present), creep and dynamics, then the displacement-side effects in the order given.
     """
-    pre, post = [], []
+    pre: list[Processor] = []
+    post: list[Processor] = []
     hcfg, alpha, custom_h = cfg.hysteresis, 0.0, False
     for name, p in effects:
         if name not in EFFECTS:

@@ -7,11 +7,12 @@ inserted before (on the voltage) or after (on the displacement) the nominal chai
 """
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Literal, Sequence, overload
 
 import numpy as np
 
 from ..config import PiezoConfig
+from ..stage import Processor
 from .bouc_wen import BoucWenModel
 from .creep import CreepModel
 from .dynamics import DynamicsModel
@@ -37,7 +38,7 @@ class Plant:
         Which of ``hysteresis``, ``creep``, ``dynamics`` to include (the intermediate systems of Fig. 3).
     """
 
-    def __init__(self, cfg: PiezoConfig, pre: Sequence = (), post: Sequence = (), noise_std: float = 0.0,
+    def __init__(self, cfg: PiezoConfig, pre: Sequence[Processor] = (), post: Sequence[Processor] = (), noise_std: float = 0.0,
                  seed: int = 0, stages: Sequence[str] = ("hysteresis", "creep", "dynamics")):
         self.cfg = cfg
         self.dt = cfg.dt
@@ -53,16 +54,38 @@ class Plant:
 
     @property
     def n_axes(self) -> int:
+        """Number of axes."""
         return self.cfg.n_axes
 
     def reset(self) -> None:
+        """All states back to rest."""
         for st in (self.hysteresis, self.creep, self.dynamics, *self.pre, *self.post):
             if st is not None:
                 st.reset()
         self._rng = np.random.default_rng(self.seed)
 
-    def process(self, u: np.ndarray, taps: bool = False):
-        """Run a block; with ``taps=True`` also return ``{'yh': Dp·U − h, 'yl': creep output}``."""
+    @overload
+    def process(self, u: np.ndarray, taps: Literal[False] = ...) -> np.ndarray: ...
+    @overload
+    def process(self, u: np.ndarray, taps: Literal[True]) -> tuple[np.ndarray, dict[str, np.ndarray]]: ...
+
+    def process(self, u: np.ndarray, taps: bool = False) -> np.ndarray | tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Run a block; with ``taps=True`` also return ``{'yh': Dp·U − h, 'yl': creep output}``.
+
+        Parameters
+        ----------
+        u : ndarray
+            Voltages [V], shape [N, axes].
+        taps : bool
+            Also return the intermediate signals.
+
+        Returns
+        -------
+        y : ndarray
+            Displacements [m], shape [N, axes] (with noise when ``noise_std`` > 0).
+        taps : dict
+            Only with ``taps=True``: ``yh`` and ``yl`` [N, axes].
+        """
         x = np.ascontiguousarray(u, dtype=float)
         if x.ndim != 2 or x.shape[1] != self.n_axes:
             raise ValueError(f"expected a voltage block of shape [N, {self.n_axes}], got {x.shape}")

@@ -24,11 +24,16 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..config import HinfConfig
 from ..lti import TFMatrix
+if TYPE_CHECKING:
+    from control import StateSpace   # no type information: Any for mypy, documentation here
+
 from .reduction import ReductionError, balanced_truncation, hankel_singular_values, truncation_error_bound
 
 __all__ = [
@@ -66,11 +71,11 @@ class HinfDesign:
     synthesis_s: float                 #: wall time of synthesis + reduction [s]
     gamma_lower_bound: float = math.nan  #: the DC bound for these weights (:func:`lower_bound_dc` with cfg)
     verify_s: float = math.nan         #: wall time of the frequency-grid verification [s]
-    notes: tuple = field(default=())   #: what was done beyond the plain path (retries, cancellations)
+    notes: tuple[str, ...] = field(default=())   #: what was done beyond the plain path (retries, cancellations)
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         """JSON-friendly summary (no matrices; see :meth:`controller_matrices`)."""
-        def num(x):
+        def num(x: float | None) -> float | None:
             return None if x is None or not math.isfinite(float(x)) else float(x)
 
         return {
@@ -87,7 +92,7 @@ class HinfDesign:
             "notes": list(self.notes),
         }
 
-    def controller_matrices(self) -> dict:
+    def controller_matrices(self) -> dict[str, list[list[float]]]:
         """The reduced controller as ``{'A','B','C','D'}`` nested lists, loadable as ``HinfConfig.controller``."""
         c = self.controller
         return {k: np.asarray(getattr(c, k), float).tolist() for k in ("A", "B", "C", "D")}
@@ -97,14 +102,14 @@ class HinfDesign:
 # Weights and generalized plant
 # ----------------------------------------------------------------------------------------------------------------
 
-def _weight_coefficients(cfg: HinfConfig):
+def _weight_coefficients(cfg: HinfConfig) -> tuple[float, float]:
     """``a = 3/t_r`` (Wr pole, W1 zero) and ``b = 3·eps_s/(t_r·k_o)`` (W1 pole)."""
     a = 3.0 / cfg.t_r
     b = 3.0 * cfg.eps_s / (cfg.t_r * cfg.k_o)
     return a, b
 
 
-def weights(cfg: HinfConfig, n_axes: int):
+def weights(cfg: HinfConfig, n_axes: int) -> tuple[StateSpace, StateSpace, StateSpace]:
     """The diagonal weights of Eq. 15–19 as ``control.StateSpace`` systems ``(Wr, W1, W2)``.
 
     ``Wr = 1/(t_r/3·s + 1)``, ``W1 = (s + 3/t_r)/(k_o·s + 3·eps_s/t_r)``, ``W2 = diag(cfg.W2)``, each n_axes × n_axes.
@@ -128,7 +133,7 @@ def _square_axes(G_L: TFMatrix) -> int:
     return n_out
 
 
-def generalized_plant(G_L: TFMatrix, cfg: HinfConfig):
+def generalized_plant(G_L: TFMatrix, cfg: HinfConfig) -> StateSpace:
     """The augmented plant of Fig. 13 as one ``control.StateSpace``.
 
     Inputs ``[w (Y_R), u (Y_L)]``, outputs ``[z1 = W2·u, z2 = W1(Wr·w − G_L·u), y = w]``.  States: the real modal
@@ -200,7 +205,7 @@ def lower_bound_dc(G_L: TFMatrix, cfg: HinfConfig | None = None) -> float:
 # Frequency-domain verification (independent of the realisation given to hinfsyn: G_L from its printed factors)
 # ----------------------------------------------------------------------------------------------------------------
 
-def _ss_response(sys, w: np.ndarray) -> np.ndarray:
+def _ss_response(sys: StateSpace, w: np.ndarray) -> np.ndarray:
     """``C (jωI − A)⁻¹ B + D`` for every ω, shape ``[len(w), n_out, n_in]``."""
     A, B, C, D = (np.asarray(getattr(sys, k), float) for k in ("A", "B", "C", "D"))
     n = A.shape[0]
@@ -208,27 +213,29 @@ def _ss_response(sys, w: np.ndarray) -> np.ndarray:
         return np.broadcast_to(D.astype(complex), (len(w),) + D.shape).copy()
     M = (1j * w)[:, None, None] * np.eye(n)[None] - A[None]
     X = np.linalg.solve(M, np.broadcast_to(B.astype(complex), (len(w),) + B.shape))
-    return C[None].astype(complex) @ X + D[None]
+    H: np.ndarray = C[None].astype(complex) @ X + D[None]
+    return H
 
 
-def weighted_norm_response(G_L: TFMatrix, controller, cfg: HinfConfig, w) -> np.ndarray:
+def weighted_norm_response(G_L: TFMatrix, controller: StateSpace, cfg: HinfConfig, w: ArrayLike) -> np.ndarray:
     """``σ_max([W2·C; W1·(Wr·I − G_L·C)])(jω)`` for each ω in ``w`` [rad/s] (Eq. 20–21)."""
-    w = np.asarray(w, float)
-    s = 1j * w
+    wv = np.asarray(w, float)
+    s = 1j * wv
     n = _square_axes(G_L)
     a, b = _weight_coefficients(cfg)
     wr = a / (s + a)
     w1 = (s + a) / (cfg.k_o * (s + b))
-    Cjw = _ss_response(controller, w)
+    Cjw = _ss_response(controller, wv)
     Gjw = G_L.eval(s)
     top = np.asarray(cfg.W2, float)[None, :, None] * Cjw
     err = wr[:, None, None] * np.eye(n)[None] - Gjw @ Cjw
     bottom = w1[:, None, None] * err
     stacked = np.concatenate([top, bottom], axis=1)
-    return np.linalg.svd(stacked, compute_uv=False)[:, 0]
+    sigma: np.ndarray = np.linalg.svd(stacked, compute_uv=False)[:, 0]
+    return sigma
 
 
-def _grid(G_L: TFMatrix, controller, w_min: float, w_max: float, n_points: int) -> np.ndarray:
+def _grid(G_L: TFMatrix, controller: StateSpace, w_min: float, w_max: float, n_points: int) -> np.ndarray:
     """Log grid plus ω = 0 plus every pole's natural and damped frequency (lightly damped peaks are not missed)."""
     poles = [G_L[i, j].poles() for i in range(G_L.shape[0]) for j in range(G_L.shape[1])]
     if controller.nstates:
@@ -239,7 +246,7 @@ def _grid(G_L: TFMatrix, controller, w_min: float, w_max: float, n_points: int) 
     return np.unique(np.concatenate([[0.0], np.logspace(np.log10(w_min), np.log10(w_max), n_points), extra]))
 
 
-def achieved_norm(G_L: TFMatrix, controller, cfg: HinfConfig, *, w_min: float = 1e-3, w_max: float = 1e6,
+def achieved_norm(G_L: TFMatrix, controller: StateSpace, cfg: HinfConfig, *, w_min: float = 1e-3, w_max: float = 1e6,
                   n_points: int = 3000) -> tuple[float, float]:
     """``(peak, ω_peak)`` of :func:`weighted_norm_response` on a dense log grid (ω = 0 included), each of the five
     largest local maxima refined by a bounded scalar search between its neighbours."""
@@ -266,11 +273,11 @@ def achieved_norm(G_L: TFMatrix, controller, cfg: HinfConfig, *, w_min: float = 
 # Synthesis
 # ----------------------------------------------------------------------------------------------------------------
 
-def _max_real_pole(sys) -> float:
+def _max_real_pole(sys: StateSpace) -> float:
     return float(np.max(np.linalg.eigvals(np.asarray(sys.A, float)).real)) if sys.nstates else -math.inf
 
 
-def _central_controller(P, n: int, gamma: float):
+def _central_controller(P: StateSpace, n: int, gamma: float) -> tuple[StateSpace | None, str]:
     """SB10AD with JOB = 4 (no γ iteration): the central controller for the given γ, or None if none exists."""
     import control
     from slycot import sb10ad
@@ -349,7 +356,7 @@ def synthesize_hinf(G_L: TFMatrix, cfg: HinfConfig, *, reduce: bool = True, veri
     verify_s = 0.0
     attempts = []
 
-    def attempt(gamma: float):
+    def attempt(gamma: float) -> tuple[StateSpace | None, float]:
         """Central controller at γ, accepted only if it exists, is stable and achieves γ on the grid."""
         nonlocal synthesis_s, verify_s
         t = time.perf_counter()

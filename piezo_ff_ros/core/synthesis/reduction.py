@@ -6,7 +6,12 @@ stable and its error is bounded by twice the sum of the discarded Hankel singula
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from control import StateSpace   # no type information: Any for mypy, documentation here
 
 __all__ = ["ReductionError", "hankel_singular_values", "balanced_truncation", "truncation_error_bound"]
 
@@ -15,7 +20,7 @@ class ReductionError(RuntimeError):
     """The system cannot be reduced (unstable, or the routine failed)."""
 
 
-def _stable_or_raise(sys, what: str) -> None:
+def _stable_or_raise(sys: StateSpace, what: str) -> None:
     if sys.nstates == 0:
         return
     worst = float(np.max(np.linalg.eigvals(sys.A).real))
@@ -24,24 +29,40 @@ def _stable_or_raise(sys, what: str) -> None:
                              "needs a stable system and an open-loop feedforward controller must be stable")
 
 
-def _ab09ad(sys, nr: int | None):
+def _ab09ad(sys: StateSpace, nr: int | None) -> tuple[Any, ...]:
     """SLICOT AB09AD (square-root balance & truncate) — the routine ``control.balred(method='truncate')`` calls
     for stable systems; called directly because it also returns the Hankel singular values."""
     from slycot import ab09ad
 
     n, m, p = sys.nstates, sys.ninputs, sys.noutputs
     try:
-        return ab09ad("C", "B", "N", n, m, p, np.array(sys.A, float), np.array(sys.B, float),
-                      np.array(sys.C, float), nr=nr)
+        out: tuple[Any, ...] = ab09ad("C", "B", "N", n, m, p, np.array(sys.A, float), np.array(sys.B, float),
+                                      np.array(sys.C, float), nr=nr)
+        return out
     except Exception as exc:  # slycot raises its own error types with the SLICOT info code
         raise ReductionError(f"balanced truncation (SLICOT AB09AD) failed: {exc}") from exc
 
 
-def hankel_singular_values(sys) -> np.ndarray:
+def hankel_singular_values(sys: StateSpace) -> np.ndarray:
     """Hankel singular values of a stable continuous system, largest first.
 
     Computed by the square-root method (SLICOT AB09AD); ``control.hsvd`` forms the Gramian product explicitly and
     returns NaN for the tiny ones of a 38-state H∞ controller.
+
+    Parameters
+    ----------
+    sys : control.StateSpace
+        A stable continuous system.
+
+    Returns
+    -------
+    numpy.ndarray
+        The Hankel singular values, largest first.
+
+    Raises
+    ------
+    ReductionError
+        If ``sys`` is not stable or SLICOT fails.
     """
     _stable_or_raise(sys, "system")
     if sys.nstates == 0:
@@ -50,12 +71,30 @@ def hankel_singular_values(sys) -> np.ndarray:
     return np.asarray(_ab09ad(sys, None)[4], float).copy()
 
 
-def balanced_truncation(sys, order: int):
+def balanced_truncation(sys: StateSpace, order: int) -> tuple[StateSpace, np.ndarray]:
     """Balanced truncation of a stable continuous ``control.StateSpace`` to ``order`` states.
 
-    Returns ``(reduced, hsv)``: the reduced system (same D: truncation, not singular perturbation) and the Hankel
-    singular values of ``sys``.  If ``order`` ≥ the number of states, ``sys`` is returned unchanged.  AB09AD may
-    return fewer states when ``sys`` has fewer than ``order`` controllable-and-observable ones.
+    If ``order`` ≥ the number of states, ``sys`` is returned unchanged.  AB09AD may return fewer states when ``sys``
+    has fewer than ``order`` controllable-and-observable ones.
+
+    Parameters
+    ----------
+    sys : control.StateSpace
+        A stable continuous system.
+    order : int
+        Number of states to keep.
+
+    Returns
+    -------
+    reduced : control.StateSpace
+        The reduced system (same D: truncation, not singular perturbation).
+    hsv : numpy.ndarray
+        The Hankel singular values of ``sys``.
+
+    Raises
+    ------
+    ReductionError
+        If ``sys`` or the reduced system is not stable, or SLICOT fails.
     """
     import control
 
@@ -69,5 +108,18 @@ def balanced_truncation(sys, order: int):
 
 
 def truncation_error_bound(hsv: np.ndarray, order: int) -> float:
-    """``2 Σ_{i>order} σ_i``: an upper bound on ``‖C − C_r‖∞`` after balanced truncation to ``order``."""
+    """``2 Σ_{i>order} σ_i``: an upper bound on ``‖C − C_r‖∞`` after balanced truncation to ``order``.
+
+    Parameters
+    ----------
+    hsv : numpy.ndarray
+        Hankel singular values, largest first.
+    order : int
+        The reduced order.
+
+    Returns
+    -------
+    float
+        The bound.
+    """
     return float(2.0 * np.sum(np.asarray(hsv)[order:]))
