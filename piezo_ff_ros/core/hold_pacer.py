@@ -18,13 +18,21 @@ import numpy as np
 __all__ = ["HoldPacer"]
 
 
-def _positive(value, name: str, integer: bool = False, allow_zero: bool = False) -> float:
+def _check_number(value: object, name: str, integer: bool = False, allow_zero: bool = False) -> float:
     ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value) and (
         value > 0 or (allow_zero and value == 0)) and (not integer or int(value) == value)
     if not ok:
         raise ValueError(f"{name}: expected a finite {'integer' if integer else 'number'} "
                          f"{'>= 0' if allow_zero else '> 0'}, got {value!r}")
-    return int(value) if integer else float(value)
+    return float(value)  # type: ignore[arg-type]  # reason: checked to be an int or float just above
+
+
+def _positive(value: object, name: str, allow_zero: bool = False) -> float:
+    return _check_number(value, name, allow_zero=allow_zero)
+
+
+def _positive_int(value: object, name: str) -> int:
+    return int(_check_number(value, name, integer=True))
 
 
 @dataclass
@@ -55,7 +63,7 @@ class HoldPacer:
 
     def __post_init__(self) -> None:
         self.sample_rate = _positive(self.sample_rate, "sample_rate")
-        self.block_size = _positive(self.block_size, "block_size", integer=True)
+        self.block_size = _positive_int(self.block_size, "block_size")
         self.hold_timeout = _positive(self.hold_timeout, "hold_timeout", allow_zero=True)
         self.max_late_s = _positive(self.max_late_s, "max_late_s")
 
@@ -71,7 +79,7 @@ class HoldPacer:
 
     def set_block_size(self, n: int) -> None:
         """A new block size, from the next block on (the schedule restarts)."""
-        self.block_size = _positive(n, "block_size", integer=True)
+        self.block_size = _positive_int(n, "block_size")
         self._start = None
 
     def set_point(self, point) -> None:
