@@ -38,7 +38,15 @@ def claim_test_domain(first: int = 1, last: int = 100) -> tuple[int, object]:
 
 
 if os.environ.get("PIEZO_FF_TEST_DOMAIN"):
-    os.environ["ROS_DOMAIN_ID"] = os.environ["PIEZO_FF_TEST_DOMAIN"]
+    # a domain given by hand is claimed too, so that an automatic claim elsewhere cannot land on it (two sessions
+    # on one domain see each other's nodes: "another driver publishes on /displacement")
+    # (best effort: already held — by the session that spawned this one, or by hand twice — it is used anyway)
+    _DOMAIN = int(os.environ["PIEZO_FF_TEST_DOMAIN"])
+    try:
+        _DOMAIN, _DOMAIN_LOCK = claim_test_domain(_DOMAIN, _DOMAIN)
+    except RuntimeError:
+        pass
+    os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN)
 else:
     _DOMAIN, _DOMAIN_LOCK = claim_test_domain()   # held until this process exits
     os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN)
