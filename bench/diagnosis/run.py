@@ -295,7 +295,7 @@ def main(argv=None) -> int:
         if tmp is not None:
             tmp.cleanup()
     summaries = {}
-    for sp in ("tuning", "heldout"):
+    for sp in ("tuning", "heldout", "fresh"):
         for fam in ("out", "in"):
             sel = [r for r in rows if r["split"] == sp and r["family"] == fam]
             if sel:

@@ -672,7 +672,7 @@ def json_ready(result: dict) -> dict:
     """The result without the arrays, with floats made JSON-safe (NaN/Inf → None)."""
     def clean(v):
         if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items() if not k.startswith("_")}
+            return {k: clean(x) for k, x in v.items() if not (isinstance(k, str) and k.startswith("_"))}
         if isinstance(v, (list, tuple)):
             return [clean(x) for x in v]
         if isinstance(v, (np.floating, float)):
