@@ -124,6 +124,9 @@ def test_every_withheld_effect_changes_the_output():
 
 def test_seed_sets_are_disjoint_and_the_heldout_set_is_frozen():
     assert not set(S.TUNING_SEEDS) & set(S.HELDOUT_SEEDS)
+    fresh = set(S.FRESH_HELDOUT_SEEDS)
+    assert len(fresh) == 2 and not fresh & (set(S.TUNING_SEEDS) | set(S.HELDOUT_SEEDS))
+    assert S.IN_FAMILY_SEED["fresh"] not in (S.IN_FAMILY_SEED["tuning"], S.IN_FAMILY_SEED["heldout"])
     assert "frozen 2026-11-23, never looked at while tuning" in (ROOT / "bench/diagnosis/seeds.py").read_text()
     names = {c.template for c in C.make_cases(S.HELDOUT_SEEDS, quick=True)}
     assert names == {t.name for t in C.TEMPLATES}

@@ -236,7 +236,7 @@ def build_cases(split: str, family: str, quick: bool, only) -> list[tuple[str, C
     out = []
     splits = ("tuning", "heldout") if split == "all" else (split,)
     for sp in splits:
-        seeds = S.TUNING_SEEDS if sp == "tuning" else S.HELDOUT_SEEDS
+        seeds = {"tuning": S.TUNING_SEEDS, "heldout": S.HELDOUT_SEEDS, "fresh": S.FRESH_HELDOUT_SEEDS}[sp]
         if family in ("out", "all"):
             out += [(sp, c) for c in C.make_cases(seeds, quick=quick, only=only)]
         if family in ("in", "all"):
@@ -246,8 +246,9 @@ def build_cases(split: str, family: str, quick: bool, only) -> list[tuple[str, C
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--split", choices=("tuning", "heldout", "all"), default="tuning",
-                    help="seed set: the tuning one (default), the frozen held-out one, or both")
+    ap.add_argument("--split", choices=("tuning", "heldout", "fresh", "all"), default="tuning",
+                    help="seed set: the tuning one (default), the frozen held-out one (looked at since), the fresh "
+                         "held-out one (frozen in session 3), or tuning + held-out")
     ap.add_argument("--family", choices=("out", "in", "all"), default="all",
                     help="out-of-family (this benchmark's truths), in-family (the old bench cases), or both")
     ap.add_argument("--jobs", type=int, default=1, help="cases diagnosed in parallel (default 1)")
@@ -294,7 +295,7 @@ def main(argv=None) -> int:
         if tmp is not None:
             tmp.cleanup()
     summaries = {}
-    for sp in ("tuning", "heldout"):
+    for sp in ("tuning", "heldout", "fresh"):
         for fam in ("out", "in"):
             sel = [r for r in rows if r["split"] == sp and r["family"] == fam]
             if sel:
@@ -306,7 +307,8 @@ def main(argv=None) -> int:
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         Path(a.json).write_text(json.dumps({"summaries": summaries, "rows": rows, "targets": TARGETS,
-                                            "seeds": {"tuning": S.TUNING_SEEDS, "heldout": S.HELDOUT_SEEDS}},
+                                            "seeds": {"tuning": S.TUNING_SEEDS, "heldout": S.HELDOUT_SEEDS,
+                                                      "fresh": S.FRESH_HELDOUT_SEEDS}},
                                            indent=1, default=float))
     return 0
 
