@@ -2,12 +2,11 @@
 held for the whole run, percentiles.  No ROS import here (the ROS environment must be set before rclpy loads)."""
 from __future__ import annotations
 
-import fcntl
 import os
-import tempfile
-from pathlib import Path
 
 import numpy as np
+
+from piezo_ff_ros.ros.env import claim_ros_domain  # noqa: F401  (one lock-file scheme: tests, benchmarks, demo)
 
 CLK = os.sysconf("SC_CLK_TCK")
 
@@ -37,30 +36,6 @@ def have_hinf() -> bool:
         return False
 
 
-def claim_ros_domain(first: int = 1, last: int = 100) -> tuple[int, object]:
-    """A ROS domain that no test session or other benchmark holds, held while the returned file stays open.
-
-    Same lock files as test/conftest.py (``$TMPDIR/piezo_ff_test_domain_<id>.lock``, ``flock``), so that a test
-    run started during a long benchmark picks another domain.
-
-    Returns
-    -------
-    domain : int
-        The domain id.
-    lock : file
-        Keep it open for as long as the domain is used.
-    """
-    start = os.getpid() % (last - first + 1)
-    for i in range(last - first + 1):
-        domain = first + (start + i) % (last - first + 1)
-        f = open(Path(tempfile.gettempdir()) / f"piezo_ff_test_domain_{domain}.lock", "a")
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            f.close()
-            continue
-        return domain, f
-    raise RuntimeError(f"no free ROS domain in {first}…{last} (all locked by test sessions or benchmarks)")
 
 
 def percentiles_ms(seconds, digits: int = 3) -> dict:

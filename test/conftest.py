@@ -7,7 +7,6 @@ temp dir.  Data tests skip cleanly where ../shared/data is absent.
 """
 from __future__ import annotations
 
-import fcntl
 import os
 import sys
 import tempfile
@@ -22,19 +21,7 @@ if str(ROOT) not in sys.path:
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
 
-def claim_test_domain(first: int = 1, last: int = 100) -> tuple[int, object]:
-    """A ROS domain no other test session holds: the first whose lock file we can ``flock`` (kept open = held)."""
-    start = os.getpid() % (last - first + 1)
-    for i in range(last - first + 1):
-        domain = first + (start + i) % (last - first + 1)
-        f = open(Path(tempfile.gettempdir()) / f"piezo_ff_test_domain_{domain}.lock", "a")
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            f.close()
-            continue
-        return domain, f
-    raise RuntimeError(f"no free ROS test domain in {first}…{last} (all locked by other test sessions)")
+from piezo_ff_ros.ros.env import claim_ros_domain as claim_test_domain  # noqa: E402  (ROOT on sys.path first)
 
 
 if os.environ.get("PIEZO_FF_TEST_DOMAIN"):

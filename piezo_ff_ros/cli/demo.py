@@ -46,7 +46,8 @@ def add_parser(subparsers):
                         "latency, underruns) with its clock SPEED times real time (1 = a real rig's pace); default: "
                         "the lockstep simulator")
     p.add_argument("--domain-id", type=int, metavar="ID",
-                   help="ROS_DOMAIN_ID of the demo's graph (default: a private one derived from the process id)")
+                   help="ROS_DOMAIN_ID of the demo's graph (default: a free one, held while the demo runs, that no "
+                        "test session or benchmark of this project uses)")
     p.add_argument("--only", metavar="NAMES", help="comma-separated experiment names (default: all)")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
     p.set_defaults(func=run)

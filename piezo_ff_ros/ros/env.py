@@ -8,8 +8,40 @@ Imports nothing from ROS.
 """
 from __future__ import annotations
 
+import fcntl
 import os
 import tempfile
+from pathlib import Path
+from typing import IO
+
+#: the domains this process claimed (their lock files stay open, i.e. held, until it exits)
+_HELD: list[IO[str]] = []
+
+
+def claim_ros_domain(first: int = 1, last: int = 100) -> tuple[int, IO[str]]:
+    """A ROS domain no other test session, benchmark or demo of this project holds: the first in ``first…last``
+    whose lock file (``$TMPDIR/piezo_ff_test_domain_<id>.lock``) can be ``flock``-ed; held while the returned file
+    stays open.
+
+    Returns
+    -------
+    domain : int
+        The domain id.
+    lock : file
+        Keep it open for as long as the domain is used.
+    """
+    start = os.getpid() % (last - first + 1)
+    for i in range(last - first + 1):
+        domain = first + (start + i) % (last - first + 1)
+        f = open(Path(tempfile.gettempdir()) / f"piezo_ff_test_domain_{domain}.lock", "a")
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            f.close()
+            continue
+        return domain, f
+    raise RuntimeError(f"no free ROS domain in {first}…{last} (all held by other test sessions, benchmarks or "
+                       "demos)")
 
 
 def apply_ros_env_defaults(domain_id: int | None = None, env: dict | None = None, force_domain: bool = False) -> dict:
@@ -17,7 +49,10 @@ def apply_ros_env_defaults(domain_id: int | None = None, env: dict | None = None
     env = os.environ if env is None else env
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # mandatory here, never left to the default
     if force_domain or "ROS_DOMAIN_ID" not in env:
-        env["ROS_DOMAIN_ID"] = str(domain_id if domain_id is not None else 1 + os.getpid() % 100)
+        if domain_id is None:   # a free one, held for this process's lifetime (no other run of ours lands on it)
+            domain_id, lock = claim_ros_domain()
+            _HELD.append(lock)
+        env["ROS_DOMAIN_ID"] = str(domain_id)
     if "ROS_LOG_DIR" not in env:
         env["ROS_LOG_DIR"] = tempfile.mkdtemp(prefix="piezo_ff_roslog_")
     return env
