@@ -342,27 +342,32 @@ def test_kill9_and_restart_of_compensator_driver_and_trajectory(tmp_path, probe)
     for topic in ("/reference", "/voltage", "/displacement", "/voltage_applied"):
         assert counts["mcap"][topic] == counts["rosbags"][topic] == counts["piezo_ff"][topic] > 0, topic
     run = counts["run"]
-    gaps = {role: _gaps(run, role) for role in ("reference", "voltage", "displacement")}
-    print("gaps in the recording [samples]:", gaps)
-    # each node's death is one gap of its output in the recording.  The probe's figure and the recording's differ
-    # by what each observer missed of the restarted publisher before discovering it (the compensator's and the
-    # driver's writers do not wait for readers; the trajectory waits for 3 matched readers, but a dead node's reader
-    # still counts until its lease ends): < 1 s either way
-    # (matched by size to what the probe saw, not by position: under load a restart can be short enough for the
-    # driver to hold the gap (≤ max_gap) instead of leaving one in its own output)
-    def nearest(role: str, name: str) -> int:
-        assert gaps[role], (role, gaps)
-        return min(gaps[role], key=lambda n: abs(n - faults[name]["lost_samples"]))
+    gaps = {role: sorted(run.meta["blocks"][role]["gaps"]) for role in ("reference", "voltage", "displacement")}
+    print("gaps in the recording [samples]:", {r: [b - a for a, b in g] for r, g in gaps.items()})
+    # each node's death is one gap of its output in the recording, found by *where* it ends (at that node's first
+    # sample after the restart), not by its position in the list or its size: under load a restart can be short
+    # enough for the driver to hold the gap (≤ max_gap) instead of leaving one in its own output.  The probe's
+    # figure and the recording's differ by what each observer missed of the restarted publisher before discovering
+    # it: the compensator's and the driver's writers do not wait for readers (a driver must not: its output goes on),
+    # so the recorder may miss the first seconds of a restarted node's output — 2.8 s once on an idle 2-core host.
+    discovery_lag = 5.0
 
-    ref_gap = gaps["reference"]
-    comp_gap, traj_gap, drv_gap = nearest("voltage", "compensator"), nearest("voltage", "trajectory"), \
-        nearest("displacement", "driver")
-    recorded = {"trajectory": ref_gap[0], "compensator": comp_gap, "driver": drv_gap}
+    def gap_of(role: str, name: str) -> int:
+        assert gaps[role], (role, gaps)
+        k_new = (faults[name]["first_new"] - run.meta["t0_ns"]) // DT_NS
+        a, b = min(gaps[role], key=lambda g: abs(g[1] - k_new))
+        return int(b - a)
+
+    ref_gaps = [b - a for a, b in gaps["reference"]]
+    recorded = {"trajectory": gap_of("reference", "trajectory"), "compensator": gap_of("voltage", "compensator"),
+                "driver": gap_of("displacement", "driver")}
     print("lost in the recording [s]:", {k: v / FS for k, v in recorded.items()})
-    assert len(ref_gap) == 1 and traj_gap == ref_gap[0], gaps   # no voltage where there was no reference
+    assert len(ref_gaps) == 1, gaps                       # only the trajectory's death leaves the reference a gap
+    assert gap_of("voltage", "trajectory") == ref_gaps[0], gaps   # no voltage where there was no reference
     for name, f in faults.items():
-        assert 0 < recorded[name] <= (f["downtime_s"] + max(f["in_flight_s"], 0) + 1.0) * FS, (name, recorded, f)
-        assert abs(recorded[name] - f["lost_samples"]) < 1.0 * FS, (name, recorded, f)
+        assert 0 < recorded[name] <= (f["downtime_s"] + max(f["in_flight_s"], 0) + discovery_lag) * FS, \
+            (name, recorded, f)
+        assert abs(recorded[name] - f["lost_samples"]) < discovery_lag * FS, (name, recorded, f)
     # the driver's voltage_applied: every sample it output once (its safe ramps included), gaps only where dead
     assert run.meta["blocks"]["displacement"]["duplicates"] == 0
 
