@@ -306,6 +306,9 @@ def test_kill9_and_restart_of_compensator_driver_and_trajectory(tmp_path, probe)
         probe.spin_until(lambda: g.diags and g.diags[-1][2].get("state") == "active", 30, "driver active")
         for name in ("compensator", "driver", "trajectory"):
             topic = OUTPUT[name]
+            # the probe must be receiving that node's output before it dies (its writer discovers the probe's
+            # reader on its own schedule: the fresh-clone CI once killed the compensator before any voltage came)
+            g.wait_blocks(topic, 0.0, 60, f"{topic} blocks before the {name} is killed", n=3)
             resumes0 = int(g.diags[-1][2].get("resumes", 0))
             t_kill, wall_kill = time.monotonic(), time.time_ns()
             kill9(g.procs[name])
