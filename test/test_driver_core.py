@@ -272,3 +272,45 @@ def test_clocked_stream_recovers_after_a_host_stall():
         k = np.searchsorted(stamps, j * 200 * P)
         assert stamps[k] == j * 200 * P
         np.testing.assert_array_equal(a[k:k + 200], 30.0 + j)
+
+
+def test_stream_paced_lockstep_sim_does_not_ramp_on_a_host_stall_and_loses_nothing():
+    """Issue 10 (soak): while a lockstep trajectory paces a lockstep simulator, the simulator's time follows the
+    samples written, so a host stall longer than ``stale_timeout`` is no stale input: no ramp, and the blocks in flight
+    are applied, none late.  Once the pacing ends (the run finished, failed or its source is gone) the wall-clock
+    watchdog is back."""
+    clock = FakeClock()
+    core, L = lockstep(clock), Log()
+    assert core.info.time_follows_samples
+    L.add(core.on_block(0, np.full((200, 2), 10.0)))
+    L.add(core.set_stream_paced(True, "lockstep trajectory playing"))
+    clock.advance(int(5.0 * FS))                    # a 5 s stall ≫ stale_timeout 0.2 s
+    L.add(core.tick())
+    assert core.state == "active" and core.status()["stream_paced"] is True
+    L.add(core.on_block(200 * P, np.full((200, 2), 11.0)))
+    stamps, u = L.check()
+    np.testing.assert_array_equal(stamps, np.arange(400) * P)
+    np.testing.assert_array_equal(u[200:], 11.0)
+    assert core.lost_samples() == 0 and core.book.counters.late_blocks == 0
+    L.add(core.set_stream_paced(False, "trajectory finished"))
+    assert any("wall clock" in m for _, m in L.log)
+    clock.advance(int(0.25 * FS))
+    L.add(core.tick())
+    assert core.state == "safe"                     # the watchdog runs again
+
+
+def test_stream_pacing_is_ignored_by_devices_whose_time_runs_on_its_own():
+    """A clocked device (and a non-clocked real device, whose time is the wall clock) keeps the stale watchdog
+    whatever the trajectory says: a stall there does hold a voltage on a real stage."""
+    clock = FakeClock()
+    s = DriverSettings(sample_rate=FS, n_axes=2, limits=LIM)
+    sim = ClockedSim(FS, 2, Gain(), fifo_depth=8000, now=clock)
+    core, L = DriverCore(s, sim, now=clock), Log()
+    assert not core.info.time_follows_samples
+    L.add(core.start())
+    em = L.add(core.set_stream_paced(True, "lockstep trajectory playing"))
+    assert any("ignored" in m for _, m in em.log) and core.status()["stream_paced"] is False
+    L.add(core.on_block(core.next_stamp or 0, np.full((200, 2), 10.0)))
+    clock.advance(int(0.25 * FS))
+    L.add(core.tick())
+    assert core.state == "safe"

@@ -580,8 +580,10 @@ def test_lockstep_run_survives_a_compensator_kill9_and_restart(tmp_path, probe):
     compensator is killed with -9 and restarted.  The blocks in flight died with it: they are never answered.
     Expected: the trajectory gives them up after ``ack_timeout`` (counted: ``unanswered_blocks`` in its state),
     keeps playing, and the run goes on with the restarted compensator — not a stall until ``lockstep_timeout``
-    and a failed run.  The driver went safe meanwhile and resumes.  Lost: the blocks sent while the compensator
-    was down (a window of 3 per ``ack_timeout``) — nothing else."""
+    and a failed run.  The driver stays ``active`` meanwhile, its stale watchdog suspended (``stream_paced``: the
+    lockstep simulator's time stands still between blocks, so no voltage is held in device time; it used to ramp
+    to safe and then drop blocks in flight as late).  Lost: the blocks sent while the compensator was down (a
+    window of 3 per ``ack_timeout``) — nothing else."""
     from std_msgs.msg import String
 
     from piezo_ff_ros.nodes.common import LATCHED_QOS
@@ -597,7 +599,10 @@ def test_lockstep_run_survives_a_compensator_kill9_and_restart(tmp_path, probe):
         g.wait_blocks("displacement", 0.0, 90, "the graph running (displacement blocks)", n=10)
         t_kill = time.monotonic()
         kill9(g.procs["compensator"])
-        g.diag_after(lambda d: d[2].get("state") == "safe", 30, "the driver's safe state")
+        probe.spin_until(lambda: any(int(s.get("unanswered_blocks", 0)) >= 3 for s in states), 60,
+                         "the trajectory giving up the blocks in flight")
+        paused = g.diag_after(lambda d: True, 30, "a driver report while the compensator is down")
+        assert paused[2]["state"] == "active" and paused[2]["stream_paced"] == "True", paused[2]
         g.start("compensator")
         g.wait_blocks("voltage", time.monotonic(), 90, "voltage from the restarted compensator", n=3)
         g.wait_blocks("displacement", time.monotonic(), 60, "the lockstep run going on", n=20)
@@ -611,8 +616,9 @@ def test_lockstep_run_survives_a_compensator_kill9_and_restart(tmp_path, probe):
     lost = max(int(s.get("unanswered_blocks", 0)) for s in states)
     print("lockstep compensator kill -9:", json.dumps({"down_s": round(t_back - t_kill, 2), "unanswered_blocks": lost,
                                                       "driver_resumes": d[2]["resumes"],
+                                                      "driver_late_samples": d[2]["late_samples"],
                                                       "states": [s["state"] for s in states][-4:]}))
     assert playing and 3 <= lost <= 3 * (1 + (t_back - t_kill) / 1.0), lost
-    assert int(d[2]["resumes"]) >= 1
+    assert int(d[2]["resumes"]) == 0 and int(d[2]["late_samples"]) == 0, d[2]     # never went safe, nothing late
     run = read_with_all_readers(g.out)["run"]
     assert run.meta["blocks"]["displacement"]["duplicates"] == 0

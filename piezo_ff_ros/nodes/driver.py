@@ -27,14 +27,16 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, PointCloud2
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from ..core.config import ConfigError, LimitsConfig, load_config
 from ..core.hardware import DriverCore, DriverSettings
-from ..core.hardware.driver_core import ERROR, WARN
+from ..core.hardware.driver_core import ERROR, WARN, lockstep_pacing
 from ..core.safety import SafeRampConfig
 from .backends import get_spec
-from .common import BLOCK_QOS, BlockFormatError, diag_values, pack_block, run_node, stamp_to_ns, unpack_block
+from .common import (BLOCK_QOS, LATCHED_QOS, BlockFormatError, diag_values, pack_block, run_node, stamp_to_ns,
+                     unpack_block)
 
 _LEVEL = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
 
@@ -69,6 +71,11 @@ class DriverNode(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.sub_u = self.create_subscription(PointCloud2, "voltage", self.on_voltage, BLOCK_QOS)
         self.create_service(Trigger, "~/reset", self.on_reset)
+        # a lockstep trajectory paces a lockstep simulator: its time stands still between blocks (no stale ramp)
+        self.sub_traj = None
+        if p["trajectory_state"] and backend.info.time_follows_samples:
+            self.sub_traj = self.create_subscription(String, p["trajectory_state"], self.on_trajectory_state,
+                                                     LATCHED_QOS)
         lim = settings.limits
         tick = min(settings.low_water / 2, 0.005) if backend.info.clocked else min(lim.stale_timeout / 4, 0.05)
         # the device's clock starts with the first tick (not here: spinning may begin much later)
@@ -108,7 +115,10 @@ class DriverNode(Node):
              "write_ahead": float(self._param("write_ahead", 0.05, "clocked devices: FIFO margin [s]")),
              "low_water": float(self._param("low_water", 0.01, "clocked devices: hold below this margin [s]")),
              "joint_states_rate": float(self._param("joint_states_rate", 100.0, "joint_states rate [Hz]")),
-             "diagnostics_period": float(self._param("diagnostics_period", 1.0, "/diagnostics period [s]"))}
+             "diagnostics_period": float(self._param("diagnostics_period", 1.0, "/diagnostics period [s]")),
+             "trajectory_state": str(self._param("trajectory_state", "/trajectory/state",
+                                                 "the trajectory's ~/state topic: a lockstep run playing there "
+                                                 "suspends the stale watchdog of a lockstep simulator ('' = never)"))}
         _check("diagnostics_period", p["diagnostics_period"], 0.05, 3600.0, " s")
         _check("joint_states_rate", p["joint_states_rate"], 0.01, 1000.0, " Hz")
         settings = DriverSettings(sample_rate=self.cfg.sample_rate, n_axes=self.cfg.n_axes, limits=limits, ramp=ramp,
@@ -138,6 +148,10 @@ class DriverNode(Node):
             self._emit(self.core.on_block(stamp, n=int(msg.width) * int(msg.height), reject=str(exc)))
             return
         self._emit(self.core.on_block(stamp, u))
+
+    def on_trajectory_state(self, msg: String) -> None:
+        on, why = lockstep_pacing(msg.data)
+        self._emit(self.core.set_stream_paced(on, why))
 
     def on_tick(self) -> None:
         self._emit(self.core.tick() if self.core.started else self.core.start())
@@ -183,7 +197,10 @@ class DriverNode(Node):
 
     # -- diagnostics -----------------------------------------------------------------------------------------------
     def check_conflict(self) -> None:
-        """Two graphs on one ROS domain (or two drivers in one namespace) mix their blocks: say so plainly."""
+        """Two graphs on one ROS domain (or two drivers in one namespace) mix their blocks: say so plainly.  Also:
+        a lockstep source that vanished (killed trajectory node) no longer paces the stream."""
+        if self.sub_traj is not None and self.core.stream_paced and self.sub_traj.get_publisher_count() == 0:
+            self._emit(self.core.set_stream_paced(False, "the trajectory node is gone"))
         others = {t: self.count_publishers(t) - (1 if t == "voltage_applied" or self.has_sensor else 0)
                   for t in ("displacement", "voltage_applied")}
         if any(v > 0 for v in others.values()):

@@ -24,7 +24,8 @@ text naming the field — and used from the next start):
 
 Services: ``~/start`` and ``~/stop`` (std_srvs/Trigger).  Topics: ``reference`` (blocks), ``experiment``
 (std_msgs/String, transient-local: JSON ``{"name", "k0", "stamp_ns", "stages", …segment meta}``), ``~/state``
-(std_msgs/String, transient-local: JSON ``{"state": idle|playing|finished|stopped|failed, "k", "blocks", …}``).
+(std_msgs/String, transient-local: JSON ``{"state": idle|playing|finished|stopped|failed, "mode": realtime|lockstep,
+"k", "blocks", …}``; the driver reads it: a lockstep run playing suspends the lockstep simulator's stale watchdog).
 """
 from __future__ import annotations
 
@@ -122,6 +123,7 @@ class TrajectoryNode(Node):
         self._play_thread = None
         self._stop = threading.Event()
         self.state = {"state": "idle"}
+        self._run_mode: str | None = None          # the mode of the run being played (the parameter may change)
         self.pub_ref = self.create_publisher(PointCloud2, "reference", BLOCK_QOS)
         self.pub_exp = self.create_publisher(String, "experiment", LATCHED_QOS)
         self.pub_state = self.create_publisher(String, "~/state", LATCHED_QOS)
@@ -256,7 +258,8 @@ class TrajectoryNode(Node):
             time.sleep(0.5)  # graph discovery precedes endpoint matching by a little
 
     def _set_state(self, state, **extra):
-        self.state = {"state": state, "k": int(self.k_stream), "unanswered_blocks": self.unanswered, **extra}
+        self.state = {"state": state, "mode": self._run_mode or self.param("mode"), "k": int(self.k_stream),
+                      "unanswered_blocks": self.unanswered, **extra}
         self.pub_state.publish(String(data=json.dumps(self.state)))
 
     def _marker(self, name, k0, meta, k1=None):
@@ -269,6 +272,7 @@ class TrajectoryNode(Node):
     def _play(self):
         traj, fs = self.traj, self.fs
         mode, n_blk, window = self.param("mode"), int(self.param("block_size")), int(self.param("window"))
+        self._run_mode = mode
         preview = int(round(float(self.param("preview_s")) * self.fs))  # samples played ahead
         loop, timeout = bool(self.param("loop")), float(self.param("lockstep_timeout"))
         ack_timeout = float(self.param("ack_timeout"))

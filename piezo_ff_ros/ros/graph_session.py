@@ -49,8 +49,9 @@ def sim_graph(out_dir: Path, mcap_path: Path, *, fs: float, voltage_limit: float
         "recorder": ["-p", f"output:={Path(mcap_path).resolve()}", "-p", f"metadata:='{meta}'", *cfg_args],
         "driver": [*cfg_args, "-p", f"limits.voltage:={float(voltage_limit)}",
                    "-p", f"limits.slew:={float(slew_limit)}",
-                   # lockstep: the simulated time stands still while the graph waits (H∞ synthesis, a busy CPU),
-                   # so a wall-clock stale timeout only needs to catch a dead compensator
+                   # the lockstep simulator's time stands still while the graph waits (the driver suspends its
+                   # watchdog while a lockstep run plays); with --clocked the device's clock runs (scaled): a
+                   # wall-clock stale timeout there only needs to catch a dead compensator
                    "-p", "limits.stale_timeout:=5.0", *_clocked_driver_args(clocked, fs, block_size, window)],
         "compensator": [*cfg_args, "-p", "cascade.vibration:=false"],
         "trajectory": ["-p", "mode:=lockstep", "-p", f"block_size:={block_size}",

@@ -85,6 +85,10 @@ class DeviceInfo:
     fifo_depth: int              #: output FIFO [samples]: the most that can be written ahead of the clock
     has_sensor: bool
     clocked: bool                #: True: runs on its own clock (real hardware, clocked sim); False: lockstep
+    #: True only for a simulator whose time advances with the samples written (the lockstep sim): while a lockstep
+    #: stream paces it, no time passes between blocks, so a host stall is not stale input.  A real non-clocked
+    #: device (set-and-hold, e.g. a PI controller) holds its voltage in wall time: False.
+    time_follows_samples: bool = False
 
 
 class StreamingBackend(abc.ABC):

@@ -10,11 +10,15 @@
   (safe voltage while idle/safe, the last voltage while a late stream is awaited — counted as starved samples —,
   close to the clock once a stream has started),
   ramps to safe after ``stale_timeout`` without input, and collects what was applied/measured;
+- ``set_stream_paced(on)`` — a lockstep trajectory paces the stream: on a device whose time follows the samples
+  written (the lockstep simulator) the wall-clock stale watchdog is suspended meanwhile, since no device time passes
+  between blocks — a host stall then loses nothing (issue 10); ignored by every other device;
 - each call returns an :class:`Emit`: ``applied`` and ``displacement`` blocks ``(stamp_ns, [N, axes])`` on the
   topic grid (every applied sample exactly once, in order, holds and ramps included), and log lines.
 """
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections import deque
@@ -27,9 +31,33 @@ from ..safety import BlockRejected, SafeRampConfig, VoltageGuard
 from .contract import DeviceFault, Disconnect, StreamingBackend
 from .stream import StreamBook
 
-__all__ = ["DriverSettings", "DriverCore", "Emit", "OK", "WARN", "ERROR"]
+__all__ = ["DriverSettings", "DriverCore", "Emit", "OK", "WARN", "ERROR", "lockstep_pacing"]
 
 OK, WARN, ERROR = 0, 1, 2
+
+
+def lockstep_pacing(state_json: str) -> tuple[bool, str]:
+    """Whether a trajectory's ``~/state`` message (JSON) says that a lockstep run is playing, and why.
+
+    Parameters
+    ----------
+    state_json : str
+        The ``data`` of the trajectory node's latched ``~/state`` (``{"state": ..., "mode": ...}``).
+
+    Returns
+    -------
+    (bool, str)
+        True while ``state`` is ``playing`` in ``mode`` ``lockstep``; a short reason for the driver's log.  A message
+        that is not such a JSON object is not pacing.
+    """
+    try:
+        st = json.loads(state_json)
+    except (TypeError, ValueError):
+        return False, "unreadable trajectory state"
+    if not isinstance(st, dict):
+        return False, "unreadable trajectory state"
+    on = st.get("state") == "playing" and st.get("mode") == "lockstep"
+    return on, f"trajectory {st.get('state')!s} ({st.get('mode', 'unknown mode')!s})"
 
 
 @dataclass(frozen=True)
@@ -144,6 +172,7 @@ class DriverCore:
         self.resumes = 0
         self.last_error = ""
         self.last_block_wall: float | None = None
+        self.stream_paced = False                   # a lockstep source paces a time-follows-samples device
         self._queue: deque[np.ndarray] = deque()   # committed samples not yet in the device FIFO
         self._queued = 0
         self._w = 0                                 # device index after everything committed
@@ -190,6 +219,27 @@ class DriverCore:
 
     def close(self) -> None:
         self.backend.close()
+
+    def set_stream_paced(self, on: bool, why: str = "") -> Emit:
+        """Tell the core whether a lockstep source paces the stream (``why``: for the log).
+
+        On a device whose time follows the samples written (``info.time_follows_samples``, the lockstep simulator)
+        the wall-clock stale watchdog is suspended while ``on``: between two blocks no device time passes, so
+        waiting for a stalled host holds nothing and ramping would take the stamps of the blocks in flight (they
+        would then be dropped as late).  Every other device ignores it (its time runs on its own).
+        """
+        em = Emit()
+        on = bool(on)
+        if on and not self.info.time_follows_samples:
+            if not self.stream_paced:
+                em.log.append((OK, f"stream pacing ignored ({why}): {self.info.name} runs in wall-clock time, the "
+                                   "stale watchdog stays on"))
+            return em
+        if on != self.stream_paced:
+            self.stream_paced = on
+            em.log.append((OK, f"{why}: " + ("the stream paces the simulator's time, stale watchdog suspended" if on
+                                             else "stale watchdog back on the wall clock")))
+        return em
 
     # -- input ------------------------------------------------------------------------------------------------------
     def on_block(self, stamp: int, block=None, *, n: int | None = None, reject: str | None = None) -> Emit:
@@ -292,7 +342,7 @@ class DriverCore:
         if self.state == "fault":
             return em
         self._sync()
-        stale = self.state == "active" and self.last_block_wall is not None and \
+        stale = self.state == "active" and self.last_block_wall is not None and not self.stream_paced and \
             self.now() - self.last_block_wall >= self.s.limits.stale_timeout
         if stale:
             if self.book.drop_candidate():
@@ -384,7 +434,7 @@ class DriverCore:
 
     def status(self) -> dict:
         st = {"state": self.state, **self.guard.counters.as_dict(), **self.book.counters.as_dict(),
-              "starved_samples": self.starved_samples, "resumes": self.resumes,
+              "starved_samples": self.starved_samples, "resumes": self.resumes, "stream_paced": self.stream_paced,
               **{f"{k}_faults": v for k, v in self.faults.items()},
               "applied_voltage": self.guard.u_last.tolist(),
               "next_stamp_ns": self.book.stamp_of(self._w) if self.book.started else None,

@@ -81,7 +81,7 @@ class LockstepSim(_SimBase):
 
     def __init__(self, fs: float, n_axes: int, plant: Processor | None = None, name: str = "sim"):
         super().__init__(DeviceInfo(name=name, sample_rate_hz=float(fs), n_axes=int(n_axes), fifo_depth=1 << 30,
-                                    has_sensor=plant is not None, clocked=False), plant)
+                                    has_sensor=plant is not None, clocked=False, time_follows_samples=True), plant)
         self._k = 0
 
     def start(self, safe_voltage: np.ndarray, prefill: int = 0) -> int:
