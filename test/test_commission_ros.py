@@ -39,6 +39,11 @@ def test_commission_ros_short(tmp_path):
     assert seg["info"]["stage"] == "plant" and seg["info"]["role"] == "validation"
     u, ref = run.u[seg["start"]:seg["stop"]], run.reference[seg["start"]:seg["stop"]]
     assert len(u) == 760080 and np.array_equal(u, ref) and 100 < np.abs(u).max() <= 200
+    # played sample-exactly at 20 kHz (a .npy table, issue 11.4), no longer a 2 kHz hold of the preset
+    from piezo_ff_ros.core.characterisation import CharacterisationSettings, plant_validation_trajectory
+
+    _, want = plant_validation_trajectory(CharacterisationSettings()).sample(run.sample_rate)
+    assert np.array_equal(ref[-want.shape[0]:], want)
     # the identified config loads as the compensator node loads it
     from piezo_ff_ros.core.config import load_config
 

@@ -6,12 +6,12 @@ trajectory node cannot parse from a parameter.  Here the same experiments are ex
 - a ``Ramp`` (slew-limited step edge) becomes a ``Staircase`` with one level per sample — the same samples;
 - the two-axis sine ``Sum`` with a quarter period between the axes is a ``Circle`` (the paper's circle is exactly
   that);
-- any other ``Sum`` (the plant-validation multisine: 7 lines per axis, different on x and y) has no graph type: it is
-  held at ``SAMPLED_RATE`` (2 kHz, zero-order hold of the preset's samples, 9 significant digits) as ``Staircase``
-  chunks.  Not the same samples: the trajectory node parses its spec with YAML (~0.3 MB/s here), and one level per
-  sample at 20 kHz makes the 30 s multisine a 17 MB spec (about a minute to parse).  Held at 2 kHz the top line
-  (312 Hz) has 6 levels per period, the largest level jump is ~4 V, and the spec is ~1 MB.  The whole-plant fit
-  is scored on the voltages the recorder saw, so the record stays exactly what the model is compared on;
+- any other ``Sum`` (the plant-validation multisine: 7 lines per axis, different on x and y) has no graph type: with
+  a ``table_dir`` it is written there as a ``.npy`` table and played as a ``Table`` at the run's rate — the same
+  samples, bit for bit (the node reads the file once; a 30 s two-axis table at 20 kHz is 9.6 MB and loads in
+  milliseconds, where the same samples as a YAML spec took about a minute to parse).  Without a directory it is held
+  at ``SAMPLED_RATE`` (2 kHz, zero-order hold of the preset's samples, 9 significant digits) as ``Staircase``
+  chunks: not the same samples (the top line, 312 Hz, then has 6 levels per period);
 - every run that would start away from 0 V gets a short ramp from rest first (the driver is reset to rest before
   each run; a one-sample jump of hundreds of volts is what the discrete Bouc-Wen form cannot represent).
 
@@ -19,13 +19,15 @@ Pure: no ROS import.
 """
 from __future__ import annotations
 
+import hashlib
 import math
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from .characterisation import Ramp, Sum
-from .trajectories import TRAJECTORY_TYPES, Circle, Sequence, Sine, Staircase, Trajectory
+from .trajectories import TRAJECTORY_TYPES, Circle, Sequence, Sine, Staircase, Table, Trajectory
 
 __all__ = ["graph_playable", "from_rest"]
 
@@ -58,15 +60,43 @@ def _sampled(traj: Trajectory, fs: float) -> Sequence:
     return Sequence(chunks, axes=traj.axes)
 
 
-def graph_playable(traj: Trajectory, fs: float) -> Trajectory:
+def _table_file(traj: Trajectory, fs: float, table_dir: Path) -> Table:
+    """``traj``'s samples at rate ``fs`` written to ``table_dir`` (``.npy``, named by their hash) as a ``Table``."""
+    _, v = traj.sample(fs)
+    v = np.ascontiguousarray(v, dtype=float)
+    table_dir.mkdir(parents=True, exist_ok=True)
+    path = table_dir / f"{traj.kind}_{hashlib.sha256(v.tobytes()).hexdigest()[:16]}.npy"
+    if not path.exists():
+        np.save(path, v, allow_pickle=False)
+    return Table(file=str(path.resolve()), sample_rate=fs, axes=traj.axes)
+
+
+def graph_playable(traj: Trajectory, fs: float, table_dir: Path | str | None = None) -> Trajectory:
     """(Nearly) the same samples at rate ``fs`` as a trajectory the trajectory node can build (``to_dict``/``from_dict``).
 
-    A quarter-period two-axis sine ``Sum`` becomes a ``Circle``; any other ``Sum`` is held at ``SAMPLED_RATE``
-    (:func:`_sampled`: *not* the same samples).
-    Raises ``ValueError`` for a type with no graph equivalent.
+    Parameters
+    ----------
+    traj : Trajectory
+        A characterisation preset (``Sum``, ``Ramp``, a ``Sequence`` of them, or any graph type).
+    fs : float
+        The rate the graph plays at [Hz].
+    table_dir : path or None
+        Where a ``Sum`` with no graph type is written as a ``.npy`` table (played sample-exactly as a ``Table``).
+        None: it is held at ``SAMPLED_RATE`` instead (*not* the same samples).
+
+    Returns
+    -------
+    Trajectory
+        A quarter-period two-axis sine ``Sum`` becomes a ``Circle``, a ``Ramp`` a one-level-per-sample
+        ``Staircase``, any other ``Sum`` a ``Table`` file (or the held ``Staircase`` chunks); graph types as they are.
+
+    Raises
+    ------
+    ValueError
+        For a type with no graph equivalent.
     """
     if isinstance(traj, Sequence):
-        return Sequence([(n, graph_playable(t, fs), m) for n, t, m in traj.segments_], axes=traj.axes)
+        return Sequence([(n, graph_playable(t, fs, table_dir), m) for n, t, m in traj.segments_], axes=traj.axes)
     if isinstance(traj, Ramp):
         return _ramp_staircase(traj.start, traj.end, int(traj.n_samples(fs)), fs, traj.axes)
     if isinstance(traj, Sum):
@@ -79,6 +109,8 @@ def graph_playable(traj: Trajectory, fs: float) -> Trajectory:
             p = parts[0]
             return Circle(radius=p.amplitude, frequency=p.frequency, phase=p.phase,
                           revolutions=p.duration * p.frequency, axes=traj.axes)
+        if table_dir is not None:
+            return _table_file(traj, fs, Path(table_dir))
         return _sampled(traj, fs)
     if traj.kind in TRAJECTORY_TYPES:
         return traj

@@ -75,7 +75,9 @@ class GraphRig(RigLimits):
         for r in runs:
             # The driver is reset to rest before each run: a run that starts elsewhere is reached by a short ramp,
             # which stays part of the run (the hysteresis state it builds is the run's initial state).
-            traj = from_rest(r.name, graph_playable(r.trajectory, fs), fs, FROM_REST_S)
+            # a signal with no graph type travels as a .npy table beside the recording: played sample-exactly
+            traj = from_rest(r.name, graph_playable(r.trajectory, fs, self.mcap_path.parent / "tables"), fs,
+                             FROM_REST_S)
             played[r.name] = traj.n_samples(fs)
             dt = self.client.play(r.name, traj, {**(meta or {}), "role": r.role})
             self.say(f"  {r.name}: {traj.n_samples(fs) / fs:.1f} s of signal in {dt:.1f} s")

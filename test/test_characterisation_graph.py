@@ -1,0 +1,37 @@
+"""Characterisation presets made graph-playable (core/characterisation_graph.py), issue 11.4: a signal with no graph
+type (the plant-validation multisine) travels as a .npy table and is played sample-exactly at the run's rate, after
+the round trip through the spec the trajectory node parses (``to_dict`` → JSON → ``from_dict``)."""
+import json
+
+import numpy as np
+import pytest
+
+from piezo_ff_ros.core.characterisation import CharacterisationSettings, plant_validation_trajectory
+from piezo_ff_ros.core.characterisation_graph import graph_playable
+from piezo_ff_ros.core.trajectories import Table, from_dict
+
+
+@pytest.mark.parametrize("fs", [20000.0, 5000.0])
+def test_plant_validation_multisine_is_played_bit_exactly_as_a_table(tmp_path, fs):
+    traj = plant_validation_trajectory(CharacterisationSettings())
+    playable = graph_playable(traj, fs, tmp_path / "tables")
+    node_side = from_dict(json.loads(json.dumps(playable.to_dict())))    # what the trajectory node builds
+    assert node_side.n_samples(fs) == traj.n_samples(fs)
+    _, want = traj.sample(fs)
+    n = int(traj.n_samples(fs))
+    got = np.vstack([node_side.block(k, min(997, n - k), fs) for k in range(0, n, 997)])   # any block split
+    np.testing.assert_array_equal(got, want)
+    tables = [t for _, t, _ in playable.segments_ if isinstance(t, Table)]
+    assert tables and len(sorted((tmp_path / "tables").glob("*.npy"))) == len(tables)
+    spec = json.dumps(playable.to_dict())
+    assert len(spec) < 10_000, len(spec)     # the samples are in the file, not in the spec
+
+
+def test_without_a_table_dir_the_multisine_is_only_held_at_2_khz():
+    """The old path, kept for callers without a directory: not the same samples (what the table fixes)."""
+    fs = 20000.0
+    traj = plant_validation_trajectory(CharacterisationSettings())
+    held = graph_playable(traj, fs)
+    _, want = traj.sample(fs)
+    got = held.block(0, want.shape[0], fs)
+    assert np.max(np.abs(got - want)) > 1e-3 * np.max(np.abs(want))
