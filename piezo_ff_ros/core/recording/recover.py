@@ -1,7 +1,7 @@
 """Rewrite a damaged MCAP file (a recorder killed with SIGKILL, a corrupt chunk, a file cut short) as a complete one.
 
 A killed writer leaves no summary section and no footer, which the ``mcap`` seeking reader and ``rosbags`` refuse.
-:func:`recover_mcap` reads every record that survives (:func:`~.mcap_io.iter_mcap_records`, which skips corrupt
+:func:`recover_mcap` reads every record that survives (:func:`~.mcap_scan.iter_mcap_records`, which skips corrupt
 chunks and stops where the file ends) and writes them again — header, schemas, channels with their metadata
 (QoS, type hash), messages with their times and sequence numbers, metadata records, attachments — with the
 ``mcap`` writer, which adds chunk and message indexes, statistics, the summary and the footer.  Nothing is
@@ -42,7 +42,7 @@ def recover_mcap(src, dst, *, compression: str = "zstd", chunk_size: int = 512 *
     from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
     from mcap.writer import CompressionType, Writer
 
-    from .mcap_io import _new_loss, iter_mcap_records
+    from .mcap_scan import _new_loss, iter_mcap_records
 
     src, dst = Path(src), Path(dst)
     if not src.is_file():
