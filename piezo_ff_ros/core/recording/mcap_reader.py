@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 from collections import Counter
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -154,6 +155,165 @@ def _experiment_markers(raw_msgs, t0_ns: int, dt_ns: int, warnings: list) -> lis
     return markers
 
 
+Blocks = dict[str, list[tuple[int, np.ndarray]]]
+
+
+def _metadata_axes(md: dict[str, Any], warnings: list[str]) -> list[str] | None:
+    """The axis names of the ``piezo_ff_ros`` metadata record in the fixed x, y, z order, or None (absent/invalid)."""
+    if "axes" not in md:
+        return None
+    try:
+        axes = json.loads(md["axes"])
+    except ValueError:
+        axes = [a.strip() for a in md["axes"].split(",") if a.strip()]
+    if not (isinstance(axes, list) and axes and all(isinstance(a, str) and a for a in axes)
+            and len(set(axes)) == len(axes)):
+        warnings.append(f"metadata axes {md['axes']!r} is not a list of distinct names; taken from the blocks")
+        return None
+    return list(canonical_axes(axes))  # columns by name, in the fixed x, y, z order whatever the writer's order
+
+
+def _decode_blocks(contents: McapContents, roles: dict[str, str], axes: list[str] | None,
+                   warnings: list[str]) -> tuple[Blocks, list[str] | None, Counter[str]]:
+    """Every block of each role's topic as ``(stamp_ns, block)``; the raw bytes are released topic by topic.
+
+    Returns the decoded blocks, the axes (from the first block when ``axes`` is None) and the count of malformed
+    blocks per role (the first one of each role is reported in ``warnings``).
+    """
+    decoded: Blocks = {}
+    malformed: Counter[str] = Counter()
+    for role, topic in roles.items():
+        out = decoded[role] = []
+        raws = contents.messages.pop(topic, [])
+        for _, _, raw in raws:
+            try:
+                if axes is None:  # no metadata: the first block's field names, in the fixed x, y, z order
+                    axes = list(canonical_axes(deserialize_block(raw)[2]))
+                stamp, block, _names = deserialize_block(raw, axes)
+            except ValueError as exc:
+                if malformed[role] == 0:
+                    warnings.append(f"{topic}: malformed block skipped ({exc})")
+                malformed[role] += 1
+                continue
+            out.append((stamp, block))
+        del raws
+    return decoded, axes, malformed
+
+
+def _sample_period(path: Any, md: dict[str, Any], decoded: Blocks, sample_rate: float | None,
+                   warnings: list[str]) -> int:
+    """The sample period [ns]: ``sample_rate`` if given, else the metadata's unless the block stamps contradict it,
+    else inferred from the stamps."""
+    def from_stamps() -> int | None:
+        return _infer_dt_ns([[(s, len(b)) for s, b in blks] for blks in decoded.values()])
+
+    if sample_rate is not None:
+        try:
+            return sample_period_ns(sample_rate)
+        except ValueError as exc:
+            raise ValueError(f"{path}: --sample-rate/sample_rate= {exc}") from None
+    if "sample_rate" in md:
+        try:
+            dt_ns = sample_period_ns(float(md["sample_rate"]))
+        except ValueError as exc:
+            warnings.append(f"metadata sample_rate {md['sample_rate']!r} unusable ({exc}); inferred from stamps")
+        else:  # the stamps are the contract's ground truth: a metadata rate they contradict is not used
+            inferred = from_stamps()
+            if inferred is not None and inferred != dt_ns:
+                warnings.append(f"metadata sample_rate {md['sample_rate']!r} Hz contradicts the block stamps "
+                                f"({1e9 / inferred:g} Hz: {inferred} ns per sample); the stamps are used")
+                return inferred
+            return dt_ns
+    inferred = from_stamps()
+    if inferred is None:
+        raise ValueError(f"{path}: cannot infer the sample rate (fewer than two consecutive blocks, no "
+                         "sample_rate metadata); pass sample_rate=")
+    return inferred
+
+
+def _run_origin(md: dict[str, Any], all_stamps: list[int], dt_ns: int, warnings: list[str]) -> int:
+    """Stamp [ns] of sample index 0: the metadata's ``t0_ns`` when the stamps lie on its grid, else the first stamp."""
+    t0_ns = None
+    if "t0_ns" in md:
+        try:
+            t0_ns = int(md["t0_ns"])
+        except ValueError:
+            warnings.append(f"metadata t0_ns {md['t0_ns']!r} is not an integer; the first stamp is used")
+    if t0_ns is not None:
+        phases = Counter((s - t0_ns) % dt_ns for s in all_stamps)
+        if phases.most_common(1)[0][0] != 0:  # most stamps off the metadata's grid: that t0 is not the stamps'
+            warnings.append(f"metadata t0_ns {md['t0_ns']!r} is not on the block stamps' {dt_ns} ns grid; the "
+                            "first stamp is used")
+            t0_ns = None
+    return min(all_stamps) if t0_ns is None else t0_ns
+
+
+def _index_of(stamp: int, t0_ns: int, dt_ns: int) -> int:
+    """Nearest sample index of ``stamp`` (off-grid stamps are rounded)."""
+    q, r = divmod(stamp - t0_ns, dt_ns)
+    return q + int(2 * r >= dt_ns)
+
+
+def _place_role(blks: list[tuple[int, np.ndarray]], n_axes: int, length: int, k_first: int, t0_ns: int,
+                dt_ns: int) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """One role's blocks placed by sample index into a NaN-filled ``(length, n_axes)`` array.
+
+    Returns the array, the covered-sample mask and the role's bookkeeping (gaps, duplicates, conflicts, …; without
+    the keys the caller adds).
+    """
+    arr = np.full((length, n_axes), np.nan)
+    cov = np.zeros(length, dtype=bool)
+    dup = conflicts = off_grid = 0
+    seen_k0 = set()
+    sizes: Counter[int] = Counter()
+    for stamp, block in blks:
+        q = _index_of(stamp, t0_ns, dt_ns)
+        off_grid += int((stamp - t0_ns) % dt_ns != 0)
+        a = int(q - k_first)
+        b = a + len(block)
+        sizes[len(block)] += 1
+        if q in seen_k0 or cov[a:b].any():
+            dup += 1
+            if not np.array_equal(arr[a:b], block, equal_nan=True):
+                conflicts += 1  # keep the first copy; a conflicting second one is reported
+            continue
+        seen_k0.add(q)
+        arr[a:b] = block
+        cov[a:b] = True
+    idx = np.flatnonzero(cov)
+    lo, hi = (int(idx[0]), int(idx[-1]) + 1) if idx.size else (0, 0)
+    gaps = [(a + lo, b + lo) for a, b in _runs(~cov[lo:hi])]
+    typical = sizes.most_common(1)[0][0] if sizes else 0
+    missing = int(sum(b - a for a, b in gaps))
+    info = {
+        "count": len(blks), "block_sizes": sorted(sizes), "first_k": lo + k_first,
+        "end_k": hi + k_first, "gaps": [(a + k_first, b + k_first) for a, b in gaps],
+        "missing_samples": missing, "missing_blocks": int(np.ceil(missing / typical)) if typical else 0,
+        "duplicates": dup, "conflicts": conflicts, "off_grid": off_grid,
+    }
+    return arr, cov, info
+
+
+def _segments(markers: list[dict[str, Any]], k_offset: int, n: int, start: int,
+              covered: dict[str, np.ndarray]) -> list[dict[str, Any]]:
+    """Experiment segments from the markers: each ends at the next marker (or its own ``k1``/``n``), with its rows in
+    the trimmed arrays and whether every block topic covers it."""
+    segments = []
+    for i, m in enumerate(markers):
+        k1 = markers[i + 1]["k0"] if i + 1 < len(markers) else k_offset + n
+        if "k1" in m["info"]:
+            k1 = min(k1, int(m["info"]["k1"]))
+        elif "n" in m["info"]:
+            k1 = min(k1, m["k0"] + int(m["info"]["n"]))
+        s_row, e_row = max(m["k0"] - k_offset, 0), min(k1 - k_offset, n)
+        complete = m["k0"] >= k_offset and k1 <= k_offset + n and e_row > s_row and all(
+            covered[r][s_row + start:e_row + start].all() for r in covered)
+        segments.append({"name": m["name"], "k0": m["k0"], "k1": int(k1), "start": int(s_row),
+                         "stop": int(max(e_row, s_row)), "stages": m["stages"], "complete": bool(complete),
+                         "info": m["info"]})
+    return segments
+
+
 def read_run(path, *, namespace: str | None = None, sample_rate: float | None = None,
              trim: bool = True) -> RunData:
     """Reassemble a ROS 2 recording of the topic contract into a sample-aligned :class:`RunData`.
@@ -196,70 +356,18 @@ def read_run(path, *, namespace: str | None = None, sample_rate: float | None = 
         warnings.append(f"topics with a non-CDR encoding ignored: {non_cdr}")
     md = contents.metadata_record()
 
-    roles = {r: _pick_topic(contents, r, BLOCK_TYPE, namespace) for r in BLOCK_ROLES}
-    roles = {r: t for r, t in roles.items() if t is not None and contents.encodings.get(t) == "cdr"}
+    picked = {r: _pick_topic(contents, r, BLOCK_TYPE, namespace) for r in BLOCK_ROLES}
+    roles = {r: t for r, t in picked.items() if t is not None and contents.encodings.get(t) == "cdr"}
     if not roles:
         raise ValueError(f"{path}: no block topic (reference/voltage/displacement of type {BLOCK_TYPE}); "
                          f"topics found: {contents.topics or 'none'}")
 
-    # decode every block
-    axes = None
-    if "axes" in md:
-        try:
-            axes = json.loads(md["axes"])
-        except ValueError:
-            axes = [a.strip() for a in md["axes"].split(",") if a.strip()]
-        if not (isinstance(axes, list) and axes and all(isinstance(a, str) and a for a in axes)
-                and len(set(axes)) == len(axes)):
-            warnings.append(f"metadata axes {md['axes']!r} is not a list of distinct names; taken from the blocks")
-            axes = None
-        else:
-            axes = canonical_axes(axes)  # columns by name, in the fixed x, y, z order whatever the writer's order
-    decoded: dict[str, list[tuple[int, np.ndarray]]] = {}
-    malformed: Counter = Counter()
     topic_counts = {t: len(contents.messages.get(t, [])) for t in contents.topics}
-    for role, topic in roles.items():
-        out = decoded[role] = []
-        raws = contents.messages.pop(topic, [])  # decoded below: the raw bytes are released topic by topic
-        for _, _, raw in raws:
-            try:
-                if axes is None:  # no metadata: the first block's field names, in the fixed x, y, z order
-                    axes = canonical_axes(deserialize_block(raw)[2])
-                stamp, block, names = deserialize_block(raw, axes)
-            except ValueError as exc:
-                if malformed[role] == 0:
-                    warnings.append(f"{topic}: malformed block skipped ({exc})")
-                malformed[role] += 1
-                continue
-            out.append((stamp, block))
-        del raws
+    decoded, axes, malformed = _decode_blocks(contents, roles, _metadata_axes(md, warnings), warnings)
     if axes is None or not any(decoded.values()):
         raise ValueError(f"{path}: the block topics {sorted(roles.values())} hold no decodable block")
 
-    # sample grid
-    if sample_rate is not None:
-        try:
-            dt_ns = sample_period_ns(sample_rate)
-        except ValueError as exc:
-            raise ValueError(f"{path}: --sample-rate/sample_rate= {exc}") from None
-    elif "sample_rate" in md:
-        try:
-            sample_rate = float(md["sample_rate"])
-            dt_ns = sample_period_ns(sample_rate)
-        except ValueError as exc:
-            warnings.append(f"metadata sample_rate {md['sample_rate']!r} unusable ({exc}); inferred from stamps")
-            sample_rate = None
-        else:  # the stamps are the contract's ground truth: a metadata rate they contradict is not used
-            from_stamps = _infer_dt_ns([[(s, len(b)) for s, b in blks] for blks in decoded.values()])
-            if from_stamps is not None and from_stamps != dt_ns:
-                warnings.append(f"metadata sample_rate {md['sample_rate']!r} Hz contradicts the block stamps "
-                                f"({1e9 / from_stamps:g} Hz: {from_stamps} ns per sample); the stamps are used")
-                dt_ns = from_stamps
-    if sample_rate is None:
-        dt_ns = _infer_dt_ns([[(s, len(b)) for s, b in blks] for blks in decoded.values()])
-        if dt_ns is None:
-            raise ValueError(f"{path}: cannot infer the sample rate (fewer than two consecutive blocks, no "
-                             "sample_rate metadata); pass sample_rate=")
+    dt_ns = _sample_period(path, md, decoded, sample_rate, warnings)
     fs = 1e9 / dt_ns
     # stamps far outside the span of the data (a clock glitch, a corrupt stamp) are set aside and reported: the
     # arrays are sized from the data, never from the stamp span
@@ -269,67 +377,24 @@ def read_run(path, *, namespace: str | None = None, sample_rate: float | None = 
             warnings.append(f"{roles[role]}: {len(outs)} block(s) stamped outside the recording's span ignored "
                             f"(stamps {[s for s, _ in outs[:5]]} ns{' …' if len(outs) > 5 else ''})")
     all_stamps = [s for blks in decoded.values() for s, _ in blks]
-    t0_ns = None
-    if "t0_ns" in md:
-        try:
-            t0_ns = int(md["t0_ns"])
-        except ValueError:
-            warnings.append(f"metadata t0_ns {md['t0_ns']!r} is not an integer; the first stamp is used")
-    if t0_ns is not None:
-        phases = Counter((s - t0_ns) % dt_ns for s in all_stamps)
-        if phases.most_common(1)[0][0] != 0:  # most stamps off the metadata's grid: that t0 is not the stamps'
-            warnings.append(f"metadata t0_ns {md['t0_ns']!r} is not on the block stamps' {dt_ns} ns grid; the "
-                            "first stamp is used")
-            t0_ns = None
-    if t0_ns is None:
-        t0_ns = min(all_stamps)
-
-    def index_of(stamp: int) -> int:  # nearest sample index (off-grid stamps are rounded, and counted below)
-        q, r = divmod(stamp - t0_ns, dt_ns)
-        return q + int(2 * r >= dt_ns)
+    t0_ns = _run_origin(md, all_stamps, dt_ns, warnings)
 
     # place blocks by sample index
-    k_first = min(index_of(s) for s in all_stamps)
-    k_end = max(index_of(s) + len(b) for blks in decoded.values() for s, b in blks)
+    k_first = min(_index_of(s, t0_ns, dt_ns) for s in all_stamps)
+    k_end = max(_index_of(s, t0_ns, dt_ns) + len(b) for blks in decoded.values() for s, b in blks)
     length = int(k_end - k_first)
     arrays, covered, info = {}, {}, {}
     for role in list(decoded):
         blks = decoded.pop(role)  # placed below: each role's decoded blocks are released once in its array
-        arr = np.full((length, len(axes)), np.nan)
-        cov = np.zeros(length, dtype=bool)
-        dup = conflicts = off_grid = 0
-        seen_k0 = set()
-        sizes = Counter()
-        for stamp, block in blks:
-            q = index_of(stamp)
-            off_grid += int((stamp - t0_ns) % dt_ns != 0)
-            a = int(q - k_first)
-            b = a + len(block)
-            sizes[len(block)] += 1
-            if q in seen_k0 or cov[a:b].any():
-                dup += 1
-                if not np.array_equal(arr[a:b], block, equal_nan=True):
-                    conflicts += 1  # keep the first copy; a conflicting second one is reported
-                continue
-            seen_k0.add(q)
-            arr[a:b] = block
-            cov[a:b] = True
-        arrays[role], covered[role] = arr, cov
-        idx = np.flatnonzero(cov)
-        lo, hi = (int(idx[0]), int(idx[-1]) + 1) if idx.size else (0, 0)
-        gaps = [(a + lo, b + lo) for a, b in _runs(~cov[lo:hi])]
-        typical = sizes.most_common(1)[0][0] if sizes else 0
-        missing = int(sum(b - a for a, b in gaps))
+        arrays[role], covered[role], placed = _place_role(blks, len(axes), length, k_first, t0_ns, dt_ns)
         info[role] = {
-            "topic": roles[role], "count": len(blks), "block_sizes": sorted(sizes), "first_k": lo + k_first,
-            "end_k": hi + k_first, "gaps": [(a + k_first, b + k_first) for a, b in gaps],
-            "missing_samples": missing, "missing_blocks": int(np.ceil(missing / typical)) if typical else 0,
-            "duplicates": dup, "conflicts": conflicts, "off_grid": off_grid, "malformed": malformed[role],
+            "topic": roles[role], **placed, "malformed": malformed[role],
             "outliers": len(outliers.get(role, [])),
             "outlier_stamps_ns": [int(st) for st, _ in outliers.get(role, [])[:_MAX_RANGES]],
         }
-        if off_grid:
-            warnings.append(f"{roles[role]}: {off_grid} block stamps off the {dt_ns} ns sample grid (rounded)")
+        if placed["off_grid"]:
+            warnings.append(f"{roles[role]}: {placed['off_grid']} block stamps off the {dt_ns} ns sample grid "
+                            "(rounded)")
 
     # common span
     start, stop = 0, length
@@ -344,36 +409,19 @@ def read_run(path, *, namespace: str | None = None, sample_rate: float | None = 
     n = int(stop - start)
     t = (np.arange(n, dtype=np.int64) + k_offset) * (dt_ns / 1e9)
 
-    def take(role):
+    def take(role: str) -> np.ndarray:
         if role in arrays:
             return arrays[role][start:stop]
-        return None
+        warnings.append(f"no {role} topic: {'u' if role == 'voltage' else 'y'} is NaN")
+        return np.full((n, len(axes)), np.nan)
 
-    u, y, ref = take("voltage"), take("displacement"), take("reference")
-    if u is None:
-        warnings.append("no voltage topic: u is NaN")
-        u = np.full((n, len(axes)), np.nan)
-    if y is None:
-        warnings.append("no displacement topic: y is NaN")
-        y = np.full((n, len(axes)), np.nan)
+    u, y = take("voltage"), take("displacement")
+    ref = arrays["reference"][start:stop] if "reference" in arrays else None
 
-    # experiment segments
     exp_topic = _pick_topic(contents, "experiment", EXPERIMENT_TYPE, namespace)
     markers = _experiment_markers(contents.messages.get(exp_topic, []), t0_ns, dt_ns, warnings) \
         if exp_topic else []
-    segments = []
-    for i, m in enumerate(markers):
-        k1 = markers[i + 1]["k0"] if i + 1 < len(markers) else k_offset + n
-        if "k1" in m["info"]:
-            k1 = min(k1, int(m["info"]["k1"]))
-        elif "n" in m["info"]:
-            k1 = min(k1, m["k0"] + int(m["info"]["n"]))
-        s_row, e_row = max(m["k0"] - k_offset, 0), min(k1 - k_offset, n)
-        complete = m["k0"] >= k_offset and k1 <= k_offset + n and e_row > s_row and all(
-            covered[r][s_row + start:e_row + start].all() for r in covered)
-        segments.append({"name": m["name"], "k0": m["k0"], "k1": int(k1), "start": int(s_row),
-                         "stop": int(max(e_row, s_row)), "stages": m["stages"], "complete": bool(complete),
-                         "info": m["info"]})
+    segments = _segments(markers, k_offset, n, start, covered)
 
     diag_topic = next((t for t, tn in contents.topics.items() if tn == DIAGNOSTICS_TYPE
                        and t.rstrip("/").split("/")[-1] == "diagnostics"), None)
