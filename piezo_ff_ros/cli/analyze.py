@@ -31,7 +31,7 @@ def run(args) -> int:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file or directory")
     data = read_run(path, namespace=args.namespace, sample_rate=args.sample_rate)
-    result = analyze_run(data)
+    result = analyze_run(data).to_json()
     if args.json != "-":
         print(format_report(result))
         tables = _format_tables(result)

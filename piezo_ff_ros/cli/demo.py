@@ -179,7 +179,7 @@ def _run(args) -> int:
     conditions = {"source": f"piezo-ff demo (ROS 2 graph, {driver})",
                   "creep_duration_s": args.creep_duration, "config": cfg.name, "variant": args.variant}
     result = analyze_run(data, evaluate=lambda rec: evaluate(rec, experiments=exps, design=hinf,
-                                                                  conditions=conditions))
+                                                                  conditions=conditions)).to_json()
     print(format_report(result))
     if any(k != "replay" for k in result):
         print()
