@@ -158,8 +158,8 @@ def run(args) -> int:
     res = _verify(cfg, design, truth, args.creep_duration, noise, say, "identified")
     report["timing_s"]["verify"] = time.perf_counter() - t0
     result = {"fit_percent": report["fit_percent"], "orders": report["orders"],
-              "before": res["before"], "after": res["after"], "hinf": res["hinf"], "tracking": res["tracking"],
-              "static_error_percent": res["static_error_percent"], "errors": res["errors"],
+              "before": res.before, "after": res.after, "hinf": res.hinf, "tracking": res.tracking,
+              "static_error_percent": res.static_error_percent, "errors": res.errors,
               "conditions": {"truth": args.truth, "noise_std_m": noise, "creep_duration_s": args.creep_duration,
                              "sample_rate_hz": printed.sample_rate, "generalized": bool(args.generalized)},
               "config": str(cfg_path), "hinf_note": note,
@@ -172,9 +172,9 @@ def run(args) -> int:
         t0 = time.perf_counter()
         ref = _verify(printed, None, truth, args.creep_duration, noise, say, "printed")
         report["timing_s"]["verify_printed"] = time.perf_counter() - t0
-        result["after_printed"] = ref["after"]
-        result["hinf_printed"] = ref["hinf"]
-        cmp = after_vs_printed(res["after"], ref["after"])
+        result["after_printed"] = ref.after
+        result["hinf_printed"] = ref.hinf
+        cmp = after_vs_printed(res.after, ref.after)
         result["after_vs_printed"] = cmp
         result["after_vs_printed_rule"] = (f"pass if |identified| <= |printed| + max({AFTER_REL_TOL:g}*|printed|, "
                                            f"{AFTER_ABS_TOL_PP:g} pp)")

@@ -9,16 +9,20 @@ asymmetric (generalized Bouc-Wen) truth, both driven by the nominal compensator.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
 from ..core.units import UM
-from ..core.jsonable import jsonable as _jsonable
+
+if TYPE_CHECKING:
+    from ..core.reproduce import ReproduceResult
 
 NOISE_NM_ROBUSTNESS = 100.0
 
@@ -75,8 +79,8 @@ def run(args) -> int:
     result, recorded = R.reproduce(cfg, design=design, truth=args.truth, noise_std=args.noise_nm * 1e-9,
                                    creep_duration=args.creep_duration, experiments=exps, progress=lambda n: log(f"  {n}"),
                                    amplifier=args.amplifier)
-    result["conditions"]["variant"] = args.variant
-    result["conditions"]["hinf_synthesis_s"] = round(t_design, 3)
+    result = dataclasses.replace(result, conditions={**result.conditions, "variant": args.variant,
+                                                     "hinf_synthesis_s": round(t_design, 3)})
     print(f"Reproduction of Habineza et al. 2018 (IEEE TASE), config {cfg.name}"
           + (f" variant {args.variant}" if args.variant else "") + f", {cfg.sample_rate:g} Hz")
     print(R.format_tables(result, label=label[:22], axes=cfg.axes))
@@ -88,7 +92,7 @@ def run(args) -> int:
         print(f"\nplots: {', '.join(str(f) for f in files)}")
 
     if not args.no_robustness:
-        result["robustness"] = {}
+        robustness: dict[str, dict[str, Any]] = {}
         runs = []
         if not (args.truth == "nominal" and args.noise_nm == NOISE_NM_ROBUSTNESS):
             runs.append((f"noise_{NOISE_NM_ROBUSTNESS:g}nm", "nominal", NOISE_NM_ROBUSTNESS, "ideal"))
@@ -101,9 +105,9 @@ def run(args) -> int:
             res, _ = R.reproduce(cfg, design=design, truth=truth, noise_std=noise_nm * 1e-9,
                                  creep_duration=args.creep_duration, experiments=exps,
                                  progress=lambda n: log(f"  {n}"), amplifier=amplifier)
-            result["robustness"][key] = {k: res[k] for k in ("before", "after", "tracking", "settling_time_s",
-                                                                "static_error_percent", "conditions",
-                                                                "robust_readings")}
+            robustness[key] = {k: getattr(res, k) for k in ("before", "after", "tracking", "settling_time_s",
+                                                          "static_error_percent", "conditions", "robust_readings")}
+        result = dataclasses.replace(result, robustness=robustness)
         if runs:
             print()
             print(format_robustness(result, cfg.axes))
@@ -112,7 +116,7 @@ def run(args) -> int:
     if args.json:
         path = Path(args.json)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(_jsonable(result), indent=2, allow_nan=False) + "\n")
+        path.write_text(json.dumps(result.to_json(), indent=2, allow_nan=False) + "\n")
         print(f"results: {path}")
     return 0
 
@@ -133,8 +137,23 @@ def _design(cfg, log):
     return synthesize_hinf(cfg.dynamics.G_L, cfg.vibration)
 
 
-def format_robustness(result: dict, axes) -> str:
-    """One line per truth and metric: nominal vs the robustness runs, before → after."""
+def format_robustness(result: ReproduceResult | Mapping[str, Any], axes: Sequence[str]) -> str:
+    """One line per truth and metric: nominal vs the robustness runs, before → after.
+
+    Parameters
+    ----------
+    result : ReproduceResult or mapping
+        The nominal result, with its ``robustness`` runs (or its JSON).
+    axes : sequence of str
+        Axes to list.
+
+    Returns
+    -------
+    str
+        The table.
+    """
+    if not isinstance(result, Mapping):
+        result = result.to_json()
     runs = [("nominal", result)] + list(result.get("robustness", {}).items())
     head = "ROBUSTNESS — nominal compensator on other truths [%]"
     cols = ("hysteresis_percent", "creep_percent", "overshoot_percent", "cross_coupling_percent")

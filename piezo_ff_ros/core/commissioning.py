@@ -37,6 +37,7 @@ from .trajectories import Trajectory
 
 if TYPE_CHECKING:  # imported where used (the simulation and the evaluation are loaded on demand)
     from .experiments import Experiment, Recorded
+    from .reproduce import ReproduceResult
 
 __all__ = ["CommissioningError", "PlannedRun", "Rig", "RigLimits", "SimRig", "CommissionResult",
            "characterisation_plan", "check_voltage_runs", "commission", "verify"]
@@ -350,7 +351,7 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
 
 
 def verify(rig: Rig, cfg: PiezoConfig, design: object, experiments: Sequence[Experiment],
-           conditions: Mapping[str, Any], robust: bool = False, progress: Progress | None = None) -> dict[str, Any]:
+           conditions: Mapping[str, Any], robust: bool = False, progress: Progress | None = None) -> ReproduceResult:
     """The paper's tests played on ``rig`` with ``cfg``'s cascade; Tables I/II (:func:`~.reproduce.evaluate`)."""
     from .reproduce import evaluate
 

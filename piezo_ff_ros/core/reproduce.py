@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Mapping, NamedTuple, Sequence
 
 import numpy as np
@@ -34,12 +35,14 @@ import numpy as np
 from . import metrics as M
 from .config import PiezoConfig
 from .experiments import Experiment, Recorded, paper_experiments, simulate_experiments
+from .jsonable import JsonResult
 from .units import UM
 
 if TYPE_CHECKING:
     from .models.plant import Plant
 
-__all__ = ["PAPER", "INDEPENDENT", "evaluate", "reproduce", "format_tables", "truth_plant", "ASYMMETRIC_DELTA"]
+__all__ = ["PAPER", "INDEPENDENT", "ReproduceResult", "evaluate", "reproduce", "format_tables", "truth_plant",
+           "ASYMMETRIC_DELTA"]
 
 KEYS = ("hysteresis_percent", "creep_percent", "overshoot_percent", "cross_coupling_percent")
 
@@ -80,6 +83,57 @@ def _pct(v: float | None) -> float | None:
     return None if v is None or not np.isfinite(v) else 100.0 * float(v)
 
 
+PerAxis = dict[str, float | None]  #: {axis: value or None}
+
+
+@dataclass(frozen=True)
+class ReproduceResult(JsonResult):
+    """The paper's tables read from experiment signals (:func:`evaluate`); ``to_json()`` is ``reproduce --json``.
+
+    Attributes
+    ----------
+    before, after : dict
+        ``{hysteresis_percent, creep_percent, overshoot_percent, cross_coupling_percent}: {axis: % or None}``.
+    hinf : dict
+        ``{gamma, order_full, order_reduced}`` of the vibration compensator (None when unknown).
+    paper, independent : dict
+        The paper's figures (:data:`PAPER`) and the independent reading's (:data:`INDEPENDENT`).
+    tracking : dict
+        Per circle experiment: ``{system, radius_m, rms_error_m, max_error_m, rms_error_percent, …}``.
+    settling_time_s : dict
+        ``{before, after}: {axis: s or None}`` (2 % band).
+    static_error_percent : dict
+        ``{S_L, T}: {axis: % or None}``.
+    creep_over_Am_percent : dict
+        ``{before, after}: {axis: % or None}``: creep divided by A_m instead of A_f.
+    details : dict
+        Per experiment: the raw readings behind the percentages [m, s, V].
+    errors : dict
+        ``{experiment name: why its figures could not be read}``.
+    conditions : dict
+        How the data were produced (free-form, copied from the caller).
+    robust_readings : bool
+        Whether the noise-robust readings were used.
+    robustness : dict or None
+        ``reproduce`` only: the same tables for other truths (key absent from the JSON when None).
+    """
+
+    before: dict[str, PerAxis]
+    after: dict[str, PerAxis]
+    hinf: dict[str, Any]
+    paper: dict[str, Any]
+    independent: dict[str, Any]
+    tracking: dict[str, dict[str, Any]]
+    settling_time_s: dict[str, PerAxis]
+    static_error_percent: dict[str, PerAxis]
+    creep_over_Am_percent: dict[str, PerAxis]
+    details: dict[str, dict[str, Any]]
+    errors: dict[str, str]
+    conditions: dict[str, Any]
+    robust_readings: bool
+    robustness: dict[str, Any] | None = field(default=None, metadata={"omit_none": True})
+
+
 class _Signals(NamedTuple):
     """One experiment's signals as :func:`evaluate` reads them: float arrays, 2-D, finite, reference present."""
 
@@ -91,7 +145,7 @@ class _Signals(NamedTuple):
 
 def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Experiment] | None = None,
              design: Any = None, robust: bool = False, conditions: Mapping[str, Any] | None = None,
-             reference_model_tau: float | None = None) -> dict[str, Any]:
+             reference_model_tau: float | None = None) -> ReproduceResult:
     """Compute the paper's tables from recorded signals.
 
     Parameters
@@ -114,8 +168,8 @@ def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Expe
 
     Returns
     -------
-    dict
-        See the module docstring.
+    ReproduceResult
+        See the module docstring; ``to_json()`` has its keys.
     """
     exps = experiments if experiments is not None else paper_experiments()
     by_name = {e.name: e for e in exps}
@@ -251,7 +305,7 @@ def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Expe
                 out["tracking"][e.name].update({"rms_error_vs_Wr_m": tw["rms_norm"], "max_error_vs_Wr_m": tw["max_norm"]})
         except ValueError as exc:  # one unreadable experiment must not lose the others
             out["errors"][e.name] = str(exc)
-    return out
+    return ReproduceResult(**out)
 
 
 def _rel(num: float, den: float) -> float | None:
@@ -310,7 +364,7 @@ def truth_plant(cfg: PiezoConfig, truth: str = "nominal", noise_std: float = 0.0
 def reproduce(cfg: PiezoConfig, design: Any = None, truth: str = "nominal", noise_std: float = 0.0,
               creep_duration: float = 600.0, experiments: list[Experiment] | None = None,
               progress: Callable[[str], None] | None = None, robust: bool | None = None,
-              amplifier: str = "ideal") -> tuple[dict[str, Any], dict[str, Recorded]]:
+              amplifier: str = "ideal") -> tuple[ReproduceResult, dict[str, Recorded]]:
     """Simulate the paper's experiments on a truth plant and evaluate them: ``(result, recorded)``.
 
     ``robust`` defaults to True when there is sensor noise (see :func:`evaluate`).  ``amplifier``: ``'ideal'``
@@ -342,8 +396,26 @@ def _f(v: float | None, width: int = 8, digits: int = 2) -> str:
     return f"{'—':>{width}}" if v is None else f"{v:{width}.{digits}f}"
 
 
-def format_tables(result: Mapping[str, Any], label: str = "this run", axes: Sequence[str] = ("x", "y")) -> str:
-    """Table I and Table II side by side with the paper's (and the independent reading's) figures."""
+def format_tables(result: ReproduceResult | Mapping[str, Any], label: str = "this run",
+                  axes: Sequence[str] = ("x", "y")) -> str:
+    """Table I and Table II side by side with the paper's (and the independent reading's) figures.
+
+    Parameters
+    ----------
+    result : ReproduceResult or mapping
+        From :func:`evaluate`, or its JSON (as ``reproduce --json`` / ``analyze --json`` write it).
+    label : str
+        Name of this result's rows.
+    axes : sequence of str
+        Axes to list.
+
+    Returns
+    -------
+    str
+        The tables, one line per axis and source.
+    """
+    if isinstance(result, ReproduceResult):
+        result = result.to_json()
     P, I = result.get("paper", PAPER), result.get("independent", INDEPENDENT)
     lines = []
     cond = result.get("conditions", {})
