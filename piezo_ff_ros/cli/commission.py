@@ -156,22 +156,22 @@ def run(args) -> int:
 
     t0 = time.perf_counter()
     res = _verify(cfg, design, truth, args.creep_duration, noise, say, "identified")
-    report["timing_s"]["verify"] = time.perf_counter() - t0
-    result = {"fit_percent": report["fit_percent"], "orders": report["orders"],
+    timing = {**report.timing_s, "verify": time.perf_counter() - t0}
+    result = {"fit_percent": report.fit_percent, "orders": report.orders,
               "before": res.before, "after": res.after, "hinf": res.hinf, "tracking": res.tracking,
               "static_error_percent": res.static_error_percent, "errors": res.errors,
               "conditions": {"truth": args.truth, "noise_std_m": noise, "creep_duration_s": args.creep_duration,
                              "sample_rate_hz": printed.sample_rate, "generalized": bool(args.generalized)},
               "config": str(cfg_path), "hinf_note": note,
-              "plant_fit_basis": report.get("plant_fit_basis")}
-    for key in ("plant_fit_noise_free", "plant_fit_parts"):
-        if key in report:
-            result[key] = report[key]
+              "plant_fit_basis": report.plant_fit_basis}
+    if report.plant_fit_noise_free is not None:
+        result["plant_fit_noise_free"] = report.plant_fit_noise_free
+    result["plant_fit_parts"] = report.plant_fit_parts
     print(format_tables(res, label="identified cascade", axes=printed.axes))
     if not args.no_compare:
         t0 = time.perf_counter()
         ref = _verify(printed, None, truth, args.creep_duration, noise, say, "printed")
-        report["timing_s"]["verify_printed"] = time.perf_counter() - t0
+        timing["verify_printed"] = time.perf_counter() - t0
         result["after_printed"] = ref.after
         result["hinf_printed"] = ref.hinf
         cmp = after_vs_printed(res.after, ref.after)
@@ -184,15 +184,15 @@ def run(args) -> int:
             for a, c in per_axis.items():
                 verdict = "—" if c["pass"] is None else ("pass" if c["pass"] else "FAIL")
                 print(f"  {key:<24} {a}  {_f(c['identified'])}   {_f(c['printed'])}            {verdict}")
-    result["timing_s"] = {k: round(v, 2) for k, v in report["timing_s"].items()}
+    result["timing_s"] = {k: round(v, 2) for k, v in timing.items()}
     print()
     print("held-out fit [%] (MATLAB compare):")
-    for stage, d in report["fit_percent"].items():
+    for stage, d in report.fit_percent.items():
         print(f"  {stage:10s} " + "  ".join(f"{k}: {_f(v)}" for k, v in d.items()))
-    print(f"  (plant = identified whole-plant model vs the {report.get('plant_fit_basis')}, held-out voltage record)")
-    if "plant_fit_noise_free" in report:
+    print(f"  (plant = identified whole-plant model vs the {report.plant_fit_basis}, held-out voltage record)")
+    if report.plant_fit_noise_free is not None:
         print("  plant vs the noise-free truth: " + "  ".join(
-            f"{k}: {_f(v)}" for k, v in report["plant_fit_noise_free"].items()))
+            f"{k}: {_f(v)}" for k, v in report.plant_fit_noise_free.items()))
     text = json.dumps(jsonable(result), indent=2)
     (out / "commission.json").write_text(text)
     if args.json:

@@ -80,13 +80,12 @@ def run(args) -> int:
     base = load_config(args.base) if args.base else load_config()
     cfg, report = identify_all(runs, base=base, generalized=args.generalized, creep_order=_order(args.creep_order),
                                dynamics_order=_order(args.dynamics_order), synthesize=not args.no_hinf, progress=say)
-    report.pop("_design", None)
     cfg.to_yaml(args.out)
     say(f"wrote {args.out}")
-    fits = report["fit_percent"]
+    fits = report.fit_percent
     print("held-out fit [%] (MATLAB compare):")
     for stage, d in fits.items():
         print(f"  {stage:10s} " + "  ".join(f"{k}: {v:.2f}" if v is not None else f"{k}: n/a" for k, v in d.items()))
     if args.json:
-        Path(args.json).write_text(json.dumps(report, indent=2))
+        Path(args.json).write_text(json.dumps(report.to_json(), indent=2))
     return 0

@@ -115,11 +115,11 @@ def run_graph(args, say) -> int:
         print(f"warning: node exit codes {bad} (logs in {graph.log_dir})", file=sys.stderr)
 
     report = result.report
-    timing = {**report["timing_s"], **timing, "total": time.perf_counter() - t_start}
-    out_json = {"fit_percent": report["fit_percent"],
+    timing = {**report.timing_s, **timing, "total": time.perf_counter() - t_start}
+    out_json = {"fit_percent": report.fit_percent,
                 "plant_fit_basis": "measured output (recorded through the graph)",
-                "plant_fit_parts": report.get("plant_fit_parts"),
-                "orders": report["orders"],
+                "plant_fit_parts": report.plant_fit_parts,
+                "orders": report.orders,
                 "before": res.before, "after": res.after, "hinf": res.hinf,
                 "tracking": res.tracking, "static_error_percent": res.static_error_percent,
                 "conditions": {"graph": "started sim graph" if not found else "existing driver",
@@ -134,7 +134,7 @@ def run_graph(args, say) -> int:
     print(format_tables(res, label="identified cascade (ROS graph)", axes=axes))
     print()
     print("held-out fit [%] (MATLAB compare):")
-    for stage, d in report["fit_percent"].items():
+    for stage, d in report.fit_percent.items():
         print(f"  {stage:10s} " + "  ".join(f"{k}: {'—' if v is None else f'{v:8.3f}'}" for k, v in d.items()))
     text = json.dumps(jsonable(out_json), indent=2)
     (out / "commission.json").write_text(text)
