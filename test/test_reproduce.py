@@ -59,7 +59,7 @@ def test_decomposition_matches_the_independent_reading(paper_config):
         U[:, i] = 200 * np.sin(2 * np.pi * 0.1 * t)
         y = BoucWenModel(paper_config.hysteresis).process(U)
         r = M.hysteresis_ratio(U[:, i], y[:, i], period_t=t, period=10.0)
-        assert 100 * r["ratio"] == pytest.approx(expected, abs=0.01)
+        assert 100 * r.ratio == pytest.approx(expected, abs=0.01)
     fs_c = 100.0  # the creep model alone is slow: 600 s at 100 Hz (exact ZOH, same step response)
     cm_cfg = paper_config.with_sample_rate(fs_c)
     tc = np.arange(int(600.05 * fs_c) + 1) / fs_c
@@ -68,9 +68,9 @@ def test_decomposition_matches_the_independent_reading(paper_config):
         X[tc >= 0.05, i] = 20e-6
         y = CreepModel(cm_cfg.creep, cm_cfg.dt).process(X)
         r = M.creep_ratio(tc, y[:, i], t_step=0.05, t_transient=0.0, window=1 / fs_c)
-        assert 100 * r["ratio"] == pytest.approx(expected, abs=0.01)
+        assert 100 * r.ratio == pytest.approx(expected, abs=0.01)
         if expected_am:
-            assert 100 * r["ratio_over_Am"] == pytest.approx(expected_am, abs=0.01)
+            assert 100 * r.ratio_over_Am == pytest.approx(expected_am, abs=0.01)
 
 
 def test_creep_600s_on_S_H(paper_config):

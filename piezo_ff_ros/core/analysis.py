@@ -179,7 +179,7 @@ def tracking_summary(reference: ArrayLike | None, y: ArrayLike) -> dict[str, Any
     ok = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(yy), axis=1)
     if not ok.any():
         return None
-    out = metrics.tracking_errors(r[ok], yy[ok])
+    out = metrics.tracking_errors(r[ok], yy[ok]).to_json()
     out["samples"] = int(ok.sum())
     return out
 

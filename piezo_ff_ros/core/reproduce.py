@@ -212,10 +212,10 @@ def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Expe
             try:
                 period = by_name[name].params["period"]
                 res = M.hysteresis_ratio(r.reference[:, i], r.y[:, i], period_t=r.t, period=period, bins=bins)
-                out[phase]["hysteresis_percent"][a] = _pct(res["ratio"])
+                out[phase]["hysteresis_percent"][a] = _pct(res.ratio)
                 last = M.last_period(r.t, period, r.y)[0]
                 ranges[(system, a)] = last
-                out["details"][name] = {"h_m": res["h"], "H_m": res["H"], "u_at_max_width": res["u_at_max"],
+                out["details"][name] = {"h_m": res.h, "H_m": res.H, "u_at_max_width": res.u_at_max,
                                         "output_range_m": {b: float(np.ptp(last[:, j])) for j, b in enumerate(axes)},
                                         "peak_voltage_V": float(np.abs(r.u).max())}
             except ValueError as exc:  # one unreadable experiment must not lose the others
@@ -239,16 +239,16 @@ def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Expe
                 continue
             try:
                 t_step = by_name[name].params["t_step"]
-                res = M.creep_ratio(r.t, r.y[:, i], t_step=t_step)
-                out[phase]["creep_percent"][a] = _pct(res["ratio"])
-                out["creep_over_Am_percent"][phase][a] = _pct(res["ratio_over_Am"])
+                cr = M.creep_ratio(r.t, r.y[:, i], t_step=t_step)
+                out[phase]["creep_percent"][a] = _pct(cr.ratio)
+                out["creep_over_Am_percent"][phase][a] = _pct(cr.ratio_over_Am)
                 cross_creep = {b: M.creep_ratio(r.t, r.y[:, j], t_step=t_step) for j, b in enumerate(axes) if b != a}
-                out["details"][name] = {"A_f_m": res["A_f"], "A_m_m": res["A_m"], "creep_time_s": float(r.t[-1] - t_step),
-                                        "cross_A_f_m": {b: c["A_f"] for b, c in cross_creep.items()},
-                                        "cross_A_m_m": {b: c["A_m"] for b, c in cross_creep.items()}}
+                out["details"][name] = {"A_f_m": cr.A_f, "A_m_m": cr.A_m, "creep_time_s": float(r.t[-1] - t_step),
+                                        "cross_A_f_m": {b: c.A_f for b, c in cross_creep.items()},
+                                        "cross_A_m_m": {b: c.A_m for b, c in cross_creep.items()}}
                 if phase == "after":
                     ref_final = float(r.reference[-1, i])
-                    out["static_error_percent"]["S_L"][a] = _pct(_rel(res["A_m"] - ref_final, ref_final))
+                    out["static_error_percent"]["S_L"][a] = _pct(_rel(cr.A_m - ref_final, ref_final))
             except ValueError as exc:  # one unreadable experiment must not lose the others
                 out["errors"][name] = str(exc)
 
@@ -262,19 +262,19 @@ def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Expe
                 continue
             try:
                 t_step = by_name[name].params["t_step"]
-                res = M.overshoot_ratio(r.t, r.y[:, i], t_step=t_step, lowpass_hz=lowpass)
-                out[phase]["overshoot_percent"][a] = _pct(res["ratio"])
+                ov = M.overshoot_ratio(r.t, r.y[:, i], t_step=t_step, lowpass_hz=lowpass)
+                out[phase]["overshoot_percent"][a] = _pct(ov.ratio)
                 ts = M.settling_time(r.t, r.y[:, i], t_step=t_step, band=0.02)
                 out["settling_time_s"][phase][a] = None if not math.isfinite(ts) else ts
                 for j, b in enumerate(axes):
-                    finals[(system, b, a)] = M.overshoot_ratio(r.t, r.y[:, j], t_step=t_step)["A_f"]
-                out["details"][name] = {"A_f_m": res["A_f"], "A_m_m": res["A_m"], "t_peak_s": res["t_peak"],
+                    finals[(system, b, a)] = M.overshoot_ratio(r.t, r.y[:, j], t_step=t_step).A_f
+                out["details"][name] = {"A_f_m": ov.A_f, "A_m_m": ov.A_m, "t_peak_s": ov.t_peak,
                                         "settling_time_2pct_s": out["settling_time_s"][phase][a],
                                         "final_values_m": {b: finals[(system, b, a)] for b in axes},
                                         "peak_voltage_V": float(np.abs(r.u).max())}
                 if phase == "after":
                     ref_final = float(r.reference[-1, i])
-                    out["static_error_percent"]["T"][a] = _pct(_rel(res["A_f"] - ref_final, ref_final))
+                    out["static_error_percent"]["T"][a] = _pct(_rel(ov.A_f - ref_final, ref_final))
             except ValueError as exc:  # one unreadable experiment must not lose the others
                 out["errors"][name] = str(exc)
     for a in axes:
@@ -295,14 +295,14 @@ def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Expe
             te = M.tracking_errors(r.reference, r.y, mask=mask)
             radius = float(e.params.get("radius", np.nan))
             out["tracking"][e.name] = {
-                "system": e.system, "radius_m": radius, "rms_error_m": te["rms_norm"], "max_error_m": te["max_norm"],
-                "rms_error_percent": _pct(te["rms_norm"] / radius), "max_error_percent": _pct(te["max_norm"] / radius),
-                "rms_error_per_axis_m": dict(zip(axes, te["rms"])), "max_error_per_axis_m": dict(zip(axes, te["max"])),
+                "system": e.system, "radius_m": radius, "rms_error_m": te.rms_norm, "max_error_m": te.max_norm,
+                "rms_error_percent": _pct(te.rms_norm / radius), "max_error_percent": _pct(te.max_norm / radius),
+                "rms_error_per_axis_m": dict(zip(axes, te.rms)), "max_error_per_axis_m": dict(zip(axes, te.max)),
                 "peak_voltage_V": float(np.abs(r.u).max())}
             if reference_model_tau:
                 rw = _first_order_zoh(r.t, r.reference, float(reference_model_tau))
                 tw = M.tracking_errors(rw, r.y, mask=mask)
-                out["tracking"][e.name].update({"rms_error_vs_Wr_m": tw["rms_norm"], "max_error_vs_Wr_m": tw["max_norm"]})
+                out["tracking"][e.name].update({"rms_error_vs_Wr_m": tw.rms_norm, "max_error_vs_Wr_m": tw.max_norm})
         except ValueError as exc:  # one unreadable experiment must not lose the others
             out["errors"][e.name] = str(exc)
     return ReproduceResult(**out)
