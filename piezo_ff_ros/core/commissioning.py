@@ -139,10 +139,12 @@ class RigLimits:
 
     @property
     def voltage_limit(self) -> float:
+        """±V the driver enforces."""
         return self._vlim
 
     @property
     def slew_limit(self) -> float:
+        """V/s the driver enforces."""
         return self._slim
 
 
@@ -160,9 +162,26 @@ class SimRig(RigLimits):
 
     @property
     def has_sensor(self) -> bool:
+        """Always True: the simulation's output is the displacement."""
         return True
 
     def configure(self, cfg: PiezoConfig | None, stages: frozenset[str], bypass: bool = False) -> None:
+        """Put the creep and/or hysteresis compensators of ``cfg`` in front of the plant (see :meth:`Rig.configure`).
+
+        Parameters
+        ----------
+        cfg : PiezoConfig or None
+            The compensators' parameters (required unless bypassed or no stage is asked for).
+        stages : frozenset of str
+            ``creep`` and/or ``hysteresis`` (the characterisation never runs through the vibration stage).
+        bypass : bool
+            Voltages go to the plant unchanged.
+
+        Raises
+        ------
+        CommissioningError
+            ``cfg`` is missing or a stage is not part of the sequence.
+        """
         from .compensators.creep import CreepCompensator
         from .compensators.hysteresis import HysteresisCompensator
 
@@ -182,11 +201,43 @@ class SimRig(RigLimits):
         self._chain = chain
 
     def play(self, runs: Sequence[PlannedRun], meta: Mapping[str, object] | None = None) -> dict[str, RunData]:
+        """Play each run from rest through the configured compensators and the plant (see :meth:`Rig.play`).
+
+        Parameters
+        ----------
+        runs : sequence of PlannedRun
+            What to play.
+        meta : mapping, optional
+            Unused here (the graph rig records it).
+
+        Returns
+        -------
+        dict
+            ``{name: RunData}``.
+        """
         return {r.name: run_open_loop(self.plant, r.trajectory, self.sample_rate, r.name, self.axes,
                                       chain=self._chain) for r in runs}
 
     def run_experiments(self, cfg: PiezoConfig, design: object, experiments: Sequence[Experiment],
                         progress: Progress) -> dict[str, Recorded]:
+        """The paper's verification experiments simulated on the plant with ``cfg``'s cascade.
+
+        Parameters
+        ----------
+        cfg : PiezoConfig
+            The cascade to verify.
+        design : HinfDesign or None
+            Its H∞ design (None: from ``cfg``).
+        experiments : sequence of Experiment
+            What to run.
+        progress : callable
+            Called with one line per experiment.
+
+        Returns
+        -------
+        dict
+            ``{name: (t, reference, u, y)}``.
+        """
         from .experiments import simulate_experiments
 
         return simulate_experiments(cfg, design=design, plant=self.plant, experiments=list(experiments),
@@ -194,6 +245,18 @@ class SimRig(RigLimits):
 
     # only a simulation can tell the noise-free output (for the plant fit against the truth)
     def noise_free_output(self, u: np.ndarray) -> np.ndarray | None:
+        """The plant's output without sensor noise for the voltages ``u`` [V], from rest.
+
+        Parameters
+        ----------
+        u : array [N, axes]
+            Voltages [V].
+
+        Returns
+        -------
+        array [N, axes] or None
+            Displacement [m]; None when the plant has no sensor noise (its output is already noise-free).
+        """
         from .models.plant import Plant
 
         p = self.plant

@@ -88,6 +88,7 @@ class Trajectory:
     # -- interface -------------------------------------------------------------------------------------------
     @property
     def duration(self) -> float:  # pragma: no cover - overridden
+        """Length [s] of the trajectory (``inf`` for an endless one); after it the last sample is held."""
         raise NotImplementedError
 
     @property

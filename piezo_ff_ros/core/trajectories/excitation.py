@@ -133,10 +133,12 @@ class Multisine(Trajectory):
 
     @property
     def frequencies(self) -> np.ndarray:
+        """Tone frequencies [Hz]: ``n_tones`` evenly spaced from ``f_min`` to ``f_max``."""
         return np.linspace(self.f_min, self.f_max, self.n_tones)
 
     @property
     def tone_phases(self) -> np.ndarray:
+        """Phase [rad] of each tone (Schroeder phases for a low crest factor, else uniform random ones from ``seed``)."""
         n = self.n_tones
         if self.phases == "schroeder":
             i = np.arange(1, n + 1)

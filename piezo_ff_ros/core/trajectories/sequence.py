@@ -85,6 +85,7 @@ class Sequence(Trajectory):
 
     @property
     def names(self) -> list[str]:
+        """Segment names, in playing order."""
         return [n for n, _, _ in self.segments_]
 
     @property
@@ -111,6 +112,24 @@ class Sequence(Trajectory):
         return out
 
     def segment(self, name: str, fs: float) -> Segment:
+        """The segment called ``name``, with its sample range at ``fs``.
+
+        Parameters
+        ----------
+        name : str
+            Segment name.
+        fs : float
+            Sample rate [Hz].
+
+        Returns
+        -------
+        Segment
+
+        Raises
+        ------
+        KeyError
+            No segment has that name.
+        """
         for seg in self.segments(fs):
             if seg.name == name:
                 return seg
