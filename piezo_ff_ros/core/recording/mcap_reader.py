@@ -59,18 +59,20 @@ def _split_outliers(decoded: dict[str, list[tuple[int, np.ndarray]]], dt_ns: int
     items = sorted((s, s + len(b) * dt_ns, role, i) for role, blks in decoded.items() for i, (s, b) in enumerate(blks))
     if not items:
         return decoded, {}
-    per_role = Counter()
+    per_role: Counter[str] = Counter()
     for role, blks in decoded.items():
         per_role[role] = sum(len(b) for _, b in blks)
     max_gap_ns = max(MIN_BRIDGED_GAP, max(per_role.values())) * dt_ns
-    clusters, cur, cur_end, cur_n = [], [], None, 0
+    clusters: list[tuple[int, list[tuple[str, int]]]] = []
+    cur: list[tuple[str, int]] = []
+    cur_end, cur_n = 0, 0
     for start, end, role, i in items:
         if cur and start - cur_end > max_gap_ns:
             clusters.append((cur_n, cur))
-            cur, cur_n, cur_end = [], 0, None
+            cur, cur_n = [], 0
         cur.append((role, i))
         cur_n += (end - start) // dt_ns
-        cur_end = end if cur_end is None else max(cur_end, end)
+        cur_end = end if len(cur) == 1 else max(cur_end, end)
     clusters.append((cur_n, cur))
     if len(clusters) == 1:
         return decoded, {r: [] for r in decoded}
@@ -89,7 +91,7 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _diagnostics_summary(raw_msgs) -> dict:
-    summary = {"messages": 0, "malformed": 0, "status": {}}
+    summary: dict[str, Any] = {"messages": 0, "malformed": 0, "status": {}}
     for _, _, raw in raw_msgs:
         try:
             msg = deserialize_message(raw, DIAGNOSTICS_TYPE)
@@ -116,7 +118,8 @@ def _as_int(v) -> int:
 
 
 def _experiment_markers(raw_msgs, t0_ns: int, dt_ns: int, warnings: list) -> list[dict]:
-    markers, seen = [], set()
+    markers: list[dict[str, Any]] = []
+    seen: set[tuple[str, int]] = set()
     for log_time, _, raw in raw_msgs:
         try:
             text = deserialize_message(raw, EXPERIMENT_TYPE).data
@@ -139,9 +142,9 @@ def _experiment_markers(raw_msgs, t0_ns: int, dt_ns: int, warnings: list) -> lis
             else:
                 warnings.append(f"experiment: marker {info.get('name')!r} has neither k0 nor stamp_ns; skipped")
                 continue
-            for key in ("k1", "n"):
-                if key in info:
-                    info[key] = _as_int(info[key])
+            for name in ("k1", "n"):
+                if name in info:
+                    info[name] = _as_int(info[name])
         except (TypeError, ValueError):
             warnings.append(f"experiment: marker {text[:60]!r}: k0/stamp_ns/k1/n not integers; skipped")
             continue
@@ -349,7 +352,7 @@ def read_run(path, *, namespace: str | None = None, sample_rate: float | None = 
     """
     contents = scan_mcap(path)
     warnings: list[str] = []
-    if contents.truncated:
+    if contents.truncated and contents.error:   # (scan_mcap sets both together)
         warnings.append(contents.error)
     non_cdr = {t: e for t, e in contents.encodings.items() if e != "cdr"}
     if non_cdr:

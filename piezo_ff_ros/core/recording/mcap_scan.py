@@ -37,7 +37,7 @@ class McapContents:
 
     def loss_summary(self) -> dict:
         """What could not be read, summed over the files: chunk/message/byte counts and lost log-time ranges."""
-        out = {"chunks_total": 0, "chunks_lost": 0, "messages_lost": 0, "bytes_skipped": 0, "records_skipped": 0,
+        out: dict[str, Any] = {"chunks_total": 0, "chunks_lost": 0, "messages_lost": 0, "bytes_skipped": 0, "records_skipped": 0,
                "orphan_messages": 0, "lost_time_ranges_ns": [], "messages_lost_by_topic": {}, "truncated": False,
                "errors": []}
         for loss in self.losses:
@@ -148,6 +148,7 @@ def iter_mcap_records(path, loss: dict | None = None) -> Iterator:
                0x09: Attachment.read, 0x0B: Statistics.read, 0x0C: Metadata.read}
     loss = _new_loss() if loss is None else loss
     path = Path(path)
+    buf: mmap.mmap | bytes
     with open(path, "rb") as f:
         try:
             buf = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
@@ -266,12 +267,12 @@ def _scan_one(path: Path, out: McapContents) -> None:
         out.encodings.setdefault(ch.topic, ch.message_encoding)
         out.channel_metadata.setdefault(ch.topic, dict(ch.metadata))
     for cid, msgs in by_channel.items():
-        ch = channels.get(cid)
-        if ch is None:
+        owner = channels.get(cid)
+        if owner is None:
             loss["orphan_messages"] += len(msgs)
             continue
-        out.messages[ch.topic].extend(msgs)
-    by_topic = Counter()
+        out.messages[owner.topic].extend(msgs)
+    by_topic: Counter[str] = Counter()
     for cid, k in loss.pop("messages_lost_by_channel").items():
         by_topic[channels[cid].topic if cid in channels else f"channel {cid}"] += k
     loss["messages_lost_by_topic"] = dict(by_topic)

@@ -98,11 +98,11 @@ def recover_mcap(src, dst, *, compression: str = "zstd", chunk_size: int = 512 *
             writer.add_attachment(create_time=att.create_time, log_time=att.log_time, name=att.name,
                                   media_type=att.media_type, data=att.data)
         for m in messages:
-            cid = channel_ids.get(m.channel_id)
-            if cid is None:
+            new_cid = channel_ids.get(m.channel_id)
+            if new_cid is None:
                 orphans += 1
                 continue
-            writer.add_message(channel_id=cid, log_time=m.log_time, data=m.data, publish_time=m.publish_time,
+            writer.add_message(channel_id=new_cid, log_time=m.log_time, data=m.data, publish_time=m.publish_time,
                                sequence=m.sequence)
             written += 1
         writer.finish()
