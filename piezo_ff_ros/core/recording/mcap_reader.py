@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
@@ -34,7 +34,7 @@ def _pick_topic(contents: McapContents, role: str, type_name: str, namespace: st
 
 def _infer_dt_ns(stamp_lists: list[list[tuple[int, int]]]) -> int | None:
     """Most common (stamp difference / block width) over consecutive blocks of each topic."""
-    votes: Counter = Counter()
+    votes: Counter[int] = Counter()
     for blocks in stamp_lists:
         srt = sorted(blocks)
         for (s0, n0), (s1, _) in zip(srt, srt[1:]):
@@ -49,7 +49,7 @@ def _infer_dt_ns(stamp_lists: list[list[tuple[int, int]]]) -> int | None:
 MIN_BRIDGED_GAP = 1_000_000
 
 
-def _split_outliers(decoded: dict[str, list[tuple[int, np.ndarray]]], dt_ns: int):
+def _split_outliers(decoded: Blocks, dt_ns: int) -> tuple[Blocks, Blocks]:
     """Keep the blocks of the main time span; return ``(kept, outliers)`` per role.
 
     Blocks (all topics together) are grouped into clusters separated by gaps larger than
@@ -90,7 +90,7 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
 
 
-def _diagnostics_summary(raw_msgs) -> dict:
+def _diagnostics_summary(raw_msgs: Iterable[tuple[int, int, bytes]]) -> dict[str, Any]:
     summary: dict[str, Any] = {"messages": 0, "malformed": 0, "status": {}}
     for _, _, raw in raw_msgs:
         try:
@@ -110,14 +110,15 @@ def _diagnostics_summary(raw_msgs) -> dict:
     return summary
 
 
-def _as_int(v) -> int:
+def _as_int(v: Any) -> int:
     """An integer from JSON (an integral float too); ``ValueError`` otherwise (bools, text, 1.5)."""
     if isinstance(v, bool) or not isinstance(v, (int, float)) or (isinstance(v, float) and not v.is_integer()):
         raise ValueError(f"not an integer: {v!r}")
     return int(v)
 
 
-def _experiment_markers(raw_msgs, t0_ns: int, dt_ns: int, warnings: list) -> list[dict]:
+def _experiment_markers(raw_msgs: Iterable[tuple[int, int, bytes]], t0_ns: int, dt_ns: int,
+                        warnings: list[str]) -> list[dict[str, Any]]:
     markers: list[dict[str, Any]] = []
     seen: set[tuple[str, int]] = set()
     for log_time, _, raw in raw_msgs:
@@ -317,7 +318,7 @@ def _segments(markers: list[dict[str, Any]], k_offset: int, n: int, start: int,
     return segments
 
 
-def read_run(path, *, namespace: str | None = None, sample_rate: float | None = None,
+def read_run(path: str | Path, *, namespace: str | None = None, sample_rate: float | None = None,
              trim: bool = True) -> RunData:
     """Reassemble a ROS 2 recording of the topic contract into a sample-aligned :class:`RunData`.
 

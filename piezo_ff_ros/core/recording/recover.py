@@ -10,11 +10,13 @@ re-encoded: message payloads are copied byte for byte.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 __all__ = ["recover_mcap"]
 
 
-def recover_mcap(src, dst, *, compression: str = "zstd", chunk_size: int = 512 * 1024) -> dict:
+def recover_mcap(src: str | Path, dst: str | Path, *, compression: str = "zstd",
+                 chunk_size: int = 512 * 1024) -> dict[str, Any]:
     """Write the readable content of ``src`` to a new, complete MCAP file ``dst``.
 
     Parameters
@@ -105,7 +107,7 @@ def recover_mcap(src, dst, *, compression: str = "zstd", chunk_size: int = 512 *
             writer.add_message(channel_id=new_cid, log_time=m.log_time, data=m.data, publish_time=m.publish_time,
                                sequence=m.sequence)
             written += 1
-        writer.finish()
+        writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish carries no annotations
     loss["orphan_messages"] += orphans
     loss["messages_lost_by_topic"] = {
         (channels[cid].topic if cid in channels else f"channel {cid}"): k

@@ -68,7 +68,7 @@ def _msg_text(type_name: str) -> str:
     full = f"{_split_type(type_name)[0]}/msg/{_split_type(type_name)[1]}"
     if full not in ts.types:
         raise ValueError(f"{type_name}: no .msg file under {[str(d) for d in _share_dirs()]} and not a known type")
-    return ts.generate_msgdef(full, ros_version=2)[0].split("\n" + _DELIMITER)[0]
+    return str(ts.generate_msgdef(full, ros_version=2)[0].split("\n" + _DELIMITER)[0])
 
 
 def _msg_dependencies(text: str, package: str) -> list[str]:
@@ -109,8 +109,8 @@ def type_hash(type_name: str) -> str:
     """The type's RIHS01 hash (``RIHS01_…``) from the wheel's ``<Type>.json`` (else computed by rosbags)."""
     p = _interface_file(type_name, ".json")
     if p is not None:
-        return json.loads(p.read_text())["type_hashes"][0]["hash_string"]
+        return str(json.loads(p.read_text())["type_hashes"][0]["hash_string"])
     from .blocks import typestore
 
     pkg, name = _split_type(type_name)
-    return typestore().hash_rihs01(f"{pkg}/msg/{name}")
+    return str(typestore().hash_rihs01(f"{pkg}/msg/{name}"))
