@@ -9,25 +9,27 @@ asymmetric (generalized Bouc-Wen) truth, both driven by the nominal compensator.
 """
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import math
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from ..core.units import UM
 
 if TYPE_CHECKING:
+    from ..core.config import PiezoConfig
     from ..core.reproduce import ReproduceResult
 
 NOISE_NM_ROBUSTNESS = 100.0
 
 
-def add_parser(subparsers):
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     p = subparsers.add_parser("reproduce", help="reproduce the paper's Tables I/II in simulation",
                               description=__doc__.split("\n\n")[0])
     p.add_argument("--json", metavar="FILE", help="write the results (before/after/hinf/paper/tracking …) as JSON")
@@ -51,14 +53,14 @@ def add_parser(subparsers):
     return p
 
 
-def _check_args(args):
+def _check_args(args: argparse.Namespace) -> None:
     if not (math.isfinite(args.noise_nm) and args.noise_nm >= 0):
         raise ValueError(f"--noise-nm must be a non-negative number, got {args.noise_nm}")
     if not (math.isfinite(args.creep_duration) and args.creep_duration > 1.0):
         raise ValueError(f"--creep-duration must be > 1 s, got {args.creep_duration}")
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core import reproduce as R
     from ..core.config import load_config
     from ..core.experiments import paper_experiments
@@ -121,7 +123,7 @@ def run(args) -> int:
     return 0
 
 
-def _design(cfg, log):
+def _design(cfg: PiezoConfig, log: Callable[[str], None]) -> Any:
     if not cfg.cascade.vibration:
         raise ValueError("cascade.vibration is false in this config: the reproduction needs the vibration "
                          "compensator (Section VI-C)")
@@ -177,5 +179,5 @@ def format_robustness(result: ReproduceResult | Mapping[str, Any], axes: Sequenc
     return "\n".join(lines)
 
 
-def _num(v):
+def _num(v: float | None) -> str:
     return "—" if v is None else f"{v:.2f}"

@@ -14,14 +14,16 @@ Everything goes through the topics into ``DIR/commission.mcap``.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import sys
 import time
 from pathlib import Path
+from typing import Callable
 
 
-def run_graph(args, say) -> int:
+def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     """The ROS path of ``piezo-ff commission`` (``args`` from :mod:`piezo_ff_ros.cli.commission`)."""
     from .env import apply_ros_env_defaults
 
@@ -57,6 +59,7 @@ def run_graph(args, say) -> int:
             raise ValueError(f"--only: unknown experiment(s) {sorted(unknown)}; have {[e.name for e in exps]}")
         exps = [e for e in exps if e.name in wanted]
 
+    client: GraphClient | None
     client = GraphClient("piezo_ff_commission", domain_id=int(os.environ["ROS_DOMAIN_ID"]))
     found = driver_present(client, timeout=args.probe_timeout)
     if found:
