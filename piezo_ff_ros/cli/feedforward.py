@@ -97,7 +97,8 @@ def compute(cfg: PiezoConfig, traj: Trajectory, duration: float | None = None,
 
 
 def write(path: Path, t: np.ndarray, u: np.ndarray, axes: Sequence[str], fs: float) -> None:
-    """Write the voltages as .csv (``t,u_<axis>…``), .npy (``u``) or .mat (``t``, ``u``, ``axes``, ``sample_rate``)."""
+    """Write the voltages as .csv (``t,u_<axis>…``), .npy (``u``) or .mat (``t``, ``u``, ``axes``,
+    ``sample_rate``)."""
     suffix = path.suffix.lower()
     if suffix not in FORMATS:
         raise ValueError(f"--out: {path.name}: use one of {', '.join(FORMATS)}")

@@ -77,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
             runs.append(r)
     base = load_config(args.base) if args.base else load_config()
     cfg, report = identify_all(runs, base=base, generalized=args.generalized, creep_order=parse_order(args.creep_order),
-                               dynamics_order=parse_order(args.dynamics_order), synthesize=not args.no_hinf, progress=say)
+                               dynamics_order=parse_order(args.dynamics_order), synthesize=not args.no_hinf,
+                               progress=say)
     cfg.to_yaml(args.out)
     say(f"wrote {args.out}")
     fits = report.fit_percent

@@ -143,6 +143,158 @@ class _Signals(NamedTuple):
     y: np.ndarray
 
 
+@dataclass(frozen=True)
+class _Context:
+    """What every reading of :func:`evaluate` needs: the signals, the experiment definitions, the axes, the mode."""
+
+    recorded: Mapping[str, tuple[Any, ...]]
+    by_name: Mapping[str, Experiment]
+    axes: tuple[str, ...]
+    robust: bool
+
+    @property
+    def bins(self) -> int | None:
+        """Loop branches binned (measured data) or exact."""
+        return 200 if self.robust else None
+
+    @property
+    def lowpass(self) -> float | None:
+        """Zero-phase low-pass [Hz] for step peaks (measured data) or None."""
+        return 3000.0 if self.robust else None
+
+    def signals(self, name: str) -> _Signals | None:
+        """One experiment's signals as float arrays (2-D), None when not recorded; ValueError on NaN/inf."""
+        if name not in self.recorded:
+            return None
+        t, r, u, y = self.recorded[name]
+        r = np.asarray(r, float)
+        y = np.asarray(y, float)
+        if r.ndim == 1:
+            r = r[:, None]
+        if y.ndim == 1:
+            y = y[:, None]
+        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(r))):
+            raise ValueError(f"{name}: recorded signals contain NaN or inf")
+        return _Signals(np.asarray(t, float), r, np.asarray(u, float), y)
+
+
+def _read_hysteresis(ctx: _Context, out: dict[str, Any]) -> None:
+    """Hysteresis (IV-A before, IV-C after) and the range-based cross-coupling (Table II before)."""
+    ranges = {}
+    for phase, system in (("before", "S0"), ("after", "SH")):
+        for i, a in enumerate(ctx.axes):
+            name = f"hyst_{system}_{a}"
+            r = ctx.signals(name)
+            if r is None:
+                continue
+            try:
+                period = ctx.by_name[name].params["period"]
+                res = M.hysteresis_ratio(r.reference[:, i], r.y[:, i], period_t=r.t, period=period, bins=ctx.bins)
+                out[phase]["hysteresis_percent"][a] = _pct(res.ratio)
+                last = M.last_period(r.t, period, r.y)[0]
+                ranges[(system, a)] = last
+                out["details"][name] = {"h_m": res.h, "H_m": res.H, "u_at_max_width": res.u_at_max,
+                                        "output_range_m": {b: float(np.ptp(last[:, j]))
+                                                           for j, b in enumerate(ctx.axes)},
+                                        "peak_voltage_V": float(np.abs(r.u).max())}
+            except ValueError as exc:  # one unreadable experiment must not lose the others
+                out["errors"][name] = str(exc)
+    for i, a in enumerate(ctx.axes):
+        for b in ctx.axes:
+            if b == a or ("S0", a) not in ranges or ("S0", b) not in ranges:
+                continue
+            direct = ranges[("S0", a)][:, i]
+            cross = ranges[("S0", b)][:, i]
+            dt = float(np.median(np.diff(np.asarray(ctx.recorded[f"hyst_S0_{a}"][0], float))))
+            n_avg = max(1, int(round(0.1 / dt))) if ctx.robust else 1  # 0.1 s moving average (1 % of a period)
+            out["before"]["cross_coupling_percent"][a] = _pct(M.cross_coupling_range_ratio(cross, direct, n_avg))
+
+
+def _read_creep(ctx: _Context, out: dict[str, Any]) -> None:
+    """Creep (V-A before, V-C after) and the static error of the S_L creep run."""
+    for phase, system in (("before", "SH"), ("after", "SL")):
+        for i, a in enumerate(ctx.axes):
+            name = f"creep_{system}_{a}"
+            r = ctx.signals(name)
+            if r is None:
+                continue
+            try:
+                t_step = ctx.by_name[name].params["t_step"]
+                cr = M.creep_ratio(r.t, r.y[:, i], t_step=t_step)
+                out[phase]["creep_percent"][a] = _pct(cr.ratio)
+                out["creep_over_Am_percent"][phase][a] = _pct(cr.ratio_over_Am)
+                cross_creep = {b: M.creep_ratio(r.t, r.y[:, j], t_step=t_step)
+                               for j, b in enumerate(ctx.axes) if b != a}
+                out["details"][name] = {"A_f_m": cr.A_f, "A_m_m": cr.A_m, "creep_time_s": float(r.t[-1] - t_step),
+                                        "cross_A_f_m": {b: c.A_f for b, c in cross_creep.items()},
+                                        "cross_A_m_m": {b: c.A_m for b, c in cross_creep.items()}}
+                if phase == "after":
+                    ref_final = float(r.reference[-1, i])
+                    out["static_error_percent"]["S_L"][a] = _pct(_rel(cr.A_m - ref_final, ref_final))
+            except ValueError as exc:  # one unreadable experiment must not lose the others
+                out["errors"][name] = str(exc)
+
+
+def _read_steps(ctx: _Context, out: dict[str, Any]) -> None:
+    """Overshoot (VI-A before, VI-C after), settling, static error, final-value cross-coupling (Table II after)."""
+    finals = {}
+    for phase, system in (("before", "SL"), ("after", "T")):
+        for i, a in enumerate(ctx.axes):
+            name = f"step_{system}_{a}"
+            r = ctx.signals(name)
+            if r is None:
+                continue
+            try:
+                t_step = ctx.by_name[name].params["t_step"]
+                ov = M.overshoot_ratio(r.t, r.y[:, i], t_step=t_step, lowpass_hz=ctx.lowpass)
+                out[phase]["overshoot_percent"][a] = _pct(ov.ratio)
+                ts = M.settling_time(r.t, r.y[:, i], t_step=t_step, band=0.02)
+                out["settling_time_s"][phase][a] = None if not math.isfinite(ts) else ts
+                for j, b in enumerate(ctx.axes):
+                    finals[(system, b, a)] = M.overshoot_ratio(r.t, r.y[:, j], t_step=t_step).A_f
+                out["details"][name] = {"A_f_m": ov.A_f, "A_m_m": ov.A_m, "t_peak_s": ov.t_peak,
+                                        "settling_time_2pct_s": out["settling_time_s"][phase][a],
+                                        "final_values_m": {b: finals[(system, b, a)] for b in ctx.axes},
+                                        "peak_voltage_V": float(np.abs(r.u).max())}
+                if phase == "after":
+                    ref_final = float(r.reference[-1, i])
+                    out["static_error_percent"]["T"][a] = _pct(_rel(ov.A_f - ref_final, ref_final))
+            except ValueError as exc:  # one unreadable experiment must not lose the others
+                out["errors"][name] = str(exc)
+    for a in ctx.axes:
+        for b in ctx.axes:
+            if b != a and ("T", a, a) in finals and ("T", a, b) in finals:
+                out["after"]["cross_coupling_percent"][a] = _pct(
+                    M.cross_coupling_final_ratio(finals[("T", a, b)], finals[("T", a, a)]))
+
+
+def _read_tracking(ctx: _Context, out: dict[str, Any], exps: Sequence[Experiment],
+                   reference_model_tau: float | None) -> None:
+    """Circle tracking (VII-B), and against the reference filtered by Wr when ``reference_model_tau`` is given."""
+    for e in exps:
+        if e.metric != "tracking":
+            continue
+        r = ctx.signals(e.name)
+        if r is None:
+            continue
+        try:
+            mask = r.t >= e.params.get("skip", 0.0) - 1e-12
+            te = M.tracking_errors(r.reference, r.y, mask=mask)
+            radius = float(e.params.get("radius", np.nan))
+            out["tracking"][e.name] = {
+                "system": e.system, "radius_m": radius, "rms_error_m": te.rms_norm, "max_error_m": te.max_norm,
+                "rms_error_percent": _pct(te.rms_norm / radius), "max_error_percent": _pct(te.max_norm / radius),
+                "rms_error_per_axis_m": dict(zip(ctx.axes, te.rms)),
+                "max_error_per_axis_m": dict(zip(ctx.axes, te.max)),
+                "peak_voltage_V": float(np.abs(r.u).max())}
+            if reference_model_tau:
+                rw = _first_order_zoh(r.t, r.reference, float(reference_model_tau))
+                tw = M.tracking_errors(rw, r.y, mask=mask)
+                out["tracking"][e.name].update({"rms_error_vs_Wr_m": tw.rms_norm, "max_error_vs_Wr_m": tw.max_norm})
+        except ValueError as exc:  # one unreadable experiment must not lose the others
+            out["errors"][e.name] = str(exc)
+
+
 def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Experiment] | None = None,
              design: Any = None, robust: bool = False, conditions: Mapping[str, Any] | None = None,
              reference_model_tau: float | None = None) -> ReproduceResult:
@@ -177,8 +329,6 @@ def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Expe
     if unknown:
         raise ValueError(f"unknown experiment names {sorted(unknown)}; expected some of {sorted(by_name)}")
     axes = _axis_names(recorded, exps)
-    bins = 200 if robust else None
-    lowpass = 3000.0 if robust else None
     out: dict[str, Any] = {"before": {k: {a: None for a in axes} for k in KEYS},
            "after": {k: {a: None for a in axes} for k in KEYS},
            "hinf": _hinf_section(design), "paper": PAPER, "independent": INDEPENDENT, "tracking": {},
@@ -187,124 +337,11 @@ def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Expe
            "creep_over_Am_percent": {"before": {a: None for a in axes}, "after": {a: None for a in axes}},
            "details": {}, "errors": {}, "conditions": dict(conditions or {}), "robust_readings": bool(robust)}
 
-    def rec(name: str) -> _Signals | None:
-        if name not in recorded:
-            return None
-        t, r, u, y = recorded[name]
-        r = np.asarray(r, float)
-        y = np.asarray(y, float)
-        if r.ndim == 1:
-            r = r[:, None]
-        if y.ndim == 1:
-            y = y[:, None]
-        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(r))):
-            raise ValueError(f"{name}: recorded signals contain NaN or inf")
-        return _Signals(np.asarray(t, float), r, np.asarray(u, float), y)
-
-    # hysteresis (IV-A before, IV-C after) and the range-based cross-coupling (Table II before)
-    ranges = {}
-    for phase, system in (("before", "S0"), ("after", "SH")):
-        for i, a in enumerate(axes):
-            name = f"hyst_{system}_{a}"
-            r = rec(name)
-            if r is None:
-                continue
-            try:
-                period = by_name[name].params["period"]
-                res = M.hysteresis_ratio(r.reference[:, i], r.y[:, i], period_t=r.t, period=period, bins=bins)
-                out[phase]["hysteresis_percent"][a] = _pct(res.ratio)
-                last = M.last_period(r.t, period, r.y)[0]
-                ranges[(system, a)] = last
-                out["details"][name] = {"h_m": res.h, "H_m": res.H, "u_at_max_width": res.u_at_max,
-                                        "output_range_m": {b: float(np.ptp(last[:, j])) for j, b in enumerate(axes)},
-                                        "peak_voltage_V": float(np.abs(r.u).max())}
-            except ValueError as exc:  # one unreadable experiment must not lose the others
-                out["errors"][name] = str(exc)
-    for i, a in enumerate(axes):
-        for b in axes:
-            if b == a or ("S0", a) not in ranges or ("S0", b) not in ranges:
-                continue
-            direct = ranges[("S0", a)][:, i]
-            cross = ranges[("S0", b)][:, i]
-            dt = float(np.median(np.diff(np.asarray(recorded[f"hyst_S0_{a}"][0], float))))
-            n_avg = max(1, int(round(0.1 / dt))) if robust else 1  # 0.1 s moving average (1 % of a period)
-            out["before"]["cross_coupling_percent"][a] = _pct(M.cross_coupling_range_ratio(cross, direct, n_avg))
-
-    # creep (V-A before, V-C after)
-    for phase, system in (("before", "SH"), ("after", "SL")):
-        for i, a in enumerate(axes):
-            name = f"creep_{system}_{a}"
-            r = rec(name)
-            if r is None:
-                continue
-            try:
-                t_step = by_name[name].params["t_step"]
-                cr = M.creep_ratio(r.t, r.y[:, i], t_step=t_step)
-                out[phase]["creep_percent"][a] = _pct(cr.ratio)
-                out["creep_over_Am_percent"][phase][a] = _pct(cr.ratio_over_Am)
-                cross_creep = {b: M.creep_ratio(r.t, r.y[:, j], t_step=t_step) for j, b in enumerate(axes) if b != a}
-                out["details"][name] = {"A_f_m": cr.A_f, "A_m_m": cr.A_m, "creep_time_s": float(r.t[-1] - t_step),
-                                        "cross_A_f_m": {b: c.A_f for b, c in cross_creep.items()},
-                                        "cross_A_m_m": {b: c.A_m for b, c in cross_creep.items()}}
-                if phase == "after":
-                    ref_final = float(r.reference[-1, i])
-                    out["static_error_percent"]["S_L"][a] = _pct(_rel(cr.A_m - ref_final, ref_final))
-            except ValueError as exc:  # one unreadable experiment must not lose the others
-                out["errors"][name] = str(exc)
-
-    # overshoot (VI-A before, VI-C after), settling, static error, final-value cross-coupling (Table II after)
-    finals = {}
-    for phase, system in (("before", "SL"), ("after", "T")):
-        for i, a in enumerate(axes):
-            name = f"step_{system}_{a}"
-            r = rec(name)
-            if r is None:
-                continue
-            try:
-                t_step = by_name[name].params["t_step"]
-                ov = M.overshoot_ratio(r.t, r.y[:, i], t_step=t_step, lowpass_hz=lowpass)
-                out[phase]["overshoot_percent"][a] = _pct(ov.ratio)
-                ts = M.settling_time(r.t, r.y[:, i], t_step=t_step, band=0.02)
-                out["settling_time_s"][phase][a] = None if not math.isfinite(ts) else ts
-                for j, b in enumerate(axes):
-                    finals[(system, b, a)] = M.overshoot_ratio(r.t, r.y[:, j], t_step=t_step).A_f
-                out["details"][name] = {"A_f_m": ov.A_f, "A_m_m": ov.A_m, "t_peak_s": ov.t_peak,
-                                        "settling_time_2pct_s": out["settling_time_s"][phase][a],
-                                        "final_values_m": {b: finals[(system, b, a)] for b in axes},
-                                        "peak_voltage_V": float(np.abs(r.u).max())}
-                if phase == "after":
-                    ref_final = float(r.reference[-1, i])
-                    out["static_error_percent"]["T"][a] = _pct(_rel(ov.A_f - ref_final, ref_final))
-            except ValueError as exc:  # one unreadable experiment must not lose the others
-                out["errors"][name] = str(exc)
-    for a in axes:
-        for b in axes:
-            if b != a and ("T", a, a) in finals and ("T", a, b) in finals:
-                out["after"]["cross_coupling_percent"][a] = _pct(
-                    M.cross_coupling_final_ratio(finals[("T", a, b)], finals[("T", a, a)]))
-
-    # tracking (VII-B)
-    for e in exps:
-        if e.metric != "tracking":
-            continue
-        r = rec(e.name)
-        if r is None:
-            continue
-        try:
-            mask = r.t >= e.params.get("skip", 0.0) - 1e-12
-            te = M.tracking_errors(r.reference, r.y, mask=mask)
-            radius = float(e.params.get("radius", np.nan))
-            out["tracking"][e.name] = {
-                "system": e.system, "radius_m": radius, "rms_error_m": te.rms_norm, "max_error_m": te.max_norm,
-                "rms_error_percent": _pct(te.rms_norm / radius), "max_error_percent": _pct(te.max_norm / radius),
-                "rms_error_per_axis_m": dict(zip(axes, te.rms)), "max_error_per_axis_m": dict(zip(axes, te.max)),
-                "peak_voltage_V": float(np.abs(r.u).max())}
-            if reference_model_tau:
-                rw = _first_order_zoh(r.t, r.reference, float(reference_model_tau))
-                tw = M.tracking_errors(rw, r.y, mask=mask)
-                out["tracking"][e.name].update({"rms_error_vs_Wr_m": tw.rms_norm, "max_error_vs_Wr_m": tw.max_norm})
-        except ValueError as exc:  # one unreadable experiment must not lose the others
-            out["errors"][e.name] = str(exc)
+    ctx = _Context(recorded, by_name, axes, bool(robust))
+    _read_hysteresis(ctx, out)
+    _read_creep(ctx, out)
+    _read_steps(ctx, out)
+    _read_tracking(ctx, out, exps, reference_model_tau)
     return ReproduceResult(**out)
 
 
