@@ -157,12 +157,11 @@ def bench_cascade(say, creep_duration: float) -> dict:
     t0 = time.perf_counter()
     _, rep = identify_all(runs, base=cfg, synthesize=True)
     wall = time.perf_counter() - t0
-    rep.pop("_design", None)
     say(f"cascade: identify_all on {len(runs)} recorded runs ({n} samples) in {wall:.1f} s "
         f"(characterisation + stagewise identification took {t_char:.1f} s)")
     return {"creep_duration_s": creep_duration, "runs": len(runs), "samples": n, "identify_all_s": wall,
-            "timing_s": rep["timing_s"], "fit_percent": rep["fit_percent"], "orders": rep["orders"],
-            "commission_sim_s": t_char, "hinf": rep.get("hinf", {}).get("gamma")}
+            "timing_s": rep.timing_s, "fit_percent": rep.fit_percent, "orders": rep.orders,
+            "commission_sim_s": t_char, "hinf": (rep.hinf or {}).get("gamma")}
 
 
 def main(argv=None) -> int:

@@ -166,7 +166,7 @@ def package_check(path: Path) -> dict:
             "trimmed": m["trimmed"], "warnings": m["warnings"][:10],
             "u_max_abs_V": [round(float(v), 2) for v in np.nanmax(np.abs(run.u), axis=0)]})
         t1 = time.perf_counter()
-        rep = analyze_run(run)["replay"]
+        rep = analyze_run(run).to_json()["replay"]
         out["replay"] = {"tracking": _um(rep.get("tracking")), "saturation": rep.get("saturation"),
                          "analyze_s": round(time.perf_counter() - t1, 2)}
         del run, rep

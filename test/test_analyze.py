@@ -62,7 +62,7 @@ def known_run(tmp_path):
 
 def test_tracking_saturation_and_counts_are_the_known_values(known_run):
     path, ref, u, y = known_run
-    result = analyze_run(read_run(path), evaluate=lambda rec: {})
+    result = analyze_run(read_run(path), evaluate=lambda rec: {}).to_json()
     rp = result["replay"]
     seg = {s["name"]: s for s in rp["segments"]}
     a, b = seg["A"]["tracking"], seg["B"]["tracking"]
@@ -87,7 +87,7 @@ def test_segments_go_to_the_shared_evaluation_and_its_keys_are_kept(known_run):
         seen.update(recorded)
         return {"before": {"n": len(recorded)}, "after": {}, "hinf": None}
 
-    result = analyze_run(read_run(path), evaluate=fake_evaluate)
+    result = analyze_run(read_run(path), evaluate=fake_evaluate).to_json()
     assert set(result) == {"before", "after", "hinf", "replay"} and result["before"] == {"n": 2}
     t, r, uu, yy = seen["B"]
     assert t[0] == 0.0 and t[-1] == pytest.approx((FS - 1) / FS)
@@ -103,7 +103,7 @@ def test_incomplete_segment_is_left_out_with_a_warning(tmp_path):
     run = read_run(path)
     recorded, warnings = segment_signals(run)
     assert list(recorded) == ["B"] and any("'A': incomplete" in w for w in warnings)
-    result = analyze_run(run, evaluate=lambda rec: {"seen": sorted(rec)})
+    result = analyze_run(run, evaluate=lambda rec: {"seen": sorted(rec)}).to_json()
     assert result["seen"] == ["B"]
     assert result["replay"]["blocks"]["displacement"]["missing_blocks"] == 1
     # tracking over the finite samples only (the gap is excluded, not counted as error)
@@ -114,7 +114,7 @@ def test_run_without_markers_reports_tracking_only(tmp_path):
     n = 4 * N
     ref = np.full((n, 2), 1 * UM)
     path = _record(tmp_path / "user.mcap", ref, np.zeros((n, 2)), ref + 0.5 * UM)
-    result = analyze_run(read_run(path), evaluate=lambda rec: pytest.fail("no segments: not evaluated"))
+    result = analyze_run(read_run(path), evaluate=lambda rec: pytest.fail("no segments: not evaluated")).to_json()
     assert set(result) == {"replay"} and result["replay"]["segments"] == []
     assert result["replay"]["tracking"]["max"] == pytest.approx([0.5 * UM, 0.5 * UM])
 
@@ -128,7 +128,7 @@ def test_voltage_driven_segments_have_no_tracking_error(tmp_path):
     y[: n // 2] = 10 * UM
     path = _record(tmp_path / "mixed.mcap", ref, ref, y,
                    markers={0: {"name": "hyst_S0_x", "input": "voltage"}, n // 2: {"name": "step", "input": "displacement"}})
-    result = analyze_run(read_run(path), evaluate=lambda rec: {})
+    result = analyze_run(read_run(path), evaluate=lambda rec: {}).to_json()
     segs = {s["name"]: s for s in result["replay"]["segments"]}
     assert segs["hyst_S0_x"]["tracking"] is None and segs["hyst_S0_x"]["input"] == "voltage"
     assert segs["step"]["tracking"]["max"] == pytest.approx([0.5 * UM, 0.5 * UM])

@@ -230,15 +230,15 @@ def test_commissioned_plant_reproduces_the_truth_on_held_out_voltages(cfg, noise
     truth = truth_plant(cfg, "nominal", noise_nm * 1e-9, seed=2)
     ident, report, runs = commission_sim(truth, cfg.sample_rate, AXES, base=cfg,
                                          settings=CharacterisationSettings(creep_duration=60.0))
-    plant_fit = report["fit_percent"]["plant"]
-    assert min(plant_fit.values()) >= target, report["fit_percent"]
-    assert report["plant_fit_basis"].startswith("measured output")
+    plant_fit = report.fit_percent["plant"]
+    assert min(plant_fit.values()) >= target, report.fit_percent
+    assert report.plant_fit_basis.startswith("measured output")
     pv = [r for r in runs if r.meta["stage"] == "plant"]
     assert len(pv) == 1 and len(pv[0]) > 30 * cfg.sample_rate      # tens of seconds, never fitted on
     if noise_nm:
         # against the noisy record the fit is capped by the noise; against the noise-free truth it must be higher
-        assert min(report["plant_fit_noise_free"].values()) >= 99.0, report
-        assert all(report["plant_fit_noise_free"][a] > plant_fit[a] for a in AXES)
+        assert min(report.plant_fit_noise_free.values()) >= 99.0, report
+        assert all(report.plant_fit_noise_free[a] > plant_fit[a] for a in AXES)
     else:
         # the figure is sensitive: the identified model with its Dp 2 % off fails it
         from piezo_ff_ros.core.identification.pipeline import plant_fit as score
@@ -258,4 +258,4 @@ def test_commissioned_plant_reproduces_the_truth_on_held_out_voltages(cfg, noise
         assert abs(100 * (y[-1] - a_f) / a_f) <= 0.1, (y[-1], a_f)
         # identify_all on the recorded runs reports the same whole-plant figure
         _, rep2 = identify_all(runs, base=cfg, synthesize=False)
-        assert rep2["fit_percent"]["plant"] == pytest.approx(plant_fit, abs=0.5)
+        assert rep2.fit_percent["plant"] == pytest.approx(plant_fit, abs=0.5)

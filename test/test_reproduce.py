@@ -20,31 +20,31 @@ def short_run(paper_config, paper_design):
 
 def test_json_contract_and_figures(short_run, paper_config):
     res, rec = short_run
-    text = json.dumps(res, allow_nan=False)  # serialisable, no NaN
+    text = json.dumps(res.to_json(), allow_nan=False)  # serialisable, no NaN
     assert set(json.loads(text)) >= {"before", "after", "hinf", "paper", "tracking"}
     for phase in ("before", "after"):
-        assert set(res[phase]) == set(KEYS)
+        assert set(getattr(res, phase)) == set(KEYS)
         for k in KEYS:
-            assert set(res[phase][k]) == {"x", "y"}
-            assert all(isinstance(v, float) for v in res[phase][k].values())
-    assert 0 < res["hinf"]["gamma"] <= paper_config.vibration.gamma_max
-    assert res["hinf"]["order_reduced"] == paper_config.vibration.order
-    assert res["hinf"]["order_full"] > res["hinf"]["order_reduced"]
+            assert set(getattr(res, phase)[k]) == {"x", "y"}
+            assert all(isinstance(v, float) for v in getattr(res, phase)[k].values())
+    assert 0 < res.hinf["gamma"] <= paper_config.vibration.gamma_max
+    assert res.hinf["order_reduced"] == paper_config.vibration.order
+    assert res.hinf["order_full"] > res.hinf["order_reduced"]
     # before: the printed models (full S0 chain at 20 kHz); see README for why hysteresis differs from 16.76/17.21
-    b = res["before"]
+    b = res.before
     assert b["hysteresis_percent"]["x"] == pytest.approx(17.36, abs=0.05)
     assert b["hysteresis_percent"]["y"] == pytest.approx(17.84, abs=0.05)
     assert b["overshoot_percent"]["x"] == pytest.approx(45.2, abs=0.1)   # independent reading 45.2
     assert b["overshoot_percent"]["y"] == pytest.approx(15.5, abs=0.1)   # independent reading 15.5
     assert 2.5 < b["creep_percent"]["x"] < 4.6 and 3.0 < b["creep_percent"]["y"] < 5.9  # 60 s, not 600 s
     # after: compensator = model here, so only the linear residuals are left
-    a = res["after"]
+    a = res.after
     for ax in ("x", "y"):
         assert a["hysteresis_percent"][ax] < 1.0
         assert abs(a["creep_percent"][ax]) < 0.05
         assert a["overshoot_percent"][ax] < 0.1 * b["overshoot_percent"][ax]
-        assert abs(res["static_error_percent"]["T"][ax]) < 2.0
-    circ = res["tracking"]
+        assert abs(res.static_error_percent["T"][ax]) < 2.0
+    circ = res.tracking
     assert circ["circle20_T"]["rms_error_m"] < 0.5 * circ["circle20_open"]["rms_error_m"]
     assert circ["circle30_T"]["radius_m"] == pytest.approx(30e-6)
 
@@ -59,7 +59,7 @@ def test_decomposition_matches_the_independent_reading(paper_config):
         U[:, i] = 200 * np.sin(2 * np.pi * 0.1 * t)
         y = BoucWenModel(paper_config.hysteresis).process(U)
         r = M.hysteresis_ratio(U[:, i], y[:, i], period_t=t, period=10.0)
-        assert 100 * r["ratio"] == pytest.approx(expected, abs=0.01)
+        assert 100 * r.ratio == pytest.approx(expected, abs=0.01)
     fs_c = 100.0  # the creep model alone is slow: 600 s at 100 Hz (exact ZOH, same step response)
     cm_cfg = paper_config.with_sample_rate(fs_c)
     tc = np.arange(int(600.05 * fs_c) + 1) / fs_c
@@ -68,9 +68,9 @@ def test_decomposition_matches_the_independent_reading(paper_config):
         X[tc >= 0.05, i] = 20e-6
         y = CreepModel(cm_cfg.creep, cm_cfg.dt).process(X)
         r = M.creep_ratio(tc, y[:, i], t_step=0.05, t_transient=0.0, window=1 / fs_c)
-        assert 100 * r["ratio"] == pytest.approx(expected, abs=0.01)
+        assert 100 * r.ratio == pytest.approx(expected, abs=0.01)
         if expected_am:
-            assert 100 * r["ratio_over_Am"] == pytest.approx(expected_am, abs=0.01)
+            assert 100 * r.ratio_over_Am == pytest.approx(expected_am, abs=0.01)
 
 
 def test_creep_600s_on_S_H(paper_config):
@@ -81,27 +81,27 @@ def test_creep_600s_on_S_H(paper_config):
     ideal = dataclasses.replace(cfg, cascade=dataclasses.replace(cfg.cascade, respect_limits=False))
     exps = [e for e in E.paper_experiments(cfg, creep_duration=600.0) if e.name.startswith("creep_")]
     res = R.evaluate(E.simulate_experiments(ideal, experiments=exps), exps)
-    assert res["before"]["creep_percent"]["x"] == pytest.approx(4.59, abs=0.03)
-    assert res["before"]["creep_percent"]["y"] == pytest.approx(5.97, abs=0.03)
-    assert res["creep_over_Am_percent"]["before"]["y"] == pytest.approx(5.64, abs=0.03)
-    assert abs(res["after"]["creep_percent"]["x"]) < 1e-3 and abs(res["after"]["creep_percent"]["y"]) < 1e-3
-    assert res["before"]["overshoot_percent"]["x"] is None  # not run here
+    assert res.before["creep_percent"]["x"] == pytest.approx(4.59, abs=0.03)
+    assert res.before["creep_percent"]["y"] == pytest.approx(5.97, abs=0.03)
+    assert res.creep_over_Am_percent["before"]["y"] == pytest.approx(5.64, abs=0.03)
+    assert abs(res.after["creep_percent"]["x"]) < 1e-3 and abs(res.after["creep_percent"]["y"]) < 1e-3
+    assert res.before["overshoot_percent"]["x"] is None  # not run here
     # with the paper's ±200 V amplifier the x step (K⁻¹·20 µm needs ≈ 202 V at first) is clamped until the creep
     # compensator has lowered Y_H: an apparent creep after compensation on x only — the paper's x/y asymmetry
     # (0.31 % vs 0.04 %) has this shape
     lim = R.evaluate(E.simulate_experiments(cfg, experiments=exps), exps)
-    assert 0.3 < lim["after"]["creep_percent"]["x"] < 2.0 and abs(lim["after"]["creep_percent"]["y"]) < 1e-3
+    assert 0.3 < lim.after["creep_percent"]["x"] < 2.0 and abs(lim.after["creep_percent"]["y"]) < 1e-3
 
 
 def test_evaluate_is_a_pure_function_of_the_signals(short_run):
     res, rec = short_run
     again = R.evaluate(rec, E.paper_experiments(creep_duration=60.0))
-    assert again["before"] == res["before"] and again["after"] == res["after"]
+    assert again.before == res.before and again.after == res.after
     # plain arrays/tuples work, missing experiments give None
     subset = {k: tuple(np.asarray(v) for v in rec[k]) for k in ("step_SL_x", "step_SL_y")}
     part = R.evaluate(subset)
-    assert part["before"]["overshoot_percent"]["x"] == res["before"]["overshoot_percent"]["x"]
-    assert part["before"]["hysteresis_percent"]["x"] is None and part["after"]["creep_percent"]["y"] is None
+    assert part.before["overshoot_percent"]["x"] == res.before["overshoot_percent"]["x"]
+    assert part.before["hysteresis_percent"]["x"] is None and part.after["creep_percent"]["y"] is None
     with pytest.raises(ValueError, match="unknown experiment"):
         R.evaluate({"bogus": rec["step_SL_x"]})
     t, r, u, y = rec["step_SL_x"]
@@ -116,12 +116,12 @@ def test_noisy_plant_robust_readings_stay_close(paper_config, paper_design):
             if e.name.startswith(("step_", "hyst_S0"))]
     clean, _ = R.reproduce(paper_config, design=paper_design, experiments=exps)
     noisy, _ = R.reproduce(paper_config, design=paper_design, experiments=exps, noise_std=100e-9)
-    assert noisy["robust_readings"] is True
+    assert noisy.robust_readings is True
     for a in ("x", "y"):
-        assert noisy["before"]["overshoot_percent"][a] == pytest.approx(clean["before"]["overshoot_percent"][a],
+        assert noisy.before["overshoot_percent"][a] == pytest.approx(clean.before["overshoot_percent"][a],
                                                                         abs=1.0)
-        assert noisy["after"]["overshoot_percent"][a] < 2.0
-        assert noisy["before"]["hysteresis_percent"][a] == pytest.approx(clean["before"]["hysteresis_percent"][a],
+        assert noisy.after["overshoot_percent"][a] < 2.0
+        assert noisy.before["hysteresis_percent"][a] == pytest.approx(clean.before["hysteresis_percent"][a],
                                                                          abs=0.3)
 
 
@@ -130,7 +130,7 @@ def test_asymmetric_truth_leaves_a_residual(paper_config):
     nominal, _ = R.reproduce(paper_config, experiments=exps)
     asym, _ = R.reproduce(paper_config, truth="asymmetric", experiments=exps)
     for a in ("x", "y"):
-        assert asym["after"]["hysteresis_percent"][a] > nominal["after"]["hysteresis_percent"][a] + 0.1
+        assert asym.after["hysteresis_percent"][a] > nominal.after["hysteresis_percent"][a] + 0.1
     with pytest.raises(ValueError, match="unknown truth"):
         R.truth_plant(paper_config, "wobbly")
 
@@ -193,8 +193,8 @@ def test_evaluate_keeps_what_it_can_read(short_run):
     partial = dict(rec)
     partial["hyst_S0_x"] = (t[:cut], r[:cut], u[:cut], y[:cut])
     out = R.evaluate(partial, E.paper_experiments(creep_duration=60.0))
-    assert out["before"]["hysteresis_percent"]["x"] is None and "hyst_S0_x" in out["errors"]
-    assert "shorter than one period" in out["errors"]["hyst_S0_x"]
-    assert out["before"]["hysteresis_percent"]["y"] == res["before"]["hysteresis_percent"]["y"]
-    assert out["after"]["overshoot_percent"] == res["after"]["overshoot_percent"]
+    assert out.before["hysteresis_percent"]["x"] is None and "hyst_S0_x" in out.errors
+    assert "shorter than one period" in out.errors["hyst_S0_x"]
+    assert out.before["hysteresis_percent"]["y"] == res.before["hysteresis_percent"]["y"]
+    assert out.after["overshoot_percent"] == res.after["overshoot_percent"]
     assert "could not read" in R.format_tables(out)

@@ -79,7 +79,6 @@ STRICT_FLOOR = {
 EXEMPT_CEILING = {
     "piezo_ff_ros.core.diagnosis.*",
     "piezo_ff_ros.core.tracking.*",
-    "piezo_ff_ros.core.recording.*",
     "piezo_ff_ros.core.hardware.driver_core",
     "piezo_ff_ros.core.safety",
 }

@@ -17,6 +17,7 @@ import importlib
 import os
 import sys
 from pathlib import Path
+from typing import Sequence
 
 SUBCOMMANDS = ["reproduce", "demo", "analyze", "identify", "commission", "diagnose", "bench", "check",
                "rig_check", "feedforward"]
@@ -37,7 +38,7 @@ class CliError(Exception):
     """
 
 
-def output_file(path, option: str, *, overwrite: bool = True) -> Path:
+def output_file(path: str | Path, option: str, *, overwrite: bool = True) -> Path:
     """Check, before any long computation, that ``path`` can be written as a file; return it as a ``Path``.
 
     Raises :class:`CliError` naming ``option`` when ``path`` is a directory, exists and ``overwrite`` is false,
@@ -52,7 +53,7 @@ def output_file(path, option: str, *, overwrite: bool = True) -> Path:
     return p
 
 
-def output_dir(path, option: str) -> Path:
+def output_dir(path: str | Path, option: str) -> Path:
     """Check that ``path`` is a directory or can be created as one; return it as a ``Path``."""
     p = Path(path)
     if p.exists() and not p.is_dir():
@@ -88,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _unavailable(name, exc) -> int:
+def _unavailable(name: str, exc: BaseException) -> int:
     print(f"piezo-ff {name}: unavailable here ({exc})", file=sys.stderr)
     return 2
 
@@ -98,7 +99,7 @@ OUTPUT_FILE_OPTIONS = ("json", "apply")
 OUTPUT_DIR_OPTIONS = ("plots", "report")
 
 
-def _check_output_options(args) -> None:
+def _check_output_options(args: argparse.Namespace) -> None:
     """Refuse unusable output paths before a command starts its work (not after minutes of computation)."""
     for name in OUTPUT_FILE_OPTIONS:
         value = getattr(args, name, None)
@@ -128,7 +129,8 @@ def one_line(exc: BaseException) -> str:
     return " ".join(part.strip() for part in text.splitlines() if part.strip())
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``piezo-ff`` with ``argv`` (default: the process's); the exit code (0 ok, 2 bad input, 1 defect)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

@@ -6,12 +6,13 @@ gap/duplicate/saturation counts, and optional PNG plots.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
 
 
-def add_parser(subparsers):
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     p = subparsers.add_parser("analyze", help="replay analysis of a recorded run (.mcap or rosbag2 directory)",
                               description=__doc__)
     p.add_argument("run_path", metavar="RUN.mcap", help="MCAP file or rosbag2 directory")
@@ -23,7 +24,7 @@ def add_parser(subparsers):
     return p
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.analysis import analyze_run, format_report, plot_run
     from ..core.recording.mcap_io import read_run
 
@@ -31,7 +32,7 @@ def run(args) -> int:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file or directory")
     data = read_run(path, namespace=args.namespace, sample_rate=args.sample_rate)
-    result = analyze_run(data)
+    result = analyze_run(data).to_json()
     if args.json != "-":
         print(format_report(result))
         tables = _format_tables(result)

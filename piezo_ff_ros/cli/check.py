@@ -7,12 +7,13 @@ controller reaches, a reduction order too low — is refused here, with exit cod
 """
 from __future__ import annotations
 
+import argparse
 import json
 
 from . import CliError
 
 
-def add_parser(sub):
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("check", help="validate a positioner config and report on its transfer functions",
                        description=__doc__.split("\n\n")[0])
     p.add_argument("config", nargs="?", default=None, help="YAML config (default: config/pt230_94.yaml)")
@@ -23,7 +24,7 @@ def add_parser(sub):
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.checks import config_report, format_config_report
     from ..core.config import load_config
 

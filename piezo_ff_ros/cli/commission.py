@@ -18,15 +18,22 @@ pushed live to the compensator node before the next is characterised, everything
 """
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import math
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Mapping
+
+if TYPE_CHECKING:
+    from ..core.config import PiezoConfig
+    from ..core.reproduce import ReproduceResult
+    from ..core.stage import Processor
 
 
-def add_parser(subparsers):
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     p = subparsers.add_parser("commission", help="characterise, identify, synthesise and verify in one command",
                               description=__doc__.split("\n\n")[0])
     p.add_argument("--sim-only", action="store_true",
@@ -69,7 +76,8 @@ def add_parser(subparsers):
     return p
 
 
-def _verify(cfg, design, truth_plant, creep_duration, noise_std, say, label):
+def _verify(cfg: PiezoConfig, design: object, truth_plant: Processor, creep_duration: float, noise_std: float,
+            say: Callable[[str], None], label: str) -> ReproduceResult:
     from ..core.commissioning import SimRig, verify
     from ..core.experiments import paper_experiments
 
@@ -87,13 +95,14 @@ AFTER_REL_TOL = 0.10
 AFTER_ABS_TOL_PP = 0.1
 
 
-def after_vs_printed(after: dict, after_printed: dict) -> dict:
+def after_vs_printed(after: Mapping[str, Mapping[str, float | None]],
+                     after_printed: Mapping[str, Mapping[str, float | None]]) -> dict[str, dict[str, dict[str, Any]]]:
     """Per figure and axis: identified, printed, Δ, the allowance and ``pass`` (see :data:`AFTER_REL_TOL`).
 
     ``pass`` is one-sided (the identified cascade may do better than the printed one by any margin);
     ``within_two_sided`` says whether |Δ| itself is within the allowance.
     """
-    out = {}
+    out: dict[str, dict[str, dict[str, Any]]] = {}
     for key, per_axis in after.items():
         for a, v in per_axis.items():
             w = (after_printed.get(key) or {}).get(a)
@@ -108,7 +117,7 @@ def after_vs_printed(after: dict, after_printed: dict) -> dict:
     return out
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.characterisation import CharacterisationSettings
     from ..core.config import load_config
     from ..core.commissioning import SimRig, commission
@@ -125,7 +134,7 @@ def run(args) -> int:
         raise ValueError(f"--noise-nm must be a non-negative number, got {args.noise_nm}")
     t_start = time.perf_counter()
 
-    def say(msg):
+    def say(msg: str) -> None:
         if not args.quiet:
             print(f"[{time.perf_counter() - t_start:7.1f} s] {msg}", file=sys.stderr, flush=True)
 
@@ -156,44 +165,44 @@ def run(args) -> int:
 
     t0 = time.perf_counter()
     res = _verify(cfg, design, truth, args.creep_duration, noise, say, "identified")
-    report["timing_s"]["verify"] = time.perf_counter() - t0
-    result = {"fit_percent": report["fit_percent"], "orders": report["orders"],
-              "before": res["before"], "after": res["after"], "hinf": res["hinf"], "tracking": res["tracking"],
-              "static_error_percent": res["static_error_percent"], "errors": res["errors"],
+    timing = {**report.timing_s, "verify": time.perf_counter() - t0}
+    out_json: dict[str, Any] = {"fit_percent": report.fit_percent, "orders": report.orders,
+              "before": res.before, "after": res.after, "hinf": res.hinf, "tracking": res.tracking,
+              "static_error_percent": res.static_error_percent, "errors": res.errors,
               "conditions": {"truth": args.truth, "noise_std_m": noise, "creep_duration_s": args.creep_duration,
                              "sample_rate_hz": printed.sample_rate, "generalized": bool(args.generalized)},
               "config": str(cfg_path), "hinf_note": note,
-              "plant_fit_basis": report.get("plant_fit_basis")}
-    for key in ("plant_fit_noise_free", "plant_fit_parts"):
-        if key in report:
-            result[key] = report[key]
+              "plant_fit_basis": report.plant_fit_basis}
+    if report.plant_fit_noise_free is not None:
+        out_json["plant_fit_noise_free"] = report.plant_fit_noise_free
+    out_json["plant_fit_parts"] = report.plant_fit_parts
     print(format_tables(res, label="identified cascade", axes=printed.axes))
     if not args.no_compare:
         t0 = time.perf_counter()
         ref = _verify(printed, None, truth, args.creep_duration, noise, say, "printed")
-        report["timing_s"]["verify_printed"] = time.perf_counter() - t0
-        result["after_printed"] = ref["after"]
-        result["hinf_printed"] = ref["hinf"]
-        cmp = after_vs_printed(res["after"], ref["after"])
-        result["after_vs_printed"] = cmp
-        result["after_vs_printed_rule"] = (f"pass if |identified| <= |printed| + max({AFTER_REL_TOL:g}*|printed|, "
-                                           f"{AFTER_ABS_TOL_PP:g} pp)")
+        timing["verify_printed"] = time.perf_counter() - t0
+        out_json["after_printed"] = ref.after
+        out_json["hinf_printed"] = ref.hinf
+        cmp = after_vs_printed(res.after, ref.after)
+        out_json["after_vs_printed"] = cmp
+        out_json["after_vs_printed_rule"] = (f"pass if |identified| <= |printed| + max({AFTER_REL_TOL:g}*|printed|, "
+                                             f"{AFTER_ABS_TOL_PP:g} pp)")
         print()
         print("after compensation [%]          identified   printed parameters   within 10 % / 0.1 pp")
         for key, per_axis in cmp.items():
             for a, c in per_axis.items():
                 verdict = "—" if c["pass"] is None else ("pass" if c["pass"] else "FAIL")
                 print(f"  {key:<24} {a}  {_f(c['identified'])}   {_f(c['printed'])}            {verdict}")
-    result["timing_s"] = {k: round(v, 2) for k, v in report["timing_s"].items()}
+    out_json["timing_s"] = {k: round(v, 2) for k, v in timing.items()}
     print()
     print("held-out fit [%] (MATLAB compare):")
-    for stage, d in report["fit_percent"].items():
+    for stage, d in report.fit_percent.items():
         print(f"  {stage:10s} " + "  ".join(f"{k}: {_f(v)}" for k, v in d.items()))
-    print(f"  (plant = identified whole-plant model vs the {report.get('plant_fit_basis')}, held-out voltage record)")
-    if "plant_fit_noise_free" in report:
+    print(f"  (plant = identified whole-plant model vs the {report.plant_fit_basis}, held-out voltage record)")
+    if report.plant_fit_noise_free is not None:
         print("  plant vs the noise-free truth: " + "  ".join(
-            f"{k}: {_f(v)}" for k, v in report["plant_fit_noise_free"].items()))
-    text = json.dumps(jsonable(result), indent=2)
+            f"{k}: {_f(v)}" for k, v in report.plant_fit_noise_free.items()))
+    text = json.dumps(jsonable(out_json), indent=2)
     (out / "commission.json").write_text(text)
     if args.json:
         Path(args.json).write_text(text)
@@ -201,7 +210,7 @@ def run(args) -> int:
     return 0
 
 
-def _check_graph_args(args):
+def _check_graph_args(args: argparse.Namespace) -> None:
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         raise ValueError(f"--domain-id must be in 0..232, got {args.domain_id}")
     for name in ("probe_timeout", "step_um", "sine_frequency"):
@@ -216,5 +225,5 @@ def _check_graph_args(args):
         raise ValueError(f"--voltage-limit must be a positive number, got {args.voltage_limit}")
 
 
-def _f(v):
+def _f(v: float | None) -> str:
     return "—" if v is None else f"{v:8.3f}"

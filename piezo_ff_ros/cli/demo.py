@@ -13,6 +13,7 @@ minute on a small machine; the paper's figures are for 600 s — pass ``--creep-
 """
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import os
@@ -25,7 +26,7 @@ from . import CliError, output_dir
 DEFAULT_CREEP_DURATION = 60.0
 
 
-def add_parser(subparsers):
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     p = subparsers.add_parser("demo", help="the paper's experiments through the ROS 2 node graph, recorded and "
                                            "analysed", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default="piezo_ff_demo", metavar="DIR",
@@ -54,7 +55,7 @@ def add_parser(subparsers):
     return p
 
 
-def _check(args):
+def _check(args: argparse.Namespace) -> None:
     if not (math.isfinite(args.creep_duration) and args.creep_duration > 1.0):
         raise ValueError(f"--creep-duration must be > 1 s, got {args.creep_duration}")
     if not 1 <= args.block_size <= 20000:
@@ -72,7 +73,7 @@ def _check(args):
     output_dir(args.out, "--out")
 
 
-def _preflight(args) -> None:
+def _preflight(args: argparse.Namespace) -> None:
     """Fail before starting four processes when the config cannot work: it loads, and its H∞ design exists."""
     from ..core.config import load_config
 
@@ -83,7 +84,7 @@ def _preflight(args) -> None:
         synthesize_hinf(cfg.dynamics.G_L, cfg.vibration)  # HinfSynthesisError: one line from the CLI entry
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     _check(args)
     _preflight(args)
     try:
@@ -93,7 +94,7 @@ def run(args) -> int:
         return 1
 
 
-def _run(args) -> int:
+def _run(args: argparse.Namespace) -> int:
     from ..ros.env import apply_ros_env_defaults
 
     # before rclpy is imported: a private domain, localhost discovery only
@@ -179,7 +180,7 @@ def _run(args) -> int:
     conditions = {"source": f"piezo-ff demo (ROS 2 graph, {driver})",
                   "creep_duration_s": args.creep_duration, "config": cfg.name, "variant": args.variant}
     result = analyze_run(data, evaluate=lambda rec: evaluate(rec, experiments=exps, design=hinf,
-                                                                  conditions=conditions))
+                                                                  conditions=conditions)).to_json()
     print(format_report(result))
     if any(k != "replay" for k in result):
         print()

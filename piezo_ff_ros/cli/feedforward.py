@@ -10,17 +10,23 @@ voltage), so that what the file says is exactly what the driver would apply.  Fo
 """
 from __future__ import annotations
 
+import argparse
 import json
 import math
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..core.config import PiezoConfig
+    from ..core.trajectories import Trajectory
 
 FORMATS = (".csv", ".npy", ".mat")
 
 
-def add_parser(sub):
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("feedforward", help="offline compensated voltages of a trajectory (CSV/.npy/.mat)")
     p.add_argument("--trajectory", required=True,
                    help="trajectory spec: JSON/YAML text or a file, e.g. '{type: circle, radius: 1.0e-5, "
@@ -36,7 +42,7 @@ def add_parser(sub):
     p.set_defaults(func=run)
 
 
-def parse_spec(text: str):
+def parse_spec(text: str) -> Trajectory:
     """Trajectory from spec text or a file; ValueError naming the problem otherwise."""
     import yaml
 
@@ -56,7 +62,8 @@ def parse_spec(text: str):
     return from_dict(spec, prefix="trajectory")
 
 
-def compute(cfg, traj, duration: float | None = None):
+def compute(cfg: PiezoConfig, traj: Trajectory, duration: float | None = None,
+            ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """``(t [s], u [N, axes] V, summary)``: the cascade's voltages through the driver's guard."""
     from ..core.compensators.cascade import CompensatorCascade
     from ..core.safety import VoltageGuard
@@ -65,6 +72,7 @@ def compute(cfg, traj, duration: float | None = None):
     n = traj.n_samples(fs) if duration is None else int(round(duration * fs))
     if isinstance(n, float) and math.isinf(n):
         raise ValueError("--duration: the trajectory is endless; give the seconds to compute")
+    n = int(n)
     if n < 1 or n > 3600 * fs:
         raise ValueError(f"--duration: {n} samples is outside [1, 1 h]")
     if tuple(traj.axes) != tuple(cfg.axes):
@@ -88,7 +96,9 @@ def compute(cfg, traj, duration: float | None = None):
     return np.arange(n) / fs, u, summary
 
 
-def write(path: Path, t, u, axes, fs: float) -> None:
+def write(path: Path, t: np.ndarray, u: np.ndarray, axes: Sequence[str], fs: float) -> None:
+    """Write the voltages as .csv (``t,u_<axis>…``), .npy (``u``) or .mat (``t``, ``u``, ``axes``,
+    ``sample_rate``)."""
     suffix = path.suffix.lower()
     if suffix not in FORMATS:
         raise ValueError(f"--out: {path.name}: use one of {', '.join(FORMATS)}")
@@ -108,7 +118,7 @@ def write(path: Path, t, u, axes, fs: float) -> None:
                                      "sample_rate": fs}, do_compression=True)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.config import load_config
 
     cfg = load_config(args.config, variant=args.variant)
@@ -117,8 +127,8 @@ def run(args) -> int:
         bad = stages - {"vibration", "creep", "hysteresis"}
         if bad:
             raise ValueError(f"--stages: unknown stage(s) {sorted(bad)}; use vibration, creep, hysteresis")
-        cfg = replace(cfg, cascade=replace(cfg.cascade, **{k: k in stages for k in
-                                                           ("vibration", "creep", "hysteresis")})).validate()
+        cfg = replace(cfg, cascade=replace(cfg.cascade, vibration="vibration" in stages, creep="creep" in stages,
+                                           hysteresis="hysteresis" in stages)).validate()
     traj = parse_spec(args.trajectory)
     out = Path(args.out)
     t, u, summary = compute(cfg, traj, args.duration)

@@ -8,13 +8,14 @@ For creep and dynamics runs the input of the characterised system (Y_H / Y_L) mu
 """
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import time
 from pathlib import Path
 
 
-def add_parser(subparsers):
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     p = subparsers.add_parser("identify", help="identify hysteresis, creep, G_L (+ H∞) from recorded runs",
                               description=__doc__)
     p.add_argument("--data", nargs="+", required=True, metavar="FILE", help=".mcap, .csv or .mat files")
@@ -33,20 +34,17 @@ def add_parser(subparsers):
     return p
 
 
-def _tag_from_name(path: Path):
+def _tag_from_name(path: Path) -> tuple[str | None, str]:
     name = path.name.lower()
     stage = "hysteresis" if "hyst" in name else "creep" if "creep" in name else "dynamics" if "dyn" in name else None
     role = "validation" if ("val" in name or "held" in name) else "fit"
     return stage, role
 
 
-def _order(v):
-    return v if v == "auto" else int(v)
-
-
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.config import load_config
     from ..core.identification.pipeline import identify_all
+    from ..core.jsonable import parse_order
     from ..core.recording.run import load_run
 
     from . import output_file
@@ -54,7 +52,7 @@ def run(args) -> int:
     output_file(args.out, "--out")  # before the identification, not after
     t_start = time.perf_counter()
 
-    def say(msg):
+    def say(msg: str) -> None:
         if not args.quiet:
             print(f"[{time.perf_counter() - t_start:7.1f} s] {msg}", file=sys.stderr, flush=True)
 
@@ -78,15 +76,15 @@ def run(args) -> int:
                 r.meta.setdefault("role", role)
             runs.append(r)
     base = load_config(args.base) if args.base else load_config()
-    cfg, report = identify_all(runs, base=base, generalized=args.generalized, creep_order=_order(args.creep_order),
-                               dynamics_order=_order(args.dynamics_order), synthesize=not args.no_hinf, progress=say)
-    report.pop("_design", None)
+    cfg, report = identify_all(runs, base=base, generalized=args.generalized, creep_order=parse_order(args.creep_order),
+                               dynamics_order=parse_order(args.dynamics_order), synthesize=not args.no_hinf,
+                               progress=say)
     cfg.to_yaml(args.out)
     say(f"wrote {args.out}")
-    fits = report["fit_percent"]
+    fits = report.fit_percent
     print("held-out fit [%] (MATLAB compare):")
     for stage, d in fits.items():
         print(f"  {stage:10s} " + "  ".join(f"{k}: {v:.2f}" if v is not None else f"{k}: n/a" for k, v in d.items()))
     if args.json:
-        Path(args.json).write_text(json.dumps(report, indent=2))
+        Path(args.json).write_text(json.dumps(report.to_json(), indent=2))
     return 0

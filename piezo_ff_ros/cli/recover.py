@@ -7,13 +7,14 @@ corrupt chunks, and writes a complete file (indexes, statistics, summary, footer
 """
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
 from . import CliError, output_file
 
 
-def add_parser(subparsers):
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     p = subparsers.add_parser("recover", help="rewrite a damaged/killed recording as a complete MCAP file",
                               description=__doc__.split("\n\n")[0])
     p.add_argument("run_path", metavar="RUN.mcap", help="the damaged MCAP file")
@@ -24,7 +25,7 @@ def add_parser(subparsers):
     return p
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.recording.recover import recover_mcap
 
     src = Path(args.run_path)

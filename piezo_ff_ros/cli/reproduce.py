@@ -9,21 +9,27 @@ asymmetric (generalized Bouc-Wen) truth, both driven by the nominal compensator.
 """
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import json
 import math
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from ..core.units import UM
-from ..core.jsonable import jsonable as _jsonable
+
+if TYPE_CHECKING:
+    from ..core.config import PiezoConfig
+    from ..core.reproduce import ReproduceResult
 
 NOISE_NM_ROBUSTNESS = 100.0
 
 
-def add_parser(subparsers):
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     p = subparsers.add_parser("reproduce", help="reproduce the paper's Tables I/II in simulation",
                               description=__doc__.split("\n\n")[0])
     p.add_argument("--json", metavar="FILE", help="write the results (before/after/hinf/paper/tracking …) as JSON")
@@ -47,14 +53,14 @@ def add_parser(subparsers):
     return p
 
 
-def _check_args(args):
+def _check_args(args: argparse.Namespace) -> None:
     if not (math.isfinite(args.noise_nm) and args.noise_nm >= 0):
         raise ValueError(f"--noise-nm must be a non-negative number, got {args.noise_nm}")
     if not (math.isfinite(args.creep_duration) and args.creep_duration > 1.0):
         raise ValueError(f"--creep-duration must be > 1 s, got {args.creep_duration}")
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core import reproduce as R
     from ..core.config import load_config
     from ..core.experiments import paper_experiments
@@ -75,8 +81,8 @@ def run(args) -> int:
     result, recorded = R.reproduce(cfg, design=design, truth=args.truth, noise_std=args.noise_nm * 1e-9,
                                    creep_duration=args.creep_duration, experiments=exps, progress=lambda n: log(f"  {n}"),
                                    amplifier=args.amplifier)
-    result["conditions"]["variant"] = args.variant
-    result["conditions"]["hinf_synthesis_s"] = round(t_design, 3)
+    result = dataclasses.replace(result, conditions={**result.conditions, "variant": args.variant,
+                                                     "hinf_synthesis_s": round(t_design, 3)})
     print(f"Reproduction of Habineza et al. 2018 (IEEE TASE), config {cfg.name}"
           + (f" variant {args.variant}" if args.variant else "") + f", {cfg.sample_rate:g} Hz")
     print(R.format_tables(result, label=label[:22], axes=cfg.axes))
@@ -88,7 +94,7 @@ def run(args) -> int:
         print(f"\nplots: {', '.join(str(f) for f in files)}")
 
     if not args.no_robustness:
-        result["robustness"] = {}
+        robustness: dict[str, dict[str, Any]] = {}
         runs = []
         if not (args.truth == "nominal" and args.noise_nm == NOISE_NM_ROBUSTNESS):
             runs.append((f"noise_{NOISE_NM_ROBUSTNESS:g}nm", "nominal", NOISE_NM_ROBUSTNESS, "ideal"))
@@ -101,9 +107,9 @@ def run(args) -> int:
             res, _ = R.reproduce(cfg, design=design, truth=truth, noise_std=noise_nm * 1e-9,
                                  creep_duration=args.creep_duration, experiments=exps,
                                  progress=lambda n: log(f"  {n}"), amplifier=amplifier)
-            result["robustness"][key] = {k: res[k] for k in ("before", "after", "tracking", "settling_time_s",
-                                                                "static_error_percent", "conditions",
-                                                                "robust_readings")}
+            robustness[key] = {k: getattr(res, k) for k in ("before", "after", "tracking", "settling_time_s",
+                                                          "static_error_percent", "conditions", "robust_readings")}
+        result = dataclasses.replace(result, robustness=robustness)
         if runs:
             print()
             print(format_robustness(result, cfg.axes))
@@ -112,12 +118,12 @@ def run(args) -> int:
     if args.json:
         path = Path(args.json)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(_jsonable(result), indent=2, allow_nan=False) + "\n")
+        path.write_text(json.dumps(result.to_json(), indent=2, allow_nan=False) + "\n")
         print(f"results: {path}")
     return 0
 
 
-def _design(cfg, log):
+def _design(cfg: PiezoConfig, log: Callable[[str], None]) -> Any:
     if not cfg.cascade.vibration:
         raise ValueError("cascade.vibration is false in this config: the reproduction needs the vibration "
                          "compensator (Section VI-C)")
@@ -133,8 +139,23 @@ def _design(cfg, log):
     return synthesize_hinf(cfg.dynamics.G_L, cfg.vibration)
 
 
-def format_robustness(result: dict, axes) -> str:
-    """One line per truth and metric: nominal vs the robustness runs, before → after."""
+def format_robustness(result: ReproduceResult | Mapping[str, Any], axes: Sequence[str]) -> str:
+    """One line per truth and metric: nominal vs the robustness runs, before → after.
+
+    Parameters
+    ----------
+    result : ReproduceResult or mapping
+        The nominal result, with its ``robustness`` runs (or its JSON).
+    axes : sequence of str
+        Axes to list.
+
+    Returns
+    -------
+    str
+        The table.
+    """
+    if not isinstance(result, Mapping):
+        result = result.to_json()
     runs = [("nominal", result)] + list(result.get("robustness", {}).items())
     head = "ROBUSTNESS — nominal compensator on other truths [%]"
     cols = ("hysteresis_percent", "creep_percent", "overshoot_percent", "cross_coupling_percent")
@@ -158,5 +179,5 @@ def format_robustness(result: dict, axes) -> str:
     return "\n".join(lines)
 
 
-def _num(v):
+def _num(v: float | None) -> str:
     return "—" if v is None else f"{v:.2f}"

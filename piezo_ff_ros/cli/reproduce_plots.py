@@ -6,10 +6,14 @@ column = driven axis).  Lengths in µm, time in s.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
 from ..core.units import UM
+
+if TYPE_CHECKING:
+    from ..core.experiments import Experiment
 
 FIGURES = {
     "fig04_hysteresis_S0.png": ("hyst_S0_{a}", "loop", "Fig. 4 — hysteresis of S0 (200 V, 0.1 Hz)", "U_{a} [V]"),
@@ -23,7 +27,8 @@ FIGURES = {
 }
 
 
-def write_plots(recorded: dict, experiments, directory, axes=("x", "y")) -> list[Path]:
+def write_plots(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Experiment], directory: str | Path,
+                axes: Sequence[str] = ("x", "y")) -> list[Path]:
     """Write every figure whose experiments are in ``recorded``; return the files written."""
     import matplotlib
 

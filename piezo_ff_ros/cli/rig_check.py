@@ -20,16 +20,24 @@ the whole check), ``safe_ramp_max_step_v``; exit code 0 when ok, 1 otherwise.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Sequence
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from ..core.config import PiezoConfig
+    from ..core.hardware import DriverCore
+    from ..core.hardware.driver_core import Emit
+    from ..core.safety import SafeRampConfig
 
-def add_parser(sub):
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("rig-check", help="first checks on a rig: link, sample clock, latency, write-ahead, "
                                           "slew limit, safe ramp (Markdown/JSON report)")
     p.add_argument("--backend", default="sim", help="backend plug-in (sim, nidaqmx, pi_gcs, or an entry point)")
@@ -49,10 +57,10 @@ def add_parser(sub):
     p.set_defaults(func=run)
 
 
-def _parse_params(items) -> dict:
+def _parse_params(items: Sequence[str]) -> dict[str, Any]:
     import yaml
 
-    out = {}
+    out: dict[str, Any] = {}
     for it in items:
         k, sep, v = it.partition("=")
         if not sep or not k.strip():
@@ -67,7 +75,7 @@ def _parse_params(items) -> dict:
 class _Run:
     """The driver core and what it emitted, with a host-paced loop."""
 
-    def __init__(self, core):
+    def __init__(self, core: DriverCore) -> None:
         self.core = core
         self.applied: list = []
         self.measured: list = []
@@ -75,13 +83,13 @@ class _Run:
         self.min_margin = math.inf
         self.read_delay = math.inf
 
-    def take(self, em):
+    def take(self, em: Emit) -> Emit:
         self.applied += em.applied
         self.measured += em.displacement
         self.log += em.log
         return em
 
-    def tick(self):
+    def tick(self) -> Emit:
         em = self.take(self.core.tick())
         if self.core.info.clocked and self.core.state != "fault":
             clock = self.core.backend.clock()
@@ -92,7 +100,7 @@ class _Run:
                 self.read_delay = min(self.read_delay, clock - k_end)
         return em
 
-    def stream(self, blocks, pace: bool):
+    def stream(self, blocks: Iterable[tuple[Any, np.ndarray]], pace: bool) -> None:
         """Send blocks ``[(stamp, u)]``, paced by the host clock when ``pace`` (one block per block duration)."""
         fs = self.core.s.sample_rate
         t_next = time.monotonic()
@@ -106,26 +114,28 @@ class _Run:
             if not self.core.info.clocked:
                 self.tick()
 
-    def wait(self, seconds: float):
+    def wait(self, seconds: float) -> None:
+        """Keep ticking for ``seconds`` of host time."""
         t_end = time.monotonic() + seconds
         while time.monotonic() < t_end:
             self.tick()
             time.sleep(0.002)
 
 
-def rig_check(cfg, backend_name: str, params: dict, *, duration: float, block_size: int, write_ahead: float,
-              test_voltage: float, ramp, say=print) -> dict:
+def rig_check(cfg: PiezoConfig, backend_name: str, params: dict[str, Any], *, duration: float, block_size: int,
+              write_ahead: float, test_voltage: float, ramp: SafeRampConfig, say: Callable[[str], None] = print,
+              ) -> dict[str, Any]:
     """Run the checks (see the module docstring); return the report."""
     from ..core.hardware import DriverCore, DriverSettings
     from ..nodes.backends import get_spec
 
     fs = cfg.sample_rate
     lim = cfg.limits
-    rep = {"ok": False, "backend": backend_name, "sample_rate_hz": fs, "nominal_sample_rate_hz": fs,
+    rep: dict[str, Any] = {"ok": False, "backend": backend_name, "sample_rate_hz": fs, "nominal_sample_rate_hz": fs,
            "latency_samples": None, "underruns": None, "safe_ramp_max_step_v": None, "checks": {}}
-    checks = rep["checks"]
+    checks: dict[str, dict[str, Any]] = rep["checks"]
 
-    def check(name, ok, **values):
+    def check(name: str, ok: bool, **values: Any) -> bool:
         checks[name] = {"ok": bool(ok), **values}
         say(f"rig-check: {name:14s} {'ok ' if ok else 'FAIL'} " + ", ".join(f"{k}={v}" for k, v in values.items()))
         return ok
@@ -249,7 +259,7 @@ def markdown(rep: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.config import load_config
     from ..core.safety import SafeRampConfig
 

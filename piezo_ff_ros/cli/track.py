@@ -13,13 +13,17 @@ import math
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 from ..core.tracking.benchmark import METHODS, TRUTHS
+
+if TYPE_CHECKING:
+    from ..core.config import PiezoConfig
 
 TARGETS = "targets (model = plant): circle 20 µm 1 Hz ≤ 0.05 µm RMS, 10 Hz ≤ 0.2 µm; raster 20 µm 10 Hz ≤ 1 % of range"
 
 
-def add_parser(sub) -> None:
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("track", help="tracking benchmark: open / cascade / preview / learning on known trajectories",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--json", metavar="OUT", help="write the results (contract: {'cases': [...]}) to OUT")
@@ -54,7 +58,7 @@ def _check_out(path: str | None, what: str) -> None:
         raise ValueError(f"{what} {path}: is a directory, expected a file path")
 
 
-def _identified_config(printed, say):
+def _identified_config(printed: PiezoConfig, say: Callable[[str], None]) -> PiezoConfig:
     from ..core.characterisation import CharacterisationSettings
     from ..core.identification.pipeline import commission_sim
     from ..core.reproduce import truth_plant
@@ -65,7 +69,7 @@ def _identified_config(printed, say):
     return cfg
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.config import load_config
     from ..core.tracking.ilc import ILCConfig
 
@@ -85,7 +89,7 @@ def run(args) -> int:
         raise ValueError(f"--iterations must be in 0…100, got {args.iterations}")
     t0 = time.perf_counter()
 
-    def say(msg):
+    def say(msg: str) -> None:
         if not args.quiet:
             print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
@@ -121,7 +125,7 @@ def run(args) -> int:
     return 0
 
 
-def _row(result, **key):
+def _row(result: Mapping[str, Any], **key: Any) -> dict[str, Any] | None:
     for c in result["cases"]:
         if all(c.get(k) == v for k, v in key.items()) and not c.get("variant") and not c.get("graph"):
             return c
@@ -137,7 +141,7 @@ def check_targets(result: dict) -> dict:
             "value": c["rms_error_um"], "limit": lim, "pass": c["rms_error_um"] <= lim and c["peak_voltage_v"] <= 200.0}
     c = _row(result, trajectory="raster", size_um=20, frequency_hz=10, method="preview", truth="nominal")
     pct = None if c is None else 100 * c["max_error_um"] / c["size_um"]
-    out["raster_20um_10hz_preview_max_percent_of_range"] = None if c is None else {
+    out["raster_20um_10hz_preview_max_percent_of_range"] = None if pct is None else {
         "value": pct, "limit": 1.0, "pass": pct <= 1.0}
     vlim = result["conditions"]["voltage_limit_v"]
     ratios = []
@@ -146,6 +150,8 @@ def check_targets(result: dict) -> dict:
             key = dict(trajectory=c["trajectory"], size_um=c["size_um"], frequency_hz=c["frequency_hz"])
             k = _row(result, method="cascade", truth=c["truth"], **key)
             p = _row(result, method="preview", truth=c["truth"], **key)
+            if k is None:
+                raise RuntimeError(f"no cascade case for {key} / {c['truth']} (the learning case is compared with it)")
             ratios.append({"case": f"{c['trajectory']} {c['size_um']:g} µm {c['frequency_hz']:g} Hz / {c['truth']}",
                            "cascade_over_learning": k["rms_error_um"] / max(c["rms_error_um"], 1e-12),
                            # the exact shaped reference would ask more than the amplifier gives: no feedforward

@@ -27,9 +27,13 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..core.experiments import Recorded
+    from ..core.tracking.benchmark import Case
 
 SEGMENT = "circle20_10hz"
 GRAPH_TRUTHS = ("nominal", "asymmetric")
@@ -46,7 +50,7 @@ class GraphRun:
     seconds: float
 
 
-def graph_case():
+def graph_case() -> tuple[Case, np.ndarray, np.ndarray]:
     """The benchmark case played through the graph and its reference: ``(case, r [N, axes], mask [N])``."""
     from ..core.config import load_config
     from ..core.tracking.benchmark import Case, evaluation_window, reference_with_lead_in
@@ -150,6 +154,8 @@ def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str =
     finally:
         g.stop()
     seg = _recorded_segment(mcap, n, strict=True)
+    if seg is None or seg.reference is None:   # (strict: _recorded_segment raises instead)
+        raise RuntimeError(f"graph case: segment {SEGMENT} not recorded")
     _, ref_ahead, u, y = seg
     if len(y) != n:
         raise RuntimeError(f"graph case: {len(y)} samples recorded, {n} played")
@@ -166,7 +172,7 @@ def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str =
     return GraphRun(y=np.asarray(y, float), u=np.asarray(u, float), mcap=mcap, preview_s=preview_s, seconds=dt)
 
 
-def _recorded_segment(mcap: Path, n: int, strict: bool = False):
+def _recorded_segment(mcap: Path, n: int, strict: bool = False) -> Recorded | None:
     """The recorded segment ``(t, reference, u, y)`` when the MCAP holds all its ``n`` samples, else None (or, with
     ``strict``, a RuntimeError saying what is missing)."""
     from ..core.analysis import segment_signals
@@ -179,7 +185,7 @@ def _recorded_segment(mcap: Path, n: int, strict: bool = False):
             raise RuntimeError(f"graph case: {mcap}: {exc}") from None
         return None
     seg = recorded.get(SEGMENT)
-    if seg is None or len(seg[3]) != n or not all(np.all(np.isfinite(a)) for a in seg[1:]):
+    if seg is None or len(seg[3]) != n or not all(a is not None and np.all(np.isfinite(a)) for a in seg[1:]):
         if strict:
             got = "absent" if seg is None else f"{len(seg[3])} of {n} samples"
             raise RuntimeError(f"graph case: segment {SEGMENT} not recorded whole ({got}; {warnings})")

@@ -16,6 +16,7 @@ No ROS import.
 from __future__ import annotations
 
 import importlib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -24,10 +25,11 @@ from numpy.typing import ArrayLike
 
 from . import metrics
 from .recording.run import RunData
+from .jsonable import JsonResult, jsonable
 from .units import to_um
-from .jsonable import jsonable as _jsonable
 
-__all__ = ["find_evaluate", "segment_signals", "tracking_summary", "analyze_run", "plot_run", "format_report"]
+__all__ = ["find_evaluate", "segment_signals", "tracking_summary", "analyze_run", "plot_run", "format_report",
+           "AnalysisResult", "ReplayReport"]
 
 DEFAULT_VOLTAGE_LIMIT = 200.0  #: [V] when the recording does not say (core.config LimitsConfig default)
 
@@ -35,8 +37,82 @@ DEFAULT_VOLTAGE_LIMIT = 200.0  #: [V] when the recording does not say (core.conf
 # the shared record type (a NamedTuple: also unpacks as (t, reference, u, y))
 from .experiments import Recorded as _Recorded
 
-#: the paper evaluation ``evaluate(recorded, ...) -> dict`` (:func:`~piezo_ff_ros.core.reproduce.evaluate`)
-Evaluate = Callable[..., dict[str, Any]]
+#: the paper evaluation ``evaluate(recorded, ...)`` (:func:`~piezo_ff_ros.core.reproduce.evaluate`): a
+#: :class:`~.jsonable.JsonResult` (its ``to_json()`` keys) or a plain mapping
+Evaluate = Callable[..., Any]
+
+
+@dataclass(frozen=True)
+class ReplayReport(JsonResult):
+    """What only a recording can tell (the ``"replay"`` key of ``analyze --json``).
+
+    Attributes
+    ----------
+    source : str or None
+        The recording.
+    duration_s, samples, sample_rate : float, int, float or None
+        Length [s], samples and rate [Hz] of the analysed span.
+    axes : list of str
+        Column names.
+    tracking : dict or None
+        Tracking errors over the whole run [m] (:func:`tracking_summary`; voltage-driven segments left out).
+    segments : list of dict
+        Per experiment segment: ``name, k0, k1, samples, complete, stages, input, tracking``.
+    blocks : dict
+        Per block topic: count, gaps, missing samples/blocks, duplicates, … (from ``read_run``).
+    saturation : dict
+        ``{limit_V, samples, fraction}``: voltage samples at the limit.
+    diagnostics : dict
+        ``{messages, counters}``: the driver's last numeric diagnostic values.
+    truncated : bool
+        The file ended early (a prefix was read).
+    warnings : list of str
+        What was skipped or doubtful.
+    """
+
+    source: str | None
+    duration_s: float
+    samples: int
+    sample_rate: float | None
+    axes: list[str]
+    tracking: dict[str, Any] | None
+    segments: list[dict[str, Any]]
+    blocks: dict[str, dict[str, Any]]
+    saturation: dict[str, float]
+    diagnostics: dict[str, Any]
+    truncated: bool
+    warnings: list[str]
+
+
+@dataclass(frozen=True)
+class AnalysisResult(JsonResult):
+    """Result of :func:`analyze_run`: the paper's tables (when the run has experiment segments) and the replay report.
+
+    ``to_json()`` is ``analyze --json``: the keys of the paper evaluation at the top level (as ``reproduce
+    --json``) plus ``"replay"``.
+
+    Attributes
+    ----------
+    tables : JsonResult, mapping or None
+        The paper evaluation's result (None: not evaluated).
+    replay : ReplayReport
+        Tracking, gaps, saturation, diagnostics and warnings of the recording.
+    """
+
+    tables: Any
+    replay: ReplayReport
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON of ``analyze --json``.
+
+        Returns
+        -------
+        dict
+            The evaluation's keys (none when not evaluated) and ``"replay"``.
+        """
+        out: dict[str, Any] = dict(jsonable(self.tables)) if self.tables is not None else {}
+        out["replay"] = self.replay.to_json()
+        return out
 
 
 def find_evaluate() -> Evaluate | None:
@@ -103,7 +179,7 @@ def tracking_summary(reference: ArrayLike | None, y: ArrayLike) -> dict[str, Any
     ok = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(yy), axis=1)
     if not ok.any():
         return None
-    out = metrics.tracking_errors(r[ok], yy[ok])
+    out = metrics.tracking_errors(r[ok], yy[ok]).to_json()
     out["samples"] = int(ok.sum())
     return out
 
@@ -141,8 +217,8 @@ def _driver_counters(diagnostics: Mapping[str, Any]) -> dict[str, float]:
     return out
 
 
-def analyze_run(run: RunData, evaluate: Evaluate | None = None) -> dict[str, Any]:
-    """Analyse a recorded run; returns a JSON-ready dict.
+def analyze_run(run: RunData, evaluate: Evaluate | None = None) -> AnalysisResult:
+    """Analyse a recorded run.
 
     Parameters
     ----------
@@ -154,16 +230,13 @@ def analyze_run(run: RunData, evaluate: Evaluate | None = None) -> dict[str, Any
 
     Returns
     -------
-    dict
-        The keys of ``evaluate`` (as ``reproduce --json``: the paper's tables), plus ``"replay"``:
-        ``{"source", "duration_s", "samples", "sample_rate", "axes", "tracking" (overall, m), "segments" [{name,
-        k0, k1, samples, complete, tracking}], "blocks" (per topic: count, gaps, missing, duplicates…),
-        "saturation" {limit_V, samples, fraction}, "diagnostics" {messages, counters}, "truncated",
-        "warnings"}``.
+    AnalysisResult
+        ``tables``: the result of ``evaluate`` (as ``reproduce --json``: the paper's tables) or None; ``replay``:
+        :class:`ReplayReport`.  ``to_json()`` gives ``analyze --json``.
     """
     meta = run.meta
     warnings = list(meta.get("warnings", []))
-    result: dict[str, Any] = {}
+    tables: Any = None
     recorded, seg_warn = segment_signals(run)
     warnings += seg_warn
     if recorded:
@@ -172,7 +245,7 @@ def analyze_run(run: RunData, evaluate: Evaluate | None = None) -> dict[str, Any
             warnings.append("paper evaluation (core.experiments.evaluate) not available: tables skipped")
         else:
             try:
-                result.update(evaluate(recorded))
+                tables = evaluate(recorded)
             except ValueError as exc:
                 warnings.append(f"paper evaluation failed on this recording: {exc}")
     elif meta.get("segments"):
@@ -202,23 +275,21 @@ def analyze_run(run: RunData, evaluate: Evaluate | None = None) -> dict[str, Any
     saturated = int(np.sum(np.any(np.abs(u[finite_u]) >= limit * (1 - 1e-9), axis=1)))
     diag = meta.get("diagnostics", {})
     blocks = {role: {k: v for k, v in info.items()} for role, info in meta.get("blocks", {}).items()}
-    result["replay"] = {
-        "source": meta.get("source"),
-        "duration_s": len(run) / run.sample_rate if len(run) > 1 else 0.0,
-        "samples": len(run),
-        "sample_rate": meta.get("sample_rate", run.sample_rate if len(run) > 1 else None),
-        "axes": list(run.axes),
-        "tracking": tracking_summary(whole_ref, run.y),
-        "segments": segments,
-        "blocks": blocks,
-        "saturation": {"limit_V": limit, "samples": saturated,
-                       "fraction": saturated / max(int(finite_u.sum()), 1)},
-        "diagnostics": {"messages": diag.get("messages", 0), "counters": _driver_counters(diag)},
-        "truncated": bool(meta.get("truncated", False)),
-        "warnings": warnings,
-    }
-    ready: dict[str, Any] = _jsonable(result)
-    return ready
+    replay = ReplayReport(
+        source=meta.get("source"),
+        duration_s=len(run) / run.sample_rate if len(run) > 1 else 0.0,
+        samples=len(run),
+        sample_rate=meta.get("sample_rate", run.sample_rate if len(run) > 1 else None),
+        axes=list(run.axes),
+        tracking=tracking_summary(whole_ref, run.y),
+        segments=segments,
+        blocks=blocks,
+        saturation={"limit_V": limit, "samples": saturated, "fraction": saturated / max(int(finite_u.sum()), 1)},
+        diagnostics={"messages": diag.get("messages", 0), "counters": _driver_counters(diag)},
+        truncated=bool(meta.get("truncated", False)),
+        warnings=warnings,
+    )
+    return AnalysisResult(tables=tables, replay=replay)
 
 
 def plot_run(run: RunData, out_dir: str | Path, max_points: int = 20000) -> list[Path]:
@@ -264,8 +335,21 @@ def plot_run(run: RunData, out_dir: str | Path, max_points: int = 20000) -> list
     return written
 
 
-def format_report(result: Mapping[str, Any]) -> str:
-    """Human-readable summary of :func:`analyze_run`'s result (tracking in µm, counts)."""
+def format_report(result: AnalysisResult | Mapping[str, Any]) -> str:
+    """Human-readable summary of :func:`analyze_run`'s result (tracking in µm, counts).
+
+    Parameters
+    ----------
+    result : AnalysisResult or mapping
+        From :func:`analyze_run`, or its JSON.
+
+    Returns
+    -------
+    str
+        One line per block topic, saturation, diagnostics, tracking per segment, warnings.
+    """
+    if isinstance(result, AnalysisResult):
+        result = result.to_json()
     rp = result["replay"]
     lines = [f"{rp['source']}: {rp['samples']} samples, {rp['duration_s']:.3f} s at {rp['sample_rate']:.0f} Hz, "
              f"axes {','.join(rp['axes'])}" + ("  [TRUNCATED file: prefix only]" if rp["truncated"] else "")]

@@ -26,6 +26,7 @@ import numpy as np
 from .characterisation import (CharacterisationSettings, creep_trajectories, dynamics_trajectories,
                                hysteresis_trajectories, plant_validation_trajectory, run_open_loop)
 from .config import PiezoConfig, load_config
+from .jsonable import JsonResult
 from .identification.bouc_wen import identify_bouc_wen
 from .identification.creep import identify_creep
 from .identification.dynamics import identify_dynamics
@@ -37,8 +38,9 @@ from .trajectories import Trajectory
 
 if TYPE_CHECKING:  # imported where used (the simulation and the evaluation are loaded on demand)
     from .experiments import Experiment, Recorded
+    from .reproduce import ReproduceResult
 
-__all__ = ["CommissioningError", "PlannedRun", "Rig", "RigLimits", "SimRig", "CommissionResult",
+__all__ = ["CommissioningError", "PlannedRun", "Rig", "RigLimits", "SimRig", "CommissionResult", "CommissionReport",
            "characterisation_plan", "check_voltage_runs", "commission", "verify"]
 
 Progress = Callable[[str], None]
@@ -137,10 +139,12 @@ class RigLimits:
 
     @property
     def voltage_limit(self) -> float:
+        """±V the driver enforces."""
         return self._vlim
 
     @property
     def slew_limit(self) -> float:
+        """V/s the driver enforces."""
         return self._slim
 
 
@@ -158,9 +162,26 @@ class SimRig(RigLimits):
 
     @property
     def has_sensor(self) -> bool:
+        """Always True: the simulation's output is the displacement."""
         return True
 
     def configure(self, cfg: PiezoConfig | None, stages: frozenset[str], bypass: bool = False) -> None:
+        """Put the creep and/or hysteresis compensators of ``cfg`` in front of the plant (see :meth:`Rig.configure`).
+
+        Parameters
+        ----------
+        cfg : PiezoConfig or None
+            The compensators' parameters (required unless bypassed or no stage is asked for).
+        stages : frozenset of str
+            ``creep`` and/or ``hysteresis`` (the characterisation never runs through the vibration stage).
+        bypass : bool
+            Voltages go to the plant unchanged.
+
+        Raises
+        ------
+        CommissioningError
+            ``cfg`` is missing or a stage is not part of the sequence.
+        """
         from .compensators.creep import CreepCompensator
         from .compensators.hysteresis import HysteresisCompensator
 
@@ -180,11 +201,43 @@ class SimRig(RigLimits):
         self._chain = chain
 
     def play(self, runs: Sequence[PlannedRun], meta: Mapping[str, object] | None = None) -> dict[str, RunData]:
+        """Play each run from rest through the configured compensators and the plant (see :meth:`Rig.play`).
+
+        Parameters
+        ----------
+        runs : sequence of PlannedRun
+            What to play.
+        meta : mapping, optional
+            Unused here (the graph rig records it).
+
+        Returns
+        -------
+        dict
+            ``{name: RunData}``.
+        """
         return {r.name: run_open_loop(self.plant, r.trajectory, self.sample_rate, r.name, self.axes,
                                       chain=self._chain) for r in runs}
 
     def run_experiments(self, cfg: PiezoConfig, design: object, experiments: Sequence[Experiment],
                         progress: Progress) -> dict[str, Recorded]:
+        """The paper's verification experiments simulated on the plant with ``cfg``'s cascade.
+
+        Parameters
+        ----------
+        cfg : PiezoConfig
+            The cascade to verify.
+        design : HinfDesign or None
+            Its H∞ design (None: from ``cfg``).
+        experiments : sequence of Experiment
+            What to run.
+        progress : callable
+            Called with one line per experiment.
+
+        Returns
+        -------
+        dict
+            ``{name: (t, reference, u, y)}``.
+        """
         from .experiments import simulate_experiments
 
         return simulate_experiments(cfg, design=design, plant=self.plant, experiments=list(experiments),
@@ -192,6 +245,18 @@ class SimRig(RigLimits):
 
     # only a simulation can tell the noise-free output (for the plant fit against the truth)
     def noise_free_output(self, u: np.ndarray) -> np.ndarray | None:
+        """The plant's output without sensor noise for the voltages ``u`` [V], from rest.
+
+        Parameters
+        ----------
+        u : array [N, axes]
+            Voltages [V].
+
+        Returns
+        -------
+        array [N, axes] or None
+            Displacement [m]; None when the plant has no sensor noise (its output is already noise-free).
+        """
         from .models.plant import Plant
 
         p = self.plant
@@ -200,15 +265,56 @@ class SimRig(RigLimits):
         return Plant(p.cfg, pre=p.pre, post=p.post, noise_std=0.0, stages=p.stages).process(u)
 
 
-@dataclass
+@dataclass(frozen=True)
+class CommissionReport(JsonResult):
+    """Held-out fits, orders and timings of :func:`commission`.
+
+    Attributes
+    ----------
+    fit_percent : dict
+        Held-out fit [%] per stage (hysteresis, creep, dynamics, plant) and axis/entry.
+    orders : dict
+        ``{creep, dynamics}``: the model order per entry.
+    plant_fit_basis : str
+        What the whole-plant fit compares with (the measured output, with sensor noise or not).
+    plant_fit_parts : dict
+        Whole-plant fit [%] on each part of the validation record (multisine, step pair) per axis.
+    timing_s : dict
+        Wall time [s] per step and ``total``.
+    plant_fit_noise_free : dict or None
+        Whole-plant fit [%] against the noise-free truth (simulated rigs only; absent from the JSON when None).
+    """
+
+    fit_percent: dict[str, dict[str, float | None]]
+    orders: dict[str, Any]
+    plant_fit_basis: str
+    plant_fit_parts: dict[str, dict[str, float]]
+    timing_s: dict[str, float]
+    plant_fit_noise_free: dict[str, float | None] | None = field(default=None, metadata={"omit_none": True})
+
+
+@dataclass(frozen=True)
 class CommissionResult:
-    """What :func:`commission` identified: the complete config (H∞ controller stored in it), the design, the runs
-    recorded and a report (held-out fits per stage and of the whole plant, orders, timings)."""
+    """What :func:`commission` identified.
+
+    Attributes
+    ----------
+    config : PiezoConfig
+        The complete identified config (the H∞ controller stored in it).
+    design : HinfDesign or None
+        The H∞ design (None when not synthesised).
+    hinf_note : str or None
+        Why ``vibration.gamma_max`` was raised, if it was.
+    report : CommissionReport
+        Held-out fits per stage and of the whole plant, orders, timings.
+    runs : list of RunData
+        The recorded runs, tagged with their stage and role.
+    """
 
     config: PiezoConfig
     design: object
     hinf_note: str | None
-    report: dict[str, Any]
+    report: CommissionReport
     runs: list[RunData] = field(default_factory=list)
 
 
@@ -319,19 +425,15 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
     df = identify_dynamics(dfit, dval, order=dynamics_order, axes=axes, progress=say)
     timing["identify_dynamics"] = time.perf_counter() - t0
     cfg = build_config(base, hf, cf, df, fs, axes)
-    report: dict[str, Any] = {"fit_percent": fits_report(hf, cf, df, axes), "orders": {"creep": cf.orders,
-                                                                              "dynamics": df.orders}}
+    fits = fits_report(hf, cf, df, axes)
 
     say("plant: held-out fit of the identified whole-plant model on the recorded voltage record")
     t0 = time.perf_counter()
     pv = plant_runs[0]
-    report["fit_percent"]["plant"] = plant_fit(cfg, plant_runs)
+    fits["plant"] = plant_fit(cfg, plant_runs)
     noise_free = getattr(rig, "noise_free_output", lambda u: None)(pv.u)
-    report["plant_fit_basis"] = "measured output" + (" (with sensor noise)" if noise_free is not None else "")
-    if noise_free is not None:
-        report["plant_fit_noise_free"] = plant_fit(cfg, [pv], [noise_free])
-    report["plant_fit_parts"] = part_fits(cfg, pv, pv.y if noise_free is None else noise_free,
-                                          plan["plant"][0].trajectory, axes)
+    fit_noise_free = plant_fit(cfg, [pv], [noise_free]) if noise_free is not None else None
+    parts = part_fits(cfg, pv, pv.y if noise_free is None else noise_free, plan["plant"][0].trajectory, axes)
     timing["plant_fit"] = time.perf_counter() - t0
 
     design, note = None, None
@@ -345,12 +447,15 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
         cfg = replace(cfg, vibration=vib).validate()
         timing["hinf"] = time.perf_counter() - t0
     timing["total"] = time.perf_counter() - t_all
-    report["timing_s"] = timing
+    report = CommissionReport(fit_percent=fits, orders={"creep": cf.orders, "dynamics": df.orders},
+                              plant_fit_basis="measured output" + (" (with sensor noise)" if noise_free is not None
+                                                                   else ""),
+                              plant_fit_parts=parts, timing_s=timing, plant_fit_noise_free=fit_noise_free)
     return CommissionResult(config=cfg, design=design, hinf_note=note, report=report, runs=runs)
 
 
 def verify(rig: Rig, cfg: PiezoConfig, design: object, experiments: Sequence[Experiment],
-           conditions: Mapping[str, Any], robust: bool = False, progress: Progress | None = None) -> dict[str, Any]:
+           conditions: Mapping[str, Any], robust: bool = False, progress: Progress | None = None) -> ReproduceResult:
     """The paper's tests played on ``rig`` with ``cfg``'s cascade; Tables I/II (:func:`~.reproduce.evaluate`)."""
     from .reproduce import evaluate
 

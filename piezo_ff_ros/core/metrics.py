@@ -1,7 +1,8 @@
 """Performance figures exactly as the paper's Section VII-A defines them, plus tracking/settling figures.
 
-All functions take plain arrays (SI units, time in seconds) and return floats or small dictionaries; ratios are
-fractions (multiply by 100 for the paper's percentages).
+All functions take plain arrays (SI units, time in seconds) and return floats or small frozen readings
+(:class:`HysteresisReading`, :class:`CreepReading`, :class:`OvershootReading`, :class:`StaticError`,
+:class:`TrackingErrors`, each with ``to_json()``); ratios are fractions (multiply by 100 for the paper's percentages).
 
 How the levels are read (the paper gives the definitions, not the windows — these are our choices, documented so
 that a replay of recorded signals gives the same numbers):
@@ -26,21 +27,126 @@ that a replay of recorded signals gives the same numbers):
 from __future__ import annotations
 
 import math
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .jsonable import JsonResult
+
 __all__ = [
     "peak_to_peak", "last_period", "hysteresis_ratio", "step_levels", "creep_ratio", "overshoot_ratio",
     "cross_coupling_range_ratio", "cross_coupling_final_ratio", "settling_time", "static_error", "tracking_errors",
-    "T_TRANSIENT", "AF_WINDOW", "CREEP_FINAL_WINDOW", "STEP_FINAL_WINDOW",
+    "T_TRANSIENT", "AF_WINDOW", "CREEP_FINAL_WINDOW", "STEP_FINAL_WINDOW", "HysteresisReading", "CreepReading",
+    "OvershootReading", "StaticError", "TrackingErrors",
 ]
 
 T_TRANSIENT = 0.2          #: [s] end of the fast transient after a step (creep A_f is read after it)
 AF_WINDOW = 0.05           #: [s] averaging window for the creep A_f
 CREEP_FINAL_WINDOW = 1.0   #: [s] averaging window for the creep A_m (end of the creep time)
 STEP_FINAL_WINDOW = 0.05   #: [s] averaging window for a step's final value A_f
+
+
+@dataclass(frozen=True)
+class HysteresisReading(JsonResult):
+    """Hysteresis of one loop (:func:`hysteresis_ratio`).
+
+    Attributes
+    ----------
+    h : float
+        Largest vertical distance between the branches [output unit].
+    H : float
+        Output range over the period [output unit].
+    ratio : float
+        ``h/H`` (NaN when ``H`` is 0).
+    u_at_max : float
+        Input value where the branches are furthest apart.
+    """
+
+    h: float
+    H: float
+    ratio: float
+    u_at_max: float
+
+
+@dataclass(frozen=True)
+class CreepReading(JsonResult):
+    """Creep of a step response (:func:`creep_ratio`); displacements relative to the pre-step level [m].
+
+    Attributes
+    ----------
+    A_f : float
+        Displacement just after the fast transient.
+    A_m : float
+        Displacement at the end of the creep time.
+    ratio : float
+        ``(A_m − A_f)/A_f`` (NaN when ``A_f`` is 0).
+    ratio_over_Am : float
+        ``(A_m − A_f)/A_m`` (NaN when ``A_m`` is 0).
+    """
+
+    A_f: float
+    A_m: float
+    ratio: float
+    ratio_over_Am: float
+
+
+@dataclass(frozen=True)
+class OvershootReading(JsonResult):
+    """Overshoot of a step response (:func:`overshoot_ratio`); displacements relative to the pre-step level [m].
+
+    Attributes
+    ----------
+    A_f : float
+        Final value.
+    A_m : float
+        Extreme displacement after the step in the direction of ``A_f``.
+    ratio : float
+        ``(A_m − A_f)/A_f`` (NaN when ``A_f`` is 0).
+    t_peak : float
+        Time of ``A_m`` after the step [s].
+    """
+
+    A_f: float
+    A_m: float
+    ratio: float
+    t_peak: float
+
+
+@dataclass(frozen=True)
+class StaticError(JsonResult):
+    """Steady-state error at the end of a record (:func:`static_error`).
+
+    Attributes
+    ----------
+    error : float
+        ``mean(y − r)`` [m].
+    relative : float
+        ``mean(y − r)/mean(r)`` (NaN when ``mean(r)`` is 0).
+    """
+
+    error: float
+    relative: float
+
+
+@dataclass(frozen=True)
+class TrackingErrors(JsonResult):
+    """RMS and maximum tracking error (:func:`tracking_errors`) [m].
+
+    Attributes
+    ----------
+    rms, max : list of float
+        Per axis.
+    rms_norm : float
+        RMS of the Euclidean error.
+    max_norm : float
+        Maximum Euclidean error.
+    """
+
+    rms: list[float]
+    max: list[float]
+    rms_norm: float
+    max_norm: float
 
 
 def _vec(x: ArrayLike, name: str) -> np.ndarray:
@@ -91,7 +197,7 @@ def last_period(t: ArrayLike, period: float, *signals: ArrayLike) -> tuple[np.nd
 
 
 def hysteresis_ratio(u: ArrayLike, y: ArrayLike, period_t: ArrayLike | None = None, period: float | None = None,
-                     grid: int = 2001, bins: int | None = None) -> dict[str, float]:
+                     grid: int = 2001, bins: int | None = None) -> HysteresisReading:
     """Hysteresis amplitude ``h/H`` of an input/output loop (paper Fig. 4 and Section VII-A).
 
     Parameters
@@ -153,7 +259,7 @@ def hysteresis_ratio(u: ArrayLike, y: ArrayLike, period_t: ArrayLike | None = No
         means = np.concatenate([ma[ca > 0], md[cd > 0]])
         H = float(means.max() - means.min())
     h = float(width.max())
-    return {"h": h, "H": H, "ratio": h / H if H > 0 else math.nan, "u_at_max": float(g[int(np.argmax(width))])}
+    return HysteresisReading(h=h, H=H, ratio=h / H if H > 0 else math.nan, u_at_max=float(g[int(np.argmax(width))]))
 
 
 def _bin_means(x: np.ndarray, y: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -176,14 +282,14 @@ def step_levels(t: ArrayLike, y: ArrayLike, t_step: float) -> tuple[np.ndarray, 
 
 
 def creep_ratio(t: ArrayLike, y: ArrayLike, t_step: float = 0.0, t_creep: float | None = None, t_transient: float = T_TRANSIENT,
-                window: float = AF_WINDOW, final_window: float = CREEP_FINAL_WINDOW) -> dict[str, float]:
+                window: float = AF_WINDOW, final_window: float = CREEP_FINAL_WINDOW) -> CreepReading:
     """Creep ``(A_m − A_f)/A_f`` of a step response (paper Fig. 7/10, Section VII-A).
 
     ``A_f``: mean displacement over ``[t_transient, t_transient + window]`` after the step (after the fast
     transient, before the creep develops); ``A_m``: mean over the last ``final_window`` before ``t_creep`` after
     the step (default: end of the record).  Displacements relative to the pre-step level.
 
-    Returns ``{"A_f", "A_m", "ratio", "ratio_over_Am"}`` (the last one divides by ``A_m`` instead of ``A_f``).
+    Returns a :class:`CreepReading` (``A_f``, ``A_m``, ``ratio``, ``ratio_over_Am``: divided by ``A_m``).
     """
     tr, yr, _ = step_levels(t, y, t_step)
     t_end = tr[-1] if t_creep is None else float(t_creep)
@@ -194,12 +300,12 @@ def creep_ratio(t: ArrayLike, y: ArrayLike, t_step: float = 0.0, t_creep: float 
                          f"{t_transient + window:g} s)")
     A_f = _window_mean(tr, yr, t_transient, t_transient + window, "creep A_f")
     A_m = _window_mean(tr, yr, max(t_end - final_window, t_transient + window), t_end, "creep A_m")
-    return {"A_f": A_f, "A_m": A_m, "ratio": (A_m - A_f) / A_f if A_f != 0 else math.nan,
-            "ratio_over_Am": (A_m - A_f) / A_m if A_m != 0 else math.nan}
+    return CreepReading(A_f=A_f, A_m=A_m, ratio=(A_m - A_f) / A_f if A_f != 0 else math.nan,
+                        ratio_over_Am=(A_m - A_f) / A_m if A_m != 0 else math.nan)
 
 
 def overshoot_ratio(t: ArrayLike, y: ArrayLike, t_step: float = 0.0, final_window: float = STEP_FINAL_WINDOW,
-                    lowpass_hz: float | None = None) -> dict[str, float]:
+                    lowpass_hz: float | None = None) -> OvershootReading:
     """Overshoot ``(A_m − A_f)/A_f`` of a step response (paper Fig. 11/14, Section VII-A).
 
     ``A_f``: final value, mean over the last ``final_window`` seconds; ``A_m``: the extreme displacement after
@@ -208,7 +314,7 @@ def overshoot_ratio(t: ArrayLike, y: ArrayLike, t_step: float = 0.0, final_windo
     white sensor noise would otherwise bias the peak upwards by several standard deviations.  Choose it above
     the actuator's resonances (the printed model's highest is 1.6 kHz; ``evaluate`` uses 3 kHz).
 
-    Returns ``{"A_f", "A_m", "ratio", "t_peak"}`` (``t_peak`` after the step).
+    Returns an :class:`OvershootReading` (``A_f``, ``A_m``, ``ratio``, ``t_peak`` after the step).
     """
     tr, yr, _ = step_levels(t, y, t_step)
     after = tr >= 0
@@ -220,8 +326,8 @@ def overshoot_ratio(t: ArrayLike, y: ArrayLike, t_step: float = 0.0, final_windo
         ya = _zero_phase_lowpass(tr[after], ya, lowpass_hz)
     i = int(np.argmax(ya)) if A_f >= 0 else int(np.argmin(ya))
     A_m = float(ya[i])
-    return {"A_f": A_f, "A_m": A_m, "ratio": (A_m - A_f) / A_f if A_f != 0 else math.nan,
-            "t_peak": float(tr[after][i])}
+    return OvershootReading(A_f=A_f, A_m=A_m, ratio=(A_m - A_f) / A_f if A_f != 0 else math.nan,
+                            t_peak=float(tr[after][i]))
 
 
 def _zero_phase_lowpass(t: np.ndarray, y: np.ndarray, cutoff_hz: float) -> np.ndarray:
@@ -282,7 +388,7 @@ def settling_time(t: ArrayLike, y: ArrayLike, t_step: float = 0.0, band: float =
 
 
 def static_error(t: ArrayLike, y: ArrayLike, reference: ArrayLike,
-                 final_window: float = STEP_FINAL_WINDOW) -> dict[str, float]:
+                 final_window: float = STEP_FINAL_WINDOW) -> StaticError:
     """Steady-state error at the end of a record: ``{"error": mean(y − r), "relative": mean(y − r)/mean(r)}``.
 
     Means over the last ``final_window`` seconds.
@@ -294,10 +400,10 @@ def static_error(t: ArrayLike, y: ArrayLike, reference: ArrayLike,
     sel = tv >= tv[-1] - final_window
     e = float(np.mean(yv[sel] - r[sel]))
     rm = float(np.mean(r[sel]))
-    return {"error": e, "relative": e / rm if rm != 0 else math.nan}
+    return StaticError(error=e, relative=e / rm if rm != 0 else math.nan)
 
 
-def tracking_errors(reference: ArrayLike, y: ArrayLike, mask: ArrayLike | None = None) -> dict[str, Any]:
+def tracking_errors(reference: ArrayLike, y: ArrayLike, mask: ArrayLike | None = None) -> TrackingErrors:
     """RMS and maximum tracking error.
 
     Parameters
@@ -309,9 +415,8 @@ def tracking_errors(reference: ArrayLike, y: ArrayLike, mask: ArrayLike | None =
 
     Returns
     -------
-    dict
-        ``{"rms": [per axis], "max": [per axis], "rms_norm": RMS of the Euclidean error,
-        "max_norm": maximum Euclidean error}``.
+    TrackingErrors
+        ``rms``, ``max`` per axis, ``rms_norm`` (RMS of the Euclidean error), ``max_norm`` (its maximum).
     """
     r = np.asarray(reference, float)
     yy = np.asarray(y, float)
@@ -327,5 +432,5 @@ def tracking_errors(reference: ArrayLike, y: ArrayLike, mask: ArrayLike | None =
     if len(e) == 0:
         raise ValueError("tracking_errors: no samples selected")
     norm = np.sqrt(np.sum(e * e, axis=1))
-    return {"rms": np.sqrt(np.mean(e * e, axis=0)).tolist(), "max": np.max(np.abs(e), axis=0).tolist(),
-            "rms_norm": float(np.sqrt(np.mean(norm * norm))), "max_norm": float(norm.max())}
+    return TrackingErrors(rms=np.sqrt(np.mean(e * e, axis=0)).tolist(), max=np.max(np.abs(e), axis=0).tolist(),
+                          rms_norm=float(np.sqrt(np.mean(norm * norm))), max_norm=float(norm.max()))

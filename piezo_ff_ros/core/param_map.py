@@ -33,6 +33,18 @@ _TF_GROUPS = (("creep", "Cr"), ("dynamics", "G_L"))
 
 
 def is_config_param(name: str) -> bool:
+    """Whether a flat ROS parameter name belongs to the positioner config (one of the stage prefixes).
+
+    Parameters
+    ----------
+    name : str
+        Dotted parameter name.
+
+    Returns
+    -------
+    bool
+        True for ``hysteresis.*``, ``creep.*`` … (see ``STAGE_PREFIXES``).
+    """
     return name.startswith(STAGE_PREFIXES)
 
 

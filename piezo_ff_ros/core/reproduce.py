@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Mapping, NamedTuple, Sequence
 
 import numpy as np
@@ -34,12 +35,14 @@ import numpy as np
 from . import metrics as M
 from .config import PiezoConfig
 from .experiments import Experiment, Recorded, paper_experiments, simulate_experiments
+from .jsonable import JsonResult
 from .units import UM
 
 if TYPE_CHECKING:
     from .models.plant import Plant
 
-__all__ = ["PAPER", "INDEPENDENT", "evaluate", "reproduce", "format_tables", "truth_plant", "ASYMMETRIC_DELTA"]
+__all__ = ["PAPER", "INDEPENDENT", "ReproduceResult", "evaluate", "reproduce", "format_tables", "truth_plant",
+           "ASYMMETRIC_DELTA"]
 
 KEYS = ("hysteresis_percent", "creep_percent", "overshoot_percent", "cross_coupling_percent")
 
@@ -80,6 +83,57 @@ def _pct(v: float | None) -> float | None:
     return None if v is None or not np.isfinite(v) else 100.0 * float(v)
 
 
+PerAxis = dict[str, float | None]  #: {axis: value or None}
+
+
+@dataclass(frozen=True)
+class ReproduceResult(JsonResult):
+    """The paper's tables read from experiment signals (:func:`evaluate`); ``to_json()`` is ``reproduce --json``.
+
+    Attributes
+    ----------
+    before, after : dict
+        ``{hysteresis_percent, creep_percent, overshoot_percent, cross_coupling_percent}: {axis: % or None}``.
+    hinf : dict
+        ``{gamma, order_full, order_reduced}`` of the vibration compensator (None when unknown).
+    paper, independent : dict
+        The paper's figures (:data:`PAPER`) and the independent reading's (:data:`INDEPENDENT`).
+    tracking : dict
+        Per circle experiment: ``{system, radius_m, rms_error_m, max_error_m, rms_error_percent, …}``.
+    settling_time_s : dict
+        ``{before, after}: {axis: s or None}`` (2 % band).
+    static_error_percent : dict
+        ``{S_L, T}: {axis: % or None}``.
+    creep_over_Am_percent : dict
+        ``{before, after}: {axis: % or None}``: creep divided by A_m instead of A_f.
+    details : dict
+        Per experiment: the raw readings behind the percentages [m, s, V].
+    errors : dict
+        ``{experiment name: why its figures could not be read}``.
+    conditions : dict
+        How the data were produced (free-form, copied from the caller).
+    robust_readings : bool
+        Whether the noise-robust readings were used.
+    robustness : dict or None
+        ``reproduce`` only: the same tables for other truths (key absent from the JSON when None).
+    """
+
+    before: dict[str, PerAxis]
+    after: dict[str, PerAxis]
+    hinf: dict[str, Any]
+    paper: dict[str, Any]
+    independent: dict[str, Any]
+    tracking: dict[str, dict[str, Any]]
+    settling_time_s: dict[str, PerAxis]
+    static_error_percent: dict[str, PerAxis]
+    creep_over_Am_percent: dict[str, PerAxis]
+    details: dict[str, dict[str, Any]]
+    errors: dict[str, str]
+    conditions: dict[str, Any]
+    robust_readings: bool
+    robustness: dict[str, Any] | None = field(default=None, metadata={"omit_none": True})
+
+
 class _Signals(NamedTuple):
     """One experiment's signals as :func:`evaluate` reads them: float arrays, 2-D, finite, reference present."""
 
@@ -89,9 +143,161 @@ class _Signals(NamedTuple):
     y: np.ndarray
 
 
+@dataclass(frozen=True)
+class _Context:
+    """What every reading of :func:`evaluate` needs: the signals, the experiment definitions, the axes, the mode."""
+
+    recorded: Mapping[str, tuple[Any, ...]]
+    by_name: Mapping[str, Experiment]
+    axes: tuple[str, ...]
+    robust: bool
+
+    @property
+    def bins(self) -> int | None:
+        """Loop branches binned (measured data) or exact."""
+        return 200 if self.robust else None
+
+    @property
+    def lowpass(self) -> float | None:
+        """Zero-phase low-pass [Hz] for step peaks (measured data) or None."""
+        return 3000.0 if self.robust else None
+
+    def signals(self, name: str) -> _Signals | None:
+        """One experiment's signals as float arrays (2-D), None when not recorded; ValueError on NaN/inf."""
+        if name not in self.recorded:
+            return None
+        t, r, u, y = self.recorded[name]
+        r = np.asarray(r, float)
+        y = np.asarray(y, float)
+        if r.ndim == 1:
+            r = r[:, None]
+        if y.ndim == 1:
+            y = y[:, None]
+        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(r))):
+            raise ValueError(f"{name}: recorded signals contain NaN or inf")
+        return _Signals(np.asarray(t, float), r, np.asarray(u, float), y)
+
+
+def _read_hysteresis(ctx: _Context, out: dict[str, Any]) -> None:
+    """Hysteresis (IV-A before, IV-C after) and the range-based cross-coupling (Table II before)."""
+    ranges = {}
+    for phase, system in (("before", "S0"), ("after", "SH")):
+        for i, a in enumerate(ctx.axes):
+            name = f"hyst_{system}_{a}"
+            r = ctx.signals(name)
+            if r is None:
+                continue
+            try:
+                period = ctx.by_name[name].params["period"]
+                res = M.hysteresis_ratio(r.reference[:, i], r.y[:, i], period_t=r.t, period=period, bins=ctx.bins)
+                out[phase]["hysteresis_percent"][a] = _pct(res.ratio)
+                last = M.last_period(r.t, period, r.y)[0]
+                ranges[(system, a)] = last
+                out["details"][name] = {"h_m": res.h, "H_m": res.H, "u_at_max_width": res.u_at_max,
+                                        "output_range_m": {b: float(np.ptp(last[:, j]))
+                                                           for j, b in enumerate(ctx.axes)},
+                                        "peak_voltage_V": float(np.abs(r.u).max())}
+            except ValueError as exc:  # one unreadable experiment must not lose the others
+                out["errors"][name] = str(exc)
+    for i, a in enumerate(ctx.axes):
+        for b in ctx.axes:
+            if b == a or ("S0", a) not in ranges or ("S0", b) not in ranges:
+                continue
+            direct = ranges[("S0", a)][:, i]
+            cross = ranges[("S0", b)][:, i]
+            dt = float(np.median(np.diff(np.asarray(ctx.recorded[f"hyst_S0_{a}"][0], float))))
+            n_avg = max(1, int(round(0.1 / dt))) if ctx.robust else 1  # 0.1 s moving average (1 % of a period)
+            out["before"]["cross_coupling_percent"][a] = _pct(M.cross_coupling_range_ratio(cross, direct, n_avg))
+
+
+def _read_creep(ctx: _Context, out: dict[str, Any]) -> None:
+    """Creep (V-A before, V-C after) and the static error of the S_L creep run."""
+    for phase, system in (("before", "SH"), ("after", "SL")):
+        for i, a in enumerate(ctx.axes):
+            name = f"creep_{system}_{a}"
+            r = ctx.signals(name)
+            if r is None:
+                continue
+            try:
+                t_step = ctx.by_name[name].params["t_step"]
+                cr = M.creep_ratio(r.t, r.y[:, i], t_step=t_step)
+                out[phase]["creep_percent"][a] = _pct(cr.ratio)
+                out["creep_over_Am_percent"][phase][a] = _pct(cr.ratio_over_Am)
+                cross_creep = {b: M.creep_ratio(r.t, r.y[:, j], t_step=t_step)
+                               for j, b in enumerate(ctx.axes) if b != a}
+                out["details"][name] = {"A_f_m": cr.A_f, "A_m_m": cr.A_m, "creep_time_s": float(r.t[-1] - t_step),
+                                        "cross_A_f_m": {b: c.A_f for b, c in cross_creep.items()},
+                                        "cross_A_m_m": {b: c.A_m for b, c in cross_creep.items()}}
+                if phase == "after":
+                    ref_final = float(r.reference[-1, i])
+                    out["static_error_percent"]["S_L"][a] = _pct(_rel(cr.A_m - ref_final, ref_final))
+            except ValueError as exc:  # one unreadable experiment must not lose the others
+                out["errors"][name] = str(exc)
+
+
+def _read_steps(ctx: _Context, out: dict[str, Any]) -> None:
+    """Overshoot (VI-A before, VI-C after), settling, static error, final-value cross-coupling (Table II after)."""
+    finals = {}
+    for phase, system in (("before", "SL"), ("after", "T")):
+        for i, a in enumerate(ctx.axes):
+            name = f"step_{system}_{a}"
+            r = ctx.signals(name)
+            if r is None:
+                continue
+            try:
+                t_step = ctx.by_name[name].params["t_step"]
+                ov = M.overshoot_ratio(r.t, r.y[:, i], t_step=t_step, lowpass_hz=ctx.lowpass)
+                out[phase]["overshoot_percent"][a] = _pct(ov.ratio)
+                ts = M.settling_time(r.t, r.y[:, i], t_step=t_step, band=0.02)
+                out["settling_time_s"][phase][a] = None if not math.isfinite(ts) else ts
+                for j, b in enumerate(ctx.axes):
+                    finals[(system, b, a)] = M.overshoot_ratio(r.t, r.y[:, j], t_step=t_step).A_f
+                out["details"][name] = {"A_f_m": ov.A_f, "A_m_m": ov.A_m, "t_peak_s": ov.t_peak,
+                                        "settling_time_2pct_s": out["settling_time_s"][phase][a],
+                                        "final_values_m": {b: finals[(system, b, a)] for b in ctx.axes},
+                                        "peak_voltage_V": float(np.abs(r.u).max())}
+                if phase == "after":
+                    ref_final = float(r.reference[-1, i])
+                    out["static_error_percent"]["T"][a] = _pct(_rel(ov.A_f - ref_final, ref_final))
+            except ValueError as exc:  # one unreadable experiment must not lose the others
+                out["errors"][name] = str(exc)
+    for a in ctx.axes:
+        for b in ctx.axes:
+            if b != a and ("T", a, a) in finals and ("T", a, b) in finals:
+                out["after"]["cross_coupling_percent"][a] = _pct(
+                    M.cross_coupling_final_ratio(finals[("T", a, b)], finals[("T", a, a)]))
+
+
+def _read_tracking(ctx: _Context, out: dict[str, Any], exps: Sequence[Experiment],
+                   reference_model_tau: float | None) -> None:
+    """Circle tracking (VII-B), and against the reference filtered by Wr when ``reference_model_tau`` is given."""
+    for e in exps:
+        if e.metric != "tracking":
+            continue
+        r = ctx.signals(e.name)
+        if r is None:
+            continue
+        try:
+            mask = r.t >= e.params.get("skip", 0.0) - 1e-12
+            te = M.tracking_errors(r.reference, r.y, mask=mask)
+            radius = float(e.params.get("radius", np.nan))
+            out["tracking"][e.name] = {
+                "system": e.system, "radius_m": radius, "rms_error_m": te.rms_norm, "max_error_m": te.max_norm,
+                "rms_error_percent": _pct(te.rms_norm / radius), "max_error_percent": _pct(te.max_norm / radius),
+                "rms_error_per_axis_m": dict(zip(ctx.axes, te.rms)),
+                "max_error_per_axis_m": dict(zip(ctx.axes, te.max)),
+                "peak_voltage_V": float(np.abs(r.u).max())}
+            if reference_model_tau:
+                rw = _first_order_zoh(r.t, r.reference, float(reference_model_tau))
+                tw = M.tracking_errors(rw, r.y, mask=mask)
+                out["tracking"][e.name].update({"rms_error_vs_Wr_m": tw.rms_norm, "max_error_vs_Wr_m": tw.max_norm})
+        except ValueError as exc:  # one unreadable experiment must not lose the others
+            out["errors"][e.name] = str(exc)
+
+
 def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Experiment] | None = None,
              design: Any = None, robust: bool = False, conditions: Mapping[str, Any] | None = None,
-             reference_model_tau: float | None = None) -> dict[str, Any]:
+             reference_model_tau: float | None = None) -> ReproduceResult:
     """Compute the paper's tables from recorded signals.
 
     Parameters
@@ -114,8 +320,8 @@ def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Expe
 
     Returns
     -------
-    dict
-        See the module docstring.
+    ReproduceResult
+        See the module docstring; ``to_json()`` has its keys.
     """
     exps = experiments if experiments is not None else paper_experiments()
     by_name = {e.name: e for e in exps}
@@ -123,8 +329,6 @@ def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Expe
     if unknown:
         raise ValueError(f"unknown experiment names {sorted(unknown)}; expected some of {sorted(by_name)}")
     axes = _axis_names(recorded, exps)
-    bins = 200 if robust else None
-    lowpass = 3000.0 if robust else None
     out: dict[str, Any] = {"before": {k: {a: None for a in axes} for k in KEYS},
            "after": {k: {a: None for a in axes} for k in KEYS},
            "hinf": _hinf_section(design), "paper": PAPER, "independent": INDEPENDENT, "tracking": {},
@@ -133,125 +337,12 @@ def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Expe
            "creep_over_Am_percent": {"before": {a: None for a in axes}, "after": {a: None for a in axes}},
            "details": {}, "errors": {}, "conditions": dict(conditions or {}), "robust_readings": bool(robust)}
 
-    def rec(name: str) -> _Signals | None:
-        if name not in recorded:
-            return None
-        t, r, u, y = recorded[name]
-        r = np.asarray(r, float)
-        y = np.asarray(y, float)
-        if r.ndim == 1:
-            r = r[:, None]
-        if y.ndim == 1:
-            y = y[:, None]
-        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(r))):
-            raise ValueError(f"{name}: recorded signals contain NaN or inf")
-        return _Signals(np.asarray(t, float), r, np.asarray(u, float), y)
-
-    # hysteresis (IV-A before, IV-C after) and the range-based cross-coupling (Table II before)
-    ranges = {}
-    for phase, system in (("before", "S0"), ("after", "SH")):
-        for i, a in enumerate(axes):
-            name = f"hyst_{system}_{a}"
-            r = rec(name)
-            if r is None:
-                continue
-            try:
-                period = by_name[name].params["period"]
-                res = M.hysteresis_ratio(r.reference[:, i], r.y[:, i], period_t=r.t, period=period, bins=bins)
-                out[phase]["hysteresis_percent"][a] = _pct(res["ratio"])
-                last = M.last_period(r.t, period, r.y)[0]
-                ranges[(system, a)] = last
-                out["details"][name] = {"h_m": res["h"], "H_m": res["H"], "u_at_max_width": res["u_at_max"],
-                                        "output_range_m": {b: float(np.ptp(last[:, j])) for j, b in enumerate(axes)},
-                                        "peak_voltage_V": float(np.abs(r.u).max())}
-            except ValueError as exc:  # one unreadable experiment must not lose the others
-                out["errors"][name] = str(exc)
-    for i, a in enumerate(axes):
-        for b in axes:
-            if b == a or ("S0", a) not in ranges or ("S0", b) not in ranges:
-                continue
-            direct = ranges[("S0", a)][:, i]
-            cross = ranges[("S0", b)][:, i]
-            dt = float(np.median(np.diff(np.asarray(recorded[f"hyst_S0_{a}"][0], float))))
-            n_avg = max(1, int(round(0.1 / dt))) if robust else 1  # 0.1 s moving average (1 % of a period)
-            out["before"]["cross_coupling_percent"][a] = _pct(M.cross_coupling_range_ratio(cross, direct, n_avg))
-
-    # creep (V-A before, V-C after)
-    for phase, system in (("before", "SH"), ("after", "SL")):
-        for i, a in enumerate(axes):
-            name = f"creep_{system}_{a}"
-            r = rec(name)
-            if r is None:
-                continue
-            try:
-                t_step = by_name[name].params["t_step"]
-                res = M.creep_ratio(r.t, r.y[:, i], t_step=t_step)
-                out[phase]["creep_percent"][a] = _pct(res["ratio"])
-                out["creep_over_Am_percent"][phase][a] = _pct(res["ratio_over_Am"])
-                cross_creep = {b: M.creep_ratio(r.t, r.y[:, j], t_step=t_step) for j, b in enumerate(axes) if b != a}
-                out["details"][name] = {"A_f_m": res["A_f"], "A_m_m": res["A_m"], "creep_time_s": float(r.t[-1] - t_step),
-                                        "cross_A_f_m": {b: c["A_f"] for b, c in cross_creep.items()},
-                                        "cross_A_m_m": {b: c["A_m"] for b, c in cross_creep.items()}}
-                if phase == "after":
-                    ref_final = float(r.reference[-1, i])
-                    out["static_error_percent"]["S_L"][a] = _pct(_rel(res["A_m"] - ref_final, ref_final))
-            except ValueError as exc:  # one unreadable experiment must not lose the others
-                out["errors"][name] = str(exc)
-
-    # overshoot (VI-A before, VI-C after), settling, static error, final-value cross-coupling (Table II after)
-    finals = {}
-    for phase, system in (("before", "SL"), ("after", "T")):
-        for i, a in enumerate(axes):
-            name = f"step_{system}_{a}"
-            r = rec(name)
-            if r is None:
-                continue
-            try:
-                t_step = by_name[name].params["t_step"]
-                res = M.overshoot_ratio(r.t, r.y[:, i], t_step=t_step, lowpass_hz=lowpass)
-                out[phase]["overshoot_percent"][a] = _pct(res["ratio"])
-                ts = M.settling_time(r.t, r.y[:, i], t_step=t_step, band=0.02)
-                out["settling_time_s"][phase][a] = None if not math.isfinite(ts) else ts
-                for j, b in enumerate(axes):
-                    finals[(system, b, a)] = M.overshoot_ratio(r.t, r.y[:, j], t_step=t_step)["A_f"]
-                out["details"][name] = {"A_f_m": res["A_f"], "A_m_m": res["A_m"], "t_peak_s": res["t_peak"],
-                                        "settling_time_2pct_s": out["settling_time_s"][phase][a],
-                                        "final_values_m": {b: finals[(system, b, a)] for b in axes},
-                                        "peak_voltage_V": float(np.abs(r.u).max())}
-                if phase == "after":
-                    ref_final = float(r.reference[-1, i])
-                    out["static_error_percent"]["T"][a] = _pct(_rel(res["A_f"] - ref_final, ref_final))
-            except ValueError as exc:  # one unreadable experiment must not lose the others
-                out["errors"][name] = str(exc)
-    for a in axes:
-        for b in axes:
-            if b != a and ("T", a, a) in finals and ("T", a, b) in finals:
-                out["after"]["cross_coupling_percent"][a] = _pct(
-                    M.cross_coupling_final_ratio(finals[("T", a, b)], finals[("T", a, a)]))
-
-    # tracking (VII-B)
-    for e in exps:
-        if e.metric != "tracking":
-            continue
-        r = rec(e.name)
-        if r is None:
-            continue
-        try:
-            mask = r.t >= e.params.get("skip", 0.0) - 1e-12
-            te = M.tracking_errors(r.reference, r.y, mask=mask)
-            radius = float(e.params.get("radius", np.nan))
-            out["tracking"][e.name] = {
-                "system": e.system, "radius_m": radius, "rms_error_m": te["rms_norm"], "max_error_m": te["max_norm"],
-                "rms_error_percent": _pct(te["rms_norm"] / radius), "max_error_percent": _pct(te["max_norm"] / radius),
-                "rms_error_per_axis_m": dict(zip(axes, te["rms"])), "max_error_per_axis_m": dict(zip(axes, te["max"])),
-                "peak_voltage_V": float(np.abs(r.u).max())}
-            if reference_model_tau:
-                rw = _first_order_zoh(r.t, r.reference, float(reference_model_tau))
-                tw = M.tracking_errors(rw, r.y, mask=mask)
-                out["tracking"][e.name].update({"rms_error_vs_Wr_m": tw["rms_norm"], "max_error_vs_Wr_m": tw["max_norm"]})
-        except ValueError as exc:  # one unreadable experiment must not lose the others
-            out["errors"][e.name] = str(exc)
-    return out
+    ctx = _Context(recorded, by_name, axes, bool(robust))
+    _read_hysteresis(ctx, out)
+    _read_creep(ctx, out)
+    _read_steps(ctx, out)
+    _read_tracking(ctx, out, exps, reference_model_tau)
+    return ReproduceResult(**out)
 
 
 def _rel(num: float, den: float) -> float | None:
@@ -310,7 +401,7 @@ def truth_plant(cfg: PiezoConfig, truth: str = "nominal", noise_std: float = 0.0
 def reproduce(cfg: PiezoConfig, design: Any = None, truth: str = "nominal", noise_std: float = 0.0,
               creep_duration: float = 600.0, experiments: list[Experiment] | None = None,
               progress: Callable[[str], None] | None = None, robust: bool | None = None,
-              amplifier: str = "ideal") -> tuple[dict[str, Any], dict[str, Recorded]]:
+              amplifier: str = "ideal") -> tuple[ReproduceResult, dict[str, Recorded]]:
     """Simulate the paper's experiments on a truth plant and evaluate them: ``(result, recorded)``.
 
     ``robust`` defaults to True when there is sensor noise (see :func:`evaluate`).  ``amplifier``: ``'ideal'``
@@ -342,8 +433,26 @@ def _f(v: float | None, width: int = 8, digits: int = 2) -> str:
     return f"{'—':>{width}}" if v is None else f"{v:{width}.{digits}f}"
 
 
-def format_tables(result: Mapping[str, Any], label: str = "this run", axes: Sequence[str] = ("x", "y")) -> str:
-    """Table I and Table II side by side with the paper's (and the independent reading's) figures."""
+def format_tables(result: ReproduceResult | Mapping[str, Any], label: str = "this run",
+                  axes: Sequence[str] = ("x", "y")) -> str:
+    """Table I and Table II side by side with the paper's (and the independent reading's) figures.
+
+    Parameters
+    ----------
+    result : ReproduceResult or mapping
+        From :func:`evaluate`, or its JSON (as ``reproduce --json`` / ``analyze --json`` write it).
+    label : str
+        Name of this result's rows.
+    axes : sequence of str
+        Axes to list.
+
+    Returns
+    -------
+    str
+        The tables, one line per axis and source.
+    """
+    if isinstance(result, ReproduceResult):
+        result = result.to_json()
     P, I = result.get("paper", PAPER), result.get("independent", INDEPENDENT)
     lines = []
     cond = result.get("conditions", {})

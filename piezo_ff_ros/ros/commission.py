@@ -14,14 +14,16 @@ Everything goes through the topics into ``DIR/commission.mcap``.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import sys
 import time
 from pathlib import Path
+from typing import Callable
 
 
-def run_graph(args, say) -> int:
+def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     """The ROS path of ``piezo-ff commission`` (``args`` from :mod:`piezo_ff_ros.cli.commission`)."""
     from .env import apply_ros_env_defaults
 
@@ -57,6 +59,7 @@ def run_graph(args, say) -> int:
             raise ValueError(f"--only: unknown experiment(s) {sorted(unknown)}; have {[e.name for e in exps]}")
         exps = [e for e in exps if e.name in wanted]
 
+    client: GraphClient | None
     client = GraphClient("piezo_ff_commission", domain_id=int(os.environ["ROS_DOMAIN_ID"]))
     found = driver_present(client, timeout=args.probe_timeout)
     if found:
@@ -115,13 +118,13 @@ def run_graph(args, say) -> int:
         print(f"warning: node exit codes {bad} (logs in {graph.log_dir})", file=sys.stderr)
 
     report = result.report
-    timing = {**report["timing_s"], **timing, "total": time.perf_counter() - t_start}
-    out_json = {"fit_percent": report["fit_percent"],
+    timing = {**report.timing_s, **timing, "total": time.perf_counter() - t_start}
+    out_json = {"fit_percent": report.fit_percent,
                 "plant_fit_basis": "measured output (recorded through the graph)",
-                "plant_fit_parts": report.get("plant_fit_parts"),
-                "orders": report["orders"],
-                "before": res["before"], "after": res["after"], "hinf": res.get("hinf"),
-                "tracking": res.get("tracking"), "static_error_percent": res.get("static_error_percent"),
+                "plant_fit_parts": report.plant_fit_parts,
+                "orders": report.orders,
+                "before": res.before, "after": res.after, "hinf": res.hinf,
+                "tracking": res.tracking, "static_error_percent": res.static_error_percent,
                 "conditions": {"graph": "started sim graph" if not found else "existing driver",
                                "ros_domain_id": int(os.environ["ROS_DOMAIN_ID"]),
                                "creep_duration_s": args.creep_duration,
@@ -134,7 +137,7 @@ def run_graph(args, say) -> int:
     print(format_tables(res, label="identified cascade (ROS graph)", axes=axes))
     print()
     print("held-out fit [%] (MATLAB compare):")
-    for stage, d in report["fit_percent"].items():
+    for stage, d in report.fit_percent.items():
         print(f"  {stage:10s} " + "  ".join(f"{k}: {'—' if v is None else f'{v:8.3f}'}" for k, v in d.items()))
     text = json.dumps(jsonable(out_json), indent=2)
     (out / "commission.json").write_text(text)

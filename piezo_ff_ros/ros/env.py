@@ -12,7 +12,7 @@ import fcntl
 import os
 import tempfile
 from pathlib import Path
-from typing import IO
+from typing import IO, MutableMapping
 
 #: the domains this process claimed (their lock files stay open, i.e. held, until it exits)
 _HELD: list[IO[str]] = []
@@ -44,9 +44,11 @@ def claim_ros_domain(first: int = 1, last: int = 100) -> tuple[int, IO[str]]:
                        "demos)")
 
 
-def apply_ros_env_defaults(domain_id: int | None = None, env: dict | None = None, force_domain: bool = False) -> dict:
+def apply_ros_env_defaults(domain_id: int | None = None, env: MutableMapping[str, str] | None = None,
+                           force_domain: bool = False) -> MutableMapping[str, str]:
     """Set the defaults in ``env`` (default ``os.environ``) where unset; returns that mapping."""
-    env = os.environ if env is None else env
+    if env is None:
+        env = os.environ
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # mandatory here, never left to the default
     if force_domain or "ROS_DOMAIN_ID" not in env:
         if domain_id is None:   # a free one, held for this process's lifetime (no other run of ours lands on it)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence, TypeVar
 
 import numpy as np
 
@@ -21,6 +21,12 @@ from ..core.config import PiezoConfig
 from ..core.param_map import config_to_params
 from ..core.recording.run import RunData
 from .graph_session import GraphClient, displacement_present
+
+if TYPE_CHECKING:
+    from ..core.experiments import Experiment, Recorded
+    from .launcher import GraphLauncher
+
+_T = TypeVar("_T")
 
 #: which flat parameters each stage's switch needs pushed with it
 _STAGE_PARAMS = {"hysteresis": ("hysteresis.",), "creep": ("creep.",), "vibration": ("dynamics.", "vibration.")}
@@ -45,7 +51,7 @@ class GraphRig(RigLimits):
         Progress lines.
     """
 
-    def __init__(self, client: GraphClient, graph, mcap_path: Path, sample_rate: float, axes: Sequence[str],
+    def __init__(self, client: GraphClient, graph: GraphLauncher | None, mcap_path: Path, sample_rate: float, axes: Sequence[str],
                  voltage_limit: float, slew_limit: float, say: Callable[[str], None] = lambda m: None) -> None:
         self.client = client
         self.graph = graph
@@ -78,13 +84,13 @@ class GraphRig(RigLimits):
             # a signal with no graph type travels as a .npy table beside the recording: played sample-exactly
             traj = from_rest(r.name, graph_playable(r.trajectory, fs, self.mcap_path.parent / "tables"), fs,
                              FROM_REST_S)
-            played[r.name] = traj.n_samples(fs)
+            played[r.name] = int(traj.n_samples(fs))
             dt = self.client.play(r.name, traj, {**(meta or {}), "role": r.role})
             self.say(f"  {r.name}: {traj.n_samples(fs) / fs:.1f} s of signal in {dt:.1f} s")
         return self._wait_segments(played)
 
-    def run_experiments(self, cfg: PiezoConfig, design: object, experiments: Sequence[object],
-                        progress: Callable[[str], None]) -> dict[str, tuple]:
+    def run_experiments(self, cfg: PiezoConfig, design: object, experiments: Sequence[Experiment],
+                        progress: Callable[[str], None]) -> dict[str, Recorded]:
         from ..core.analysis import segment_signals
 
         fs = self.sample_rate
@@ -101,7 +107,7 @@ class GraphRig(RigLimits):
         # displacement answering the last voltage block after the trajectory has finished)
         need = {e.name: e.trajectory.n_samples(fs) for e in experiments}
 
-        def complete(got) -> bool:
+        def complete(got: tuple[dict[str, Any], list[str]]) -> bool:
             return all(n in got[0] and len(got[0][n][0]) >= need[n]
                        and not any(np.isnan(np.asarray(x)).any() for x in got[0][n]) for n in names)
 
@@ -109,7 +115,8 @@ class GraphRig(RigLimits):
                                    lambda got: f"missing {[n for n in names if n not in got[0]]} ({got[1]})")
         return rec
 
-    def _poll(self, extract, complete, describe, timeout: float = 120.0):
+    def _poll(self, extract: Callable[[RunData], _T], complete: Callable[[_T], bool], describe: Callable[[_T], str],
+              timeout: float = 120.0) -> _T:
         """Read the recording until ``complete(extract(run))`` (the recorder writes it as blocks arrive)."""
         from ..core.recording.mcap_io import read_run
 
@@ -133,8 +140,10 @@ class GraphRig(RigLimits):
 
     def _wait_segments(self, wanted: Mapping[str, int]) -> dict[str, RunData]:
         """``{name: RunData}`` for the played runs (``wanted[name]`` samples each) once they are fully on disk."""
-        def extract(run) -> dict[str, RunData]:
-            out = {}
+        def extract(run: RunData) -> dict[str, RunData]:
+            out: dict[str, RunData] = {}
+            if run.reference is None:   # not (yet) a recording of the trajectory node: keep waiting
+                return out
             for seg in run.meta.get("segments", []):
                 name = seg["name"]
                 if name not in wanted or name in out:

@@ -17,19 +17,26 @@ import math
 import os
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
+
+if TYPE_CHECKING:
+    from ..core.trajectories import Trajectory
+    from .launcher import GraphLauncher
 
 STAGE_ORDER = ("vibration", "creep", "hysteresis")
 BLOCK_TOPICS = ("/reference", "/voltage", "/displacement")
 
 
-def stage_string(stages) -> str:
+def stage_string(stages: Iterable[str]) -> str:
     """The compensator's diagnostics spelling of a stage set (e.g. ``'creep,hysteresis'``)."""
     return ",".join(k for k in STAGE_ORDER if k in set(stages))
 
 
 def sim_graph(out_dir: Path, mcap_path: Path, *, fs: float, voltage_limit: float, slew_limit: float,
-              block_size: int = 2000, window: int = 4, config=None, variant=None, metadata: dict | None = None,
-              nodes=("driver", "compensator", "trajectory", "recorder"), env=None, clocked: float | None = None):
+              block_size: int = 2000, window: int = 4, config: str | Path | None = None, variant: str | None = None,
+              metadata: dict[str, Any] | None = None,
+              nodes: Iterable[str] = ("driver", "compensator", "trajectory", "recorder"),
+              env: Mapping[str, str] | None = None, clocked: float | None = None) -> GraphLauncher:
     """A launcher for the sim graph recording to ``mcap_path`` (not started).
 
     The trajectory node always runs in lockstep (window flow control: lossless).  The simulated device is lockstep
@@ -92,7 +99,7 @@ def _clocked_driver_args(scale: float | None, fs: float, block_size: int, window
 class GraphClient:
     """The command's own rclpy node (own context): services, trajectory state, diagnostics, recorder status."""
 
-    def __init__(self, name: str = "piezo_ff_client", domain_id: int | None = None):
+    def __init__(self, name: str = "piezo_ff_client", domain_id: int | None = None) -> None:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from rcl_interfaces.srv import SetParametersAtomically
@@ -104,15 +111,17 @@ class GraphClient:
 
         self.rclpy = rclpy
         self.context = rclpy.Context()
-        kw = {} if domain_id is None else {"domain_id": int(domain_id)}
-        rclpy.init(context=self.context, **kw)
+        if domain_id is None:
+            rclpy.init(context=self.context)
+        else:
+            rclpy.init(context=self.context, domain_id=int(domain_id))
         self.node = rclpy.create_node(name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self.states: list[dict] = []
-        self.comp_diag: dict = {}
-        self.hinf: dict | None = None    # γ/orders of the compensator's H∞ design, from its diagnostics
-        self.recorder: dict = {}
+        self.states: list[dict[str, Any]] = []
+        self.comp_diag: dict[str, Any] = {}
+        self.hinf: dict[str, Any] | None = None    # γ/orders of the compensator's H∞ design, from its diagnostics
+        self.recorder: dict[str, Any] = {}
         self.node.create_subscription(String, "/trajectory/state", lambda m: self.states.append(json.loads(m.data)),
                                       LATCHED_QOS)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 50)
@@ -120,17 +129,17 @@ class GraphClient:
                                       LATCHED_QOS)
         from rcl_interfaces.srv import GetParameters
 
-        self.set_comp = self.node.create_client(SetParametersAtomically, "/compensator/set_parameters_atomically")
-        self.get_comp = self.node.create_client(GetParameters, "/compensator/get_parameters")
+        self.set_comp: Any = self.node.create_client(SetParametersAtomically, "/compensator/set_parameters_atomically")
+        self.get_comp: Any = self.node.create_client(GetParameters, "/compensator/get_parameters")
         self.GetParameters = GetParameters
-        self.set_traj = self.node.create_client(SetParametersAtomically, "/trajectory/set_parameters_atomically")
-        self.reset_comp = self.node.create_client(Trigger, "/compensator/reset")
-        self.reset_drv = self.node.create_client(Trigger, "/driver/reset")
-        self.start = self.node.create_client(Trigger, "/trajectory/start")
+        self.set_traj: Any = self.node.create_client(SetParametersAtomically, "/trajectory/set_parameters_atomically")
+        self.reset_comp: Any = self.node.create_client(Trigger, "/compensator/reset")
+        self.reset_drv: Any = self.node.create_client(Trigger, "/driver/reset")
+        self.start: Any = self.node.create_client(Trigger, "/trajectory/start")
         self.Trigger = Trigger
         self.SetAtomic = SetParametersAtomically
 
-    def _on_diag(self, msg):
+    def _on_diag(self, msg: Any) -> None:
         for st in msg.status:
             if st.name.endswith("compensator"):
                 self.comp_diag = {kv.key: kv.value for kv in st.values}
@@ -139,26 +148,31 @@ class GraphClient:
                     self.hinf = json.loads(self.comp_diag["hinf"])
 
     # -- plumbing --------------------------------------------------------------------------------------------------
-    def spin_until(self, cond, timeout, what):
+    def spin_until(self, cond: Callable[[], object], timeout: float, what: str) -> None:
+        """Spin until ``cond()`` is true; RuntimeError naming ``what`` after ``timeout`` seconds."""
         deadline = time.monotonic() + timeout
         while not cond():
             if time.monotonic() > deadline:
                 raise RuntimeError(f"timed out after {timeout:g} s waiting for {what}")
             self.executor.spin_once(timeout_sec=0.02)
 
-    def spin_for(self, seconds: float):
+    def spin_for(self, seconds: float) -> None:
+        """Spin the client's executor for ``seconds``."""
         deadline = time.monotonic() + seconds
         while time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=0.02)
 
-    def call(self, client, request, timeout=30.0):
+    def call(self, client: Any, request: Any, timeout: float = 30.0) -> Any:
+        """Call a service and wait for its reply (RuntimeError when unavailable or too slow)."""
         if not client.wait_for_service(timeout_sec=timeout):
             raise RuntimeError(f"service {client.srv_name} not available")
         fut = client.call_async(request)
         self.spin_until(fut.done, timeout, f"reply of {client.srv_name}")
         return fut.result()
 
-    def set_params(self, client, values: dict):
+    def set_params(self, client: Any, values: Mapping[str, Any]) -> None:
+        """Set parameters atomically through ``client`` (a ``set_parameters_atomically`` client); RuntimeError if
+        the node rejects them."""
         from rclpy.parameter import Parameter
 
         req = self.SetAtomic.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
@@ -166,7 +180,7 @@ class GraphClient:
         if not res.successful:
             raise RuntimeError(f"{client.srv_name} rejected {sorted(values)[:6]}…: {res.reason}")
 
-    def changed_params(self, values: dict) -> dict:
+    def changed_params(self, values: Mapping[str, Any]) -> dict[str, Any]:
         """The entries of ``values`` that differ from the compensator's current parameters (a push of values that
         already run creates no configuration version, so nothing would be waited for)."""
         from rclpy.parameter import parameter_value_to_python
@@ -175,33 +189,36 @@ class GraphClient:
         if not names:
             return {}
         res = self.call(self.get_comp, self.GetParameters.Request(names=names))
-        out = {}
+        out: dict[str, Any] = {}
         for name, pv in zip(names, res.values):
             if not _same_value(parameter_value_to_python(pv), values[name]):
                 out[name] = values[name]
         return out
 
-    def trigger(self, client):
+    def trigger(self, client: Any) -> None:
+        """Call a ``Trigger`` service; RuntimeError with its message when it reports failure."""
         res = self.call(client, self.Trigger.Request())
         if not res.success:
             raise RuntimeError(f"{client.srv_name}: {res.message}")
 
-    def node_names(self) -> set:
+    def node_names(self) -> set[str]:
+        """Fully qualified names of the nodes on the domain."""
         return {(ns.rstrip("/") + "/" + n) for n, ns in self.node.get_node_names_and_namespaces()}
 
-    def close(self):
+    def close(self) -> None:
+        """Destroy the client node and shut its context down."""
         self.executor.shutdown()
         self.node.destroy_node()
         self.rclpy.try_shutdown(context=self.context)
 
     # -- graph operations ------------------------------------------------------------------------------------------
-    def wait_recorder_connected(self, timeout=120.0):
+    def wait_recorder_connected(self, timeout: float = 120.0) -> None:
         """The recorder must be connected to every block publisher before the first sample is sent."""
         self.spin_until(lambda: all(self.recorder.get("publishers", {}).get(t, 0) >= 1 for t in BLOCK_TOPICS),
                         timeout, "the recorder to connect to the block topics")
 
-    def configure(self, stages=(), bypass: bool = False, params: dict | None = None, timeout: float = 900.0,
-                  say=lambda m: None) -> bool:
+    def configure(self, stages: Iterable[str] = (), bypass: bool = False, params: Mapping[str, Any] | None = None,
+                  timeout: float = 900.0, say: Callable[[str], None] = lambda m: None) -> bool:
         """Push ``params`` (flat config parameters) and the stage switches atomically; wait until they run.
 
         ``bypass``: reference blocks are voltages, forwarded unchanged (S0).  Returns False when the compensator
@@ -219,7 +236,7 @@ class GraphClient:
         if "vibration" in stages and self.comp_diag.get("stages") != stage_str:
             say("  (the compensator builds the vibration compensator in the background …)")
 
-        def done():
+        def done() -> bool:
             d = self.comp_diag
             if d.get("failed_builds", "0") != failed_before:
                 return True
@@ -229,7 +246,7 @@ class GraphClient:
         self.spin_until(done, timeout, f"compensator configuration {stage_str or 'none'}")
         return self.comp_diag.get("stages") == stage_str and self.comp_diag.get("failed_builds", "0") == failed_before
 
-    def play(self, name: str, trajectory, meta: dict, timeout: float = 3600.0) -> float:
+    def play(self, name: str, trajectory: Trajectory, meta: Mapping[str, Any], timeout: float = 3600.0) -> float:
         """Reset driver and compensator to rest, play ``trajectory`` as segment ``name``; returns the wall time."""
         from ..core.trajectories import Sequence
 
@@ -249,7 +266,7 @@ class GraphClient:
         return time.perf_counter() - t0
 
 
-def _same_value(a, b) -> bool:
+def _same_value(a: Any, b: Any) -> bool:
     """Parameter values equal as the compensator compares them (arrays element-wise, ints as floats)."""
     if isinstance(a, (list, tuple)) or isinstance(b, (list, tuple)) or hasattr(a, "tolist"):
         a = list(a.tolist() if hasattr(a, "tolist") else a)

@@ -19,6 +19,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Mapping, Sequence
 
 from .env import apply_ros_env_defaults
 
@@ -31,7 +32,7 @@ STOP_ORDER = ("trajectory", "compensator", "driver", "recorder")
 class NodeProcess:
     """One node subprocess with its log file."""
 
-    def __init__(self, name: str, args: list[str], env: dict, log_dir: Path):
+    def __init__(self, name: str, args: list[str], env: Mapping[str, str], log_dir: Path) -> None:
         self.name = name
         self.log_path = log_dir / f"{name}.log"
         self._log = open(self.log_path, "wb")
@@ -43,6 +44,7 @@ class NodeProcess:
                                      env=env, stdout=self._log, stderr=subprocess.STDOUT)
 
     def log(self) -> str:
+        """The node's output so far (empty if unreadable)."""
         try:
             return self.log_path.read_text(errors="replace")
         except OSError:
@@ -50,9 +52,11 @@ class NodeProcess:
 
     @property
     def ready(self) -> bool:
+        """The node has logged its ready marker."""
         return READY_MARKERS.get(self.name, "ready") in self.log()
 
     def stop(self, timeout: float = 10.0) -> int:
+        """SIGINT, then terminate/kill if it does not exit within ``timeout`` s; returns the exit code."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGINT)
             try:
@@ -82,7 +86,8 @@ class GraphLauncher:
         ROS_DOMAIN_ID for the graph (default: the caller's, else derived from the PID).
     """
 
-    def __init__(self, node_args: dict, log_dir=None, domain_id: int | None = None, env: dict | None = None):
+    def __init__(self, node_args: Mapping[str, Sequence[str]], log_dir: str | Path | None = None,
+                 domain_id: int | None = None, env: Mapping[str, str] | None = None) -> None:
         self.env = apply_ros_env_defaults(domain_id=domain_id, env=dict(os.environ if env is None else env),
                                           force_domain=domain_id is not None)
         self.node_args = {n: list(a) for n, a in node_args.items()}
@@ -111,32 +116,33 @@ class GraphLauncher:
             time.sleep(0.1)
 
     def check_alive(self) -> None:
+        """RuntimeError (with the node's log tail) if a started node has exited."""
         for name, p in self.procs.items():
             if p.proc.poll() is not None:
                 raise RuntimeError(f"node {name} exited with code {p.proc.returncode}:\n{_tail(p.log())}")
 
-    def stop(self, timeout: float = 15.0) -> dict:
+    def stop(self, timeout: float = 15.0) -> dict[str, int]:
         """SIGINT in :data:`STOP_ORDER`; returns ``{node: exit code}``."""
-        codes = {}
+        codes: dict[str, int] = {}
         for name in STOP_ORDER:
             if name in self.procs:
                 codes[name] = self.procs[name].stop(timeout)
         return codes
 
-    def __enter__(self):
+    def __enter__(self) -> GraphLauncher:
         self.start()
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         self.stop()
-        return False
 
 
 def _tail(text: str, n: int = 15) -> str:
     return "\n".join(text.strip().splitlines()[-n:])
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m piezo_ff_ros.ros.launcher``: start the graph, run until ``--duration`` or Ctrl-C, stop it."""
     ap = argparse.ArgumentParser(prog="python -m piezo_ff_ros.ros.launcher", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=".", help="directory for run.mcap and the node logs")
     ap.add_argument("--mode", choices=("realtime", "lockstep"), default="realtime")

@@ -28,6 +28,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..config import BoucWenConfig
+from ..jsonable import JsonResult
 from ..models.bouc_wen import BoucWenModel
 from ..recording.run import RunData
 from .metrics import fit_percent
@@ -35,11 +36,27 @@ from .metrics import fit_percent
 __all__ = ["BoucWenFit", "identify_bouc_wen", "simulate_bouc_wen"]
 
 
-@dataclass
-class BoucWenFit:
-    """Result: the config (SI), the output offset, fits per output on fitted and held-out data, optimiser info."""
+@dataclass(frozen=True)
+class BoucWenFit(JsonResult):
+    """An identified Bouc-Wen model.
 
-    config: BoucWenConfig
+    Attributes
+    ----------
+    config : BoucWenConfig
+        The identified parameters (SI).
+    offset : array [n]
+        Output offset [m].
+    fit_train, fit_validation : array [n] or None
+        Fit [%] per output on the fitted and the held-out records (None: no held-out record).
+    generalized : bool
+        The asymmetric (generalized) model was identified.
+    delay : int
+        Input delay [samples] the fit used.
+    info : dict
+        Optimiser facts (evaluations, cost, decimation, status).
+    """
+
+    config: BoucWenConfig = field(metadata={"json": False})
     offset: np.ndarray
     fit_train: np.ndarray
     fit_validation: np.ndarray | None
@@ -48,7 +65,18 @@ class BoucWenFit:
     info: dict = field(default_factory=dict)
 
     def simulate(self, u: np.ndarray) -> np.ndarray:
-        """Model output for a voltage record starting at rest (h = 0), offset included, delay not applied."""
+        """Model output for a voltage record starting at rest (h = 0), offset included, delay not applied.
+
+        Parameters
+        ----------
+        u : array [N, k]
+            Voltages [V].
+
+        Returns
+        -------
+        array [N, n]
+            Displacement [m].
+        """
         return simulate_bouc_wen(self.config, u) + self.offset
 
 

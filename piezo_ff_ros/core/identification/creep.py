@@ -26,6 +26,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..config import CreepConfig
+from ..jsonable import JsonResult
 from ..lti import FactoredTF, TFMatrix
 from ..recording.run import RunData
 from .metrics import fit_percent, greedy_order_search
@@ -34,9 +35,23 @@ from .modal import Structure, fit_row, simulate_row
 __all__ = ["CreepFit", "identify_creep", "step_events"]
 
 
-@dataclass
-class CreepFit:
-    config: CreepConfig
+@dataclass(frozen=True)
+class CreepFit(JsonResult):
+    """An identified creep model (K, Cr).
+
+    Attributes
+    ----------
+    config : CreepConfig
+        The identified model (SI).
+    orders : dict
+        Model order per entry.
+    fit_train, fit_validation : dict
+        Fit [%] per entry on the fitted and the held-out records (empty: no held-out record).
+    info : dict
+        Facts of the fit.
+    """
+
+    config: CreepConfig = field(metadata={"json": False})
     orders: dict
     fit_train: dict
     fit_validation: dict

@@ -24,6 +24,7 @@ import numpy as np
 import scipy.signal
 
 from ..config import DynamicsConfig
+from ..jsonable import JsonResult
 from ..lti import FactoredTF, TFMatrix
 from ..recording.run import RunData
 from .creep import step_events
@@ -33,9 +34,23 @@ from .modal import EntryModel, Structure, era_poles, fit_row, poles_to_theta, si
 __all__ = ["DynamicsFit", "identify_dynamics"]
 
 
-@dataclass
-class DynamicsFit:
-    config: DynamicsConfig
+@dataclass(frozen=True)
+class DynamicsFit(JsonResult):
+    """An identified G_L.
+
+    Attributes
+    ----------
+    config : DynamicsConfig
+        The identified model (SI).
+    orders : dict
+        Model order per entry.
+    fit_train, fit_validation : dict
+        Fit [%] per entry on the fitted and the held-out records (empty: no held-out record).
+    info : dict
+        Facts of the fit.
+    """
+
+    config: DynamicsConfig = field(metadata={"json": False})
     orders: dict
     fit_train: dict
     fit_validation: dict

@@ -10,22 +10,55 @@
 from __future__ import annotations
 
 import time
-from dataclasses import replace
-from typing import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
 from ..config import PiezoConfig, load_config
+from ..jsonable import JsonResult
 from ..recording.run import RunData
 from .bouc_wen import identify_bouc_wen
 from .creep import identify_creep
 from .dynamics import identify_dynamics
 
-__all__ = ["identify_all", "commission_sim", "split_runs", "build_config", "synthesize_for", "plant_fit"]
+if TYPE_CHECKING:
+    from ..commissioning import CommissionReport
+
+__all__ = ["identify_all", "commission_sim", "split_runs", "build_config", "synthesize_for", "plant_fit",
+           "IdentificationReport"]
 
 STAGES = ("hysteresis", "creep", "dynamics")
 #: ``meta['hysteresis_compensator']`` of S_L runs recorded through the Bouc-Wen refitted without creep
 REFIT_TAG = "refit_without_creep"
+
+
+@dataclass(frozen=True)
+class IdentificationReport(JsonResult):
+    """What :func:`identify_all` found besides the config; ``to_json()`` is ``piezo-ff identify --json``.
+
+    Attributes
+    ----------
+    fit_percent : dict
+        Held-out fit [%] per stage (hysteresis, creep, dynamics, and plant when scored) and axis/entry.
+    orders : dict
+        ``{creep, dynamics}``: the model order per entry.
+    timing_s : dict
+        Wall time [s] per step and ``total``.
+    hinf_note : str or None
+        Why ``vibration.gamma_max`` was raised (absent from the JSON when None).
+    hinf : dict or None
+        The H∞ design's facts (γ, orders …; absent from the JSON when not synthesised).
+    design : HinfDesign or None
+        The H∞ design itself (not in the JSON).
+    """
+
+    fit_percent: dict[str, dict[str, float | None]]
+    orders: dict[str, Any]
+    timing_s: dict[str, float]
+    hinf_note: str | None = field(default=None, metadata={"omit_none": True})
+    hinf: dict[str, Any] | None = field(default=None, metadata={"omit_none": True})
+    design: Any = field(default=None, metadata={"json": False})
 
 
 def split_runs(runs: Sequence[RunData]) -> dict:
@@ -90,7 +123,7 @@ def plant_fit(cfg: PiezoConfig, runs: Sequence[RunData], reference_outputs: Sequ
 
 def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, generalized: bool = False,
                  creep_order="auto", dynamics_order="auto", synthesize: bool = True,
-                 refine_hysteresis: bool | None = None, progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, dict]:
+                 refine_hysteresis: bool | None = None, progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, IdentificationReport]:
     """Identify every stage from tagged runs; returns the complete config and a report (held-out fits, timings).
 
     The H∞ compensator is synthesised from the identified G_L (``core.synthesis.hinf``) and stored in the config
@@ -130,28 +163,26 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
                            axes=axes, progress=say)
     timing["dynamics"] = time.perf_counter() - t0
     cfg = build_config(base, hf, cf, df, fs, axes)
-    report = {"fit_percent": fits_report(hf, cf, df, axes),
-              "orders": {"creep": cf.orders, "dynamics": df.orders}, "timing_s": timing}
+    fits = fits_report(hf, cf, df, axes)
     if groups["plant"]["validation"]:
         t0 = time.perf_counter()
         say("plant: held-out fit of the identified whole-plant model")
-        report["fit_percent"]["plant"] = plant_fit(cfg, groups["plant"]["validation"])
+        fits["plant"] = plant_fit(cfg, groups["plant"]["validation"])
         timing["plant_fit"] = time.perf_counter() - t0
+    design, note = None, None
     if synthesize and cfg.cascade.vibration:
         t0 = time.perf_counter()
         say("vibration: H∞ synthesis on the identified G_L")
         design, note = synthesize_for(cfg, say)
-        if note:
-            report["hinf_note"] = note
         vib = replace(cfg.vibration, controller=design.controller_matrices())
         if note:  # keep the config re-synthesisable with the same bound
             vib = replace(vib, gamma_max=1.05 * float(design.gamma))
         cfg = replace(cfg, vibration=vib).validate()
         timing["hinf"] = time.perf_counter() - t0
-        report["hinf"] = design.as_dict()
-        report["_design"] = design
     timing["total"] = sum(v for k, v in timing.items() if k != "total")
-    return cfg, report
+    return cfg, IdentificationReport(fit_percent=fits, orders={"creep": cf.orders, "dynamics": df.orders},
+                                     timing_s=timing, hinf_note=note or None,
+                                     hinf=design.as_dict() if design is not None else None, design=design)
 
 
 def synthesize_for(cfg: PiezoConfig, say=lambda s: None):
@@ -180,7 +211,7 @@ def synthesize_for(cfg: PiezoConfig, say=lambda s: None):
 def commission_sim(plant, fs: float, axes=("x", "y"), settings=None, base: PiezoConfig | None = None,
                    generalized: bool = False, creep_order="auto", dynamics_order="auto",
                    refine_hysteresis: bool = True,
-                   progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, dict, list]:
+                   progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, CommissionReport, list[RunData]]:
     """Characterise and identify stage by stage on a sim plant (``process``/``reset``), as in Fig. 3.
 
     The sequence of :func:`piezo_ff_ros.core.commissioning.commission` on a

@@ -144,7 +144,7 @@ def block_axes(msg) -> tuple[str, ...]:
     return tuple(str(_get(f, "name")) for f in fields)
 
 
-def _data_bytes(data) -> bytes | np.ndarray:
+def _data_bytes(data) -> bytes | bytearray | memoryview | np.ndarray:
     if isinstance(data, (bytes, bytearray, memoryview)):
         return data
     if isinstance(data, np.ndarray):
@@ -198,7 +198,7 @@ def decode_block(msg, axes: Sequence[str] | None = None) -> tuple[int, np.ndarra
         raise ValueError(f"block.data: {nbytes} bytes, expected row_step·height = {row_step * height}")
     table = np.frombuffer(data, dtype="<f8").reshape(width, point_step // 8)
     if axes is None:
-        axes = sorted(offsets, key=offsets.get)
+        axes = sorted(offsets, key=lambda name: offsets[name])
     try:
         cols = [offsets[a] // 8 for a in axes]
     except KeyError as exc:

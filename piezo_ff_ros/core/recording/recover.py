@@ -1,7 +1,7 @@
 """Rewrite a damaged MCAP file (a recorder killed with SIGKILL, a corrupt chunk, a file cut short) as a complete one.
 
 A killed writer leaves no summary section and no footer, which the ``mcap`` seeking reader and ``rosbags`` refuse.
-:func:`recover_mcap` reads every record that survives (:func:`~.mcap_io.iter_mcap_records`, which skips corrupt
+:func:`recover_mcap` reads every record that survives (:func:`~.mcap_scan.iter_mcap_records`, which skips corrupt
 chunks and stops where the file ends) and writes them again — header, schemas, channels with their metadata
 (QoS, type hash), messages with their times and sequence numbers, metadata records, attachments — with the
 ``mcap`` writer, which adds chunk and message indexes, statistics, the summary and the footer.  Nothing is
@@ -10,11 +10,13 @@ re-encoded: message payloads are copied byte for byte.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 __all__ = ["recover_mcap"]
 
 
-def recover_mcap(src, dst, *, compression: str = "zstd", chunk_size: int = 512 * 1024) -> dict:
+def recover_mcap(src: str | Path, dst: str | Path, *, compression: str = "zstd",
+                 chunk_size: int = 512 * 1024) -> dict[str, Any]:
     """Write the readable content of ``src`` to a new, complete MCAP file ``dst``.
 
     Parameters
@@ -42,7 +44,7 @@ def recover_mcap(src, dst, *, compression: str = "zstd", chunk_size: int = 512 *
     from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
     from mcap.writer import CompressionType, Writer
 
-    from .mcap_io import _new_loss, iter_mcap_records
+    from .mcap_scan import _new_loss, iter_mcap_records
 
     src, dst = Path(src), Path(dst)
     if not src.is_file():
@@ -98,14 +100,14 @@ def recover_mcap(src, dst, *, compression: str = "zstd", chunk_size: int = 512 *
             writer.add_attachment(create_time=att.create_time, log_time=att.log_time, name=att.name,
                                   media_type=att.media_type, data=att.data)
         for m in messages:
-            cid = channel_ids.get(m.channel_id)
-            if cid is None:
+            new_cid = channel_ids.get(m.channel_id)
+            if new_cid is None:
                 orphans += 1
                 continue
-            writer.add_message(channel_id=cid, log_time=m.log_time, data=m.data, publish_time=m.publish_time,
+            writer.add_message(channel_id=new_cid, log_time=m.log_time, data=m.data, publish_time=m.publish_time,
                                sequence=m.sequence)
             written += 1
-        writer.finish()
+        writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish carries no annotations
     loss["orphan_messages"] += orphans
     loss["messages_lost_by_topic"] = {
         (channels[cid].topic if cid in channels else f"channel {cid}"): k

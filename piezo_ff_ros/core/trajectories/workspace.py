@@ -1,0 +1,60 @@
+"""Peak values of a trajectory and the workspace check (:func:`check_workspace`)."""
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..config import ConfigError
+from .base import Trajectory
+from .sequence import Sequence
+
+__all__ = ["check_workspace", "peak"]
+
+
+def peak(traj: Trajectory, fs: float = 20000.0, max_samples: int = 4_000_000) -> tuple[float, ...]:
+    """``max |value|`` per axis: sampled exactly at ``fs`` when finite and at most ``max_samples`` long, else
+    :meth:`Trajectory.bound` (an upper bound)."""
+    n = traj.n_samples(fs)
+    if math.isinf(n) or n > max_samples:
+        return traj.bound()   # may be inf for a generator without a bound: then it cannot be checked
+    out = np.zeros(traj.n_axes)
+    for k0 in range(0, int(n), 200_000):
+        out = np.maximum(out, np.abs(traj.block(k0, min(200_000, int(n) - k0), fs)).max(axis=0))
+    return tuple(float(v) for v in out)
+
+
+def _in_volts(meta: Mapping[str, Any]) -> bool:
+    return meta.get("input") == "voltage" or meta.get("stage") in ("hysteresis", "plant")
+
+
+def check_workspace(traj: Trajectory, workspace_m: float, voltage_limit: float | None = None,
+                    prefix: str = "trajectory", fs: float = 20000.0) -> None:
+    """Refuse a trajectory that leaves ``±workspace_m`` on any axis (ConfigError naming the field).
+
+    Segments of a :class:`Sequence` whose meta says ``input: voltage`` (paper experiments on S0) or ``stage:
+    hysteresis|plant`` (the commissioning's characterisation of S0, played through a bypassed compensator) are in
+    volts and checked against ``±voltage_limit`` instead (skipped when it is None).
+    ``workspace_m <= 0`` disables the check.
+    """
+    if workspace_m <= 0:
+        return
+    if isinstance(traj, Sequence):
+        for i, (name, t, meta) in enumerate(traj.segments_):
+            limit = workspace_m
+            if _in_volts(meta):
+                if voltage_limit is None:
+                    continue
+                limit = voltage_limit
+            check_workspace(t, limit, None,
+                            prefix=f"{prefix}.segments[{i}].trajectory", fs=fs)
+        return
+    field_name = traj.length_fields[0] if traj.length_fields else "value"
+    if all(b <= workspace_m for b in traj.bound()):
+        return
+    for axis, b in zip(traj.axes, peak(traj, fs)):
+        if math.isfinite(b) and b > workspace_m * (1 + 1e-12):
+            raise ConfigError(f"{prefix}.{field_name}",
+                              f"reaches {b:.6g} on axis {axis}, outside the workspace ±{workspace_m:g} "
+                              f"(SI units: metres; e.g. radius: 2.0e-5 or unit: um)")
