@@ -36,6 +36,7 @@ def probe():
     ("sim.mode:=realtimeish", "sim.mode"),
     ("sim.fifo_depth:=3", "sim.fifo_depth"),
     ("backend:=nope", "backend"),
+    ("trajectory_state:=a b", "trajectory_state"),
 ])
 def test_bad_driver_parameters_refused_with_one_line_naming_the_field(arg, field):
     """Issue 10.10: these were accepted (diagnostics_period 0 spun a core)."""

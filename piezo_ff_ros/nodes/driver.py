@@ -74,8 +74,12 @@ class DriverNode(Node):
         # a lockstep trajectory paces a lockstep simulator: its time stands still between blocks (no stale ramp)
         self.sub_traj = None
         if p["trajectory_state"] and backend.info.time_follows_samples:
-            self.sub_traj = self.create_subscription(String, p["trajectory_state"], self.on_trajectory_state,
-                                                     LATCHED_QOS)
+            try:
+                self.sub_traj = self.create_subscription(String, p["trajectory_state"], self.on_trajectory_state,
+                                                         LATCHED_QOS)
+            except Exception as exc:  # noqa: BLE001 - rclpy raises several types for an invalid topic name
+                raise ConfigError("trajectory_state", f"not a valid topic name: {p['trajectory_state']!r} "
+                                                      f"({str(exc).splitlines()[0][:100]})") from None
         lim = settings.limits
         tick = min(settings.low_water / 2, 0.005) if backend.info.clocked else min(lim.stale_timeout / 4, 0.05)
         # the device's clock starts with the first tick (not here: spinning may begin much later)
@@ -116,7 +120,7 @@ class DriverNode(Node):
              "low_water": float(self._param("low_water", 0.01, "clocked devices: hold below this margin [s]")),
              "joint_states_rate": float(self._param("joint_states_rate", 100.0, "joint_states rate [Hz]")),
              "diagnostics_period": float(self._param("diagnostics_period", 1.0, "/diagnostics period [s]")),
-             "trajectory_state": str(self._param("trajectory_state", "/trajectory/state",
+             "trajectory_state": str(self._param("trajectory_state", "trajectory/state",
                                                  "the trajectory's ~/state topic: a lockstep run playing there "
                                                  "suspends the stale watchdog of a lockstep simulator ('' = never)"))}
         _check("diagnostics_period", p["diagnostics_period"], 0.05, 3600.0, " s")
