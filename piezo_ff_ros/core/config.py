@@ -13,7 +13,7 @@ import copy
 import math
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping, Sequence, TypeVar
 
 import numpy as np
 import yaml
@@ -91,6 +91,9 @@ MIN_SAMPLE_RATE, MAX_SAMPLE_RATE = 100.0, 10.0e6
 VOLTAGE_UNITS = ("V",)
 
 
+_T = TypeVar("_T")
+
+
 def _unknown_keys(d: Mapping[Any, Any], allowed: Sequence[Any], prefix: str) -> None:
     """Refuse keys not in ``allowed`` (a misspelling must not be silently ignored), suggesting the closest one."""
     import difflib
@@ -101,6 +104,30 @@ def _unknown_keys(d: Mapping[Any, Any], allowed: Sequence[Any], prefix: str) -> 
             close = difflib.get_close_matches(str(key), [str(a) for a in allowed], n=1, cutoff=0.6)
             hint = f"did you mean {close[0]!r}? " if close else ""
             raise ConfigError(name, f"unknown key; {hint}(allowed: {', '.join(sorted(map(str, allowed)))})")
+
+
+def dataclass_from_mapping(cls: type[_T], d: Mapping[str, Any] | None, prefix: str) -> _T:
+    """``cls(**d)`` for a config dataclass, refusing unknown keys (named ``prefix.key``, with the closest known one).
+
+    Parameters
+    ----------
+    cls : type
+        A dataclass whose fields are the allowed keys (its ``__post_init__`` validates the values).
+    d : mapping or None
+        The section as read from YAML or parameters (None: all defaults).
+    prefix : str
+        The section's name in error messages (``learning``, ``preview`` …).
+
+    Returns
+    -------
+    An instance of ``cls``.
+    """
+    import dataclasses
+
+    values = dict(d or {})
+    names = [f.name for f in dataclasses.fields(cls)]  # type: ignore[arg-type]  # _T is any config dataclass
+    _unknown_keys(values, names, prefix)
+    return cls(**values)
 
 
 def _section(d: Mapping[str, Any], key: str, prefix: str = "", required: bool = False) -> dict[str, Any]:

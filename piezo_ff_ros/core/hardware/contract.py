@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DeviceInfo", "StreamingBackend", "ContractError", "DeviceFault", "Underrun", "Overrun", "Disconnect",
+__all__ = ["DeviceInfo", "StreamingBackend", "WriteCursorClock", "ContractError", "DeviceFault", "Underrun", "Overrun", "Disconnect",
            "LimitFault", "FAULT_KINDS"]
 
 
@@ -144,3 +144,27 @@ class StreamingBackend(abc.ABC):
 
     def close(self) -> None:
         """Stop the clock and release the device (output left at the safe voltage where the device allows)."""
+
+
+class WriteCursorClock:
+    """The clock of a device without a sample clock of its own (a set-and-hold controller, the lockstep simulator):
+    what is written is output at once, so the write cursor ``_k`` *is* the clock and the FIFO never fills.
+
+    Mix it in before :class:`StreamingBackend`; the backend advances ``self._k`` in ``write``.
+    """
+
+    _k: int
+    info: DeviceInfo
+
+    def clock(self) -> int:
+        """Index of the next sample: the write cursor."""
+        return self._k
+
+    @property
+    def write_index(self) -> int:
+        """Next index to write: the write cursor."""
+        return self._k
+
+    def write_space(self) -> int:
+        """Always the whole (nominal) FIFO: nothing waits in it."""
+        return self.info.fifo_depth

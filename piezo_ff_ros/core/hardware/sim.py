@@ -24,7 +24,7 @@ import numpy as np
 
 from ..stage import Processor
 from .contract import (ContractError, DeviceFault, DeviceInfo, Disconnect, LimitFault, Overrun, StreamingBackend,
-                       Underrun)
+                       Underrun, WriteCursorClock)
 
 __all__ = ["LockstepSim", "ClockedSim", "inject_fault"]
 
@@ -76,7 +76,7 @@ class _SimBase(StreamingBackend):
         return {"backend": self.info.name, "clock": self.clock() if self.started else 0, **self.counters}
 
 
-class LockstepSim(_SimBase):
+class LockstepSim(WriteCursorClock, _SimBase):
     """The simulator in lockstep: the device clock is the write cursor."""
 
     def __init__(self, fs: float, n_axes: int, plant: Processor | None = None, name: str = "sim"):
@@ -89,16 +89,6 @@ class LockstepSim(_SimBase):
         if prefill:
             self.write(self._k, np.tile(np.asarray(safe_voltage, dtype=float), (int(prefill), 1)))
         return self._k
-
-    def clock(self) -> int:
-        return self._k
-
-    @property
-    def write_index(self) -> int:
-        return self._k
-
-    def write_space(self) -> int:
-        return self.info.fifo_depth
 
     def write(self, k0: int, block: np.ndarray) -> None:
         self._check_alive()

@@ -23,7 +23,6 @@ rate) and played without a sensor by :class:`LearnedCorrection`, a streaming sta
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 from dataclasses import dataclass, field
@@ -32,7 +31,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from ..config import ConfigError
+from ..config import ConfigError, dataclass_from_mapping
 from .linear import CompensatedModel
 
 __all__ = ["ILCConfig", "IterativeLearning", "LearningResult", "convergence_factor", "q_filter_response",
@@ -64,12 +63,8 @@ class ILCConfig:
 
     @staticmethod
     def from_dict(d: Mapping | None) -> "ILCConfig":
-        d = dict(d or {})
-        names = {f.name for f in dataclasses.fields(ILCConfig)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ConfigError(f"learning.{unknown[0]}", f"unknown key; known: {sorted(names)}")
-        return ILCConfig(**d)
+        """From a mapping of the field names (unknown keys refused, naming them and the closest known one)."""
+        return dataclass_from_mapping(ILCConfig, d, "learning")
 
 
 def q_filter_response(f: np.ndarray, bandwidth_hz: float, order: int) -> np.ndarray:

@@ -32,7 +32,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .._jit import njit
-from ..config import ConfigError, PiezoConfig
+from ..config import ConfigError, PiezoConfig, dataclass_from_mapping
 from .linear import CascadeReplica, CompensatedModel
 from .qp import QPSolver
 
@@ -83,13 +83,8 @@ class PreviewConfig:
 
     @staticmethod
     def from_dict(d: Mapping | None) -> "PreviewConfig":
-        """From a mapping of the field names (unknown keys refused, naming them)."""
-        d = dict(d or {})
-        names = {f.name for f in dataclasses.fields(PreviewConfig)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ConfigError(f"preview.{unknown[0]}", f"unknown key; known: {sorted(names)}")
-        return PreviewConfig(**d)
+        """From a mapping of the field names (unknown keys refused, naming them and the closest known one)."""
+        return dataclass_from_mapping(PreviewConfig, d, "preview")
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from ...core.hardware.contract import ContractError, DeviceInfo, Disconnect, StreamingBackend
+from ...core.hardware.contract import ContractError, DeviceInfo, Disconnect, StreamingBackend, WriteCursorClock
 from .base import BackendError, BackendSpec, Param, float_range, int_range, one_of
 
 
@@ -54,7 +54,7 @@ def connect(p: dict, gateway=None):
     return dev, idn
 
 
-class PISetpointBackend(StreamingBackend):
+class PISetpointBackend(WriteCursorClock, StreamingBackend):
     """Set-point mode behind the streaming contract (see the module docstring)."""
 
     def __init__(self, cfg, p: dict, gateway=None):
@@ -87,16 +87,6 @@ class PISetpointBackend(StreamingBackend):
         if prefill:
             self.write(self._k, np.tile(self._last, (int(prefill), 1)))
         return self._k
-
-    def clock(self) -> int:
-        return self._k
-
-    @property
-    def write_index(self) -> int:
-        return self._k
-
-    def write_space(self) -> int:
-        return self.info.fifo_depth
 
     def write(self, k0: int, block: np.ndarray) -> None:
         if self.dev is None:
