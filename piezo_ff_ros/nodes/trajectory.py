@@ -22,6 +22,11 @@ text naming the field — and used from the next start):
   once ``reference``, ``voltage`` and ``displacement`` each have that many readers — 2 with a recorder — and, in
   lockstep, ``voltage`` and ``displacement`` a writer).
 
+A table can also arrive as a message: a block (``sensor_msgs/PointCloud2``, the topic contract of docs/topics.md,
+N samples × the axes, [m]) on ``~/table`` is written to ``table_dir`` (default: a temporary directory) as ``.npy``
+and becomes ``trajectory_file`` through the same validation as a parameter change (so the parameters always say
+what will play), played sample-exactly at ``sample_rate`` from the next start — for a client on another machine.
+
 Services: ``~/start`` and ``~/stop`` (std_srvs/Trigger).  Topics: ``reference`` (blocks), ``experiment``
 (std_msgs/String, transient-local: JSON ``{"name", "k0", "stamp_ns", "stages", …segment meta}``), ``~/state``
 (std_msgs/String, transient-local: JSON ``{"state": idle|playing|finished|stopped|failed, "mode": realtime|lockstep,
@@ -29,16 +34,20 @@ Services: ``~/start`` and ``~/stop`` (std_srvs/Trigger).  Topics: ``reference`` 
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.parameter import Parameter
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
@@ -46,7 +55,7 @@ from std_srvs.srv import Trigger
 
 from ..core.config import ConfigError
 from ..core.trajectories import Sequence, Table, Trajectory, check_workspace, from_dict
-from .common import BLOCK_QOS, LATCHED_QOS, dt_ns, pack_block, run_node, stamp_to_ns
+from .common import BLOCK_QOS, LATCHED_QOS, BlockFormatError, dt_ns, pack_block, run_node, stamp_to_ns, unpack_block
 
 DEFAULT_TRAJECTORY = json.dumps({"type": "circle", "radius": 2.0e-5, "frequency": 1.0, "revolutions": 5})
 
@@ -108,6 +117,7 @@ class TrajectoryNode(Node):
             # workspace: a trajectory beyond ±workspace_m [m] is refused (0: off); voltage segments: ±voltage_limit
             "workspace_m": self.declare_parameter("workspace_m", 1e-4).value,
             "voltage_limit": self.declare_parameter("voltage_limit", 200.0).value,
+            "table_dir": self.declare_parameter("table_dir", "").value,
         }
         self.traj = parse_trajectory(p["trajectory"], p["trajectory_file"], float(p["sample_rate"]),
                                      float(p["workspace_m"]), float(p["voltage_limit"]))
@@ -128,6 +138,8 @@ class TrajectoryNode(Node):
         self.pub_exp = self.create_publisher(String, "experiment", LATCHED_QOS)
         self.pub_state = self.create_publisher(String, "~/state", LATCHED_QOS)
         self.create_subscription(PointCloud2, "displacement", self.on_displacement, BLOCK_QOS)
+        self.create_subscription(PointCloud2, "~/table", self.on_table, LATCHED_QOS)
+        self._tmp_tables: tempfile.TemporaryDirectory | None = None
         self.create_service(Trigger, "~/start", self.on_start)
         self.create_service(Trigger, "~/stop", self.on_stop)
         self._ready = True
@@ -177,6 +189,34 @@ class TrajectoryNode(Node):
         except ConfigError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
+
+    def on_table(self, msg: PointCloud2) -> None:
+        """A table as a block message: saved as .npy, then set as ``trajectory_file`` (validated like any change)."""
+        log = self.get_logger()
+        try:
+            table = np.ascontiguousarray(unpack_block(msg, tuple(self.traj.axes)), dtype=float)
+        except BlockFormatError as exc:
+            log.error(f"~/table: refused ({exc})")
+            return
+        folder = str(self.param("table_dir"))
+        if not folder:
+            if self._tmp_tables is None:
+                self._tmp_tables = tempfile.TemporaryDirectory(prefix="piezo_ff_tables_")
+            folder = self._tmp_tables.name
+        path = Path(folder) / f"table_{hashlib.sha256(table.tobytes()).hexdigest()[:16]}.npy"
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            np.save(path, table, allow_pickle=False)
+        except OSError as exc:
+            log.error(f"table_dir: cannot write {path} ({exc})")
+            return
+        res = self.set_parameters_atomically([Parameter("trajectory_file", value=str(path)),
+                                              Parameter("trajectory", value="")])
+        if res.successful:
+            log.info(f"~/table: {table.shape[0]} samples × {table.shape[1]} axes → trajectory_file {path} "
+                     "(played from the next start)")
+        else:
+            log.error(f"~/table: refused ({res.reason})")
 
     # -- play ------------------------------------------------------------------------------------------------------
     def on_start(self, request, response):
