@@ -7,7 +7,7 @@ the first sample = ``t0 + k0·dt_ns`` with ``dt_ns = round(1e9/fs)`` so that sam
 from __future__ import annotations
 
 import sys
-from typing import Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -47,16 +47,18 @@ def dt_ns(sample_rate: float) -> int:
     return int(round(1e9 / float(sample_rate)))
 
 
-def ns_to_stamp(ns: int, stamp) -> None:
+def ns_to_stamp(ns: int, stamp: Any) -> None:
+    """Write ``ns`` [ns] into a ``builtin_interfaces/Time`` (``sec``, ``nanosec``)."""
     stamp.sec = int(ns // 1_000_000_000)
     stamp.nanosec = int(ns % 1_000_000_000)
 
 
-def stamp_to_ns(stamp) -> int:
+def stamp_to_ns(stamp: Any) -> int:
+    """A ``builtin_interfaces/Time`` as integer nanoseconds."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
-def k0_of(msg, t0_ns: int, period_ns: int) -> int:
+def k0_of(msg: Any, t0_ns: int, period_ns: int) -> int:
     """Index of the first sample of a block message."""
     return (stamp_to_ns(msg.header.stamp) - t0_ns) // period_ns
 
@@ -115,7 +117,7 @@ def unpack_block(msg: PointCloud2, axes: Sequence[str] | None = None) -> np.ndar
     return table.astype(float)
 
 
-def spin_node(node, on_exit=None) -> int:
+def spin_node(node: Any, on_exit: Callable[[], None] | None = None) -> int:
     """Spin until SIGINT/SIGTERM (ExternalShutdownException in these rclpy versions); clean exit code 0."""
     code = 0
     name = node.get_name()   # read now: after a shutdown the node's handle is gone and get_name() raises
@@ -141,7 +143,8 @@ def spin_node(node, on_exit=None) -> int:
     return code
 
 
-def run_node(name: str, make_node, on_exit=None, argv=None) -> int:
+def run_node(name: str, make_node: Callable[[], Any], on_exit: Callable[[Any], None] | None = None,
+             argv: Sequence[str] | None = None) -> int:
     """A node's ``main``: init rclpy with ``argv``, build the node (a bad config/parameter is one clear line and
     exit code 2, not a traceback), spin until SIGINT/SIGTERM, then ``on_exit(node)``."""
     args = sys.argv if argv is None else [sys.argv[0], *argv]
@@ -159,7 +162,7 @@ def run_node(name: str, make_node, on_exit=None, argv=None) -> int:
     return spin_node(node, on_exit=(lambda: on_exit(node)) if on_exit is not None else None)
 
 
-def diag_values(d: dict):
+def diag_values(d: Mapping[str, Any]) -> list[Any]:
     """dict → list of diagnostic_msgs/KeyValue."""
     from diagnostic_msgs.msg import KeyValue
 

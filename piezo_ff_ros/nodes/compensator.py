@@ -40,6 +40,7 @@ import json
 import sys
 import threading
 import time
+from typing import Any, Sequence
 
 import numpy as np
 import yaml
@@ -54,7 +55,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from ..core.config import ConfigError, load_config
+from ..core.config import ConfigError, PiezoConfig, load_config
 from ..core.hold_pacer import HoldPacer
 from ..core.hot_swap import HotSwapCascade
 from ..core.param_map import config_to_params, is_config_param, needs_synthesis, params_to_config
@@ -88,7 +89,7 @@ _RANGES = {"vibration.t_r": (1e-6, 100.0), "vibration.eps_s": (0.0, 1.0), "vibra
            "hold_timeout": (0.0, 3600.0), "block_size": (1, 20000)}
 
 
-def _ptype(name: str, value) -> int:
+def _ptype(name: str, value: Any) -> int:
     """The static ROS type of a parameter from its default value (empty arrays: from the name)."""
     if isinstance(value, bool):
         return ParameterType.PARAMETER_BOOL
@@ -139,7 +140,7 @@ def _coerce(parameter: Parameter, declared: int) -> None:
         parameter._type_, parameter._value = new
 
 
-def _descriptor(name: str, value, description: str = "", read_only: bool = False) -> ParameterDescriptor:
+def _descriptor(name: str, value: Any, description: str = "", read_only: bool = False) -> ParameterDescriptor:
     t = _ptype(name, value)
     d = ParameterDescriptor(name=name, type=t, description=description or _describe(name), read_only=read_only)
     if name in _RANGES:
@@ -151,7 +152,7 @@ def _descriptor(name: str, value, description: str = "", read_only: bool = False
     return d
 
 
-def _same(a, b) -> bool:
+def _same(a: Any, b: Any) -> bool:
     """Parameter values equal (``array('d')`` and list compare by content)."""
     if isinstance(a, (list, tuple)) or hasattr(a, "typecode") or isinstance(b, (list, tuple)) or hasattr(b, "typecode"):
         try:
@@ -177,7 +178,7 @@ def parse_config_yaml(text: str) -> dict:
         if isinstance(only, dict) and "ros__parameters" in only:
             d = only["ros__parameters"]
 
-    def flatten(prefix, m, out):
+    def flatten(prefix: str, m: dict[str, Any], out: dict[str, Any]) -> dict[str, Any]:
         for k, v in m.items():
             key = f"{prefix}{k}"
             if isinstance(v, dict):
@@ -196,7 +197,7 @@ def parse_config_yaml(text: str) -> dict:
 class CompensatorNode(Node):
     """See the module docstring."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("compensator", **kwargs)
         self._values: dict = {}
         self._types: dict = {}
@@ -270,7 +271,7 @@ class CompensatorNode(Node):
                                f"{ {k: getattr(cfg.cascade, k) for k in ('vibration', 'creep', 'hysteresis')} }")
 
     # -- parameters ------------------------------------------------------------------------------------------------
-    def _declare(self, name: str, value, description: str = "", read_only: bool = False):
+    def _declare(self, name: str, value: Any, description: str = "", read_only: bool = False) -> Any:
         desc = _descriptor(name, value, description, read_only)
         self._types[name] = desc.type
         if isinstance(value, list) and not value:   # rclpy would type an empty list as a byte array
@@ -282,7 +283,8 @@ class CompensatorNode(Node):
             v = self.declare_parameter(name, value, desc).value
         return list(v) if isinstance(v, (list, tuple)) or hasattr(v, "typecode") else v
 
-    def _apply_descriptor(self, parameter, descriptor=None, check_read_only=True):
+    def _apply_descriptor(self, parameter: Parameter, descriptor: ParameterDescriptor | None = None,
+                          check_read_only: bool = True) -> SetParametersResult:
         """rclpy's type/range check, after the lossless coercions (an integer where a double is declared, an empty
         array of any type), with the parameter's name in front of a refusal (one line, field first)."""
         t = getattr(self, "_types", {}).get(parameter.name)   # rclpy declares use_sim_time before __init__ runs
@@ -302,7 +304,7 @@ class CompensatorNode(Node):
             result.reason = f"{parameter.name}: {reason}"
         return result
 
-    def _typed(self, name: str, value) -> Parameter:
+    def _typed(self, name: str, value: Any) -> Parameter:
         t = self._types[name]
         if t == ParameterType.PARAMETER_DOUBLE:
             value = float(value)
@@ -461,7 +463,7 @@ class CompensatorNode(Node):
             self.get_logger().info(f"configuration v{version} active")
             self.publish_diagnostics()
 
-    def _revert_to(self, cfg) -> None:
+    def _revert_to(self, cfg: PiezoConfig) -> None:
         """Parameters back to ``cfg``'s values: only those that differ, without a new configuration version."""
         running = config_to_params(cfg)
         changed = [self._typed(k, v) for k, v in running.items() if not _same(self._values.get(k), v)]
@@ -505,7 +507,8 @@ class CompensatorNode(Node):
                                        f"(total {self.input['workspace_clamped_samples']})")
         return out
 
-    def _process_and_publish(self, block, stamp, from_topic: bool = False, restart: bool = False) -> None:
+    def _process_and_publish(self, block: np.ndarray, stamp: Any, from_topic: bool = False,
+                             restart: bool = False) -> None:
         # one lock around state, counters, stamps and publish (the background H∞ build swaps the cascade under it)
         with self._lock:
             if stamp is None:   # held point: continue the sample stream (or start it on the wall clock)
@@ -577,7 +580,8 @@ class CompensatorNode(Node):
         for _ in range(self.pacer.tick(time.monotonic())):
             self._process_and_publish(self.pacer.block(), None)
 
-    def on_reset(self, request, response):
+    def on_reset(self, request: Any, response: Any) -> Any:
+        """``~/reset``: the cascade's state back to rest (and the hold point cleared)."""
         with self._lock:
             self.hs.reset()
             self.front.reset()
@@ -642,7 +646,8 @@ def _short(d: dict) -> str:
     return ", ".join(parts)
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
+    """``ros2 run piezo_ff_ros compensator``."""
     return run_node("compensator", CompensatorNode, lambda n: n.stop(), argv)
 
 

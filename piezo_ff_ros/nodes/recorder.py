@@ -26,6 +26,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
@@ -57,13 +58,14 @@ _EVENTS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliabilit
                          durability=DurabilityPolicy.VOLATILE)
 
 
-def message_class(type_name: str):
+def message_class(type_name: str) -> Any:
     """``pkg/msg/Type`` → the Python message class."""
     pkg, kind, name = type_name.split("/")
     return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
 
 
 def git_rev() -> str:
+    """The checkout's commit (``unknown`` outside a git checkout)."""
     try:
         return subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent, timeout=2,
                               capture_output=True, text=True).stdout.strip() or "unknown"
@@ -74,7 +76,7 @@ def git_rev() -> str:
 class RecorderNode(Node):
     """See the module docstring."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("recorder", **kwargs)
         default_out = time.strftime("run_%Y%m%dT%H%M%SZ.mcap", time.gmtime())
         out = self.declare_parameter("output", default_out).value
@@ -117,14 +119,14 @@ class RecorderNode(Node):
         self.create_timer(period, self._discover)
         self.get_logger().info(f"recording {sorted(self.topics)} to {out}")
 
-    def _subscribe_known(self):
+    def _subscribe_known(self) -> None:
         for full, given in self.topics.items():
             tn = KNOWN_TYPES.get(full.rsplit("/", 1)[-1])
             if tn is not None:
                 self._subscribe(full, tn)
         self._status()
 
-    def _discover(self):
+    def _discover(self) -> None:
         matched = {t: s.get_publisher_count() for t, s in self.subs.items() if s is not None}
         if matched != self._matched:
             self._matched = matched
@@ -138,7 +140,7 @@ class RecorderNode(Node):
                 self._subscribe(t, graph[t][0])
                 self._status()
 
-    def _subscribe(self, topic: str, type_name: str):
+    def _subscribe(self, topic: str, type_name: str) -> None:
         try:
             cls = message_class(type_name)
         except (ImportError, AttributeError, ValueError) as exc:
@@ -154,7 +156,7 @@ class RecorderNode(Node):
         self.subs[topic] = self.create_subscription(
             cls, topic, lambda data, info, t=topic: self._on_message(t, data, info), qos, raw=True)
 
-    def _on_message(self, topic: str, data: bytes, info) -> None:
+    def _on_message(self, topic: str, data: bytes, info: Any) -> None:
         if self.error is not None:
             self.dropped += 1
             return
@@ -180,7 +182,7 @@ class RecorderNode(Node):
                                        message=self.error or "", hardware_id="recorder", values=diag_values(values))]
         self.pub_diag.publish(arr)
 
-    def _record(self, topic: str, data: bytes, info) -> None:
+    def _record(self, topic: str, data: bytes, info: Any) -> None:
         now = time.time_ns()
         if topic not in self.rec.topics:
             offered = [p.qos_profile for p in self.get_publishers_info_by_topic(topic)]
@@ -233,13 +235,14 @@ class RecorderNode(Node):
             meta["parameters"] = self.node_parameters
         self.rec.set_metadata(meta)
 
-    def _status(self):
+    def _status(self) -> None:
         self.pub_status.publish(String(data=json.dumps({"recording": str(self.rec.path),
                                                         "topics": {t: self.types.get(t) for t in self.topics},
                                                         "subscribed": sorted(t for t, s in self.subs.items() if s),
                                                         "publishers": self._matched, "error": self.error})))
 
-    def finish(self):
+    def finish(self) -> None:
+        """Close the recording; RuntimeError (exit code 1) when it stopped early (disk full, I/O error)."""
         if not self.rec.closed:
             try:
                 self.rec.close()
@@ -255,7 +258,8 @@ class RecorderNode(Node):
                                if f else self.error)
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
+    """``ros2 run piezo_ff_ros recorder``."""
     return run_node("recorder", RecorderNode, lambda n: n.finish(), argv)
 
 

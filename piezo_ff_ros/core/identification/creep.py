@@ -26,36 +26,20 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..config import CreepConfig
-from ..jsonable import JsonResult
 from ..lti import FactoredTF, TFMatrix
 from ..recording.run import RunData
 from .metrics import fit_percent, greedy_order_search
-from .modal import Structure, fit_row, simulate_row
+from .modal import ModalFit, Structure, fit_row, simulate_row
 
 __all__ = ["CreepFit", "identify_creep", "step_events"]
 
 
 @dataclass(frozen=True)
-class CreepFit(JsonResult):
-    """An identified creep model (K, Cr).
+class CreepFit(ModalFit):
+    """An identified creep model (K, Cr): ``config`` (SI) plus the orders, fits and facts of
+    :class:`~.modal.ModalFit`."""
 
-    Attributes
-    ----------
-    config : CreepConfig
-        The identified model (SI).
-    orders : dict
-        Model order per entry.
-    fit_train, fit_validation : dict
-        Fit [%] per entry on the fitted and the held-out records (empty: no held-out record).
-    info : dict
-        Facts of the fit.
-    """
-
-    config: CreepConfig = field(metadata={"json": False})
-    orders: dict
-    fit_train: dict
-    fit_validation: dict
-    info: dict = field(default_factory=dict)
+    config: CreepConfig = field(kw_only=True, metadata={"json": False})
 
 
 def step_events(u: np.ndarray, rel: float = 0.005, gap: int = 400) -> list[int]:

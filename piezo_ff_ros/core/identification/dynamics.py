@@ -24,37 +24,21 @@ import numpy as np
 import scipy.signal
 
 from ..config import DynamicsConfig
-from ..jsonable import JsonResult
 from ..lti import FactoredTF, TFMatrix
 from ..recording.run import RunData
 from .creep import step_events
 from .metrics import fit_percent, greedy_order_search
-from .modal import EntryModel, Structure, era_poles, fit_row, poles_to_theta, simulate_row
+from .modal import EntryModel, ModalFit, Structure, era_poles, fit_row, poles_to_theta, simulate_row
 
 __all__ = ["DynamicsFit", "identify_dynamics"]
 
 
 @dataclass(frozen=True)
-class DynamicsFit(JsonResult):
-    """An identified G_L.
+class DynamicsFit(ModalFit):
+    """An identified G_L: ``config`` (SI) plus the orders, fits and facts of
+    :class:`~.modal.ModalFit`."""
 
-    Attributes
-    ----------
-    config : DynamicsConfig
-        The identified model (SI).
-    orders : dict
-        Model order per entry.
-    fit_train, fit_validation : dict
-        Fit [%] per entry on the fitted and the held-out records (empty: no held-out record).
-    info : dict
-        Facts of the fit.
-    """
-
-    config: DynamicsConfig = field(metadata={"json": False})
-    orders: dict
-    fit_train: dict
-    fit_validation: dict
-    info: dict = field(default_factory=dict)
+    config: DynamicsConfig = field(kw_only=True, metadata={"json": False})
 
 
 def _inp(r: RunData) -> np.ndarray:

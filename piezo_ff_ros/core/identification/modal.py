@@ -14,17 +14,40 @@ Python equivalent is installed here).  Initial poles come from ERA/Ho–Kalman (
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import scipy.linalg
 import scipy.signal
 from scipy.optimize import least_squares
 
+from ..jsonable import JsonResult
 from ..lti import FactoredTF
 
-__all__ = ["Structure", "EntryModel", "mode_responses", "fit_row", "simulate_row", "era_poles",
+__all__ = ["ModalFit", "Structure", "EntryModel", "mode_responses", "fit_row", "simulate_row", "era_poles",
            "poles_to_theta", "entry_to_factored"]
+
+
+@dataclass(frozen=True)
+class ModalFit(JsonResult):
+    """What an identification of modal transfer-function entries found besides its config (the base of
+    :class:`~.creep.CreepFit` and :class:`~.dynamics.DynamicsFit`, which add ``config``).
+
+    Attributes
+    ----------
+    orders : dict
+        Model order per entry.
+    fit_train, fit_validation : dict
+        Fit [%] per entry on the fitted and the held-out records (empty: no held-out record).
+    info : dict
+        Facts of the fit.
+    """
+
+    orders: dict[str, Any]
+    fit_train: dict[str, float]
+    fit_validation: dict[str, float]
+    info: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -23,7 +23,17 @@ from .creep import identify_creep
 from .dynamics import identify_dynamics
 
 if TYPE_CHECKING:
+    from ..characterisation import CharacterisationSettings
     from ..commissioning import CommissionReport
+    from ..config import CreepConfig
+    from ..stage import Processor
+    from ..synthesis.hinf import HinfDesign
+    from ..trajectories import Trajectory
+    from .bouc_wen import BoucWenFit
+    from .creep import CreepFit
+    from .dynamics import DynamicsFit
+
+Fits = dict[str, float | None]  #: fit [%] per axis/entry (None where not finite)
 
 __all__ = ["identify_all", "commission_sim", "split_runs", "build_config", "synthesize_for", "plant_fit",
            "IdentificationReport"]
@@ -61,7 +71,24 @@ class IdentificationReport(JsonResult):
     design: Any = field(default=None, metadata={"json": False})
 
 
-def split_runs(runs: Sequence[RunData]) -> dict:
+def split_runs(runs: Sequence[RunData]) -> dict[str, dict[str, list[RunData]]]:
+    """The runs by ``meta['stage']`` and ``meta['role']`` (fit / validation; plant runs are always validation).
+
+    Parameters
+    ----------
+    runs : sequence of RunData
+        Tagged runs.
+
+    Returns
+    -------
+    dict
+        ``{stage: {"fit": [...], "validation": [...]}}`` for hysteresis, creep, dynamics and plant.
+
+    Raises
+    ------
+    ValueError
+        A run's stage is not one of those.
+    """
     out: dict[str, dict[str, list[RunData]]] = {s: {"fit": [], "validation": []} for s in STAGES + ("plant",)}
     for r in runs:
         st = r.meta.get("stage")
@@ -75,7 +102,8 @@ def split_runs(runs: Sequence[RunData]) -> dict:
     return out
 
 
-def build_config(base: PiezoConfig, hyst, creep, dyn, sample_rate: float, axes) -> PiezoConfig:
+def build_config(base: PiezoConfig, hyst: BoucWenFit, creep: CreepFit, dyn: DynamicsFit, sample_rate: float,
+                 axes: Sequence[str]) -> PiezoConfig:
     """A complete config from identified stages (weights, cascade and limits kept from ``base``)."""
     return replace(base, name=f"{base.name}_identified", axes=tuple(axes), sample_rate=float(sample_rate),
                    hysteresis=hyst.config, creep=creep.config, dynamics=dyn.config,
@@ -84,10 +112,10 @@ def build_config(base: PiezoConfig, hyst, creep, dyn, sample_rate: float, axes) 
                    ).validate()
 
 
-def fits_report(hf, cf, df, axes) -> dict:
+def fits_report(hf: BoucWenFit, cf: CreepFit, df: DynamicsFit, axes: Sequence[str]) -> dict[str, Fits]:
     """Held-out fit [%] per stage and axis/entry of identified stages (None where not finite)."""
 
-    def clean(d):
+    def clean(d: Mapping[str, float | None]) -> Fits:
         return {k: (None if v is None or not np.isfinite(v) else round(float(v), 3)) for k, v in d.items()}
 
     hv = hf.fit_validation if hf.fit_validation is not None else hf.fit_train
@@ -104,7 +132,7 @@ def _simulate_plant(cfg: PiezoConfig, u: np.ndarray, fs: float) -> np.ndarray:
 
 
 def plant_fit(cfg: PiezoConfig, runs: Sequence[RunData], reference_outputs: Sequence[np.ndarray] | None = None,
-              ) -> dict:
+              ) -> Fits:
     """Held-out fit [%] of the identified model of the whole plant S0 = G_L·(K + Cr)·BoucWen, per output.
 
     ``Plant(cfg)`` (noise-free) is simulated from each run's voltages ``u`` from rest and compared with the run's
@@ -122,8 +150,9 @@ def plant_fit(cfg: PiezoConfig, runs: Sequence[RunData], reference_outputs: Sequ
 
 
 def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, generalized: bool = False,
-                 creep_order="auto", dynamics_order="auto", synthesize: bool = True,
-                 refine_hysteresis: bool | None = None, progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, IdentificationReport]:
+                 creep_order: int | str = "auto", dynamics_order: int | str = "auto", synthesize: bool = True,
+                 refine_hysteresis: bool | None = None, progress: Callable[[str], None] | None = None,
+                 ) -> tuple[PiezoConfig, IdentificationReport]:
     """Identify every stage from tagged runs; returns the complete config and a report (held-out fits, timings).
 
     The H∞ compensator is synthesised from the identified G_L (``core.synthesis.hinf``) and stored in the config
@@ -185,7 +214,7 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
                                      hinf=design.as_dict() if design is not None else None, design=design)
 
 
-def synthesize_for(cfg: PiezoConfig, say=lambda s: None):
+def synthesize_for(cfg: PiezoConfig, say: Callable[[str], None] = lambda s: None) -> tuple[HinfDesign, str | None]:
     """H∞ design on ``cfg``'s G_L; returns ``(design, note)``.
 
     A stage-by-stage identification makes the static gain of S_L ≈ 1 (the creep compensator inverts K + Cr(0)), so
@@ -208,8 +237,9 @@ def synthesize_for(cfg: PiezoConfig, say=lambda s: None):
     return synthesize_hinf(cfg.dynamics.G_L, vib), note
 
 
-def commission_sim(plant, fs: float, axes=("x", "y"), settings=None, base: PiezoConfig | None = None,
-                   generalized: bool = False, creep_order="auto", dynamics_order="auto",
+def commission_sim(plant: Processor, fs: float, axes: Sequence[str] = ("x", "y"),
+                   settings: CharacterisationSettings | None = None, base: PiezoConfig | None = None,
+                   generalized: bool = False, creep_order: int | str = "auto", dynamics_order: int | str = "auto",
                    refine_hysteresis: bool = True,
                    progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, CommissionReport, list[RunData]]:
     """Characterise and identify stage by stage on a sim plant (``process``/``reset``), as in Fig. 3.
@@ -226,8 +256,9 @@ def commission_sim(plant, fs: float, axes=("x", "y"), settings=None, base: Piezo
     return res.config, res.report, res.runs
 
 
-def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg, generalized: bool = False, init=None,
-                                   progress=None):
+def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg: CreepConfig, generalized: bool = False,
+                                   init: BoucWenFit | None = None,
+                                   progress: Callable[[str], None] | None = None) -> BoucWenFit:
     """Bouc-Wen refitted on the S0 sines after removing the identified creep from their output.
 
     The first Bouc-Wen is fitted on S0, whose 0.1 Hz sines also carry creep (time constants of seconds to minutes):
@@ -245,11 +276,15 @@ def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg, gene
     return identify_bouc_wen(out["fit"], out["validation"], generalized=generalized, init=init, progress=progress)
 
 
-def part_fits(cfg: PiezoConfig, run: RunData, y_ref: np.ndarray, traj, axes) -> dict:
+def part_fits(cfg: PiezoConfig, run: RunData, y_ref: np.ndarray, traj: Trajectory,
+              axes: Sequence[str]) -> dict[str, dict[str, float]]:
     """Whole-plant fit on each part of the validation record (multisine: hysteresis loops and G_L in the band;
     step pair: creep and the G_L transients), to see which stage limits the whole-record figure."""
+    from ..trajectories import Sequence as TrajSequence
     from .metrics import fit_percent
 
+    if not isinstance(traj, TrajSequence):
+        raise ValueError(f"part_fits: the validation record must be a sequence of named parts, got {traj.kind}")
     y_model = _simulate_plant(cfg, run.u, run.sample_rate)
     segs = {seg.name: seg for seg in traj.segments(run.sample_rate)}
     parts = {"multisine": (segs["multisine_full"].start, segs["multisine_half"].stop),

@@ -1,7 +1,7 @@
 """QoS profiles in rosbag2's v9 YAML string form (the ``offered_qos_profiles`` channel metadata)."""
 from __future__ import annotations
 
-from typing import Iterable, Mapping
+from typing import Any, Iterable, Mapping
 
 __all__ = ["block_qos_profile", "qos_profiles_yaml"]
 
@@ -9,14 +9,14 @@ __all__ = ["block_qos_profile", "qos_profiles_yaml"]
 _UNSPECIFIED = {"sec": 0, "nsec": 0}
 
 
-def block_qos_profile(depth: int = 100) -> dict:
+def block_qos_profile(depth: int = 100) -> dict[str, Any]:
     """The contract's QoS for block topics (RELIABLE, KEEP_LAST ``depth``, VOLATILE), as a rosbag2 v9 dict."""
     return {"history": "keep_last", "depth": int(depth), "reliability": "reliable", "durability": "volatile",
             "deadline": dict(_UNSPECIFIED), "lifespan": dict(_UNSPECIFIED), "liveliness": "automatic",
             "liveliness_lease_duration": dict(_UNSPECIFIED), "avoid_ros_namespace_conventions": False}
 
 
-def _policy_name(value) -> str:
+def _policy_name(value: Any) -> str:
     if isinstance(value, str):
         return value.lower()
     name = getattr(value, "name", None)  # rclpy QoS*Policy enums
@@ -25,7 +25,7 @@ def _policy_name(value) -> str:
     return str(name).lower()
 
 
-def _duration(value) -> dict:
+def _duration(value: Any) -> dict[str, int]:
     if value is None:
         return dict(_UNSPECIFIED)
     if isinstance(value, Mapping):
@@ -37,9 +37,10 @@ def _duration(value) -> dict:
     return {"sec": sec, "nsec": nsec}
 
 
-def _qos_dict(profile) -> dict:
-    get = (lambda k, d=None: profile.get(k, d)) if isinstance(profile, Mapping) else \
-        (lambda k, d=None: getattr(profile, k, d))
+def _qos_dict(profile: Any) -> dict[str, Any]:
+    def get(key: str, default: Any = None) -> Any:
+        return profile.get(key, default) if isinstance(profile, Mapping) else getattr(profile, key, default)
+
     return {
         "history": _policy_name(get("history", "keep_last")),
         "depth": int(get("depth", 0)),
@@ -53,7 +54,7 @@ def _qos_dict(profile) -> dict:
     }
 
 
-def qos_profiles_yaml(profiles: Iterable | None) -> str:
+def qos_profiles_yaml(profiles: Iterable[Any] | None) -> str:
     """Offered QoS profiles (dicts or rclpy ``QoSProfile``-like objects) → rosbag2's v9 YAML string."""
     import yaml
 

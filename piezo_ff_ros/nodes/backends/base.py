@@ -68,9 +68,11 @@ def float_range(lo: float, hi: float) -> Callable[[Any], str | None]:
                       else f"must be a number in [{lo:g}, {hi:g}], got {v!r}")
 
 
-def one_of(*choices) -> Callable[[Any], str | None]:
+def one_of(*choices: Any) -> Callable[[Any], str | None]:
+    """A check: the value is one of ``choices``."""
     return lambda v: None if v in choices else f"must be one of {list(choices)}, got {v!r}"
 
 
-def non_empty(v) -> str | None:
+def non_empty(v: Any) -> str | None:
+    """A check: the value is not empty text."""
     return None if str(v).strip() else "must not be empty"

@@ -20,11 +20,16 @@ Thin by design — buffering, alignment, stale input, faults and the safe ramp l
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
 
 from ...core.hardware.contract import (ContractError, DeviceInfo, Disconnect, Overrun, StreamingBackend,
                                        Underrun)
 from .base import BackendError, BackendSpec, Param, float_range, int_range, non_empty
+
+if TYPE_CHECKING:
+    from ...core.config import PiezoConfig
 
 UNDERRUN_CODES = {-200290, -200621, -200016, -200018}
 OVERRUN_CODES = {-200279}
@@ -38,7 +43,7 @@ def _channels(text: str) -> list[str]:
 class NidaqmxBackend(StreamingBackend):
     """See the module docstring.  ``nidaqmx`` is the imported package (injectable for tests)."""
 
-    def __init__(self, cfg, p: dict, nidaqmx=None):
+    def __init__(self, cfg: PiezoConfig, p: dict[str, Any], nidaqmx: Any = None) -> None:
         if nidaqmx is None:
             try:
                 import nidaqmx  # noqa: PLC0415 - optional extra
@@ -89,7 +94,7 @@ class NidaqmxBackend(StreamingBackend):
         return v
 
     # -- vendor calls ------------------------------------------------------------------------------------------
-    def _fault(self, exc):
+    def _fault(self, exc: Exception) -> Exception:
         code = getattr(exc, "error_code", None)
         if code in UNDERRUN_CODES:
             self._restart = True
@@ -134,7 +139,7 @@ class NidaqmxBackend(StreamingBackend):
         ao.start()
 
     # -- contract ----------------------------------------------------------------------------------------------
-    def start(self, safe_voltage, prefill: int = 0) -> int:
+    def start(self, safe_voltage: np.ndarray, prefill: int = 0) -> int:
         self._last = np.asarray(safe_voltage, dtype=float).copy()
         try:
             self._make_tasks(self._last, prefill)
@@ -257,7 +262,8 @@ class NidaqmxBackend(StreamingBackend):
             pass
 
 
-def create(cfg, p: dict) -> NidaqmxBackend:
+def create(cfg: PiezoConfig, p: dict[str, Any]) -> NidaqmxBackend:
+    """The backend for the driver node (``BackendSpec.create``)."""
     return NidaqmxBackend(cfg, p)
 
 

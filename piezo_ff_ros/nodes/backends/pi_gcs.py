@@ -19,17 +19,22 @@ from __future__ import annotations
 
 import time
 
+from typing import TYPE_CHECKING, Any, Callable
+
 import numpy as np
 
 from ...core.hardware.contract import ContractError, DeviceInfo, Disconnect, StreamingBackend, WriteCursorClock
 from .base import BackendError, BackendSpec, Param, float_range, int_range, one_of
+
+if TYPE_CHECKING:
+    from ...core.config import PiezoConfig
 
 
 def _axes(text: str) -> list[str]:
     return [a.strip() for a in str(text).split(",") if a.strip()]
 
 
-def connect(p: dict, gateway=None):
+def connect(p: dict[str, Any], gateway: Any = None) -> Any:
     """A connected ``pipython.GCSDevice`` (``gateway``: a pipython gateway, e.g. the emulator)."""
     try:
         from pipython import GCSDevice  # noqa: PLC0415 - optional extra
@@ -57,7 +62,7 @@ def connect(p: dict, gateway=None):
 class PISetpointBackend(WriteCursorClock, StreamingBackend):
     """Set-point mode behind the streaming contract (see the module docstring)."""
 
-    def __init__(self, cfg, p: dict, gateway=None):
+    def __init__(self, cfg: PiezoConfig, p: dict[str, Any], gateway: Any = None) -> None:
         self.p = p
         self.axes = _axes(p["axes"])
         if len(self.axes) != cfg.n_axes:
@@ -73,13 +78,13 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
         self._applied: list = []
         self._last = np.zeros(cfg.n_axes)
 
-    def _call(self, fn, *args):
+    def _call(self, fn: Callable[..., Any], *args: Any) -> Any:
         try:
             return fn(*args)
         except Exception as exc:  # noqa: BLE001 - a controller error or a lost link stops the output
             raise Disconnect(f"pi_gcs: {str(exc).splitlines()[0] if str(exc) else exc!r}") from None
 
-    def start(self, safe_voltage, prefill: int = 0) -> int:
+    def start(self, safe_voltage: np.ndarray, prefill: int = 0) -> int:
         self.dev, self.idn = connect(self.p, self.gateway)
         self._last = np.asarray(safe_voltage, dtype=float).copy()
         self._call(self.dev.SVO, self.axes, [False] * len(self.axes))
@@ -105,10 +110,10 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
         self._last = last.copy()
         self._k += u.shape[0]
 
-    def read(self):
+    def read(self) -> list[tuple[int, np.ndarray]]:
         return []
 
-    def take_applied(self):
+    def take_applied(self) -> list[tuple[int, np.ndarray]]:
         out, self._applied = self._applied, []
         return out
 
@@ -138,7 +143,7 @@ class PITablePlayer:
     ``record_option``, ``servo_rate``, ``chunk``); ``dev`` is a connected pipython ``GCSDevice``.
     """
 
-    def __init__(self, dev, p: dict, sample_rate: float, voltage_limit: float):
+    def __init__(self, dev: Any, p: dict[str, Any], sample_rate: float, voltage_limit: float) -> None:
         self.dev, self.p = dev, p
         self.axes = _axes(p["axes"])
         self.gens = [int(x) for x in _axes(p["wave_generators"])]
@@ -193,7 +198,8 @@ class PITablePlayer:
         return data * float(self.p["position_scale"])
 
 
-def create(cfg, p: dict) -> PISetpointBackend:
+def create(cfg: PiezoConfig, p: dict[str, Any]) -> PISetpointBackend:
+    """The backend for the driver node (``BackendSpec.create``)."""
     return PISetpointBackend(cfg, p)
 
 

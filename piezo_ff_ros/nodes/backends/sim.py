@@ -3,14 +3,20 @@ streaming contract, in ``lockstep`` (deterministic, time follows the samples wri
 the wall clock like a DAQ: FIFO depth, transport latency, jitter, real underruns)."""
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
 
 from ...core.hardware.sim import ClockedSim, LockstepSim
 from ...core.models.plant import Plant
 from .base import BackendSpec, Param, float_range, int_range, one_of
 
+if TYPE_CHECKING:
+    from ...core.config import PiezoConfig
 
-def create(cfg, p: dict):
+
+def create(cfg: PiezoConfig, p: dict[str, Any]) -> LockstepSim | ClockedSim:
+    """The simulated device for the driver node (``BackendSpec.create``)."""
     plant = Plant(cfg, noise_std=p["noise_std"], seed=p["seed"])
     plant.process(np.zeros((1, cfg.n_axes)))   # compile the kernels now, not on the first block
     plant.reset()
