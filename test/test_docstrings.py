@@ -21,11 +21,6 @@ ROOT = Path(__file__).resolve().parents[1]
 PENDING = {
     "piezo_ff_ros.core.compensators.hysteresis.HysteresisCompensator.h",
     "piezo_ff_ros.core.compensators.vibration.VibrationCompensator.order",
-    "piezo_ff_ros.core.hardware.rig.BackendRig.close",
-    "piezo_ff_ros.core.hardware.stream.StreamBook.started",
-    "piezo_ff_ros.core.hot_swap.HotSwapCascade.pending_version",
-    "piezo_ff_ros.core.hot_swap.HotSwapCascade.pending_cfg",
-    "piezo_ff_ros.core.hot_swap.HotSwapCascade.crossfading",
     "piezo_ff_ros.core.models.bouc_wen.BoucWenState.copy",
     "piezo_ff_ros.core.models.dynamics.discretise_dynamics",
     "piezo_ff_ros.core.models.effects.CreepNonlinearity.level_input",

@@ -221,11 +221,13 @@ class HotSwapCascade:
 
     @property
     def pending_version(self) -> int | None:
+        """Version of the configuration being built off the hot path (None: nothing pending)."""
         p = self._pending
         return p.version if p is not None else None
 
     @property
     def pending_cfg(self) -> PiezoConfig | None:
+        """The configuration being built off the hot path (None: nothing pending)."""
         p = self._pending
         return p.cfg if p is not None else None
 
@@ -445,6 +447,7 @@ class HotSwapCascade:
 
     @property
     def crossfading(self) -> bool:
+        """True while the output crossfades from the old cascade to the new one."""
         return self._fade is not None
 
     def status(self) -> dict[str, Any]:

@@ -123,4 +123,5 @@ class BackendRig:
         self.process(np.full((n, self.n_axes), float(self.core.s.limits.safe_voltage)))
 
     def close(self) -> None:
+        """Release the device (the backend puts it at its safe voltage where it can)."""
         self.core.close()

@@ -71,6 +71,7 @@ class StreamBook:
 
     @property
     def started(self) -> bool:
+        """True once the first block has anchored the stamp ↔ device-index map."""
         return bool(self._seg_d)
 
     def rebase(self, d: int, stamp: int) -> None:
