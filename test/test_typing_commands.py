@@ -1,5 +1,6 @@
-"""Type checking gate for the command and ROS-process layers (issue 11.5): mypy's default check, configured in
-setup.cfg, passes on ``piezo_ff_ros/cli`` and ``piezo_ff_ros/ros``, and every function there is fully annotated.
+"""Type checking gate for the command, node and ROS-process layers (issue 11.5): mypy's default check, configured
+in setup.cfg, passes on ``piezo_ff_ros/cli``, ``piezo_ff_ros/ros`` and ``piezo_ff_ros/nodes`` (with its backends),
+and every function there is fully annotated.
 
 ``cli/bench.py`` and ``cli/diagnose.py`` are checked once their own change lands (listed in PENDING: the list may
 only shrink).
@@ -16,7 +17,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = ROOT / "setup.cfg"
-LAYERS = ("piezo_ff_ros/cli", "piezo_ff_ros/ros")
+LAYERS = ("piezo_ff_ros/cli", "piezo_ff_ros/ros", "piezo_ff_ros/nodes", "piezo_ff_ros/nodes/backends")
 PENDING = {"piezo_ff_ros/cli/bench.py", "piezo_ff_ros/cli/diagnose.py"}
 
 

@@ -128,7 +128,7 @@ def _coerce(parameter: Parameter, declared: int) -> None:
     stays a double), integer array → double array, an empty array of any type (rclpy types ``[]`` as bytes) →
     the declared array type.  Anything else is left for rclpy to refuse."""
     t, v = parameter.type_, parameter.value
-    new = None
+    new: tuple[Any, Any] | None = None
     if declared == ParameterType.PARAMETER_DOUBLE and t == Parameter.Type.INTEGER and abs(v) < 2 ** 53:
         new = (Parameter.Type.DOUBLE, float(v))
     elif declared == ParameterType.PARAMETER_DOUBLE_ARRAY and t == Parameter.Type.INTEGER_ARRAY:
@@ -201,7 +201,7 @@ class CompensatorNode(Node):
         super().__init__("compensator", **kwargs)
         self._values: dict = {}
         self._types: dict = {}
-        self._candidate = None
+        self._candidate: tuple[dict[str, Any], Any, bool] | None = None
         self._declaring = True
         self._internal = False        # the node sets its own parameters (revert, config_yaml mirror)
         self.base = None
@@ -240,7 +240,7 @@ class CompensatorNode(Node):
                                 else ""))
         self.hs = HotSwapCascade(cfg, crossfade_samples=int(round(self.crossfade * cfg.sample_rate)))
         self.front = TrackingFront(cfg, controller_matrices(self.hs.active), self._front_values)
-        self._front_candidate = None
+        self._front_candidate: tuple[dict[str, Any], Any] | None = None
         self.blocks = 0
         self.rejected_blocks = 0
         self.input = {"gaps": 0, "gap_samples": 0, "late_blocks": 0, "workspace_clamped_samples": 0}
@@ -248,7 +248,7 @@ class CompensatorNode(Node):
         self.applied_rejected = 0
         self.last_error = ""
         self._seen_failed = 0
-        self._announced_version = None
+        self._announced_version: int | None = None
         self._next_stamp = None
         self._last_block_wall = 0.0
         self.pacer = HoldPacer(cfg.sample_rate, self.block_size, self.hold_timeout)
@@ -275,7 +275,7 @@ class CompensatorNode(Node):
         desc = _descriptor(name, value, description, read_only)
         self._types[name] = desc.type
         if isinstance(value, list) and not value:   # rclpy would type an empty list as a byte array
-            p = self.declare_parameter(name, _PY_TYPE[desc.type], desc)   # uninitialised unless overridden
+            p: Any = self.declare_parameter(name, _PY_TYPE[desc.type], desc)   # uninitialised unless overridden
             if p.type_ == Parameter.Type.NOT_SET:
                 self._set_own([self._typed(name, [])])
             v = self.get_parameter(name).value

@@ -22,6 +22,9 @@ import math
 import os
 import sys
 from dataclasses import replace
+from typing import Any
+
+import numpy as np
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor
@@ -30,9 +33,9 @@ from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from ..core.config import ConfigError, LimitsConfig, load_config
+from ..core.config import ConfigError, load_config
 from ..core.hardware import DriverCore, DriverSettings
-from ..core.hardware.driver_core import ERROR, WARN, lockstep_pacing
+from ..core.hardware.driver_core import ERROR, WARN, Emit, lockstep_pacing
 from ..core.safety import SafeRampConfig
 from .backends import get_spec
 from .common import (BLOCK_QOS, LATCHED_QOS, BlockFormatError, diag_values, pack_block, run_node, stamp_to_ns,
@@ -41,16 +44,15 @@ from .common import (BLOCK_QOS, LATCHED_QOS, BlockFormatError, diag_values, pack
 _LEVEL = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
 
 
-def _check(name: str, value, lo: float, hi: float, unit: str = ""):
+def _check(name: str, value: Any, lo: float, hi: float, unit: str = "") -> None:
     if not (isinstance(value, (int, float)) and math.isfinite(value) and lo <= value <= hi):
         raise ConfigError(name, f"must be in [{lo:g}, {hi:g}]{unit}, got {value!r}")
-    return value
 
 
 class DriverNode(Node):
     """See the module docstring."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("driver", **kwargs)
         settings, backend_name, bparams, p = self._declare_all()
         self.axes = self.cfg.axes
@@ -93,18 +95,19 @@ class DriverNode(Node):
                                f"{settings.ramp.duration} s at ≤ {settings.ramp.slew} V/s")
 
     # -- parameters ------------------------------------------------------------------------------------------------
-    def _param(self, name: str, default, description: str = ""):
+    def _param(self, name: str, default: Any, description: str = "") -> Any:
         return self.declare_parameter(name, default, ParameterDescriptor(
             description=description or name, read_only=True)).value
 
-    def _declare_all(self):
+    def _declare_all(self) -> tuple[DriverSettings, str, dict[str, Any], dict[str, Any]]:
         cfg_file = self._param("config_file", "", "configuration YAML ('' = the paper's)")
         variant = self._param("variant", "", "config variant")
         self.cfg = load_config(cfg_file or None, variant or None)
         lim = self.cfg.limits
-        limits = {k: float(self._param(f"limits.{k}", float(getattr(lim, k)))) for k in
-                  ("voltage", "slew", "stale_timeout", "safe_voltage")}
-        limits = LimitsConfig(**limits).validate()
+        given = {k: float(self._param(f"limits.{k}", float(getattr(lim, k)))) for k in
+                 ("voltage", "slew", "stale_timeout", "safe_voltage")}
+        limits = replace(lim, voltage=given["voltage"], slew=given["slew"], stale_timeout=given["stale_timeout"],
+                         safe_voltage=given["safe_voltage"]).validate()   # the config's workspace kept
         # the config describes the amplifier: a parameter may tighten its limits, never widen them
         for k in ("voltage", "slew"):
             if getattr(limits, k) > getattr(lim, k):
@@ -160,7 +163,7 @@ class DriverNode(Node):
     def on_tick(self) -> None:
         self._emit(self.core.tick() if self.core.started else self.core.start())
 
-    def _emit(self, em) -> None:
+    def _emit(self, em: Emit) -> None:
         for stamp, u in em.applied:
             self.pub_u.publish(pack_block(u, self.axes, stamp))
         for stamp, y in em.displacement:
@@ -176,7 +179,7 @@ class DriverNode(Node):
             else:
                 log.info(text)
 
-    def _joint_states(self, y, stamp: int) -> None:
+    def _joint_states(self, y: np.ndarray, stamp: int) -> None:
         n = y.shape[0]
         before = self._js_count
         self._js_count += n
@@ -190,7 +193,7 @@ class DriverNode(Node):
         js.position = [float(v) for v in y[-1]]
         self.pub_js.publish(js)
 
-    def on_reset(self, request, response):
+    def on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         if self.core.reset():
             self.malformed_blocks, self._js_count = 0, 0
             self._emit(self.core.tick())
@@ -232,7 +235,7 @@ class DriverNode(Node):
         self.pub_diag.publish(arr)
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node("driver", DriverNode, lambda n: n.core.close(), argv)
 
 

@@ -79,15 +79,15 @@ class RecorderNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("recorder", **kwargs)
         default_out = time.strftime("run_%Y%m%dT%H%M%SZ.mcap", time.gmtime())
-        out = self.declare_parameter("output", default_out).value
-        topics = list(self.declare_parameter("topics", DEFAULT_TOPICS).value)
-        cfg_file = self.declare_parameter("config_file", "").value
-        variant = self.declare_parameter("variant", "").value
-        extra = self.declare_parameter("metadata", "{}").value
+        out: str = self.declare_parameter("output", default_out).value
+        topics: list[str] = list(self.declare_parameter("topics", DEFAULT_TOPICS).value)
+        cfg_file: str = self.declare_parameter("config_file", "").value
+        variant: str = self.declare_parameter("variant", "").value
+        extra_text: str = self.declare_parameter("metadata", "{}").value
         flush = float(self.declare_parameter("flush_interval", 1.0).value)
         period = float(self.declare_parameter("discovery_period", 0.5).value)
         try:
-            extra = json.loads(extra) if extra else {}
+            extra = json.loads(extra_text) if extra_text else {}
             if not isinstance(extra, dict):
                 raise ValueError("not an object")
         except ValueError as exc:
@@ -108,7 +108,7 @@ class RecorderNode(Node):
         self.config_versions: list[dict] = []
         self.topics = {self.resolve_topic_name(t): t for t in topics}
         self.types: dict[str, str] = {}
-        self.subs = {}
+        self.subs: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
         self._matched: dict[str, int] = {}
         self.error: str | None = None      # why recording stopped early
@@ -228,7 +228,7 @@ class RecorderNode(Node):
                  "config_yaml": d["config_yaml"], "parameters": d.get("parameters", {})}
         self.config_versions = [v for v in self.config_versions if v["version"] != entry["version"]] + [entry]
         self.config_versions.sort(key=lambda v: v["version"])
-        meta = {"config_versions": self.config_versions}
+        meta: dict[str, Any] = {"config_versions": self.config_versions}
         if len(self.config_versions) == 1 or entry["version"] == min(v["version"] for v in self.config_versions):
             meta["config_yaml"] = entry["config_yaml"]
             self.node_parameters["compensator"] = entry["parameters"]

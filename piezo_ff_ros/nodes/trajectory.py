@@ -42,6 +42,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -92,12 +93,12 @@ def _parse(text: str, file: str, sample_rate: float) -> Trajectory:
 class TrajectoryNode(Node):
     """See the module docstring."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("trajectory", **kwargs)
         self._ready = False
         self.add_on_set_parameters_callback(self._on_set)
-        self.traj = None
-        p = {
+        self.traj: Trajectory | None = None     # set below (the on-set callback runs during the declarations)
+        p: dict[str, Any] = {
             "trajectory": self.declare_parameter("trajectory", DEFAULT_TRAJECTORY).value,
             "trajectory_file": self.declare_parameter("trajectory_file", "").value,
             "mode": self.declare_parameter("mode", "realtime").value,
@@ -130,9 +131,9 @@ class TrajectoryNode(Node):
         self._inflight: dict[int, float] = {}    # lockstep: stamp → when sent (monotonic)
         self.unanswered = 0                       # lockstep blocks given up (never answered)
         self._last_ack = time.monotonic()
-        self._play_thread = None
+        self._play_thread: threading.Thread | None = None
         self._stop = threading.Event()
-        self.state = {"state": "idle"}
+        self.state: dict[str, Any] = {"state": "idle"}
         self._run_mode: str | None = None          # the mode of the run being played (the parameter may change)
         self.pub_ref = self.create_publisher(PointCloud2, "reference", BLOCK_QOS)
         self.pub_exp = self.create_publisher(String, "experiment", LATCHED_QOS)
@@ -149,11 +150,17 @@ class TrajectoryNode(Node):
         if p["autostart"]:
             self.start()
 
-    def param(self, name):
+    def _trajectory(self) -> Trajectory:
+        """The trajectory to play (always set once the node is built)."""
+        if self.traj is None:
+            raise RuntimeError("trajectory node: no trajectory yet")
+        return self.traj
+
+    def param(self, name: str) -> Any:
         return self.get_parameter(name).value
 
     # -- parameters ------------------------------------------------------------------------------------------------
-    def _on_set(self, params) -> SetParametersResult:
+    def _on_set(self, params: list[Parameter]) -> SetParametersResult:
         values = {p.name: p.value for p in params}
         try:
             if "mode" in values and values["mode"] not in ("realtime", "lockstep"):
@@ -194,7 +201,7 @@ class TrajectoryNode(Node):
         """A table as a block message: saved as .npy, then set as ``trajectory_file`` (validated like any change)."""
         log = self.get_logger()
         try:
-            table = np.ascontiguousarray(unpack_block(msg, tuple(self.traj.axes)), dtype=float)
+            table = np.ascontiguousarray(unpack_block(msg, tuple(self._trajectory().axes)), dtype=np.float64)
         except BlockFormatError as exc:
             log.error(f"~/table: refused ({exc})")
             return
@@ -219,17 +226,17 @@ class TrajectoryNode(Node):
             log.error(f"~/table: refused ({res.reason})")
 
     # -- play ------------------------------------------------------------------------------------------------------
-    def on_start(self, request, response):
+    def on_start(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         response.success, response.message = self.start()
         return response
 
-    def on_stop(self, request, response):
+    def on_stop(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         was = self._play_thread is not None and self._play_thread.is_alive()
         self.stop()
         response.success, response.message = True, ("stopped" if was else "was not playing")
         return response
 
-    def start(self):
+    def start(self) -> tuple[bool, str]:
         if self._play_thread is not None and self._play_thread.is_alive():
             return False, "already playing (call ~/stop first)"
         self._stop.clear()
@@ -237,7 +244,7 @@ class TrajectoryNode(Node):
         self._play_thread.start()
         return True, f"playing {type(self.traj).__name__} from sample {self.k_stream}"
 
-    def stop(self, join=True):
+    def stop(self, join: bool = True) -> None:
         self._stop.set()
         with self._cv:
             self._cv.notify_all()
@@ -256,7 +263,7 @@ class TrajectoryNode(Node):
             self.k_stream = max(self.k_stream, end_k) if end_k > 0 else self.k_stream
             self._cv.notify_all()
 
-    def _give_up(self, stamps, why: str) -> None:
+    def _give_up(self, stamps: list[int], why: str) -> None:
         """Lockstep (under ``_cv``): stop waiting for these blocks; counted, WARN, in ``~/state``."""
         if not stamps:
             return
@@ -297,20 +304,20 @@ class TrajectoryNode(Node):
         if settle:
             time.sleep(0.5)  # graph discovery precedes endpoint matching by a little
 
-    def _set_state(self, state, **extra):
+    def _set_state(self, state: str, **extra: Any) -> None:
         self.state = {"state": state, "mode": self._run_mode or self.param("mode"), "k": int(self.k_stream),
                       "unanswered_blocks": self.unanswered, **extra}
         self.pub_state.publish(String(data=json.dumps(self.state)))
 
-    def _marker(self, name, k0, meta, k1=None):
+    def _marker(self, name: str, k0: int, meta: dict[str, Any], k1: int | None = None) -> None:
         info = {"name": name, "k0": int(k0), "stamp_ns": int(self.t0_ns + k0 * self.period_ns),
                 "stages": meta.get("stages"), **{k: v for k, v in meta.items() if k != "stages"}}
         if k1 is not None:   # the segment's own end: samples a clocked device holds after it are not part of it
             info["k1"] = int(k1)
         self.pub_exp.publish(String(data=json.dumps(info, default=str)))
 
-    def _play(self):
-        traj, fs = self.traj, self.fs
+    def _play(self) -> None:
+        traj, fs = self._trajectory(), self.fs
         mode, n_blk, window = self.param("mode"), int(self.param("block_size")), int(self.param("window"))
         self._run_mode = mode
         preview = int(round(float(self.param("preview_s")) * self.fs))  # samples played ahead
@@ -388,7 +395,7 @@ class TrajectoryNode(Node):
                     pass
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node("trajectory", TrajectoryNode, lambda n: n.stop(), argv)
 
 

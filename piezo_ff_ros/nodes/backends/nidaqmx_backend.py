@@ -46,9 +46,11 @@ class NidaqmxBackend(StreamingBackend):
     def __init__(self, cfg: PiezoConfig, p: dict[str, Any], nidaqmx: Any = None) -> None:
         if nidaqmx is None:
             try:
-                import nidaqmx  # noqa: PLC0415 - optional extra
-                import nidaqmx.stream_readers  # noqa: F401 - subpackages are not imported by the package
-                import nidaqmx.stream_writers  # noqa: F401
+                import importlib  # noqa: PLC0415 - the optional extra is imported only when used
+
+                nidaqmx = importlib.import_module("nidaqmx")
+                for sub in ("stream_readers", "stream_writers"):   # not imported by the package itself
+                    importlib.import_module(f"nidaqmx.{sub}")
             except ImportError as exc:
                 raise BackendError(f"nidaqmx: the nidaqmx package is not installed ({exc}); "
                                    "pip install 'piezo_ff_ros[nidaqmx]'") from None
@@ -76,7 +78,10 @@ class NidaqmxBackend(StreamingBackend):
                                f"with amp_gain {self.gain.tolist()} (needs ±{worst:.3g} V)")
         self.info = DeviceInfo(name=f"nidaqmx:{p['device']}", sample_rate_hz=float(cfg.sample_rate), n_axes=n,
                                fifo_depth=int(p["fifo_depth"]), has_sensor=bool(self.ai), clocked=True)
-        self._ao_task = self._ai_task = self._writer = self._reader = None
+        self._ao_task: Any = None   # nidaqmx objects once started
+        self._ai_task: Any = None
+        self._writer: Any = None
+        self._reader: Any = None
         self._widx = 0
         self._pending_applied: list[tuple[int, np.ndarray]] = []
         self._applied_upto = 0

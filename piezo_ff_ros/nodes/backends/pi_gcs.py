@@ -70,7 +70,7 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
                                f"{list(cfg.axes)}")
         self.cfg = cfg
         self.gateway = gateway
-        self.dev = None
+        self.dev: Any = None    # the pipython GCSDevice once started
         self.idn = ""
         self.info = DeviceInfo(name="pi_gcs", sample_rate_hz=float(cfg.sample_rate), n_axes=cfg.n_axes,
                                fifo_depth=1 << 30, has_sensor=False, clocked=False)

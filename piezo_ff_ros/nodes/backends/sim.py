@@ -17,11 +17,11 @@ if TYPE_CHECKING:
 
 def create(cfg: PiezoConfig, p: dict[str, Any]) -> LockstepSim | ClockedSim:
     """The simulated device for the driver node (``BackendSpec.create``)."""
-    plant = Plant(cfg, noise_std=p["noise_std"], seed=p["seed"])
-    plant.process(np.zeros((1, cfg.n_axes)))   # compile the kernels now, not on the first block
-    plant.reset()
-    if not p["sensor"]:   # an amplifier without displacement sensor: the stage moves, nothing is measured
-        plant = None
+    model = Plant(cfg, noise_std=p["noise_std"], seed=p["seed"])
+    model.process(np.zeros((1, cfg.n_axes)))   # compile the kernels now, not on the first block
+    model.reset()
+    # an amplifier without displacement sensor: the stage moves, nothing is measured
+    plant = model if p["sensor"] else None
     if p["mode"] == "lockstep":
         return LockstepSim(cfg.sample_rate, cfg.n_axes, plant)
     return ClockedSim(cfg.sample_rate, cfg.n_axes, plant, fifo_depth=p["fifo_depth"],
