@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..kernels.fused import FusedPart
 from ..lti import DiscreteModalSS, LTIFilter
 from ..stage import StageState, transfer_linear_state
 
@@ -76,3 +77,7 @@ class VibrationCompensator:
     def continue_from(self, old: "VibrationCompensator", u_last: np.ndarray | None = None) -> None:
         """Bumpless takeover from ``old`` (see :func:`~piezo_ff_ros.core.stage.transfer_linear_state`)."""
         self.filter.x[:] = transfer_linear_state(old.ss, old.filter.x, self.ss, u_last)[0]
+
+    def fused_part(self) -> FusedPart | None:
+        """This stage's share of a fused pass (:mod:`~piezo_ff_ros.core.kernels.fused`), None if not fusable."""
+        return self.filter.fused_part()

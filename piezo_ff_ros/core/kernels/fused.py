@@ -1,0 +1,331 @@
+"""Fused chains: consecutive two-axis stages run as one compiled pass per block (pure).
+
+The standard chain ``Y_R → C(s) → creep⁻¹ → hysteresis⁻¹ → U → Bouc-Wen → K + Cr(s) → G_L(s) → Y`` is six stages
+in six slots::
+
+    VIB (modal bank) → CINV (creep compensator) → COMP (hysteresis compensator)
+        → MODEL (Bouc-Wen model) → CREEP (modal bank, D = K) → DYN (modal bank)
+
+Any run of consecutive stages that fills some of these slots in this order (a compensator cascade, a plant, both,
+or part of either) is run by :func:`fused_run`: one loop over the samples, each sample through every present slot
+with the stages' own step functions (:func:`~.modal.bank2_step`, :func:`~.modal.inverse2_step`,
+:func:`~.bouc_wen.bw2_comp_step`, :func:`~.bouc_wen.bw2_model_step`), on the stages' own state arrays.  It
+therefore gives the numbers of the stages run one by one — and, like them, the same numbers whatever the block split
+— and one call replaces six.  The block is run chunk by chunk (:data:`_CHUNK` samples in a cache-resident buffer),
+each slot in its own tight loop over the chunk: the processor overlaps successive samples of a stage as in the
+stage's own kernel (a per-sample loop through all six slots would make each sample wait for the whole chain).
+
+A stage joins a fused pass by offering ``fused_part() -> FusedPart | None`` (its slot kind, constants and state
+arrays); :func:`plan_fusion` groups a list of stages into stages and :class:`FusedPass` objects.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple, Sequence
+
+import numpy as np
+
+from .._jit import njit
+from .bouc_wen import (FALLBACKS, N_COUNTERS, SATURATED, bw2_comp_first, bw2_comp_step, bw2_model_step, coeff_tuple,
+                       model_coeff_tuple)
+from .modal import bank2_step, gather_2x2, inverse2_step, scatter_2x2
+
+__all__ = ["BANK", "INVERSE", "COMP", "MODEL", "SLOT_KINDS", "FusedPart", "FusedPass", "plan_fusion", "fused_run"]
+
+#: kinds of fusable stage
+BANK, INVERSE, COMP, MODEL = 0, 1, 2, 3
+#: the kind of each slot, in processing order (VIB, CINV, COMP, MODEL, CREEP, DYN)
+SLOT_KINDS = (BANK, INVERSE, COMP, MODEL, BANK, BANK)
+_BANK_SLOTS = (0, 1, 4, 5)
+_L_BANK = 6          # L[6 + 8·b …]: bank b's layout
+_L_COMP = 6 + 8 * 4  # L[38], L[39]: compensator coefficients offset in P, exact flag
+_L_MODEL = _L_COMP + 2
+#: samples per chunk of the fused loop (its buffer stays in L1)
+_CHUNK = 64
+
+
+class FusedPart(NamedTuple):
+    """What a stage gives a fused pass.
+
+    ``kind`` :data:`BANK`: ``consts = (A_pad, io_pad, feeds, D, offsets, sizes)``, ``state = (x,)``;
+    :data:`INVERSE`: the same with ``K⁻¹`` for D; :data:`COMP`: ``consts = (coeffs[36], exact, ulim, dulim)``,
+    ``state = (h, u_prev, started, signs)``; :data:`MODEL`: ``consts = (coeffs[28],)``,
+    ``state = (h, u_prev, started)``.  ``counter`` receives the compensator's counters after each block.
+    """
+
+    kind: int
+    consts: tuple[Any, ...]
+    state: tuple[np.ndarray, ...]
+    counter: Callable[[np.ndarray], None] | None = None
+
+
+def _slots_of(parts: Sequence[FusedPart]) -> list[int] | None:
+    """The slot of each part (increasing), or None when the parts do not fit the slot order."""
+    slots, s = [], 0
+    for p in parts:
+        while s < len(SLOT_KINDS) and SLOT_KINDS[s] != p.kind:
+            s += 1
+        if s == len(SLOT_KINDS):
+            return None
+        slots.append(s)
+        s += 1
+    return slots
+
+
+class FusedPass:
+    """Consecutive fusable stages run by :func:`fused_run` (built by :func:`plan_fusion`)."""
+
+    def __init__(self, stages: Sequence[Any], parts: Sequence[FusedPart]) -> None:
+        slots = _slots_of(parts)
+        if slots is None or len(parts) < 1:
+            raise ValueError("fused pass: the stages do not fit the slot order VIB, CINV, COMP, MODEL, CREEP, DYN")
+        self.stages = list(stages)
+        self.n_in = 2
+        self.n_out = 2
+        P: list[np.ndarray] = []
+        L = np.zeros(_L_MODEL + 1, np.int64)
+        extra: list[np.ndarray] = []
+        dummy_x = np.zeros(0)
+        self._x = [dummy_x, dummy_x, dummy_x, dummy_x]
+        self._comp = (np.zeros(2), np.zeros(2), np.zeros(1, np.bool_), np.ones(2))
+        self._model = (np.zeros(2), np.zeros(2), np.zeros(1, np.bool_))
+        self._count: Callable[[np.ndarray], None] | None = None
+        n_p = 0
+
+        def put(a: np.ndarray) -> int:
+            nonlocal n_p
+            off = n_p
+            P.append(np.ascontiguousarray(a, float).reshape(-1))
+            n_p += P[-1].size
+            return off
+        n_l = len(L)
+
+        def put_i(a: np.ndarray) -> int:
+            nonlocal n_l
+            off = n_l
+            extra.append(np.ascontiguousarray(a, np.int64).reshape(-1))
+            n_l += extra[-1].size
+            return off
+        for part, slot in zip(parts, slots):
+            L[slot] = 1
+            if slot in _BANK_SLOTS:
+                b = _BANK_SLOTS.index(slot)
+                A_pad, io_pad, feeds, D, offsets, sizes = part.consts
+                base = _L_BANK + 8 * b
+                L[base:base + 7] = (put(A_pad), put(io_pad), put(D), len(sizes), put_i(offsets), put_i(sizes),
+                                    put_i(feeds))
+                self._x[b] = part.state[0]
+            elif slot == 2:
+                coeffs, exact, ulim, dulim = part.consts
+                L[_L_COMP] = put(np.concatenate([coeffs, [ulim, dulim]]))
+                L[_L_COMP + 1] = int(bool(exact))
+                self._comp = part.state  # type: ignore[assignment]  # (h, u_prev, started, signs)
+                self._count = part.counter
+            else:
+                L[_L_MODEL] = put(part.consts[0])
+                self._model = part.state  # type: ignore[assignment]  # (h, u_prev, started)
+        if not L[2]:  # absent: zeros, so that the kernel's reads stay inside P
+            L[_L_COMP] = put(np.zeros(38))
+        if not L[3]:
+            L[_L_MODEL] = put(np.zeros(28))
+        self.P = np.ascontiguousarray(np.concatenate(P))
+        self.L = np.ascontiguousarray(np.concatenate([L, *extra]))
+        self.slots = slots
+        self._counters = np.zeros(N_COUNTERS, np.int64)
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        for st in self.stages:
+            st.reset()
+
+    def process(self, block: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, 2] → [N, 2]`` through every stage of the pass; the states move on by N samples."""
+        u = np.ascontiguousarray(block, dtype=float)
+        if u.ndim != 2 or u.shape[1] != 2:
+            raise ValueError(f"expected a block of shape [N, 2], got {u.shape}")
+        y = np.empty_like(u)
+        counters = self._counters
+        x = self._x
+        ch, cu, cs, cg = self._comp
+        mh, mu, ms = self._model
+        fused_run(self.P, self.L, x[0], x[1], x[2], x[3], ch, cu, cs, cg, mh, mu, ms, counters, u, y)
+        if self._count is not None:
+            self._count(counters)
+        return y
+
+
+def plan_fusion(stages: Sequence[Any]) -> list[Any]:
+    """``stages`` with every run of two or more consecutive fusable stages replaced by one :class:`FusedPass`.
+
+    Parameters
+    ----------
+    stages : sequence
+        Stages in processing order (not chains).
+
+    Returns
+    -------
+    list
+        Stages and fused passes, in processing order.
+    """
+    out: list[Any] = []
+    run: list[Any] = []
+    parts: list[FusedPart] = []
+
+    def flush() -> None:
+        if len(run) >= 2:
+            out.append(FusedPass(run, parts))
+        else:
+            out.extend(run)
+        run.clear()
+        parts.clear()
+    for st in stages:
+        fp = getattr(st, "fused_part", None)
+        part = fp() if fp is not None else None
+        if part is None:
+            flush()
+            out.append(st)
+            continue
+        if _slots_of([*parts, part]) is None:
+            flush()
+        run.append(st)
+        parts.append(part)
+    flush()
+    return out
+
+
+@njit(inline="always")
+def _bank(P: np.ndarray, L: np.ndarray, b: int,
+          x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Bank ``b``'s padded A, io, feeds, D (K⁻¹ for CINV) and its state gathered into the padded layout."""
+    base = 6 + 8 * b
+    nb = L[base + 3]
+    pA = L[base]
+    pio = L[base + 1]
+    pD = L[base + 2]
+    A = P[pA:pA + 4 * nb].reshape((2 * nb, 2))
+    io = P[pio:pio + 8 * nb].reshape((2 * nb, 4))
+    D = P[pD:pD + 4].reshape((2, 2))
+    feeds = L[L[base + 6]:L[base + 6] + nb]
+    xp = np.zeros(2 * nb)
+    if nb > 0:
+        gather_2x2(L[L[base + 4]:L[base + 4] + nb], L[L[base + 5]:L[base + 5] + nb], x, xp)
+    return A, io, feeds, D, xp
+
+
+@njit(inline="always")
+def _unbank(L: np.ndarray, b: int, xp: np.ndarray, x: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Bank ``b``'s padded state back into its public layout."""
+    base = 6 + 8 * b
+    nb = L[base + 3]
+    if nb > 0:
+        scatter_2x2(L[L[base + 4]:L[base + 4] + nb], L[L[base + 5]:L[base + 5] + nb], xp, x)
+
+
+@njit
+def fused_run(P: np.ndarray, L: np.ndarray, x0: np.ndarray, x1: np.ndarray, x4: np.ndarray, x5: np.ndarray,
+              ch: np.ndarray, cu: np.ndarray, cs: np.ndarray, cg: np.ndarray, mh: np.ndarray, mu: np.ndarray,
+              ms: np.ndarray, counters: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
+    """The present slots of VIB → CINV → COMP → MODEL → CREEP → DYN over a block ``u [N, 2]`` → ``y [N, 2]``.
+
+    ``P``/``L``: the constants and their layout (:class:`FusedPass`); ``x0, x1, x4, x5``: the banks' states
+    (public layout); ``ch, cu, cs, cg``: the compensator's h, last voltage, started, signs; ``mh, mu, ms``: the
+    model's h, last voltage, started; ``counters[FALLBACKS]``, ``counters[SATURATED]`` ← this block's counts.
+    """
+    N = u.shape[0]
+    has_vib = L[0] != 0
+    has_inv = L[1] != 0
+    has_comp = L[2] != 0
+    has_model = L[3] != 0
+    has_creep = L[4] != 0
+    has_dyn = L[5] != 0
+    A0, io0, f0, D0, xp0 = _bank(P, L, 0, x0)
+    A1, io1, f1, K1, xp1 = _bank(P, L, 1, x1)
+    A4, io4, f4, D4, xp4 = _bank(P, L, 2, x4)
+    A5, io5, f5, D5, xp5 = _bank(P, L, 3, x5)
+    v00, v01, v10, v11 = D0[0, 0], D0[0, 1], D0[1, 0], D0[1, 1]
+    r00, r01, r10, r11 = D4[0, 0], D4[0, 1], D4[1, 0], D4[1, 1]
+    g00, g01, g10, g11 = D5[0, 0], D5[0, 1], D5[1, 0], D5[1, 1]
+    # the compensator and the model, state in registers
+    pc = L[38]
+    cc = coeff_tuple(P[pc:pc + 36])
+    exact = L[39] != 0
+    ulim = P[pc + 36]
+    dulim = P[pc + 37]
+    mc = model_coeff_tuple(P[L[40]:L[40] + 28])
+    c_started = cs[0]
+    ch0, ch1, cu0, cu1, sg0, sg1 = ch[0], ch[1], cu[0], cu[1], cg[0], cg[1]
+    m_started = ms[0]
+    mh0, mh1, mu0, mu1 = mh[0], mh[1], mu[0], mu[1]
+    n_fallback = 0
+    n_saturated = 0
+    # Chunk by chunk: each slot runs its own tight loop over a chunk held in a small buffer (cache-resident), so
+    # the processor overlaps successive samples of one stage as the stage's own kernel does, with one call and no
+    # block-sized intermediates.
+    buf = np.empty((_CHUNK, 2))
+    for c0 in range(0, N, _CHUNK):
+        n = min(_CHUNK, N - c0)
+        for i in range(n):
+            buf[i, 0] = u[c0 + i, 0]
+            buf[i, 1] = u[c0 + i, 1]
+        if has_vib:
+            for i in range(n):
+                a0 = buf[i, 0]
+                a1 = buf[i, 1]
+                s0, s1 = bank2_step(A0, io0, f0, xp0, a0, a1)
+                buf[i, 0] = s0 + v00 * a0 + v01 * a1
+                buf[i, 1] = s1 + v10 * a0 + v11 * a1
+        if has_inv:
+            for i in range(n):
+                buf[i, 0], buf[i, 1] = inverse2_step(K1, A1, io1, f1, xp1, buf[i, 0], buf[i, 1])
+        if has_comp:
+            for i in range(n):
+                if not c_started:
+                    cu0, cu1, ns = bw2_comp_first(cc, ulim, buf[i, 0], buf[i, 1])
+                    n_saturated += ns
+                    c_started = True
+                else:
+                    ch0, ch1, cu0, cu1, sg0, sg1, nf, ns = bw2_comp_step(cc, exact, ulim, dulim, ch0, ch1, cu0, cu1,
+                                                                         sg0, sg1, buf[i, 0], buf[i, 1])
+                    n_fallback += nf
+                    n_saturated += ns
+                buf[i, 0] = cu0
+                buf[i, 1] = cu1
+        if has_model:
+            for i in range(n):
+                a0 = buf[i, 0]
+                a1 = buf[i, 1]
+                if not m_started:
+                    mu0 = a0
+                    mu1 = a1
+                    m_started = True
+                mh0, mh1, buf[i, 0], buf[i, 1] = bw2_model_step(mc, mh0, mh1, mu0, mu1, a0, a1)
+                mu0 = a0
+                mu1 = a1
+        if has_creep:
+            for i in range(n):
+                a0 = buf[i, 0]
+                a1 = buf[i, 1]
+                s0, s1 = bank2_step(A4, io4, f4, xp4, a0, a1)
+                buf[i, 0] = s0 + r00 * a0 + r01 * a1
+                buf[i, 1] = s1 + r10 * a0 + r11 * a1
+        if has_dyn:
+            for i in range(n):
+                a0 = buf[i, 0]
+                a1 = buf[i, 1]
+                s0, s1 = bank2_step(A5, io5, f5, xp5, a0, a1)
+                buf[i, 0] = s0 + g00 * a0 + g01 * a1
+                buf[i, 1] = s1 + g10 * a0 + g11 * a1
+        for i in range(n):
+            y[c0 + i, 0] = buf[i, 0]
+            y[c0 + i, 1] = buf[i, 1]
+    _unbank(L, 0, xp0, x0)
+    _unbank(L, 1, xp1, x1)
+    _unbank(L, 2, xp4, x4)
+    _unbank(L, 3, xp5, x5)
+    if has_comp:
+        ch[0], ch[1], cu[0], cu[1], cg[0], cg[1] = ch0, ch1, cu0, cu1, sg0, sg1
+        cs[0] = c_started
+    if has_model:
+        mh[0], mh[1], mu[0], mu[1] = mh0, mh1, mu0, mu1
+        ms[0] = m_started
+    counters[FALLBACKS] = n_fallback
+    counters[SATURATED] = n_saturated
