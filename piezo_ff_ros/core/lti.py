@@ -467,7 +467,7 @@ class LTIFilter:
         # two inputs, two outputs and 1×1/2×2 blocks (every 2-axis modal filter): the padded two-axis kernel
         self.two_axis = ss.n_in == 2 and ss.n_out == 2 and ss.small_blocks
         if self.two_axis:
-            self.A_pad, self.io_pad, self.feeds = pad_to_2x2(self._Ablk, ss.packed_io(), self._offsets, ss.sizes)
+            self.W, self.feeds = pad_to_2x2(self._Ablk, ss.packed_io(), self._offsets, ss.sizes)
         self.x = np.zeros(ss.n_states)
 
     @property
@@ -491,7 +491,7 @@ class LTIFilter:
         if u.ndim != 2 or u.shape[1] != self.ss.n_in:
             raise ValueError(f"expected a block of shape [N, {self.ss.n_in}], got {u.shape}")
         if self.two_axis:
-            bank_run_2x2(self.A_pad, self._offsets, self.ss.sizes, self.io_pad, self.feeds, self.ss.D, self.x, u, y)
+            bank_run_2x2(self.W, self._offsets, self.ss.sizes, self.feeds, self.ss.D, self.x, u, y)
         else:
             bank_run(self._Ablk, self._offsets, self.ss.sizes, self.ss.B, self.ss.C, self.ss.D, self.x, u, y)
         return y
@@ -500,8 +500,8 @@ class LTIFilter:
         """This filter's share of a fused pass (:mod:`~piezo_ff_ros.core.kernels.fused`): two-axis banks only."""
         if not self.two_axis:
             return None
-        return FusedPart(BANK, (self.A_pad, self.io_pad, self.feeds, np.ascontiguousarray(self.ss.D), self._offsets,
-                                self.ss.sizes), (self.x,))
+        return FusedPart(BANK, (self.W, self.feeds, np.ascontiguousarray(self.ss.D), self._offsets, self.ss.sizes),
+                         (self.x,))
 
     def output_now(self) -> np.ndarray:
         """C x (the strictly proper part of the next output)."""

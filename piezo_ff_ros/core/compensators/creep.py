@@ -54,8 +54,7 @@ class CreepCompensator:
         self._Ablk, self._offsets = self.ss.packed()
         self.two_axis = self.ss.n_in == 2 and self.ss.n_out == 2 and self.ss.small_blocks
         if self.two_axis:
-            self.A_pad, self.io_pad, self.feeds = pad_to_2x2(self._Ablk, self.ss.packed_io(), self._offsets,
-                                                             self.ss.sizes)
+            self.W, self.feeds = pad_to_2x2(self._Ablk, self.ss.packed_io(), self._offsets, self.ss.sizes)
         self.x = np.zeros(self.ss.n_states)
         # the Cr filter alone on the same state array: advances x from a given Y_H (re-synchronisation)
         self._cr = LTIFilter(self.ss)
@@ -82,8 +81,7 @@ class CreepCompensator:
         if yl.ndim != 2 or yl.shape[1] != self.n_in:
             raise ValueError(f"expected a block of shape [N, {self.n_in}], got {yl.shape}")
         if self.two_axis:
-            inverse_affine_run_2x2(self.Kinv, self.A_pad, self._offsets, self.ss.sizes, self.io_pad, self.feeds,
-                                   self.x, yl, yh)
+            inverse_affine_run_2x2(self.Kinv, self.W, self._offsets, self.ss.sizes, self.feeds, self.x, yl, yh)
         else:
             inverse_affine_run(self.Kinv, self._Ablk, self._offsets, self.ss.sizes, self.ss.B, self.ss.C, self.x,
                                 yl, yh)
@@ -101,8 +99,7 @@ class CreepCompensator:
         """This stage's share of a fused pass (:mod:`~piezo_ff_ros.core.kernels.fused`): two axes only."""
         if not self.two_axis:
             return None
-        return FusedPart(INVERSE, (self.A_pad, self.io_pad, self.feeds, self.Kinv, self._offsets, self.ss.sizes),
-                         (self.x,))
+        return FusedPart(INVERSE, (self.W, self.feeds, self.Kinv, self._offsets, self.ss.sizes), (self.x,))
 
     def follow(self, yh: np.ndarray) -> None:
         """Advance the state as if this stage had output ``yh`` (what the plant's creep actually received)."""

@@ -46,7 +46,7 @@ _CHUNK = 64
 class FusedPart(NamedTuple):
     """What a stage gives a fused pass.
 
-    ``kind`` :data:`BANK`: ``consts = (A_pad, io_pad, feeds, D, offsets, sizes)``, ``state = (x,)``;
+    ``kind`` :data:`BANK`: ``consts = (W, feeds, D, offsets, sizes)`` (:func:`~.modal.pad_to_2x2`), ``state = (x,)``;
     :data:`INVERSE`: the same with ``K⁻¹`` for D; :data:`COMP`: ``consts = (coeffs[36], exact, ulim, dulim)``,
     ``state = (h, u_prev, started, signs)``; :data:`MODEL`: ``consts = (coeffs[28],)``,
     ``state = (h, u_prev, started)``.  ``counter`` receives the compensator's counters after each block.
@@ -109,10 +109,9 @@ class FusedPass:
             L[slot] = 1
             if slot in _BANK_SLOTS:
                 b = _BANK_SLOTS.index(slot)
-                A_pad, io_pad, feeds, D, offsets, sizes = part.consts
+                W, feeds, D, offsets, sizes = part.consts
                 base = _L_BANK + 8 * b
-                L[base:base + 7] = (put(A_pad), put(io_pad), put(D), len(sizes), put_i(offsets), put_i(sizes),
-                                    put_i(feeds))
+                L[base:base + 6] = (put(W), put(D), len(sizes), put_i(offsets), put_i(sizes), put_i(feeds))
                 self._x[b] = part.state[0]
             elif slot == 2:
                 coeffs, exact, ulim, dulim = part.consts
@@ -194,30 +193,26 @@ def plan_fusion(stages: Sequence[Any]) -> list[Any]:
 
 @njit(inline="always")
 def _bank(P: np.ndarray, L: np.ndarray, b: int,
-          x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """Bank ``b``'s padded A, io, feeds, D (K⁻¹ for CINV) and its state gathered into the padded layout."""
+          x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Bank ``b``'s coefficient table (a local copy), feeds, D (K⁻¹ for CINV) and its state in the two-axis
+    layout."""
     base = 6 + 8 * b
-    nb = L[base + 3]
-    pA = L[base]
-    pio = L[base + 1]
-    pD = L[base + 2]
-    A = P[pA:pA + 4 * nb].reshape((2 * nb, 2))
-    io = P[pio:pio + 8 * nb].reshape((2 * nb, 4))
+    pW = L[base]
+    pD = L[base + 1]
+    nb = L[base + 2]
+    W = P[pW:pW + 12 * nb].reshape((12, nb)).copy()
     D = P[pD:pD + 4].reshape((2, 2))
-    feeds = L[L[base + 6]:L[base + 6] + nb]
-    xp = np.zeros(2 * nb)
-    if nb > 0:
-        gather_2x2(L[L[base + 4]:L[base + 4] + nb], L[L[base + 5]:L[base + 5] + nb], x, xp)
-    return A, io, feeds, D, xp
+    feeds = L[L[base + 5]:L[base + 5] + nb].copy()
+    xp = gather_2x2(L[L[base + 3]:L[base + 3] + nb], L[L[base + 4]:L[base + 4] + nb], x)
+    return W, feeds, D, xp
 
 
 @njit(inline="always")
 def _unbank(L: np.ndarray, b: int, xp: np.ndarray, x: np.ndarray) -> None:  # pragma: no cover - compiled
     """Bank ``b``'s padded state back into its public layout."""
     base = 6 + 8 * b
-    nb = L[base + 3]
-    if nb > 0:
-        scatter_2x2(L[L[base + 4]:L[base + 4] + nb], L[L[base + 5]:L[base + 5] + nb], xp, x)
+    nb = L[base + 2]
+    scatter_2x2(L[L[base + 3]:L[base + 3] + nb], L[L[base + 4]:L[base + 4] + nb], xp, x)
 
 
 @njit
@@ -237,10 +232,10 @@ def fused_run(P: np.ndarray, L: np.ndarray, x0: np.ndarray, x1: np.ndarray, x4: 
     has_model = L[3] != 0
     has_creep = L[4] != 0
     has_dyn = L[5] != 0
-    A0, io0, f0, D0, xp0 = _bank(P, L, 0, x0)
-    A1, io1, f1, K1, xp1 = _bank(P, L, 1, x1)
-    A4, io4, f4, D4, xp4 = _bank(P, L, 2, x4)
-    A5, io5, f5, D5, xp5 = _bank(P, L, 3, x5)
+    W0, f0, D0, xp0 = _bank(P, L, 0, x0)
+    W1, f1, K1, xp1 = _bank(P, L, 1, x1)
+    W4, f4, D4, xp4 = _bank(P, L, 2, x4)
+    W5, f5, D5, xp5 = _bank(P, L, 3, x5)
     v00, v01, v10, v11 = D0[0, 0], D0[0, 1], D0[1, 0], D0[1, 1]
     r00, r01, r10, r11 = D4[0, 0], D4[0, 1], D4[1, 0], D4[1, 1]
     g00, g01, g10, g11 = D5[0, 0], D5[0, 1], D5[1, 0], D5[1, 1]
@@ -270,12 +265,12 @@ def fused_run(P: np.ndarray, L: np.ndarray, x0: np.ndarray, x1: np.ndarray, x4: 
             for i in range(n):
                 a0 = buf[i, 0]
                 a1 = buf[i, 1]
-                s0, s1 = bank2_step(A0, io0, f0, xp0, a0, a1)
+                s0, s1 = bank2_step(W0, f0, xp0, a0, a1)
                 buf[i, 0] = s0 + v00 * a0 + v01 * a1
                 buf[i, 1] = s1 + v10 * a0 + v11 * a1
         if has_inv:
             for i in range(n):
-                buf[i, 0], buf[i, 1] = inverse2_step(K1, A1, io1, f1, xp1, buf[i, 0], buf[i, 1])
+                buf[i, 0], buf[i, 1] = inverse2_step(K1, W1, f1, xp1, buf[i, 0], buf[i, 1])
         if has_comp:
             for i in range(n):
                 if not c_started:
@@ -304,14 +299,14 @@ def fused_run(P: np.ndarray, L: np.ndarray, x0: np.ndarray, x1: np.ndarray, x4: 
             for i in range(n):
                 a0 = buf[i, 0]
                 a1 = buf[i, 1]
-                s0, s1 = bank2_step(A4, io4, f4, xp4, a0, a1)
+                s0, s1 = bank2_step(W4, f4, xp4, a0, a1)
                 buf[i, 0] = s0 + r00 * a0 + r01 * a1
                 buf[i, 1] = s1 + r10 * a0 + r11 * a1
         if has_dyn:
             for i in range(n):
                 a0 = buf[i, 0]
                 a1 = buf[i, 1]
-                s0, s1 = bank2_step(A5, io5, f5, xp5, a0, a1)
+                s0, s1 = bank2_step(W5, f5, xp5, a0, a1)
                 buf[i, 0] = s0 + g00 * a0 + g01 * a1
                 buf[i, 1] = s1 + g10 * a0 + g11 * a1
         for i in range(n):

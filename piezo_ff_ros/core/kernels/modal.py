@@ -2,7 +2,8 @@
 
 One generic loop for any size and block shape (:func:`bank_run`, and :func:`inverse_affine_run` for the creep
 compensator's ``Y_H = K⁻¹(Y_L − C x)`` loop), and a two-axis form where every block is stored as 2×2
-(:func:`pad_to_2x2`: a 1×1 block gets a second state that stays exactly 0) and the per-sample work is in the step
+(:func:`pad_to_2x2`: a table of per-block coefficients, a 1×1 block getting a second state that stays exactly 0) and
+the per-sample work is in the step
 functions :func:`bank2_step`, :func:`bank2_output`, :func:`bank2_update` — used by the block kernels here and by the
 fused chain kernels (:mod:`.fused`).  Every sum runs in the generic kernel's order (state by state, then the
 inputs), and the terms the padding and ``feeds`` leave out are exact zeros, so the two-axis kernels give the
@@ -14,13 +15,18 @@ import numpy as np
 
 from .._jit import njit
 
-__all__ = ["pad_to_2x2", "bank_run", "bank_run_2x2", "inverse_affine_run", "inverse_affine_run_2x2", "bank2_step",
+__all__ = ["A_PP", "A_PQ", "A_QP", "A_QQ", "B_P0", "B_P1", "B_Q0", "B_Q1", "C_0P", "C_0Q", "C_1P", "C_1Q", "pad_to_2x2", "bank_run", "bank_run_2x2", "inverse_affine_run", "inverse_affine_run_2x2", "bank2_step",
            "bank2_output", "bank2_update", "inverse2_step", "gather_2x2", "scatter_2x2"]
 
 
+#: rows of a two-axis bank's coefficient table ``W [12, blocks]`` (block b's states are p = ``x[off]``,
+#: q = ``x[off + 1]``; a 1×1 block has q ≡ 0 and zero coefficients on it)
+A_PP, A_PQ, A_QP, A_QQ, B_P0, B_P1, B_Q0, B_Q1, C_0P, C_0Q, C_1P, C_1Q = range(12)
+
+
 def pad_to_2x2(Ablk: np.ndarray, io: np.ndarray, offsets: np.ndarray,
-               sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Block b's A and io rows at 2b, 2b+1; a 1×1 block gets a second state with all-zero coefficients.
+               sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A two-axis bank as a table of per-block coefficients (structure of arrays, every block 2×2).
 
     Parameters
     ----------
@@ -33,21 +39,26 @@ def pad_to_2x2(Ablk: np.ndarray, io: np.ndarray, offsets: np.ndarray,
 
     Returns
     -------
-    A_pad, io_pad : ndarray
-        ``[2·blocks, 2]`` and ``[2·blocks, 4]``.
+    W : ndarray
+        ``[12, blocks]``, rows :data:`A_PP` … :data:`C_1Q`; a 1×1 block gets a second state with all-zero
+        coefficients (it stays exactly 0).
     feeds : ndarray
         ``feeds[b]``: bit 0 set if block b reaches output 0 (a non-zero in its C row), bit 1 for output 1 — a block
         from a SISO entry reaches only one.
     """
     nb = len(sizes)
-    A_pad = np.zeros((2 * nb, 2))
-    io_pad = np.zeros((2 * nb, io.shape[1]))
+    W = np.zeros((12, nb))
     for b, (off, s) in enumerate(zip(offsets, sizes)):
-        A_pad[2 * b:2 * b + s, :s] = Ablk[off:off + s, :s]
-        io_pad[2 * b:2 * b + s] = io[off:off + s]
-    reach = io_pad[:, 2:4].reshape(nb, 2, 2) != 0.0  # [block, state, output]
-    feeds = (np.any(reach[:, :, 0], axis=1) * 1 + np.any(reach[:, :, 1], axis=1) * 2).astype(np.int64)
-    return A_pad, io_pad, feeds
+        W[A_PP, b] = Ablk[off, 0]
+        W[B_P0, b], W[B_P1, b], W[C_0P, b], W[C_1P, b] = io[off]
+        if s == 2:
+            W[A_PQ, b] = Ablk[off, 1]
+            W[A_QP, b], W[A_QQ, b] = Ablk[off + 1, 0], Ablk[off + 1, 1]
+            W[B_Q0, b], W[B_Q1, b], W[C_0Q, b], W[C_1Q, b] = io[off + 1]
+    reach0 = (W[C_0P] != 0.0) | (W[C_0Q] != 0.0)
+    reach1 = (W[C_1P] != 0.0) | (W[C_1Q] != 0.0)
+    feeds = (reach0 * 1 + reach1 * 2).astype(np.int64)
+    return np.ascontiguousarray(W), feeds
 
 
 # ------------------------------------------------------------------------------------------------ generic
@@ -123,83 +134,82 @@ def inverse_affine_run(Kinv: np.ndarray, Ablk: np.ndarray, offsets: np.ndarray, 
 # ------------------------------------------------------------------------------------------------ two axes, padded
 
 @njit(inline="always")
-def bank2_step(A: np.ndarray, io: np.ndarray, feeds: np.ndarray, xp: np.ndarray, u0: float,
+def bank2_output(W: np.ndarray, feeds: np.ndarray, xp: np.ndarray) -> tuple[float, float]:  # pragma: no cover - compiled
+    """``C x`` of a two-axis bank (state ``xp [2, blocks]``: p then q), summed state by state as :func:`bank_run`."""
+    y0 = 0.0
+    y1 = 0.0
+    for b in range(feeds.shape[0]):
+        f = feeds[b]
+        if f & 1:
+            y0 += W[8, b] * xp[0, b]
+            y0 += W[9, b] * xp[1, b]
+        if f & 2:
+            y1 += W[10, b] * xp[0, b]
+            y1 += W[11, b] * xp[1, b]
+    return y0, y1
+
+
+@njit(inline="always")
+def bank2_update(W: np.ndarray, xp: np.ndarray, u0: float, u1: float) -> None:  # pragma: no cover - compiled
+    """``x ← A x + B u`` of a two-axis bank (independent blocks: one vectorisable loop)."""
+    for b in range(xp.shape[1]):
+        p = xp[0, b]
+        q = xp[1, b]
+        xp[0, b] = W[0, b] * p + W[1, b] * q + W[4, b] * u0 + W[5, b] * u1
+        xp[1, b] = W[2, b] * p + W[3, b] * q + W[6, b] * u0 + W[7, b] * u1
+
+
+@njit(inline="always")
+def bank2_step(W: np.ndarray, feeds: np.ndarray, xp: np.ndarray, u0: float,
                u1: float) -> tuple[float, float]:  # pragma: no cover - compiled
-    """One sample of a padded two-axis bank: returns ``C x`` (old state) and steps ``xp`` with ``(u0, u1)``.
+    """One sample of a two-axis bank: returns ``C x`` (old state) and steps ``xp`` with ``(u0, u1)``.
 
     One pass over the blocks: each block adds its old state to the outputs it reaches, then steps in place.
     """
     y0 = 0.0
     y1 = 0.0
     for b in range(feeds.shape[0]):
-        i = 2 * b
-        x0 = xp[i]
-        x1 = xp[i + 1]
+        p = xp[0, b]
+        q = xp[1, b]
         f = feeds[b]
         if f & 1:
-            y0 += io[i, 2] * x0
-            y0 += io[i + 1, 2] * x1
+            y0 += W[8, b] * p
+            y0 += W[9, b] * q
         if f & 2:
-            y1 += io[i, 3] * x0
-            y1 += io[i + 1, 3] * x1
-        xp[i] = A[i, 0] * x0 + A[i, 1] * x1 + io[i, 0] * u0 + io[i, 1] * u1
-        xp[i + 1] = A[i + 1, 0] * x0 + A[i + 1, 1] * x1 + io[i + 1, 0] * u0 + io[i + 1, 1] * u1
+            y1 += W[10, b] * p
+            y1 += W[11, b] * q
+        xp[0, b] = W[0, b] * p + W[1, b] * q + W[4, b] * u0 + W[5, b] * u1
+        xp[1, b] = W[2, b] * p + W[3, b] * q + W[6, b] * u0 + W[7, b] * u1
     return y0, y1
 
 
 @njit(inline="always")
-def bank2_output(io: np.ndarray, feeds: np.ndarray, xp: np.ndarray) -> tuple[float, float]:  # pragma: no cover - compiled
-    """``C x`` of a padded two-axis bank (the state is not changed)."""
-    y0 = 0.0
-    y1 = 0.0
-    for b in range(feeds.shape[0]):
-        i = 2 * b
-        f = feeds[b]
-        if f & 1:
-            y0 += io[i, 2] * xp[i]
-            y0 += io[i + 1, 2] * xp[i + 1]
-        if f & 2:
-            y1 += io[i, 3] * xp[i]
-            y1 += io[i + 1, 3] * xp[i + 1]
-    return y0, y1
-
-
-@njit(inline="always")
-def bank2_update(A: np.ndarray, io: np.ndarray, xp: np.ndarray, u0: float,
-                 u1: float) -> None:  # pragma: no cover - compiled
-    """``x ← A x + B u`` of a padded two-axis bank."""
-    for i in range(0, xp.shape[0], 2):
-        x0 = xp[i]
-        x1 = xp[i + 1]
-        xp[i] = A[i, 0] * x0 + A[i, 1] * x1 + io[i, 0] * u0 + io[i, 1] * u1
-        xp[i + 1] = A[i + 1, 0] * x0 + A[i + 1, 1] * x1 + io[i + 1, 0] * u0 + io[i + 1, 1] * u1
-
-
-@njit(inline="always")
-def gather_2x2(offsets: np.ndarray, sizes: np.ndarray, x: np.ndarray, xp: np.ndarray) -> None:  # pragma: no cover - compiled
-    """The public state ``x`` into the padded layout ``xp`` (padding states 0)."""
-    for i in range(xp.shape[0]):
-        xp[i] = 0.0
-    for b in range(sizes.shape[0]):
+def gather_2x2(offsets: np.ndarray, sizes: np.ndarray, x: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """The public state ``x`` in the two-axis layout ``[2, blocks]`` (the q of a 1×1 block is 0), a new array."""
+    nb = sizes.shape[0]
+    xp = np.zeros((2, nb))
+    for b in range(nb):
         for r in range(sizes[b]):
-            xp[2 * b + r] = x[offsets[b] + r]
+            xp[r, b] = x[offsets[b] + r]
+    return xp
 
 
 @njit(inline="always")
 def scatter_2x2(offsets: np.ndarray, sizes: np.ndarray, xp: np.ndarray, x: np.ndarray) -> None:  # pragma: no cover - compiled
-    """The padded state ``xp`` back into the public layout ``x``."""
+    """The two-axis state ``xp`` back into the public layout ``x``."""
     for b in range(sizes.shape[0]):
         for r in range(sizes[b]):
-            x[offsets[b] + r] = xp[2 * b + r]
+            x[offsets[b] + r] = xp[r, b]
 
 
 @njit
-def bank_run_2x2(A_pad: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, io_pad: np.ndarray, feeds: np.ndarray,
-                 D: np.ndarray, x: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
-    """:func:`bank_run` for two inputs, two outputs and 1×1 / 2×2 blocks (padded by :func:`pad_to_2x2`)."""
+def bank_run_2x2(Win: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, feeds: np.ndarray, D: np.ndarray,
+                 x: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
+    """:func:`bank_run` for two inputs, two outputs and 1×1 / 2×2 blocks (``Win``, ``feeds`` from
+    :func:`pad_to_2x2`)."""
     N = u.shape[0]
-    xp = np.empty(2 * sizes.shape[0])
-    gather_2x2(offsets, sizes, x, xp)
+    W = Win.copy()  # local: the compiler then knows it cannot alias the state, and vectorises the update
+    xp = gather_2x2(offsets, sizes, x)
     d00 = D[0, 0]
     d01 = D[0, 1]
     d10 = D[1, 0]
@@ -207,35 +217,35 @@ def bank_run_2x2(A_pad: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, io_p
     for k in range(N):
         u0 = u[k, 0]
         u1 = u[k, 1]
-        y0, y1 = bank2_step(A_pad, io_pad, feeds, xp, u0, u1)
+        y0, y1 = bank2_step(W, feeds, xp, u0, u1)
         y[k, 0] = y0 + d00 * u0 + d01 * u1
         y[k, 1] = y1 + d10 * u0 + d11 * u1
     scatter_2x2(offsets, sizes, xp, x)
 
 
 @njit(inline="always")
-def inverse2_step(Kinv: np.ndarray, A_pad: np.ndarray, io_pad: np.ndarray, feeds: np.ndarray, xp: np.ndarray,
-                  yl0: float, yl1: float) -> tuple[float, float]:  # pragma: no cover - compiled
-    """One sample of :func:`inverse_affine_run` on a padded two-axis bank: returns ``Y_H`` and steps ``xp``."""
-    s0, s1 = bank2_output(io_pad, feeds, xp)
+def inverse2_step(Kinv: np.ndarray, W: np.ndarray, feeds: np.ndarray, xp: np.ndarray, yl0: float,
+                  yl1: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    """One sample of :func:`inverse_affine_run` on a two-axis bank: returns ``Y_H`` and steps ``xp``."""
+    s0, s1 = bank2_output(W, feeds, xp)
     c0 = yl0 - s0
     c1 = yl1 - s1
     v0 = 0.0 + Kinv[0, 0] * c0 + Kinv[0, 1] * c1
     v1 = 0.0 + Kinv[1, 0] * c0 + Kinv[1, 1] * c1
-    bank2_update(A_pad, io_pad, xp, v0, v1)
+    bank2_update(W, xp, v0, v1)
     return v0, v1
 
 
 @njit
-def inverse_affine_run_2x2(Kinv: np.ndarray, A_pad: np.ndarray, offsets: np.ndarray, sizes: np.ndarray,
-                           io_pad: np.ndarray, feeds: np.ndarray, x: np.ndarray, yl: np.ndarray,
+def inverse_affine_run_2x2(Kinv: np.ndarray, Win: np.ndarray, offsets: np.ndarray, sizes: np.ndarray,
+                           feeds: np.ndarray, x: np.ndarray, yl: np.ndarray,
                            yh: np.ndarray) -> None:  # pragma: no cover - compiled
-    """:func:`inverse_affine_run` for two axes on a padded bank (:func:`pad_to_2x2`)."""
+    """:func:`inverse_affine_run` for two axes (``Win``, ``feeds`` from :func:`pad_to_2x2`)."""
     N = yl.shape[0]
-    xp = np.empty(2 * sizes.shape[0])
-    gather_2x2(offsets, sizes, x, xp)
+    W = Win.copy()
+    xp = gather_2x2(offsets, sizes, x)
     for k in range(N):
-        v0, v1 = inverse2_step(Kinv, A_pad, io_pad, feeds, xp, yl[k, 0], yl[k, 1])
+        v0, v1 = inverse2_step(Kinv, W, feeds, xp, yl[k, 0], yl[k, 1])
         yh[k, 0] = v0
         yh[k, 1] = v1
     scatter_2x2(offsets, sizes, xp, x)
