@@ -8,12 +8,13 @@ in six slots::
 
 Any run of consecutive stages that fills some of these slots in this order (a compensator cascade, a plant, both,
 or part of either) is run by :func:`fused_run`: one loop over the samples, each sample through every present slot
-with the stages' own step functions (:func:`~.modal.bank2_step`, :func:`~.modal.inverse2_step`,
-:func:`~.bouc_wen.bw2_comp_step`, :func:`~.bouc_wen.bw2_model_step`), on the stages' own state arrays.  It
+with the stages' own loop kernels (:func:`~.modal.bank2_loop`, :func:`~.modal.inverse2_loop`,
+:func:`~.bouc_wen.bw_comp_run_2x2`, :func:`~.bouc_wen.bw_model_run_2x2`), on the stages' own state arrays.  It
 therefore gives the numbers of the stages run one by one — and, like them, the same numbers whatever the block split
 — and one call replaces six.  The block is run chunk by chunk (:data:`_CHUNK` samples in a cache-resident buffer),
-each slot in its own tight loop over the chunk: the processor overlaps successive samples of a stage as in the
-stage's own kernel (a per-sample loop through all six slots would make each sample wait for the whole chain).
+each slot running its own loop kernel over the chunk: the processor overlaps successive samples of a stage as in the
+stage's own kernel (a per-sample loop through all six slots, tried, is slower: each sample waits for the whole
+chain).
 
 A stage joins a fused pass by offering ``fused_part() -> FusedPart | None`` (its slot kind, constants and state
 arrays); :func:`plan_fusion` groups a list of stages into stages and :class:`FusedPass` objects.
@@ -25,9 +26,8 @@ from typing import Any, Callable, NamedTuple, Sequence
 import numpy as np
 
 from .._jit import njit
-from .bouc_wen import (FALLBACKS, N_COUNTERS, SATURATED, bw2_comp_first, bw2_comp_step, bw2_model_step, coeff_tuple,
-                       model_coeff_tuple)
-from .modal import bank2_step, gather_2x2, inverse2_step, scatter_2x2
+from .bouc_wen import FALLBACKS, N_COUNTERS, SATURATED, CompOptions, CompState, bw_comp_run_2x2, bw_model_run_2x2
+from .modal import bank2_loop, gather_2x2, inverse2_loop, scatter_2x2
 
 __all__ = ["BANK", "INVERSE", "COMP", "MODEL", "SLOT_KINDS", "FusedPart", "FusedPass", "plan_fusion", "fused_run"]
 
@@ -40,7 +40,7 @@ _L_BANK = 6          # L[6 + 8·b …]: bank b's layout
 _L_COMP = 6 + 8 * 4  # L[38], L[39]: compensator coefficients offset in P, exact flag
 _L_MODEL = _L_COMP + 2
 #: samples per chunk of the fused loop (its buffer stays in L1)
-_CHUNK = 64
+_CHUNK = 256
 
 
 class FusedPart(NamedTuple):
@@ -236,91 +236,42 @@ def fused_run(P: np.ndarray, L: np.ndarray, x0: np.ndarray, x1: np.ndarray, x4: 
     W1, f1, K1, xp1 = _bank(P, L, 1, x1)
     W4, f4, D4, xp4 = _bank(P, L, 2, x4)
     W5, f5, D5, xp5 = _bank(P, L, 3, x5)
-    v00, v01, v10, v11 = D0[0, 0], D0[0, 1], D0[1, 0], D0[1, 1]
-    r00, r01, r10, r11 = D4[0, 0], D4[0, 1], D4[1, 0], D4[1, 1]
-    g00, g01, g10, g11 = D5[0, 0], D5[0, 1], D5[1, 0], D5[1, 1]
-    # the compensator and the model, state in registers
     pc = L[38]
-    cc = coeff_tuple(P[pc:pc + 36])
+    cco = P[pc:pc + 36].copy()
     exact = L[39] != 0
     ulim = P[pc + 36]
     dulim = P[pc + 37]
-    mc = model_coeff_tuple(P[L[40]:L[40] + 28])
-    c_started = cs[0]
-    ch0, ch1, cu0, cu1, sg0, sg1 = ch[0], ch[1], cu[0], cu[1], cg[0], cg[1]
-    m_started = ms[0]
-    mh0, mh1, mu0, mu1 = mh[0], mh[1], mu[0], mu[1]
-    n_fallback = 0
-    n_saturated = 0
-    # Chunk by chunk: each slot runs its own tight loop over a chunk held in a small buffer (cache-resident), so
-    # the processor overlaps successive samples of one stage as the stage's own kernel does, with one call and no
-    # block-sized intermediates.
+    mco = P[L[40]:L[40] + 28].copy()
+    counters[FALLBACKS] = 0
+    counters[SATURATED] = 0
+    # Chunk by chunk: each slot runs its own loop kernel (the one its stage runs alone) over a chunk held in a small
+    # buffer (cache-resident): the processor overlaps successive samples of one stage as in the stage's own kernel.
     buf = np.empty((_CHUNK, 2))
+    hs = np.empty((_CHUNK, 2))
+    cst = CompState(ch, cu, cs, cg)
+    copt = CompOptions(exact, ulim, dulim)
     for c0 in range(0, N, _CHUNK):
         n = min(_CHUNK, N - c0)
+        b = buf[:n]
         for i in range(n):
-            buf[i, 0] = u[c0 + i, 0]
-            buf[i, 1] = u[c0 + i, 1]
+            b[i, 0] = u[c0 + i, 0]
+            b[i, 1] = u[c0 + i, 1]
         if has_vib:
-            for i in range(n):
-                a0 = buf[i, 0]
-                a1 = buf[i, 1]
-                s0, s1 = bank2_step(W0, f0, xp0, a0, a1)
-                buf[i, 0] = s0 + v00 * a0 + v01 * a1
-                buf[i, 1] = s1 + v10 * a0 + v11 * a1
+            bank2_loop(W0, f0, D0, xp0, b, b, n)
         if has_inv:
-            for i in range(n):
-                buf[i, 0], buf[i, 1] = inverse2_step(K1, W1, f1, xp1, buf[i, 0], buf[i, 1])
+            inverse2_loop(K1, W1, f1, xp1, b, b, n)
         if has_comp:
-            for i in range(n):
-                if not c_started:
-                    cu0, cu1, ns = bw2_comp_first(cc, ulim, buf[i, 0], buf[i, 1])
-                    n_saturated += ns
-                    c_started = True
-                else:
-                    ch0, ch1, cu0, cu1, sg0, sg1, nf, ns = bw2_comp_step(cc, exact, ulim, dulim, ch0, ch1, cu0, cu1,
-                                                                         sg0, sg1, buf[i, 0], buf[i, 1])
-                    n_fallback += nf
-                    n_saturated += ns
-                buf[i, 0] = cu0
-                buf[i, 1] = cu1
+            bw_comp_run_2x2(cco, cst, copt, b, b, counters)
         if has_model:
-            for i in range(n):
-                a0 = buf[i, 0]
-                a1 = buf[i, 1]
-                if not m_started:
-                    mu0 = a0
-                    mu1 = a1
-                    m_started = True
-                mh0, mh1, buf[i, 0], buf[i, 1] = bw2_model_step(mc, mh0, mh1, mu0, mu1, a0, a1)
-                mu0 = a0
-                mu1 = a1
+            bw_model_run_2x2(mco, mh, mu, ms, b, b, hs[:n])
         if has_creep:
-            for i in range(n):
-                a0 = buf[i, 0]
-                a1 = buf[i, 1]
-                s0, s1 = bank2_step(W4, f4, xp4, a0, a1)
-                buf[i, 0] = s0 + r00 * a0 + r01 * a1
-                buf[i, 1] = s1 + r10 * a0 + r11 * a1
+            bank2_loop(W4, f4, D4, xp4, b, b, n)
         if has_dyn:
-            for i in range(n):
-                a0 = buf[i, 0]
-                a1 = buf[i, 1]
-                s0, s1 = bank2_step(W5, f5, xp5, a0, a1)
-                buf[i, 0] = s0 + g00 * a0 + g01 * a1
-                buf[i, 1] = s1 + g10 * a0 + g11 * a1
+            bank2_loop(W5, f5, D5, xp5, b, b, n)
         for i in range(n):
-            y[c0 + i, 0] = buf[i, 0]
-            y[c0 + i, 1] = buf[i, 1]
+            y[c0 + i, 0] = b[i, 0]
+            y[c0 + i, 1] = b[i, 1]
     _unbank(L, 0, xp0, x0)
     _unbank(L, 1, xp1, x1)
     _unbank(L, 2, xp4, x4)
     _unbank(L, 3, xp5, x5)
-    if has_comp:
-        ch[0], ch[1], cu[0], cu[1], cg[0], cg[1] = ch0, ch1, cu0, cu1, sg0, sg1
-        cs[0] = c_started
-    if has_model:
-        mh[0], mh[1], mu[0], mu[1] = mh0, mh1, mu0, mu1
-        ms[0] = m_started
-    counters[FALLBACKS] = n_fallback
-    counters[SATURATED] = n_saturated

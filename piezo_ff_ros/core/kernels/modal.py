@@ -16,7 +16,8 @@ import numpy as np
 from .._jit import njit
 
 __all__ = ["A_PP", "A_PQ", "A_QP", "A_QQ", "B_P0", "B_P1", "B_Q0", "B_Q1", "C_0P", "C_0Q", "C_1P", "C_1Q", "pad_to_2x2", "bank_run", "bank_run_2x2", "inverse_affine_run", "inverse_affine_run_2x2", "bank2_step",
-           "bank2_output", "bank2_update", "inverse2_step", "gather_2x2", "scatter_2x2"]
+           "bank2_output", "bank2_update", "inverse2_step", "gather_2x2", "scatter_2x2",
+           "bank2_loop", "inverse2_loop"]
 
 
 #: rows of a two-axis bank's coefficient table ``W [12, blocks]`` (block b's states are p = ``x[off]``,
@@ -203,23 +204,29 @@ def scatter_2x2(offsets: np.ndarray, sizes: np.ndarray, xp: np.ndarray, x: np.nd
 
 
 @njit
-def bank_run_2x2(Win: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, feeds: np.ndarray, D: np.ndarray,
-                 x: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
-    """:func:`bank_run` for two inputs, two outputs and 1×1 / 2×2 blocks (``Win``, ``feeds`` from
-    :func:`pad_to_2x2`)."""
-    N = u.shape[0]
-    W = Win.copy()  # local: the compiler then knows it cannot alias the state, and vectorises the update
-    xp = gather_2x2(offsets, sizes, x)
+def bank2_loop(W: np.ndarray, feeds: np.ndarray, D: np.ndarray, xp: np.ndarray, src: np.ndarray, dst: np.ndarray,
+               n: int) -> None:  # pragma: no cover - compiled
+    """``n`` samples of a two-axis bank (state ``xp`` in the two-axis layout); ``dst`` may be ``src``."""
     d00 = D[0, 0]
     d01 = D[0, 1]
     d10 = D[1, 0]
     d11 = D[1, 1]
-    for k in range(N):
-        u0 = u[k, 0]
-        u1 = u[k, 1]
+    for k in range(n):
+        u0 = src[k, 0]
+        u1 = src[k, 1]
         y0, y1 = bank2_step(W, feeds, xp, u0, u1)
-        y[k, 0] = y0 + d00 * u0 + d01 * u1
-        y[k, 1] = y1 + d10 * u0 + d11 * u1
+        dst[k, 0] = y0 + d00 * u0 + d01 * u1
+        dst[k, 1] = y1 + d10 * u0 + d11 * u1
+
+
+@njit
+def bank_run_2x2(Win: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, feeds: np.ndarray, D: np.ndarray,
+                 x: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
+    """:func:`bank_run` for two inputs, two outputs and 1×1 / 2×2 blocks (``Win``, ``feeds`` from
+    :func:`pad_to_2x2`)."""
+    W = Win.copy()  # local: the compiler then knows it cannot alias the state
+    xp = gather_2x2(offsets, sizes, x)
+    bank2_loop(W, feeds, D, xp, u, y, u.shape[0])
     scatter_2x2(offsets, sizes, xp, x)
 
 
@@ -237,15 +244,21 @@ def inverse2_step(Kinv: np.ndarray, W: np.ndarray, feeds: np.ndarray, xp: np.nda
 
 
 @njit
+def inverse2_loop(Kinv: np.ndarray, W: np.ndarray, feeds: np.ndarray, xp: np.ndarray, src: np.ndarray,
+                  dst: np.ndarray, n: int) -> None:  # pragma: no cover - compiled
+    """``n`` samples of the two-axis creep inverse (state ``xp`` in the two-axis layout); ``dst`` may be ``src``."""
+    for k in range(n):
+        v0, v1 = inverse2_step(Kinv, W, feeds, xp, src[k, 0], src[k, 1])
+        dst[k, 0] = v0
+        dst[k, 1] = v1
+
+
+@njit
 def inverse_affine_run_2x2(Kinv: np.ndarray, Win: np.ndarray, offsets: np.ndarray, sizes: np.ndarray,
                            feeds: np.ndarray, x: np.ndarray, yl: np.ndarray,
                            yh: np.ndarray) -> None:  # pragma: no cover - compiled
     """:func:`inverse_affine_run` for two axes (``Win``, ``feeds`` from :func:`pad_to_2x2`)."""
-    N = yl.shape[0]
     W = Win.copy()
     xp = gather_2x2(offsets, sizes, x)
-    for k in range(N):
-        v0, v1 = inverse2_step(Kinv, W, feeds, xp, yl[k, 0], yl[k, 1])
-        yh[k, 0] = v0
-        yh[k, 1] = v1
+    inverse2_loop(Kinv, W, feeds, xp, yl, yh, yl.shape[0])
     scatter_2x2(offsets, sizes, xp, x)
