@@ -20,12 +20,14 @@ from numpy.typing import ArrayLike
 
 from .kernels.fused import BANK, FusedPart
 from .kernels.modal import bank_run, bank_run_2x2, pad_to_2x2
+from .stage import StageState
 
 __all__ = [
     "FactoredTF",
     "TFMatrix",
     "DiscreteModalSS",
     "LTIFilter",
+    "FilterStage",
 ]
 
 _PAIR_TOL = 1e-9
@@ -513,3 +515,40 @@ class LTIFilter:
         n = self.ss.n_states
         if n:
             self.x[:] = np.linalg.solve(np.eye(n) - self.ss.A, self.ss.B @ np.asarray(u_const, float))
+
+
+class FilterStage:
+    """A stage that is one :class:`LTIFilter` (``self.filter``): shape, ``process``, ``reset``, ``state`` /
+    ``load_state`` (the modal state ``x``) and the fused part are the filter's."""
+
+    filter: LTIFilter
+
+    @property
+    def n_in(self) -> int:
+        """Number of input columns."""
+        return self.filter.n_in
+
+    @property
+    def n_out(self) -> int:
+        """Number of output columns."""
+        return self.filter.n_out
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self.filter.reset()
+
+    def process(self, block: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        return self.filter.process(block)
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The filter state ``x`` (modal coordinates of ``filter.ss``), a copy."""
+        return {"x": self.filter.x.copy()}
+
+    def load_state(self, state: StageState) -> None:
+        """Copy ``state`` (as returned by :meth:`state`) into this stage."""
+        self.filter.x[:] = state["x"]
+
+    def fused_part(self) -> FusedPart | None:
+        """This stage's share of a fused pass (:mod:`~piezo_ff_ros.core.kernels.fused`), None if not fusable."""
+        return self.filter.fused_part()

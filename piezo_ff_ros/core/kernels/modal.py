@@ -64,6 +64,24 @@ def pad_to_2x2(Ablk: np.ndarray, io: np.ndarray, offsets: np.ndarray,
 
 # ------------------------------------------------------------------------------------------------ generic
 
+@njit(inline="always")
+def _advance(Ablk: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, B: np.ndarray, x: np.ndarray, xn: np.ndarray,
+             u: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``x ← A x + B u`` block by block (``xn`` is scratch), each sum state by state then input by input."""
+    for b in range(sizes.shape[0]):
+        off = offsets[b]
+        s = sizes[b]
+        for r in range(s):
+            acc = 0.0
+            for c in range(s):
+                acc += Ablk[off + r, c] * x[off + c]
+            for j in range(u.shape[0]):
+                acc += B[off + r, j] * u[j]
+            xn[off + r] = acc
+    for i in range(x.shape[0]):
+        x[i] = xn[i]
+
+
 @njit
 def bank_run(Ablk: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray,
              x: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
@@ -73,7 +91,6 @@ def bank_run(Ablk: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, B: np.nda
     n_in = u.shape[1]
     n_out = y.shape[1]
     ns = x.shape[0]
-    nb = sizes.shape[0]
     xn = np.empty(ns)
     for k in range(N):
         for o in range(n_out):
@@ -83,18 +100,7 @@ def bank_run(Ablk: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, B: np.nda
             for j in range(n_in):
                 acc += D[o, j] * u[k, j]
             y[k, o] = acc
-        for b in range(nb):
-            off = offsets[b]
-            s = sizes[b]
-            for r in range(s):
-                acc = 0.0
-                for c in range(s):
-                    acc += Ablk[off + r, c] * x[off + c]
-                for j in range(n_in):
-                    acc += B[off + r, j] * u[k, j]
-                xn[off + r] = acc
-        for i in range(ns):
-            x[i] = xn[i]
+        _advance(Ablk, offsets, sizes, B, x, xn, u[k])
 
 
 @njit
@@ -104,7 +110,6 @@ def inverse_affine_run(Kinv: np.ndarray, Ablk: np.ndarray, offsets: np.ndarray, 
     N = yl.shape[0]
     n = yl.shape[1]
     ns = x.shape[0]
-    nb = sizes.shape[0]
     xn = np.empty(ns)
     c = np.empty(n)
     for k in range(N):
@@ -118,18 +123,7 @@ def inverse_affine_run(Kinv: np.ndarray, Ablk: np.ndarray, offsets: np.ndarray, 
             for j in range(n):
                 acc += Kinv[o, j] * c[j]
             yh[k, o] = acc
-        for b in range(nb):
-            off = offsets[b]
-            s = sizes[b]
-            for r in range(s):
-                acc = 0.0
-                for cc in range(s):
-                    acc += Ablk[off + r, cc] * x[off + cc]
-                for j in range(n):
-                    acc += B[off + r, j] * yh[k, j]
-                xn[off + r] = acc
-        for i in range(ns):
-            x[i] = xn[i]
+        _advance(Ablk, offsets, sizes, B, x, xn, yh[k])
 
 
 # ------------------------------------------------------------------------------------------------ two axes, padded

@@ -10,9 +10,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..config import CreepConfig
-from ..kernels.fused import FusedPart
-from ..lti import DiscreteModalSS, LTIFilter
-from ..stage import StageState
+from ..lti import DiscreteModalSS, FilterStage, LTIFilter
 
 __all__ = ["CreepModel", "discretise_creep"]
 
@@ -35,7 +33,7 @@ def discretise_creep(cfg: CreepConfig, dt: float) -> DiscreteModalSS:
     return DiscreteModalSS.zoh_from_tf_matrix(cfg.Cr, dt)
 
 
-class CreepModel:
+class CreepModel(FilterStage):
     """Streaming ``Y_H [m] → Y [m]``: one modal bank, Cr's modes with K as its feed-through."""
 
     def __init__(self, cfg: CreepConfig, dt: float):
@@ -43,33 +41,3 @@ class CreepModel:
         self.dt = dt
         self.K = np.array(cfg.K, float)
         self.filter = LTIFilter(replace(discretise_creep(cfg, dt), D=np.ascontiguousarray(self.K)))
-
-    @property
-    def n_in(self) -> int:
-        """Number of input columns."""
-        return int(self.K.shape[1])
-
-    @property
-    def n_out(self) -> int:
-        """Number of output columns."""
-        return int(self.K.shape[0])
-
-    def reset(self) -> None:
-        """All states back to rest."""
-        self.filter.reset()
-
-    def process(self, yh: np.ndarray) -> np.ndarray:
-        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
-        return self.filter.process(yh)
-
-    def state(self) -> dict[str, np.ndarray]:
-        """The Cr state ``x`` (modal coordinates), a copy."""
-        return {"x": self.filter.x.copy()}
-
-    def load_state(self, state: StageState) -> None:
-        """Copy ``state`` (as returned by :meth:`state`) into this stage."""
-        self.filter.x[:] = state["x"]
-
-    def fused_part(self) -> FusedPart | None:
-        """This stage's share of a fused pass (:mod:`~piezo_ff_ros.core.kernels.fused`), None if not fusable."""
-        return self.filter.fused_part()
