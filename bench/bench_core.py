@@ -2,7 +2,8 @@
 
     PYTHONPATH=. .venv/bin/python bench/bench_core.py [--json FILE] [--duration 600] [--repeats 3]
 
-Same as ``piezo-ff bench``; see :mod:`piezo_ff_ros.cli.bench` for what is measured and how.
+Same as ``piezo-ff bench``; what is measured and how, and the naive baselines: :mod:`piezo_ff_ros.core.throughput`
+(the command line and the report: :mod:`piezo_ff_ros.cli.bench`).
 """
 from __future__ import annotations
 

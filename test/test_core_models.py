@@ -134,7 +134,7 @@ def test_hysteresis_compensator_saturates_like_the_amplifier(paper_config):
     u = comp.process(yh)
     assert np.max(np.abs(u)) <= 200.0 and comp.saturated > 0
     # the internal state is the plant's: replaying the clamped voltage gives the compensator's own h
-    _, h = BoucWenModel(paper_config.hysteresis).process(u, return_h=True)
+    h = BoucWenModel(paper_config.hysteresis).process_with_taps(u)[1]["h"]
     assert np.allclose(h[-1], comp.h, atol=1e-15)
 
 
@@ -252,7 +252,7 @@ def test_cascade_taps_and_block_invariance(paper_config):
     static = (np.zeros((0, 0)), np.zeros((0, 2)), np.zeros((2, 0)), np.eye(2))  # C(s) = I
     yr = _signal(6000, scale=15e-6)
     casc = CompensatorCascade(paper_config, controller=static)
-    u, taps = casc.process(yr, taps=True)
+    u, taps = casc.process_with_taps(yr)
     assert np.array_equal(taps["yl"], yr) and np.array_equal(taps["u"], u)
     casc.reset()
     parts = np.vstack([casc.process(p) for p in _random_split(yr, np.random.default_rng(5))])
@@ -286,130 +286,6 @@ def test_config_check_report(paper_config):
     assert rep["dynamics_G_L"]["yx"]["order_after_cancellation"] == 7
     assert rep["creep"]["compensator_stable"]
     assert rep["dynamics"]["hinf_gamma_lower_bound_dc"] == pytest.approx(0.948, abs=1e-3)
-
-
-# ---------------------------------------------------------------------------------------------------- compiled kernels
-def _mimo_modal_ss(dt):
-    """A 2×2 continuous system with real and complex modes, dense B, C and D ≠ 0 (like an H∞ controller)."""
-    rng = np.random.default_rng(5)
-    A = np.diag([-30.0, -400.0, -2000.0, -50.0, -50.0])
-    A[3, 4], A[4, 3] = 900.0, -900.0
-    T = rng.standard_normal((5, 5)) + 3 * np.eye(5)
-    A = T @ A @ np.linalg.inv(T)
-    return DiscreteModalSS.zoh_from_ss(A, rng.standard_normal((5, 2)), rng.standard_normal((2, 5)),
-                                       rng.standard_normal((2, 2)), dt)
-
-
-@pytest.mark.parametrize("padded", [False, True])
-@pytest.mark.parametrize("which", ["dynamics", "creep", "mimo_modal"])
-def test_two_axis_kernel_gives_the_generic_kernels_numbers(paper_config, which, padded):
-    from piezo_ff_ros.core.lti import _bank_run, _pad_to_2x2
-
-    dt = paper_config.dt
-    ss = {"dynamics": lambda: DiscreteModalSS.zoh_from_tf_matrix(paper_config.dynamics.G_L, dt),
-          "creep": lambda: DiscreteModalSS.zoh_from_tf_matrix(paper_config.creep.Cr, dt),
-          "mimo_modal": lambda: _mimo_modal_ss(dt)}[which]()
-    assert ss.small_blocks and np.any(ss.sizes == 2)
-    u = _signal(3000, seed=2, scale=1e-5)
-    filt = LTIFilter(ss)
-    assert filt._two_axis
-    assert filt._padded == (which == "dynamics")  # chosen when 2×2 blocks dominate
-    filt._padded = padded  # run both unrolled kernels whatever the choice
-    filt._Ablk_pad, filt._io_pad, filt._feeds = _pad_to_2x2(filt._Ablk, filt._io, filt._offsets, ss.sizes)
-    if which != "mimo_modal":  # SISO-derived: every block reaches exactly one output
-        assert set(filt._feeds.tolist()) == {1, 2}
-    fast = np.vstack([filt.process(u[:1234]), filt.process(u[1234:])])
-    generic = np.empty_like(fast)
-    Ablk, offsets = ss.packed()
-    _bank_run(Ablk, offsets, ss.sizes, ss.B, ss.C, ss.D, np.zeros(ss.n_states), u, generic)
-    assert np.array_equal(fast, generic)
-    assert np.max(np.abs(fast)) > 0
-
-
-def _generalized(cfg):
-    from dataclasses import replace
-
-    return replace(cfg.hysteresis, Delta1=((0.002, 0.0003), (0.0, 0.002)), Delta2=((0.001, 0.0), (0.0002, 0.001)))
-
-
-@pytest.mark.parametrize("generalized", [False, True])
-def test_two_axis_bouc_wen_kernel_gives_the_generic_kernels_numbers(paper_config, generalized):
-    from piezo_ff_ros.core.models import bouc_wen
-
-    cfg = _generalized(paper_config) if generalized else paper_config.hysteresis
-    u = _signal(4000, seed=3, scale=150.0)
-    model = BoucWenModel(cfg)
-    fast, h_fast = model.process(u[:1500], return_h=True)
-    fast2, h_fast2 = model.process(u[1500:], return_h=True)
-    p = cfg.arrays()
-    st = bouc_wen.BoucWenState(2, 2)
-    y, hs = np.empty_like(u), np.empty_like(u)
-    bouc_wen._bw_model_run(p["Dp"], p["A"], p["B"], p["Gamma"], p["Delta1"], p["Delta2"], p["P"],
-                           st.h, st.u_prev, st.started, u, y, hs)
-    assert np.array_equal(np.vstack([fast, fast2]), y)
-    assert np.array_equal(np.vstack([h_fast, h_fast2]), hs)
-    assert np.array_equal(model.state.h, st.h) and np.array_equal(model.state.u_prev, st.u_prev)
-    assert np.max(np.abs(hs)) > 0
-
-
-@pytest.mark.parametrize("generalized,loop,limit,slew", [(False, "exact", None, None), (True, "exact", None, None),
-                                                         (False, "delayed", None, None), (False, "exact", 60.0, None),
-                                                         (False, "exact", None, 0.05), (True, "exact", 60.0, 0.05)])
-def test_two_axis_hysteresis_compensator_kernel_gives_the_generic_kernels_numbers(paper_config, generalized,
-                                                                                   loop, limit, slew):
-    from piezo_ff_ros.core.compensators import hysteresis as hc
-
-    cfg = _generalized(paper_config) if generalized else paper_config.hysteresis
-    yh = _signal(4000, seed=4, scale=15e-6)
-    comp = HysteresisCompensator(cfg, loop, voltage_limit=limit, slew_per_sample=slew)
-    fast = np.vstack([comp.process(yh[:777]), comp.process(yh[777:])])
-    ref = HysteresisCompensator(cfg, loop, voltage_limit=limit, slew_per_sample=slew)
-    st = ref.bw_state
-    u = np.empty_like(yh)
-    counters = np.zeros(2, np.int64)
-    hc._bw_comp_run(ref._Dp, ref._Dp_pinv, ref._A, ref._B, ref._G, ref._D1, ref._D2, ref._P, st.h, st.u_prev,
-                    st.started, ref._signs, loop == "exact", ref.voltage_limit, ref.slew_per_sample, yh, u, counters)
-    assert np.array_equal(fast, u)
-    assert np.array_equal(comp.bw_state.h, st.h) and np.array_equal(comp._signs, ref._signs)
-    assert (comp.fallbacks, comp.saturated) == tuple(counters)
-    if limit is not None or slew is not None:
-        assert comp.saturated > 0
-    if slew is not None:
-        assert np.max(np.abs(np.diff(fast, axis=0))) <= slew * (1 + 1e-12)
-
-
-def test_compensator_limited_like_the_driver_keeps_the_plants_state(paper_config):
-    """Clamped and slew-limited exactly as the driver's guard does, the compensator's h stays the plant's h."""
-    from piezo_ff_ros.core.config import LimitsConfig
-    from piezo_ff_ros.core.safety import VoltageGuard
-
-    limits = LimitsConfig(voltage=150.0, slew=2.0e5)
-    comp = HysteresisCompensator(paper_config.hysteresis, voltage_limit=limits.voltage,
-                                 slew_per_sample=limits.slew / FS)
-    yh = np.zeros((4000, 2))
-    yh[100:, 0] = 30e-6                                   # a step asking ~190 V at once
-    yh[2000:, 1] = -20e-6
-    u = comp.process(yh)
-    guard = VoltageGuard(limits, 2, FS)
-    applied = guard.apply(u)
-    assert np.array_equal(applied, u)                     # the driver has nothing left to clip
-    _, h = BoucWenModel(paper_config.hysteresis).process(applied, return_h=True)
-    assert np.allclose(h[-1], comp.h, rtol=0, atol=1e-18)
-
-
-def test_two_axis_creep_compensator_kernel_gives_the_generic_kernels_numbers(paper_config):
-    from piezo_ff_ros.core.compensators import creep as cc
-
-    yl = _signal(4000, seed=6, scale=20e-6)
-    comp = CreepCompensator(paper_config.creep, paper_config.dt)
-    assert comp._two_axis
-    fast = np.vstack([comp.process(yl[:2500]), comp.process(yl[2500:])])
-    ss = comp.ss
-    Ablk, offsets = ss.packed()
-    x = np.zeros(ss.n_states)
-    ref = np.empty_like(yl)
-    cc._inverse_affine_run(comp.Kinv, Ablk, offsets, ss.sizes, ss.B, ss.C, x, yl, ref)
-    assert np.array_equal(fast, ref) and np.array_equal(comp.x, x)
 
 
 def test_non_square_bouc_wen_with_input_map():

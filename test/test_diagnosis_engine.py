@@ -234,7 +234,7 @@ def _reference_plant(cfg, u):
     the hysteresis by the package's Bouc-Wen (no ZOH involved there)."""
     from test_zoh_reference import _reference_response
 
-    _, taps = build_plant(cfg, []).process(u, taps=True)
+    _, taps = build_plant(cfg, []).process_with_taps(u)
     yh = taps["yh"]
     dt = cfg.dt
     K = np.asarray(cfg.creep.K, float)

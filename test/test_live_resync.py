@@ -123,7 +123,7 @@ def test_crossfade_leaves_the_hysteresis_inverse_on_the_voltage_sent(cfg):
         model = BoucWenModel(hyst.cfg)
         if "cascade.creep" in change:   # same hysteresis throughout: from the start
             model.process(u)
-            np.testing.assert_allclose(hyst.bw_state.h, model.state.h, rtol=1e-9, atol=1e-18)
+            np.testing.assert_allclose(hyst.bw_state.h, model.bw_state.h, rtol=1e-9, atol=1e-18)
 
 
 def test_second_swap_during_a_fade_keeps_fading_out_the_first_old_cascade(cfg):

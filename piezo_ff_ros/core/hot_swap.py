@@ -312,7 +312,7 @@ class HotSwapCascade:
         if self._fade is not None:
             y, taps = self._process_fading(x, self._fade)
         else:
-            y, taps = self.active.process(x, taps=True)
+            y, taps = self.active.process_with_taps(x)
         if x.shape[0]:
             self._running = True
             self._last_in = x[-1].copy()
@@ -360,7 +360,7 @@ class HotSwapCascade:
                 outs = []
                 for c in leaves[:-1]:
                     outs.append(c.process(xc))
-                y_new, t_new = active.process(xc, taps=True)
+                y_new, t_new = active.process_with_taps(xc)
                 outs.append(y_new)
                 yc = fade.mix(outs, xc.shape[0])
                 for c, st, o in zip(leaves, before, outs):
@@ -374,7 +374,7 @@ class HotSwapCascade:
                     break
             done = sum(p.shape[0] for p in parts)
             if done < n:  # the fade ended inside the block: the rest is the new cascade's alone
-                y_rest, t_rest = active.process(x[done:], taps=True)
+                y_rest, t_rest = active.process_with_taps(x[done:])
                 parts.append(y_rest)
                 tap_parts.append(t_rest)
             y = np.vstack(parts)

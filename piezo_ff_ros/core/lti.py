@@ -18,13 +18,16 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike
 
-from ._jit import njit
+from .kernels.fused import BANK, FusedPart
+from .kernels.modal import bank_run, bank_run_2x2, pad_to_2x2
+from .stage import StageState
 
 __all__ = [
     "FactoredTF",
     "TFMatrix",
     "DiscreteModalSS",
     "LTIFilter",
+    "FilterStage",
 ]
 
 _PAIR_TOL = 1e-9
@@ -463,13 +466,10 @@ class LTIFilter:
     def __init__(self, ss: DiscreteModalSS) -> None:
         self.ss = ss
         self._Ablk, self._offsets = ss.packed()
-        # two inputs, two outputs and 1×1/2×2 blocks (every 2-axis modal filter): the unrolled kernel
-        self._two_axis = ss.n_in == 2 and ss.n_out == 2 and ss.small_blocks
-        self._io = ss.packed_io()
-        # mostly 2×2 blocks: run every block as 2×2 (1×1 blocks padded with a state that stays 0), no branch
-        self._padded = self._two_axis and 2 * len(ss.sizes) <= 1.25 * ss.n_states
-        if self._padded:
-            self._Ablk_pad, self._io_pad, self._feeds = _pad_to_2x2(self._Ablk, self._io, self._offsets, ss.sizes)
+        # two inputs, two outputs and 1×1/2×2 blocks (every 2-axis modal filter): the padded two-axis kernel
+        self.two_axis = ss.n_in == 2 and ss.n_out == 2 and ss.small_blocks
+        if self.two_axis:
+            self.W, self.feeds = pad_to_2x2(self._Ablk, ss.packed_io(), self._offsets, ss.sizes)
         self.x = np.zeros(ss.n_states)
 
     @property
@@ -492,14 +492,18 @@ class LTIFilter:
         y = np.empty((u.shape[0], self.ss.n_out))
         if u.ndim != 2 or u.shape[1] != self.ss.n_in:
             raise ValueError(f"expected a block of shape [N, {self.ss.n_in}], got {u.shape}")
-        if self._padded:
-            _bank_run_2x2_padded(self._Ablk_pad, self._offsets, self.ss.sizes, self._io_pad, self._feeds, self.ss.D,
-                                 self.x, u, y)
-        elif self._two_axis:
-            _bank_run_2x2(self._Ablk, self._offsets, self.ss.sizes, self._io, self.ss.D, self.x, u, y)
+        if self.two_axis:
+            bank_run_2x2(self.W, self._offsets, self.ss.sizes, self.feeds, self.ss.D, self.x, u, y)
         else:
-            _bank_run(self._Ablk, self._offsets, self.ss.sizes, self.ss.B, self.ss.C, self.ss.D, self.x, u, y)
+            bank_run(self._Ablk, self._offsets, self.ss.sizes, self.ss.B, self.ss.C, self.ss.D, self.x, u, y)
         return y
+
+    def fused_part(self) -> FusedPart | None:
+        """This filter's share of a fused pass (:mod:`~piezo_ff_ros.core.kernels.fused`): two-axis banks only."""
+        if not self.two_axis:
+            return None
+        return FusedPart(BANK, (self.W, self.feeds, np.ascontiguousarray(self.ss.D), self._offsets, self.ss.sizes),
+                         (self.x,))
 
     def output_now(self) -> np.ndarray:
         """C x (the strictly proper part of the next output)."""
@@ -513,136 +517,38 @@ class LTIFilter:
             self.x[:] = np.linalg.solve(np.eye(n) - self.ss.A, self.ss.B @ np.asarray(u_const, float))
 
 
-def _pad_to_2x2(Ablk: np.ndarray, io: np.ndarray, offsets: np.ndarray,
-                sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Block b's A and io rows at 2b, 2b+1; a 1×1 block gets a second state with all-zero coefficients.
+class FilterStage:
+    """A stage that is one :class:`LTIFilter` (``self.filter``): shape, ``process``, ``reset``, ``state`` /
+    ``load_state`` (the modal state ``x``) and the fused part are the filter's."""
 
-    Also returns ``feeds[b]``: bit 0 set if block b reaches output 0 (a non-zero in its C row), bit 1 for output 1
-    — a block from a SISO entry reaches only one.
-    """
-    nb = len(sizes)
-    A_pad = np.zeros((2 * nb, 2))
-    io_pad = np.zeros((2 * nb, io.shape[1]))
-    for b, (off, s) in enumerate(zip(offsets, sizes)):
-        A_pad[2 * b:2 * b + s, :s] = Ablk[off:off + s, :s]
-        io_pad[2 * b:2 * b + s] = io[off:off + s]
-    reach = io_pad[:, 2:4].reshape(nb, 2, 2) != 0.0  # [block, state, output]
-    feeds = (np.any(reach[:, :, 0], axis=1) * 1 + np.any(reach[:, :, 1], axis=1) * 2).astype(np.int64)
-    return A_pad, io_pad, feeds
+    filter: LTIFilter
 
+    @property
+    def n_in(self) -> int:
+        """Number of input columns."""
+        return self.filter.n_in
 
-@njit(cache=True)
-def _bank_run_2x2_padded(A_pad: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, io_pad: np.ndarray,
-                         feeds: np.ndarray, D: np.ndarray, x: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``_bank_run_2x2`` with every block 2×2 (padded by :func:`_pad_to_2x2`): no size branch in the loop.
+    @property
+    def n_out(self) -> int:
+        """Number of output columns."""
+        return self.filter.n_out
 
-    The state is gathered into the padded layout for the call and scattered back after it (``x`` stays the
-    public, unpadded state).  The padding state stays exactly 0, and a block adds to an output only if it
-    reaches it (``feeds``): the terms left out are exact zeros, so the sums and the results are those of
-    ``_bank_run_2x2``, while each output's chain of dependent additions is about halved for SISO-derived banks.
-    """
-    N = u.shape[0]
-    nb = sizes.shape[0]
-    xp = np.zeros(2 * nb)
-    for b in range(nb):
-        for r in range(sizes[b]):
-            xp[2 * b + r] = x[offsets[b] + r]
-    d00 = D[0, 0]
-    d01 = D[0, 1]
-    d10 = D[1, 0]
-    d11 = D[1, 1]
-    for k in range(N):
-        u0 = u[k, 0]
-        u1 = u[k, 1]
-        y0 = 0.0
-        y1 = 0.0
-        for b in range(nb):
-            i = 2 * b
-            x0 = xp[i]
-            x1 = xp[i + 1]
-            f = feeds[b]
-            if f & 1:
-                y0 += io_pad[i, 2] * x0
-                y0 += io_pad[i + 1, 2] * x1
-            if f & 2:
-                y1 += io_pad[i, 3] * x0
-                y1 += io_pad[i + 1, 3] * x1
-            xp[i] = A_pad[i, 0] * x0 + A_pad[i, 1] * x1 + io_pad[i, 0] * u0 + io_pad[i, 1] * u1
-            xp[i + 1] = A_pad[i + 1, 0] * x0 + A_pad[i + 1, 1] * x1 + io_pad[i + 1, 0] * u0 + io_pad[i + 1, 1] * u1
-        y[k, 0] = y0 + d00 * u0 + d01 * u1
-        y[k, 1] = y1 + d10 * u0 + d11 * u1
-    for b in range(nb):
-        for r in range(sizes[b]):
-            x[offsets[b] + r] = xp[2 * b + r]
+    def reset(self) -> None:
+        """All states back to rest."""
+        self.filter.reset()
 
+    def process(self, block: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        return self.filter.process(block)
 
-@njit(cache=True)
-def _bank_run_2x2(Ablk: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, io: np.ndarray, D: np.ndarray,
-                  x: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``_bank_run`` for two inputs, two outputs and 1×1 / 2×2 blocks, unrolled (≈ 2.7× faster).
+    def state(self) -> dict[str, np.ndarray]:
+        """The filter state ``x`` (modal coordinates of ``filter.ss``), a copy."""
+        return {"x": self.filter.x.copy()}
 
-    One pass over the blocks per sample: each block adds its old state to the outputs, then steps in place
-    (blocks are independent, so no copy of the state is needed).  Inputs and output sums live in registers.
-    Every sum runs in the same order as in ``_bank_run`` (state by state, then the inputs), so the results are
-    the same numbers.  ``io[i] = (B[i, 0], B[i, 1], C[0, i], C[1, i])``.
-    """
-    N = u.shape[0]
-    nb = sizes.shape[0]
-    d00 = D[0, 0]
-    d01 = D[0, 1]
-    d10 = D[1, 0]
-    d11 = D[1, 1]
-    for k in range(N):
-        u0 = u[k, 0]
-        u1 = u[k, 1]
-        y0 = 0.0
-        y1 = 0.0
-        for b in range(nb):
-            off = offsets[b]
-            if sizes[b] == 1:
-                x0 = x[off]
-                y0 += io[off, 2] * x0
-                y1 += io[off, 3] * x0
-                x[off] = Ablk[off, 0] * x0 + io[off, 0] * u0 + io[off, 1] * u1
-            else:
-                x0 = x[off]
-                x1 = x[off + 1]
-                y0 += io[off, 2] * x0
-                y1 += io[off, 3] * x0
-                y0 += io[off + 1, 2] * x1
-                y1 += io[off + 1, 3] * x1
-                x[off] = Ablk[off, 0] * x0 + Ablk[off, 1] * x1 + io[off, 0] * u0 + io[off, 1] * u1
-                x[off + 1] = Ablk[off + 1, 0] * x0 + Ablk[off + 1, 1] * x1 + io[off + 1, 0] * u0 + io[off + 1, 1] * u1
-        y[k, 0] = y0 + d00 * u0 + d01 * u1
-        y[k, 1] = y1 + d10 * u0 + d11 * u1
+    def load_state(self, state: StageState) -> None:
+        """Copy ``state`` (as returned by :meth:`state`) into this stage."""
+        self.filter.x[:] = state["x"]
 
-
-@njit(cache=True)
-def _bank_run(Ablk: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray,
-              x: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
-    N = u.shape[0]
-    n_in = u.shape[1]
-    n_out = y.shape[1]
-    ns = x.shape[0]
-    nb = sizes.shape[0]
-    xn = np.empty(ns)
-    for k in range(N):
-        for o in range(n_out):
-            acc = 0.0
-            for i in range(ns):
-                acc += C[o, i] * x[i]
-            for j in range(n_in):
-                acc += D[o, j] * u[k, j]
-            y[k, o] = acc
-        for b in range(nb):
-            off = offsets[b]
-            s = sizes[b]
-            for r in range(s):
-                acc = 0.0
-                for c in range(s):
-                    acc += Ablk[off + r, c] * x[off + c]
-                for j in range(n_in):
-                    acc += B[off + r, j] * u[k, j]
-                xn[off + r] = acc
-        for i in range(ns):
-            x[i] = xn[i]
+    def fused_part(self) -> FusedPart | None:
+        """This stage's share of a fused pass (:mod:`~piezo_ff_ros.core.kernels.fused`), None if not fusable."""
+        return self.filter.fused_part()

@@ -12,8 +12,9 @@
   slew limit: at least ``duration`` seconds, never faster than ``slew`` V/s (nor than the operating limit), all axes
   arriving together (used on stale input and device faults).
 
-:func:`slew_limit` is the per-sample rate limiter itself (clamp first, then at most ``step`` volts per sample), one
-function for every caller.
+:func:`limit_block` / :func:`slew_limit` run the one limiter of the package
+(:func:`~piezo_ff_ros.core.kernels.limits.limit_step`: clamp first, then at most ``step`` volts per sample), the
+same rule as the compensators' kernels and the amplifier slew-limit effect.
 """
 from __future__ import annotations
 
@@ -22,10 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._jit import njit
+from .kernels.limits import limit_run
 from .config import LimitsConfig
 
-__all__ = ["VoltageGuard", "GuardCounters", "BlockRejected", "SafeRampConfig", "safe_ramp", "slew_limit"]
+__all__ = ["VoltageGuard", "GuardCounters", "BlockRejected", "SafeRampConfig", "safe_ramp", "slew_limit", "limit_block"]
 
 
 class BlockRejected(ValueError):
@@ -86,35 +87,23 @@ def safe_ramp(u_from, safe_voltage: float, sample_rate: float, ramp: SafeRampCon
     return out
 
 
-def slew_limit(target, u_prev, step: float, out=None) -> tuple[np.ndarray, int]:
+def slew_limit(target, u_prev, step: float, out=None, limit: float = math.inf) -> tuple[np.ndarray, int]:
     """Rate-limit ``target [N, axes]`` to at most ``step`` volts per sample starting from ``u_prev`` (updated in
-    place to the last output sample); return ``(limited, samples where an axis was held back)``."""
+    place to the last output sample), after clamping to ``±limit``; return ``(limited, samples where an axis was
+    held back by the rate)``.  The rule is :func:`~piezo_ff_ros.core.kernels.limits.limit_step`, shared with the
+    compensators and the amplifier effect."""
+    out, _, n_slewed = limit_block(target, u_prev, step, limit, out)
+    return out, n_slewed
+
+
+def limit_block(target, u_prev, step: float, limit: float = math.inf, out=None) -> tuple[np.ndarray, int, int]:
+    """Clamp to ``±limit`` then rate-limit to ``step`` per sample from ``u_prev`` (updated in place); return
+    ``(limited, samples with an axis clamped, samples with an axis held back by the rate)``."""
     target = np.ascontiguousarray(target, dtype=float)
     out = np.empty_like(target) if out is None else out
-    n = _slew_run(target, u_prev, float(step), out)
-    return out, int(n)
-
-
-@njit
-def _slew_run(target, u_prev, step, out):  # pragma: no cover - compiled
-    """Per-sample rate limiter; returns the number of samples where an axis was limited."""
-    n_lim = 0
-    for k in range(target.shape[0]):
-        limited = False
-        for a in range(target.shape[1]):
-            d = target[k, a] - u_prev[a]
-            if d > step:
-                u_prev[a] = u_prev[a] + step
-                limited = True
-            elif d < -step:
-                u_prev[a] = u_prev[a] - step
-                limited = True
-            else:
-                u_prev[a] = target[k, a]  # exactly the target (u + (t - u) need not round to t)
-            out[k, a] = u_prev[a]
-        if limited:
-            n_lim += 1
-    return n_lim
+    counts = np.zeros(2, np.int64)
+    limit_run(target, u_prev, np.ones(1, np.bool_), float(limit), float(step), out, counts)
+    return out, int(counts[0]), int(counts[1])
 
 
 class VoltageGuard:
@@ -171,10 +160,8 @@ class VoltageGuard:
     def apply(self, block) -> np.ndarray:
         """Validated, clamped and slew-limited copy of ``block`` (what may be applied); updates the state."""
         u = self.check(block)
-        V = self.limits.voltage
-        clamped = np.clip(u, -V, V)
-        self.counters.saturated_samples += int(np.count_nonzero(np.any(clamped != u, axis=1)))
-        out, n_limited = slew_limit(clamped, self.u_last, self.step)
+        out, n_clamped, n_limited = limit_block(u, self.u_last, self.step, self.limits.voltage)
+        self.counters.saturated_samples += n_clamped
         self.counters.slew_limited_samples += n_limited
         self.counters.blocks_applied += 1
         self.counters.samples_applied += out.shape[0]

@@ -5,14 +5,16 @@ Commuted order: Y_R → hysteresis linearizer → C(s) → creep⁻¹ → Dp⁻�
 hysteresis stage is used in its length-to-length form (``Dp·U_h``, i.e. ``Y_R + h``) so that every stage keeps its
 units; with stages identified on the commuted intermediate systems (Fig. 16) the same code applies.
 Each stage can be switched off (then it is the identity, and the hysteresis stage reduces to ``Dp⁻¹``).
+The cascade is a :class:`~piezo_ff_ros.core.chain.Chain`: in paper order its stages run as one fused compiled pass.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Literal, Sequence, overload
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..chain import Chain
 from ..config import PiezoConfig
 from .creep import CreepCompensator
 from .hysteresis import HysteresisCompensator
@@ -82,7 +84,7 @@ class _Linearizer:
         self.comp.load_state(state)
 
 
-class CompensatorCascade:
+class CompensatorCascade(Chain):
     """Streaming ``Y_R [m] → U [V]``.
 
     Parameters
@@ -92,6 +94,12 @@ class CompensatorCascade:
     controller : tuple (A, B, C, D) or object with ``.controller`` (a ``control.StateSpace``), optional
         The vibration compensator C(s).  When the vibration stage is enabled and none is given, it comes from
         ``cfg.vibration.controller`` or else is synthesised (H∞, then balanced truncation).
+
+    Notes
+    -----
+    Stage names (taps of :meth:`process_with_taps`, :attr:`tap_names`): ``yl``, ``yh``, ``u`` in paper order;
+    ``yb``, ``ya``, ``yh``, ``u`` commuted.  :meth:`state` and :meth:`load_state` use the stage names of
+    :attr:`STAGES` instead (``vibration``, ``creep``, ``hysteresis``).
     """
 
     def __init__(self, cfg: PiezoConfig, controller: Any = None) -> None:
@@ -115,7 +123,7 @@ class CompensatorCascade:
             chain = [_Linearizer(self.hysteresis) if self.hysteresis else None, self.vibration, self.creep,
                      _Gain(Dp_pinv)]
             self.tap_names = ["yb", "ya", "yh", "u"]
-        self._chain = chain
+        super().__init__(list(zip(self.tap_names, chain)), n_in=cfg.n_axes, n_out=cfg.n_axes)
 
     def _controller_matrices(self, cfg: PiezoConfig, controller: Any) -> tuple[ArrayLike, ...]:
         if controller is None and cfg.vibration.controller is not None:
@@ -158,7 +166,7 @@ class CompensatorCascade:
         """The state of every enabled stage among ``names`` (``{stage: {array name: copy}}``)."""
         return {k: st.state() for k, st in self.stages().items() if k in names}
 
-    def load_state(self, state: dict[str, StageState]) -> None:
+    def load_state(self, state: Mapping[str, StageState]) -> None:
         """Load :meth:`state`'s result (``{stage: {array name: array}}``) into the enabled stages."""
         for k, st_state in state.items():
             getattr(self, k).load_state(st_state)
@@ -196,51 +204,12 @@ class CompensatorCascade:
             return None
         return h.bw_state.u_prev.copy()
 
-    def reset(self) -> None:
-        """All states back to rest."""
-        for st in self._chain:
-            if st is not None:
-                st.reset()
+    def _check(self, block: np.ndarray) -> np.ndarray:
+        x = np.ascontiguousarray(block, dtype=float)
+        if x.ndim != 2 or x.shape[1] != self.n_axes:
+            raise ValueError(f"expected a reference block of shape [N, {self.n_axes}], got {x.shape}")
+        return x
 
     def process_front(self, yr: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Every stage but the last (paper order: ``Y_R → Y_H``); returns the signal and the taps so far."""
-        x = np.ascontiguousarray(yr, dtype=float)
-        out: dict[str, np.ndarray] = {}
-        for name, st in zip(self.tap_names[:-1], self._chain[:-1]):
-            if st is not None:
-                x = st.process(x)
-            out[name] = x
-        return x, out
-
-    @overload
-    def process(self, yr: np.ndarray, taps: Literal[False] = ...) -> np.ndarray: ...
-    @overload
-    def process(self, yr: np.ndarray, taps: Literal[True]) -> tuple[np.ndarray, dict[str, np.ndarray]]: ...
-
-    def process(self, yr: np.ndarray, taps: bool = False) -> np.ndarray | tuple[np.ndarray, dict[str, np.ndarray]]:
-        """Run one reference block ``Y_R`` [N, axes] (m) → voltages ``U`` [N, axes] (V), state carried.
-
-        Parameters
-        ----------
-        yr : ndarray
-            The reference block.
-        taps : bool
-            Also return the intermediate signals by name (:attr:`tap_names`: ``yl``, ``yh``, ``u`` in paper order;
-            ``yb``, ``ya``, ``yh``, ``u`` commuted).
-
-        Returns
-        -------
-        u : ndarray
-            The voltages.
-        taps : dict
-            Only with ``taps=True``.
-        """
-        x = np.ascontiguousarray(yr, dtype=float)
-        if x.ndim != 2 or x.shape[1] != self.n_axes:
-            raise ValueError(f"expected a reference block of shape [N, {self.n_axes}], got {x.shape}")
-        out: dict[str, np.ndarray] = {}
-        for name, st in zip(self.tap_names, self._chain):
-            if st is not None:
-                x = st.process(x)
-            out[name] = x
-        return (x, out) if taps else x
+        return self.head(len(self.entries) - 1).process_with_taps(self._check(yr))

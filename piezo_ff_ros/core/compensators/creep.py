@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._jit import njit
 from ..config import CreepConfig
+from ..kernels.fused import INVERSE, FusedPart
+from ..kernels.modal import inverse_affine_run, inverse_affine_run_2x2, pad_to_2x2
 from ..lti import DiscreteModalSS, LTIFilter
 from ..models.creep import discretise_creep
 from ..stage import StageState, transfer_linear_state
@@ -51,8 +52,9 @@ class CreepCompensator:
         if not self.ss.strictly_proper:
             raise ValueError("creep.Cr must be strictly proper")
         self._Ablk, self._offsets = self.ss.packed()
-        self._two_axis = self.ss.n_in == 2 and self.ss.n_out == 2 and self.ss.small_blocks
-        self._io = self.ss.packed_io()
+        self.two_axis = self.ss.n_in == 2 and self.ss.n_out == 2 and self.ss.small_blocks
+        if self.two_axis:
+            self.W, self.feeds = pad_to_2x2(self._Ablk, self.ss.packed_io(), self._offsets, self.ss.sizes)
         self.x = np.zeros(self.ss.n_states)
         # the Cr filter alone on the same state array: advances x from a given Y_H (re-synchronisation)
         self._cr = LTIFilter(self.ss)
@@ -78,10 +80,10 @@ class CreepCompensator:
         yh = np.empty_like(yl)
         if yl.ndim != 2 or yl.shape[1] != self.n_in:
             raise ValueError(f"expected a block of shape [N, {self.n_in}], got {yl.shape}")
-        if self._two_axis:
-            _inverse_affine_run_2x2(self.Kinv, self._Ablk, self._offsets, self.ss.sizes, self._io, self.x, yl, yh)
+        if self.two_axis:
+            inverse_affine_run_2x2(self.Kinv, self.W, self._offsets, self.ss.sizes, self.feeds, self.x, yl, yh)
         else:
-            _inverse_affine_run(self.Kinv, self._Ablk, self._offsets, self.ss.sizes, self.ss.B, self.ss.C, self.x,
+            inverse_affine_run(self.Kinv, self._Ablk, self._offsets, self.ss.sizes, self.ss.B, self.ss.C, self.x,
                                 yl, yh)
         return yh
 
@@ -93,6 +95,12 @@ class CreepCompensator:
         """Copy ``state`` (as returned by :meth:`state`) into this stage."""
         self.x[:] = state["x"]
 
+    def fused_part(self) -> FusedPart | None:
+        """This stage's share of a fused pass (:mod:`~piezo_ff_ros.core.kernels.fused`): two axes only."""
+        if not self.two_axis:
+            return None
+        return FusedPart(INVERSE, (self.W, self.feeds, self.Kinv, self._offsets, self.ss.sizes), (self.x,))
+
     def follow(self, yh: np.ndarray) -> None:
         """Advance the state as if this stage had output ``yh`` (what the plant's creep actually received)."""
         self._cr.process(np.ascontiguousarray(yh, dtype=float))
@@ -101,77 +109,3 @@ class CreepCompensator:
         """Bumpless takeover from ``old``: Cr's modes keep their input history (see
         :func:`~piezo_ff_ros.core.stage.transfer_linear_state`)."""
         self.x[:] = transfer_linear_state(old.ss, old.x, self.ss, u_last)[0]
-
-
-@njit
-def _inverse_affine_run(Kinv: np.ndarray, Ablk: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, B: np.ndarray,
-                        C: np.ndarray, x: np.ndarray, yl: np.ndarray, yh: np.ndarray) -> None:  # pragma: no cover - compiled
-    N = yl.shape[0]
-    n = yl.shape[1]
-    ns = x.shape[0]
-    nb = sizes.shape[0]
-    xn = np.empty(ns)
-    c = np.empty(n)
-    for k in range(N):
-        for o in range(n):
-            acc = 0.0
-            for i in range(ns):
-                acc += C[o, i] * x[i]
-            c[o] = yl[k, o] - acc
-        for o in range(n):
-            acc = 0.0
-            for j in range(n):
-                acc += Kinv[o, j] * c[j]
-            yh[k, o] = acc
-        for b in range(nb):
-            off = offsets[b]
-            s = sizes[b]
-            for r in range(s):
-                acc = 0.0
-                for cc in range(s):
-                    acc += Ablk[off + r, cc] * x[off + cc]
-                for j in range(n):
-                    acc += B[off + r, j] * yh[k, j]
-                xn[off + r] = acc
-        for i in range(ns):
-            x[i] = xn[i]
-
-
-@njit
-def _inverse_affine_run_2x2(Kinv: np.ndarray, Ablk: np.ndarray, offsets: np.ndarray, sizes: np.ndarray,
-                            io: np.ndarray, x: np.ndarray, yl: np.ndarray, yh: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``_inverse_affine_run`` unrolled for two axes and 1×1 / 2×2 blocks (``io[i] = (B[i, :], C[:, i])``).
-
-    Sums run in the generic kernel's order, so the results are the same numbers.
-    """
-    N = yl.shape[0]
-    nb = sizes.shape[0]
-    k00, k01, k10, k11 = Kinv[0, 0], Kinv[0, 1], Kinv[1, 0], Kinv[1, 1]
-    for k in range(N):
-        # (Cr·Y_H)[k] from the state alone (Cr strictly proper)
-        s0 = 0.0
-        s1 = 0.0
-        for b in range(nb):
-            off = offsets[b]
-            x0 = x[off]
-            s0 += io[off, 2] * x0
-            s1 += io[off, 3] * x0
-            if sizes[b] == 2:
-                x1 = x[off + 1]
-                s0 += io[off + 1, 2] * x1
-                s1 += io[off + 1, 3] * x1
-        c0 = yl[k, 0] - s0
-        c1 = yl[k, 1] - s1
-        v0 = 0.0 + k00 * c0 + k01 * c1
-        v1 = 0.0 + k10 * c0 + k11 * c1
-        yh[k, 0] = v0
-        yh[k, 1] = v1
-        for b in range(nb):
-            off = offsets[b]
-            if sizes[b] == 1:
-                x[off] = Ablk[off, 0] * x[off] + io[off, 0] * v0 + io[off, 1] * v1
-            else:
-                x0 = x[off]
-                x1 = x[off + 1]
-                x[off] = Ablk[off, 0] * x0 + Ablk[off, 1] * x1 + io[off, 0] * v0 + io[off, 1] * v1
-                x[off + 1] = Ablk[off + 1, 0] * x0 + Ablk[off + 1, 1] * x1 + io[off + 1, 0] * v0 + io[off + 1, 1] * v1

@@ -7,13 +7,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..lti import DiscreteModalSS, LTIFilter
-from ..stage import StageState, transfer_linear_state
+from ..lti import DiscreteModalSS, FilterStage, LTIFilter
+from ..stage import transfer_linear_state
 
 __all__ = ["VibrationCompensator"]
 
 
-class VibrationCompensator:
+class VibrationCompensator(FilterStage):
     """Streaming ``Y_R [m] → Y_L [m]`` through C(s) given as a continuous state space (A, B, C, D)."""
 
     def __init__(self, A: ArrayLike, B: ArrayLike, C: ArrayLike, D: ArrayLike, dt: float) -> None:
@@ -44,34 +44,8 @@ class VibrationCompensator:
         return VibrationCompensator(s.A, s.B, s.C, s.D, dt)
 
     @property
-    def n_in(self) -> int:
-        """Number of input columns."""
-        return self.ss.n_in
-
-    @property
-    def n_out(self) -> int:
-        """Number of output columns."""
-        return self.ss.n_out
-
-    @property
     def order(self) -> int:
         return self.ss.n_states
-
-    def reset(self) -> None:
-        """All states back to rest."""
-        self.filter.reset()
-
-    def process(self, yr: np.ndarray) -> np.ndarray:
-        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
-        return self.filter.process(yr)
-
-    def state(self) -> dict[str, np.ndarray]:
-        """The filter state ``x`` (modal coordinates of :attr:`ss`), a copy."""
-        return {"x": self.filter.x.copy()}
-
-    def load_state(self, state: StageState) -> None:
-        """Copy ``state`` (as returned by :meth:`state`) into this stage."""
-        self.filter.x[:] = state["x"]
 
     def continue_from(self, old: "VibrationCompensator", u_last: np.ndarray | None = None) -> None:
         """Bumpless takeover from ``old`` (see :func:`~piezo_ff_ros.core.stage.transfer_linear_state`)."""

@@ -24,7 +24,8 @@ from .._jit import njit
 from ..config import BoucWenConfig, PiezoConfig
 from ..stage import Processor
 from .plant import Plant
-from .bouc_wen import _bw_increment  # the core increment (same maths, no per-sample allocation)
+from ..kernels.bouc_wen import BoucWenParams, bw_increment  # the core increment (one source)
+from ..kernels.limits import limit_run  # the driver guard's limiter (one source)
 
 __all__ = [
     "InputDelay", "AmplifierSlewLimit", "AmplifierSaturation", "AmplifierBandwidth", "GainMismatch",
@@ -105,23 +106,6 @@ class InputDelay:
         return out
 
 
-@njit
-def _slew_run(u: np.ndarray, y_prev: np.ndarray, started: np.ndarray, max_step: float, out: np.ndarray) -> None:  # pragma: no cover - compiled
-    N, n = u.shape
-    for t in range(N):
-        for j in range(n):
-            if not started[0]:
-                y_prev[j] = u[t, j]
-            d = u[t, j] - y_prev[j]
-            if d > max_step:
-                d = max_step
-            elif d < -max_step:
-                d = -max_step
-            y_prev[j] += d
-            out[t, j] = y_prev[j]
-        started[0] = True
-
-
 class AmplifierSlewLimit:
     """Amplifier slew-rate limit: the voltage changes by at most ``rate·dt`` per sample [V/s]."""
 
@@ -140,7 +124,7 @@ class AmplifierSlewLimit:
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         u = _block(u, self.n)
         out = np.empty_like(u)
-        _slew_run(u, self._prev, self._started, self.rate * self.dt, out)
+        limit_run(u, self._prev, self._started, np.inf, self.rate * self.dt, out, np.zeros(2, np.int64))
         return out
 
 
@@ -602,6 +586,7 @@ def _bw_rate_run(Dp: np.ndarray, A: np.ndarray, B: np.ndarray, G: np.ndarray, D1
     dus = np.zeros(k)
     dh = np.zeros(n)
     duh = np.zeros(n)  # scratch of the core increment
+    prm = BoucWenParams(Dp, A, B, G, D1, D2, P)
     for t in range(N):
         if not started[0]:
             for j in range(k):
@@ -615,14 +600,14 @@ def _bw_rate_run(Dp: np.ndarray, A: np.ndarray, B: np.ndarray, G: np.ndarray, D1
             for j in range(k):
                 dus[j] = du[j] * (1.0 + alpha * math.tanh(rate[j] / rate_ref))
             # the rate only enlarges the A term: add it separately so B/Γ/Δ still see the true dU
-            _bw_increment(A, B, G, D1, D2, P, h, du, dh, duh)
+            bw_increment(prm, h, du, dh, duh)
             for i in range(n):
                 acc = 0.0
                 for j in range(k):
                     acc += A[i, j] * (dus[j] - du[j])
                 dh[i] += acc
         else:
-            _bw_increment(A, B, G, D1, D2, P, h, du, dh, duh)
+            bw_increment(prm, h, du, dh, duh)
         for i in range(n):
             h[i] += dh[i]
         for j in range(k):

@@ -3,24 +3,44 @@
 Discretised at the config's sample rate as the model's definition says: explicit discrete Bouc-Wen, every SISO
 transfer function by zero-order hold on its own, blocks in cascade.  ``effects`` (from :mod:`.effects`) can be
 inserted before (on the voltage) or after (on the displacement) the nominal chain, and sensor noise added, to build
-"truth" plants that differ from the nominal model.
+"truth" plants that differ from the nominal model.  The plant is a :class:`~piezo_ff_ros.core.chain.Chain`: the
+nominal stages run as one fused compiled pass.
 """
 from __future__ import annotations
 
-from typing import Literal, Sequence, overload
+from typing import Sequence
 
 import numpy as np
 
+from ..chain import Chain
 from ..config import PiezoConfig
 from ..stage import Processor
 from .bouc_wen import BoucWenModel
 from .creep import CreepModel
 from .dynamics import DynamicsModel
 
-__all__ = ["Plant"]
+__all__ = ["Plant", "SensorNoise"]
 
 
-class Plant:
+class SensorNoise:
+    """White sensor noise ``x + std·N(0, 1)``, drawn sample by sample from one seeded stream (block-size invariant)."""
+
+    def __init__(self, std: float, seed: int = 0) -> None:
+        self.std = float(std)
+        self.seed = seed
+        self._rng = np.random.default_rng(seed)
+
+    def reset(self) -> None:
+        """The stream back to its seed."""
+        self._rng = np.random.default_rng(self.seed)
+
+    def process(self, x: np.ndarray) -> np.ndarray:
+        """``x`` plus the next ``x.size`` draws (row by row)."""
+        y: np.ndarray = x + self.std * self._rng.standard_normal(x.shape)
+        return y
+
+
+class Plant(Chain):
     """Streaming ``U [V] → Y [m]``, the model chain with optional extra stages and sensor noise.
 
     Parameters
@@ -36,10 +56,16 @@ class Plant:
         Seed of the noise generator (noise is drawn sample by sample from one stream: block-size invariant).
     stages : tuple of str
         Which of ``hysteresis``, ``creep``, ``dynamics`` to include (the intermediate systems of Fig. 3).
+
+    Notes
+    -----
+    Stage names (taps of :meth:`process_with_taps`): ``pre0 …``, ``yh`` (after the hysteresis: ``Dp·U − h``), ``yl``
+    (after the creep), ``y`` (after the dynamics), ``post0 …``, ``noise``.
     """
 
-    def __init__(self, cfg: PiezoConfig, pre: Sequence[Processor] = (), post: Sequence[Processor] = (), noise_std: float = 0.0,
-                 seed: int = 0, stages: Sequence[str] = ("hysteresis", "creep", "dynamics")):
+    def __init__(self, cfg: PiezoConfig, pre: Sequence[Processor] = (), post: Sequence[Processor] = (),
+                 noise_std: float = 0.0, seed: int = 0,
+                 stages: Sequence[str] = ("hysteresis", "creep", "dynamics")) -> None:
         self.cfg = cfg
         self.dt = cfg.dt
         self.stages = tuple(stages)
@@ -50,58 +76,38 @@ class Plant:
         self.post = list(post)
         self.noise_std = float(noise_std)
         self.seed = seed
-        self._rng = np.random.default_rng(seed)
+        self.noise = SensorNoise(self.noise_std, seed) if self.noise_std > 0 else None
+        entries: list[tuple[str, Processor | None]] = [(f"pre{i}", st) for i, st in enumerate(self.pre)]
+        entries += [("yh", self.hysteresis), ("yl", self.creep), ("y", self.dynamics)]
+        entries += [(f"post{i}", st) for i, st in enumerate(self.post)]
+        entries.append(("noise", self.noise))
+        super().__init__(entries, n_in=cfg.n_axes, n_out=cfg.n_axes)
 
     @property
     def n_axes(self) -> int:
         """Number of axes."""
         return self.cfg.n_axes
 
-    def reset(self) -> None:
-        """All states back to rest."""
-        for st in (self.hysteresis, self.creep, self.dynamics, *self.pre, *self.post):
-            if st is not None:
-                st.reset()
-        self._rng = np.random.default_rng(self.seed)
+    def _check(self, block: np.ndarray) -> np.ndarray:
+        x = np.ascontiguousarray(block, dtype=float)
+        if x.ndim != 2 or x.shape[1] != self.n_axes:
+            raise ValueError(f"expected a voltage block of shape [N, {self.n_axes}], got {x.shape}")
+        return x
 
-    @overload
-    def process(self, u: np.ndarray, taps: Literal[False] = ...) -> np.ndarray: ...
-    @overload
-    def process(self, u: np.ndarray, taps: Literal[True]) -> tuple[np.ndarray, dict[str, np.ndarray]]: ...
-
-    def process(self, u: np.ndarray, taps: bool = False) -> np.ndarray | tuple[np.ndarray, dict[str, np.ndarray]]:
-        """Run a block; with ``taps=True`` also return ``{'yh': Dp·U − h, 'yl': creep output}``.
+    def process_with_taps(self, block: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Run a block; also return ``{'yh': Dp·U − h, 'yl': creep output}``.
 
         Parameters
         ----------
-        u : ndarray
+        block : ndarray
             Voltages [V], shape [N, axes].
-        taps : bool
-            Also return the intermediate signals.
 
         Returns
         -------
         y : ndarray
             Displacements [m], shape [N, axes] (with noise when ``noise_std`` > 0).
         taps : dict
-            Only with ``taps=True``: ``yh`` and ``yl`` [N, axes].
+            ``yh`` and ``yl`` [N, axes].
         """
-        x = np.ascontiguousarray(u, dtype=float)
-        if x.ndim != 2 or x.shape[1] != self.n_axes:
-            raise ValueError(f"expected a voltage block of shape [N, {self.n_axes}], got {x.shape}")
-        for st in self.pre:
-            x = st.process(x)
-        out = {}
-        if self.hysteresis is not None:
-            x = self.hysteresis.process(x)
-        out["yh"] = x
-        if self.creep is not None:
-            x = self.creep.process(x)
-        out["yl"] = x
-        if self.dynamics is not None:
-            x = self.dynamics.process(x)
-        for st in self.post:
-            x = st.process(x)
-        if self.noise_std > 0:
-            x = x + self.noise_std * self._rng.standard_normal(x.shape)
-        return (x, out) if taps else x
+        y, taps = super().process_with_taps(block)
+        return y, {"yh": taps["yh"], "yl": taps["yl"]}

@@ -1,0 +1,277 @@
+"""Fused chains: consecutive two-axis stages run as one compiled pass per block (pure).
+
+The standard chain ``Y_R → C(s) → creep⁻¹ → hysteresis⁻¹ → U → Bouc-Wen → K + Cr(s) → G_L(s) → Y`` is six stages
+in six slots::
+
+    VIB (modal bank) → CINV (creep compensator) → COMP (hysteresis compensator)
+        → MODEL (Bouc-Wen model) → CREEP (modal bank, D = K) → DYN (modal bank)
+
+Any run of consecutive stages that fills some of these slots in this order (a compensator cascade, a plant, both,
+or part of either) is run by :func:`fused_run`: one loop over the samples, each sample through every present slot
+with the stages' own loop kernels (:func:`~.modal.bank2_loop`, :func:`~.modal.inverse2_loop`,
+:func:`~.bouc_wen.bw_comp_run_2x2`, :func:`~.bouc_wen.bw_model_run_2x2`), on the stages' own state arrays.  It
+therefore gives the numbers of the stages run one by one — and, like them, the same numbers whatever the block split
+— and one call replaces six.  The block is run chunk by chunk (:data:`_CHUNK` samples in a cache-resident buffer),
+each slot running its own loop kernel over the chunk: the processor overlaps successive samples of a stage as in the
+stage's own kernel (a per-sample loop through all six slots, tried, is slower: each sample waits for the whole
+chain).
+
+A stage joins a fused pass by offering ``fused_part() -> FusedPart | None`` (its slot kind, constants and state
+arrays); :func:`plan_fusion` groups a list of stages into stages and :class:`FusedPass` objects.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple, Sequence
+
+import numpy as np
+
+from .._jit import njit
+from .bouc_wen import FALLBACKS, N_COUNTERS, SATURATED, CompOptions, CompState, bw_comp_run_2x2, bw_model_run_2x2
+from .modal import bank2_loop, gather_2x2, inverse2_loop, scatter_2x2
+
+__all__ = ["BANK", "INVERSE", "COMP", "MODEL", "SLOT_KINDS", "FusedPart", "FusedPass", "plan_fusion", "fused_run"]
+
+#: kinds of fusable stage
+BANK, INVERSE, COMP, MODEL = 0, 1, 2, 3
+#: the kind of each slot, in processing order (VIB, CINV, COMP, MODEL, CREEP, DYN)
+SLOT_KINDS = (BANK, INVERSE, COMP, MODEL, BANK, BANK)
+_BANK_SLOTS = (0, 1, 4, 5)
+_L_BANK = 6          # L[6 + 8·b …]: bank b's layout
+_L_COMP = 6 + 8 * 4  # L[38], L[39]: compensator coefficients offset in P, exact flag
+_L_MODEL = _L_COMP + 2
+#: samples per chunk of the fused loop (its buffer stays in L1)
+_CHUNK = 256
+
+
+class FusedPart(NamedTuple):
+    """What a stage gives a fused pass.
+
+    ``kind`` :data:`BANK`: ``consts = (W, feeds, D, offsets, sizes)`` (:func:`~.modal.pad_to_2x2`), ``state = (x,)``;
+    :data:`INVERSE`: the same with ``K⁻¹`` for D; :data:`COMP`: ``consts = (coeffs[36], exact, ulim, dulim)``,
+    ``state = (h, u_prev, started, signs)``; :data:`MODEL`: ``consts = (coeffs[28],)``,
+    ``state = (h, u_prev, started)``.  ``counter`` receives the compensator's counters after each block.
+    """
+
+    kind: int
+    consts: tuple[Any, ...]
+    state: tuple[np.ndarray, ...]
+    counter: Callable[[np.ndarray], None] | None = None
+
+
+def _slots_of(parts: Sequence[FusedPart]) -> list[int] | None:
+    """The slot of each part (increasing), or None when the parts do not fit the slot order."""
+    slots, s = [], 0
+    for p in parts:
+        while s < len(SLOT_KINDS) and SLOT_KINDS[s] != p.kind:
+            s += 1
+        if s == len(SLOT_KINDS):
+            return None
+        slots.append(s)
+        s += 1
+    return slots
+
+
+class FusedPass:
+    """Consecutive fusable stages run by :func:`fused_run` (built by :func:`plan_fusion`)."""
+
+    def __init__(self, stages: Sequence[Any], parts: Sequence[FusedPart]) -> None:
+        slots = _slots_of(parts)
+        if slots is None or len(parts) < 1:
+            raise ValueError("fused pass: the stages do not fit the slot order VIB, CINV, COMP, MODEL, CREEP, DYN")
+        self.stages = list(stages)
+        self.n_in = 2
+        self.n_out = 2
+        P: list[np.ndarray] = []
+        L = np.zeros(_L_MODEL + 1, np.int64)
+        extra: list[np.ndarray] = []
+        dummy_x = np.zeros(0)
+        self._x = [dummy_x, dummy_x, dummy_x, dummy_x]
+        self._comp = (np.zeros(2), np.zeros(2), np.zeros(1, np.bool_), np.ones(2))
+        self._model = (np.zeros(2), np.zeros(2), np.zeros(1, np.bool_))
+        self._count: Callable[[np.ndarray], None] | None = None
+        n_p = 0
+
+        def put(a: np.ndarray) -> int:
+            nonlocal n_p
+            off = n_p
+            P.append(np.ascontiguousarray(a, float).reshape(-1))
+            n_p += P[-1].size
+            return off
+        n_l = len(L)
+
+        def put_i(a: np.ndarray) -> int:
+            nonlocal n_l
+            off = n_l
+            extra.append(np.ascontiguousarray(a, np.int64).reshape(-1))
+            n_l += extra[-1].size
+            return off
+        for part, slot in zip(parts, slots):
+            L[slot] = 1
+            if slot in _BANK_SLOTS:
+                b = _BANK_SLOTS.index(slot)
+                W, feeds, D, offsets, sizes = part.consts
+                base = _L_BANK + 8 * b
+                L[base:base + 6] = (put(W), put(D), len(sizes), put_i(offsets), put_i(sizes), put_i(feeds))
+                self._x[b] = part.state[0]
+            elif slot == 2:
+                coeffs, exact, ulim, dulim = part.consts
+                L[_L_COMP] = put(np.concatenate([coeffs, [ulim, dulim]]))
+                L[_L_COMP + 1] = int(bool(exact))
+                self._comp = part.state  # type: ignore[assignment]  # (h, u_prev, started, signs)
+                self._count = part.counter
+            else:
+                L[_L_MODEL] = put(part.consts[0])
+                self._model = part.state  # type: ignore[assignment]  # (h, u_prev, started)
+        if not L[2]:  # absent: zeros, so that the kernel's reads stay inside P
+            L[_L_COMP] = put(np.zeros(38))
+        if not L[3]:
+            L[_L_MODEL] = put(np.zeros(28))
+        self.P = np.ascontiguousarray(np.concatenate(P))
+        self.L = np.ascontiguousarray(np.concatenate([L, *extra]))
+        self.slots = slots
+        self._counters = np.zeros(N_COUNTERS, np.int64)
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        for st in self.stages:
+            st.reset()
+
+    def process(self, block: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, 2] → [N, 2]`` through every stage of the pass; the states move on by N samples."""
+        u = np.ascontiguousarray(block, dtype=float)
+        if u.ndim != 2 or u.shape[1] != 2:
+            raise ValueError(f"expected a block of shape [N, 2], got {u.shape}")
+        y = np.empty_like(u)
+        counters = self._counters
+        x = self._x
+        ch, cu, cs, cg = self._comp
+        mh, mu, ms = self._model
+        fused_run(self.P, self.L, x[0], x[1], x[2], x[3], ch, cu, cs, cg, mh, mu, ms, counters, u, y)
+        if self._count is not None:
+            self._count(counters)
+        return y
+
+
+def plan_fusion(stages: Sequence[Any]) -> list[Any]:
+    """``stages`` with every run of two or more consecutive fusable stages replaced by one :class:`FusedPass`.
+
+    Parameters
+    ----------
+    stages : sequence
+        Stages in processing order (not chains).
+
+    Returns
+    -------
+    list
+        Stages and fused passes, in processing order.
+    """
+    out: list[Any] = []
+    run: list[Any] = []
+    parts: list[FusedPart] = []
+
+    def flush() -> None:
+        if len(run) >= 2:
+            out.append(FusedPass(run, parts))
+        else:
+            out.extend(run)
+        run.clear()
+        parts.clear()
+    for st in stages:
+        fp = getattr(st, "fused_part", None)
+        part = fp() if fp is not None else None
+        if part is None:
+            flush()
+            out.append(st)
+            continue
+        if _slots_of([*parts, part]) is None:
+            flush()
+        run.append(st)
+        parts.append(part)
+    flush()
+    return out
+
+
+@njit(inline="always")
+def _bank(P: np.ndarray, L: np.ndarray, b: int,
+          x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Bank ``b``'s coefficient table (a local copy), feeds, D (K⁻¹ for CINV) and its state in the two-axis
+    layout."""
+    base = 6 + 8 * b
+    pW = L[base]
+    pD = L[base + 1]
+    nb = L[base + 2]
+    W = P[pW:pW + 12 * nb].reshape((12, nb)).copy()
+    D = P[pD:pD + 4].reshape((2, 2))
+    feeds = L[L[base + 5]:L[base + 5] + nb].copy()
+    xp = gather_2x2(L[L[base + 3]:L[base + 3] + nb], L[L[base + 4]:L[base + 4] + nb], x)
+    return W, feeds, D, xp
+
+
+@njit(inline="always")
+def _unbank(L: np.ndarray, b: int, xp: np.ndarray, x: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Bank ``b``'s padded state back into its public layout."""
+    base = 6 + 8 * b
+    nb = L[base + 2]
+    scatter_2x2(L[L[base + 3]:L[base + 3] + nb], L[L[base + 4]:L[base + 4] + nb], xp, x)
+
+
+@njit
+def fused_run(P: np.ndarray, L: np.ndarray, x0: np.ndarray, x1: np.ndarray, x4: np.ndarray, x5: np.ndarray,
+              ch: np.ndarray, cu: np.ndarray, cs: np.ndarray, cg: np.ndarray, mh: np.ndarray, mu: np.ndarray,
+              ms: np.ndarray, counters: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
+    """The present slots of VIB → CINV → COMP → MODEL → CREEP → DYN over a block ``u [N, 2]`` → ``y [N, 2]``.
+
+    ``P``/``L``: the constants and their layout (:class:`FusedPass`); ``x0, x1, x4, x5``: the banks' states
+    (public layout); ``ch, cu, cs, cg``: the compensator's h, last voltage, started, signs; ``mh, mu, ms``: the
+    model's h, last voltage, started; ``counters[FALLBACKS]``, ``counters[SATURATED]`` ← this block's counts.
+    """
+    N = u.shape[0]
+    has_vib = L[0] != 0
+    has_inv = L[1] != 0
+    has_comp = L[2] != 0
+    has_model = L[3] != 0
+    has_creep = L[4] != 0
+    has_dyn = L[5] != 0
+    W0, f0, D0, xp0 = _bank(P, L, 0, x0)
+    W1, f1, K1, xp1 = _bank(P, L, 1, x1)
+    W4, f4, D4, xp4 = _bank(P, L, 2, x4)
+    W5, f5, D5, xp5 = _bank(P, L, 3, x5)
+    pc = L[38]
+    cco = P[pc:pc + 36].copy()
+    exact = L[39] != 0
+    ulim = P[pc + 36]
+    dulim = P[pc + 37]
+    mco = P[L[40]:L[40] + 28].copy()
+    counters[FALLBACKS] = 0
+    counters[SATURATED] = 0
+    # Chunk by chunk: each slot runs its own loop kernel (the one its stage runs alone) over a chunk held in a small
+    # buffer (cache-resident): the processor overlaps successive samples of one stage as in the stage's own kernel.
+    buf = np.empty((_CHUNK, 2))
+    hs = np.empty((_CHUNK, 2))
+    cst = CompState(ch, cu, cs, cg)
+    copt = CompOptions(exact, ulim, dulim)
+    for c0 in range(0, N, _CHUNK):
+        n = min(_CHUNK, N - c0)
+        b = buf[:n]
+        for i in range(n):
+            b[i, 0] = u[c0 + i, 0]
+            b[i, 1] = u[c0 + i, 1]
+        if has_vib:
+            bank2_loop(W0, f0, D0, xp0, b, b, n)
+        if has_inv:
+            inverse2_loop(K1, W1, f1, xp1, b, b, n)
+        if has_comp:
+            bw_comp_run_2x2(cco, cst, copt, b, b, counters)
+        if has_model:
+            bw_model_run_2x2(mco, mh, mu, ms, b, b, hs[:n])
+        if has_creep:
+            bank2_loop(W4, f4, D4, xp4, b, b, n)
+        if has_dyn:
+            bank2_loop(W5, f5, D5, xp5, b, b, n)
+        for i in range(n):
+            y[c0 + i, 0] = b[i, 0]
+            y[c0 + i, 1] = b[i, 1]
+    _unbank(L, 0, xp0, x0)
+    _unbank(L, 1, xp1, x1)
+    _unbank(L, 2, xp4, x4)
+    _unbank(L, 3, xp5, x5)
