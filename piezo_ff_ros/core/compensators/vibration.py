@@ -45,6 +45,7 @@ class VibrationCompensator(FilterStage):
 
     @property
     def order(self) -> int:
+        """Number of states of the discretised C(s)."""
         return self.ss.n_states
 
     def continue_from(self, old: "VibrationCompensator", u_last: np.ndarray | None = None) -> None:

@@ -36,6 +36,7 @@ class BoucWenState:
         self.started[:] = False
 
     def copy(self) -> "BoucWenState":
+        """An independent copy (hysteretic state and previous input)."""
         s = BoucWenState(len(self.h), len(self.u_prev))
         s.h[:] = self.h
         s.u_prev[:] = self.u_prev
