@@ -95,13 +95,8 @@ class InputDelay:
             if len(u) == 0:
                 return u.copy()
             self._hist = np.repeat(u[:1], m + 1, axis=0)
-        ext = np.concatenate([self._hist, u])
-        N = len(u)
-        # output k uses ext[k+1] (= u[k-m]) and ext[k] (= u[k-m-1])
-        a = ext[1:N + 1]
-        b = ext[0:N]
-        out = (1.0 - self._frac) * a + self._frac * b if self._frac > 0 else a.copy()
-        self._hist = ext[len(ext) - (m + 1):].copy()
+        out = np.empty_like(u)
+        self._hist = _frac_delay_run(self._hist, u, self._frac, out)
         return out
 
 
@@ -792,3 +787,26 @@ def build_plant(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[str, Any]
         pre.append(HysteresisStage(hcfg, alpha, cfg.dt))
         return Plant(cfg, pre=pre, post=post, noise_std=noise_std, seed=seed, stages=("creep", "dynamics"))
     return Plant(cfg, pre=pre, post=post, noise_std=noise_std, seed=seed)
+
+
+@njit
+def _frac_delay_run(hist: np.ndarray, u: np.ndarray, frac: float, out: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """:class:`InputDelay` on one block without the temporaries: output k = (1 − frac)·ext[k+1] + frac·ext[k] of
+    ``ext = [hist; u]`` (``hist`` = the last m + 1 inputs); returns the new history."""
+    h = hist.shape[0]
+    N, n = u.shape
+    for k in range(N):
+        for j in range(n):
+            i1 = k + 1
+            a = hist[i1, j] if i1 < h else u[i1 - h, j]
+            if frac > 0:
+                b = hist[k, j] if k < h else u[k - h, j]
+                out[k, j] = (1.0 - frac) * a + frac * b
+            else:
+                out[k, j] = a
+    new = np.empty_like(hist)
+    for r in range(h):
+        i = N + r  # ext index of the kept sample: the last h of ext (length h + N)
+        for j in range(n):
+            new[r, j] = hist[i, j] if i < h else u[i - h, j]
+    return new
