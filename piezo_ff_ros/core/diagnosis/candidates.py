@@ -400,6 +400,8 @@ class _ModeSearch:
         self._regs_cache: dict = {}
         self.y_base_c = np.ascontiguousarray(ctx.y_base, dtype=float)
         self.spans = np.array([(0, 0, len(ctx.y_base))] if win.is_whole else win.spans, dtype=np.int64)
+        self.cube = (np.ascontiguousarray(self.y_base_c * (self.y_base_c / fx.LEVEL_REF) ** 2)
+                     if kind == "level" else None)
         self._gram_cache: dict = {}
         self._xtr_cache: dict = {}
 
@@ -429,10 +431,12 @@ class _ModeSearch:
             out = [BH] * self.n
         else:
             out = []
-            for i in range(self.n):  # the cross-coupled mode, plus its level-modulated direct terms
+            CH = _bp_hp_design(self.cube, self.spans, self.k, f, z, self.ctx.dt)
+            CH -= np.full(len(CH), 1.0 / len(CH)) @ CH
+            for i in range(self.n):  # the cross-coupled mode, its level-modulated and its cubic direct terms
                 LB = self.lev[:, i] * B[:, i]
                 LH = self.lev[:, i] * Hp[:, i]
-                out.append(np.column_stack([B, Hp, LB - LB.mean(), LH - LH.mean()]))
+                out.append(np.column_stack([B, Hp, LB - LB.mean(), LH - LH.mean(), CH[:, i], CH[:, self.n + i]]))
         return out
 
     def _gram(self, a: tuple, b: tuple, i: int) -> np.ndarray:
@@ -570,15 +574,18 @@ def fit_amplitude_dependent_dynamics(ctx: FitContext) -> FitResult:
     K = len(modes)
     G, Hg = np.zeros((K, n, n)), np.zeros((K, n, n))
     Kl, Kh = np.zeros((K, n)), np.zeros((K, n))
+    Kc, Hc = np.zeros((K, n)), np.zeros((K, n))
     for i in range(n):
-        c = np.asarray(coefs[i]).reshape(K, 2 * n + 2)
+        c = np.asarray(coefs[i]).reshape(K, 2 * n + 4)
         G[:, i, :], Hg[:, i, :] = c[:, :n], c[:, n:2 * n]
         Kl[:, i], Kh[:, i] = c[:, 2 * n], c[:, 2 * n + 1]
+        Kc[:, i], Hc[:, i] = c[:, 2 * n + 2], c[:, 2 * n + 3]
     params = {"freq": [m[0] for m in modes], "damping": [m[1] for m in modes], "gains": G.tolist(),
-              "hp_gains": Hg.tolist(), "level_gains": Kl.tolist(), "level_hp_gains": Kh.tolist()}
+              "hp_gains": Hg.tolist(), "level_gains": Kl.tolist(), "level_hp_gains": Kh.tolist(),
+              "cubic_gains": Kc.tolist(), "cubic_hp_gains": Hc.tolist()}
     return FitResult("amplitude_dependent_dynamics", params,
                      {k: None for k in params},
-                     [("amplitude_dependent_dynamics", params)], K * (2 + 2 * n * n + 2 * n), _rms(res),
+                     [("amplitude_dependent_dynamics", params)], K * (2 + 2 * n * n + 4 * n), _rms(res),
                      note=f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}")
 
 
@@ -653,13 +660,59 @@ def fit_amplifier_slew_limit(ctx: FitContext) -> FitResult:
                        math.exp)
 
 
+#: the rails are fitted apart when that lowers the training residual energy by at least this share
+RAIL_MIN_GAIN = 0.02
+
+
 def fit_amplifier_saturation(ctx: FitContext) -> FitResult:
+    """One symmetric limit first (grid + refinement); then each rail refined with the other held (amplifier
+    rails often differ by sign), kept when it lowers the training residual energy by ``RAIL_MIN_GAIN``."""
     a = np.abs(ctx.u)
     amax = float(a.max())
     lo = float(np.quantile(a, 0.5))
     grid = np.linspace(max(lo, 1e-3 * amax), amax * 1.01, 12)
-    return _fit_scalar(ctx, "amplifier_saturation", "limit", lambda z: {"limit": z}, grid, lambda z: z,
-                       lambda z: 1.0)
+    sym = _fit_scalar(ctx, "amplifier_saturation", "limit", lambda z: {"limit": z}, grid, lambda z: z,
+                      lambda z: 1.0)
+    L = float(sym.params["limit"])
+    top, bot = float(np.max(ctx.u)), float(-np.min(ctx.u))
+    if L >= min(top, bot):  # one rail is never reached: nothing to tell the rails apart
+        return sym
+    cache = {}
+
+    def sse(up, down):
+        key = (round(up, 9), round(down, 9))
+        if key not in cache:
+            r = ctx.sim_residual([("amplifier_saturation", {"limit": up, "lower_limit": down})])
+            cache[key] = (float(np.sum(r ** 2)), r)
+        return cache[key][0]
+
+    up, down = L, L
+    for _ in range(2):  # coordinate descent, each rail between lo and just above the largest voltage of its sign
+        for which in ("up", "down"):
+            hi = (top if which == "up" else bot) * 1.01
+            f = (lambda z: sse(z, down)) if which == "up" else (lambda z: sse(up, z))
+            sol = optimize.minimize_scalar(f, bounds=(max(lo, 1e-3 * amax), hi), method="bounded",
+                                           options={"xatol": 1e-3 * hi, "maxiter": 16})
+            cur = up if which == "up" else down
+            if sol.fun < f(cur):
+                if which == "up":
+                    up = float(sol.x)
+                else:
+                    down = float(sol.x)
+    s_sym = float(sym.train_rms ** 2 * ctx.target.size)
+    s_asym = sse(up, down)
+    if s_asym > (1 - RAIL_MIN_GAIN) * s_sym:
+        return sym
+    r = cache[(round(up, 9), round(down, 9))][1]
+    cols = []
+    for k, (du, dd) in enumerate(((1e-3 * up, 0.0), (0.0, 1e-3 * down))):
+        rp = ctx.sim_residual([("amplifier_saturation", {"limit": up + du, "lower_limit": down + dd})])
+        rm = ctx.sim_residual([("amplifier_saturation", {"limit": up - du, "lower_limit": down - dd})])
+        cols.append(((rp - rm) / (2 * max(du, dd))).reshape(-1))
+    se = _stderr(np.column_stack(cols), r)
+    p = {"limit": up, "lower_limit": down}
+    return FitResult("amplifier_saturation", p, {"limit": float(se[0]), "lower_limit": float(se[1])},
+                     [("amplifier_saturation", p)], 2, _rms(r), note="rails differ by sign")
 
 
 def fit_amplifier_bandwidth(ctx: FitContext) -> FitResult:
@@ -704,10 +757,34 @@ def fit_amplifier_bandwidth(ctx: FitContext) -> FitResult:
                      [("amplifier_bandwidth", p)], 2, best.train_rms, note=f"order {order}", extra=best.extra)
 
 
+#: a relaxation of the hysteretic state is kept when it lowers the training residual energy by this share
+RELAX_MIN_GAIN = 0.02
+
+
 def fit_hysteresis_rate_dependence(ctx: FitContext) -> FitResult:
+    """The rate-widened loop (``alpha``, grid + refinement), then a relaxation of the hysteretic state
+    (``relaxation`` τ, log grid 20 µs … 20 ms + refinement, with ``alpha`` refitted once under it); the
+    relaxation is kept when it lowers the training residual energy by ``RELAX_MIN_GAIN``."""
     grid = np.array([-0.6, -0.3, -0.1, 0.0, 0.1, 0.3, 0.6, 1.2, 2.5, 5.0])
-    return _fit_scalar(ctx, "hysteresis_rate_dependence", "alpha", lambda z: {"alpha": z}, grid, lambda z: z,
+    base = _fit_scalar(ctx, "hysteresis_rate_dependence", "alpha", lambda z: {"alpha": z}, grid, lambda z: z,
                        lambda z: 1.0)
+    alpha = float(base.params["alpha"])
+    lo = math.log(max(20e-6, 0.3 * ctx.dt))
+    tgrid = np.linspace(lo, math.log(20e-3), 10)
+    rel = _fit_scalar(ctx, "hysteresis_rate_dependence", "relaxation",
+                      lambda z: {"alpha": alpha, "relaxation": math.exp(z)}, tgrid, math.exp, math.exp)
+    tau = float(rel.params["relaxation"])
+    agrid = alpha + np.array([-0.4, -0.15, -0.05, 0.0, 0.05, 0.15, 0.4])
+    both = _fit_scalar(ctx, "hysteresis_rate_dependence", "alpha",
+                       lambda z: {"alpha": z, "relaxation": tau}, agrid, lambda z: z, lambda z: 1.0)
+    best = min((rel, both), key=lambda f: f.train_rms)
+    if best.train_rms ** 2 > (1 - RELAX_MIN_GAIN) * base.train_rms ** 2:
+        return base
+    p = dict(best.effects[0][1])
+    se = {"alpha": both.stderr.get("alpha") if best is both else base.stderr.get("alpha"),
+          "relaxation": rel.stderr.get("relaxation")}
+    return FitResult("hysteresis_rate_dependence", p, se, [("hysteresis_rate_dependence", p)], 2, best.train_rms,
+                     note=f"hysteretic state relaxes over {1e3 * p['relaxation']:.3g} ms")
 
 
 def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
@@ -735,12 +812,38 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
     # then the even, branch-dependent term, linear given the generalized Bouc-Wen: regression on its regressors
     y_w = simulate(ctx.cfg, ctx.u, list(ctx.base) + [("hysteresis_asymmetry", p)], ctx.windows)
     r_w = residual(ctx.target, y_w)
-    q, dq = fx.BranchEvenTerm(0.0, 0.0, ctx.dt, n).terms(y_w)
-    coef, res, se2 = _lin_per_axis(r_w, [q, dq])
-    p = dict(p, even=coef[0].tolist(), branch_even=coef[1].tolist())
+    q, dq = _windowed(lambda yy: fx.BranchEvenTerm(0.0, 0.0, ctx.dt, n).terms(yy), y_w, ctx.windows, 2)
+    # loop-width terms: classical plays on the displacement, radii a fixed share of the stroke
+    half = float(np.mean(0.5 * (np.max(y_w, axis=0) - np.min(y_w, axis=0))))
+    radii = [f * max(half, 1e-12) for f in PLAY_FRACTIONS]
+    W = _windowed(lambda yy: tuple(np.moveaxis(fx.PlayWidthTerm(radii, np.zeros((len(radii), n)), n).terms(yy),
+                                               1, 0)), y_w, ctx.windows, len(radii))
+    coef, res, se2 = _lin_per_axis(r_w, [q, dq] + list(W))
+    p = dict(p, even=coef[0].tolist(), branch_even=coef[1].tolist(), play_radii=radii,
+             play_gains=coef[2:].tolist())
     return FitResult("hysteresis_asymmetry", p, {"Delta1": se[:n].tolist(), "Delta2": se[n:].tolist(),
-                                                 "even": se2[0].tolist(), "branch_even": se2[1].tolist()},
-                     [("hysteresis_asymmetry", p)], 4 * n, _rms(res))
+                                                 "even": se2[0].tolist(), "branch_even": se2[1].tolist(),
+                                                 "play_radii": None, "play_gains": se2[2:].tolist()},
+                     [("hysteresis_asymmetry", p)], (4 + len(radii)) * n, _rms(res))
+
+
+#: radii of the loop-width play operators, as shares of half the displacement stroke on TRAIN
+PLAY_FRACTIONS = (0.05, 0.15, 0.4)
+
+
+def _windowed(fn, y_w: np.ndarray, windows: Windows, n_out: int):
+    """Apply a stateful term ``fn`` (a fresh stage per call) to each window of ``y_w`` (the windows' scored
+    samples, concatenated) separately, so that no state leaks from one window into the next."""
+    if windows.is_whole:
+        return fn(y_w)
+    outs = [[] for _ in range(n_out)]
+    o = 0
+    for _, s_, e_ in windows.spans:
+        parts = fn(y_w[o:o + e_ - s_])
+        for k in range(n_out):
+            outs[k].append(parts[k])
+        o += e_ - s_
+    return tuple(np.concatenate(v) for v in outs)
 
 
 CANDIDATES: dict[str, Callable[[FitContext], FitResult]] = {
