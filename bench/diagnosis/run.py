@@ -232,11 +232,18 @@ def print_summary(label: str, s: dict, targets: bool) -> None:
 
 # ----------------------------------------------------------------------------------------------------------------
 
+def _append_row(path, row: dict) -> None:
+    if path:
+        with open(path, "a") as fh:
+            fh.write(json.dumps(row, default=float) + "\n")
+
+
 def build_cases(split: str, family: str, quick: bool, only) -> list[tuple[str, C.Case]]:
     out = []
     splits = ("tuning", "heldout") if split == "all" else (split,)
     for sp in splits:
-        seeds = {"tuning": S.TUNING_SEEDS, "heldout": S.HELDOUT_SEEDS, "fresh": S.FRESH_HELDOUT_SEEDS}[sp]
+        seeds = {"tuning": S.TUNING_SEEDS, "heldout": S.HELDOUT_SEEDS, "fresh": S.FRESH_HELDOUT_SEEDS,
+                 "fresh2": S.FRESH2_HELDOUT_SEEDS}[sp]
         if family in ("out", "all"):
             out += [(sp, c) for c in C.make_cases(seeds, quick=quick, only=only)]
         if family in ("in", "all"):
@@ -246,9 +253,10 @@ def build_cases(split: str, family: str, quick: bool, only) -> list[tuple[str, C
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--split", choices=("tuning", "heldout", "fresh", "all"), default="tuning",
+    ap.add_argument("--split", choices=("tuning", "heldout", "fresh", "fresh2", "all"), default="tuning",
                     help="seed set: the tuning one (default), the frozen held-out one (looked at since), the fresh "
-                         "held-out one (frozen in session 3), or tuning + held-out")
+                         "held-out one (frozen in session 3, looked at since), the second fresh held-out one "
+                         "(frozen in session 4), or tuning + held-out")
     ap.add_argument("--family", choices=("out", "in", "all"), default="all",
                     help="out-of-family (this benchmark's truths), in-family (the old bench cases), or both")
     ap.add_argument("--jobs", type=int, default=1, help="cases diagnosed in parallel (default 1)")
@@ -256,6 +264,8 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="short records (smoke runs and tests)")
     ap.add_argument("--only", help="comma-separated case-name prefixes or expected verdicts (e.g. null,input_delay)")
     ap.add_argument("--keep", metavar="DIR", help="keep the generated CSVs and JSONs in DIR")
+    ap.add_argument("--rows", metavar="FILE", help="also append each case's row to FILE (JSON lines) as it "
+                                                  "finishes (a cut run keeps its rows)")
     ap.add_argument("--timeout", type=float, default=900.0, help="per-case diagnosis timeout [s]")
     ap.add_argument("--list", action="store_true", help="list the cases and their truth parameters, run nothing")
     a = ap.parse_args(argv)
@@ -283,6 +293,7 @@ def main(argv=None) -> int:
                 r["split"] = sp
                 rows.append(r)
                 print_row(r)
+                _append_row(a.rows, r)
         else:
             with ProcessPoolExecutor(max_workers=a.jobs) as ex:
                 futs = [(sp, ex.submit(run_case, c, workdir, a.timeout, bool(a.keep))) for sp, c in todo]
@@ -291,11 +302,12 @@ def main(argv=None) -> int:
                     r["split"] = sp
                     rows.append(r)
                     print_row(r)
+                    _append_row(a.rows, r)
     finally:
         if tmp is not None:
             tmp.cleanup()
     summaries = {}
-    for sp in ("tuning", "heldout", "fresh"):
+    for sp in ("tuning", "heldout", "fresh", "fresh2"):
         for fam in ("out", "in"):
             sel = [r for r in rows if r["split"] == sp and r["family"] == fam]
             if sel:
@@ -308,7 +320,8 @@ def main(argv=None) -> int:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         Path(a.json).write_text(json.dumps({"summaries": summaries, "rows": rows, "targets": TARGETS,
                                             "seeds": {"tuning": S.TUNING_SEEDS, "heldout": S.HELDOUT_SEEDS,
-                                                      "fresh": S.FRESH_HELDOUT_SEEDS}},
+                                                      "fresh": S.FRESH_HELDOUT_SEEDS,
+                                                      "fresh2": S.FRESH2_HELDOUT_SEEDS}},
                                            indent=1, default=float))
     return 0
 

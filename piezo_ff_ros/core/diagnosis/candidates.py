@@ -20,6 +20,7 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy import optimize
 
+from .._jit import njit
 from ..config import PiezoConfig
 from ..models import effects as fx
 from .replay import Windows, residual, simulate
@@ -145,13 +146,37 @@ def fit_gain_mismatch(ctx: FitContext) -> FitResult:
                      [("gain_mismatch", params)], n * n, _rms(res))
 
 
+@njit
+def _creep_bank2(y: np.ndarray, a: np.ndarray, yref: float, S1: np.ndarray,
+                 S2: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Σ_τ LP_τ(y) and Σ_τ LP_τ(y|y|/yref) per column, the relaxations started at rest (one pass)."""
+    N, n = y.shape
+    m = a.shape[0]
+    for j in range(n):
+        s1 = np.zeros(m)
+        s2 = np.zeros(m)
+        for t in range(N):
+            x = y[t, j]
+            q = x * abs(x) / yref
+            acc1 = 0.0
+            acc2 = 0.0
+            for i in range(m):
+                s1[i] = a[i] * s1[i] + (1.0 - a[i]) * x
+                s2[i] = a[i] * s2[i] + (1.0 - a[i]) * q
+                acc1 += s1[i]
+                acc2 += s2[i]
+            S1[t, j] = acc1
+            S2[t, j] = acc2
+
+
 def _creep_regs(y_base: np.ndarray, dt: float, beta: float | None = None):
-    n = y_base.shape[1]
-    lin = fx.CreepNonlinearity(np.ones(n), 0.0, dt, n)
-    S1 = lin.process(y_base) - y_base
-    q = y_base * np.abs(y_base) / fx.CREEP_YREF
-    lin.reset()
-    S2 = lin.process(q) - q
+    """The creep candidate's two regressors: the log-time relaxation bank of :class:`~..models.effects.
+    CreepNonlinearity` applied to Ŷ and to Ŷ|Ŷ|/Y_ref (what ``CreepNonlinearity(γ=1, β=0)`` adds to its input)."""
+    y = np.ascontiguousarray(y_base, dtype=float)
+    a = np.exp(-dt / np.asarray(fx.CREEP_TAUS, float))
+    S1 = np.empty_like(y)
+    S2 = np.empty_like(y)
+    _creep_bank2(y, a, fx.CREEP_YREF, S1, S2)
     return S1, S2
 
 
@@ -190,10 +215,18 @@ def fit_thermal_drift(ctx: FitContext) -> FitResult:
     n = ctx.cfg.n_axes
     tk = np.arange(N) * ctx.dt * k  # times of the kept rows
 
+    rc = r0 - r0.mean(axis=0)
+    ss_r = float(np.sum(rc ** 2))
+
     def sse(log_tau):
-        shape = -np.expm1(-tk / math.exp(log_tau))[:, None] * np.ones(n)
-        _, res, _ = _lin_per_axis(r0, [shape])
-        return float(np.sum(res ** 2))
+        # one regressor shared by the axes: the least-squares residual energy in closed form
+        shape = -np.expm1(-tk / math.exp(log_tau))
+        shape -= shape.mean()
+        ss = float(shape @ shape)
+        if ss <= 0:
+            return ss_r
+        proj = shape @ rc
+        return ss_r - float(np.sum(proj * proj)) / ss
 
     grid = np.log(T) + np.linspace(math.log(0.02), math.log(20.0), 13)
     vals = [sse(z) for z in grid]
@@ -264,6 +297,92 @@ def _level_design(y_base, dt, windows: Windows | None):
     return np.concatenate(outs)
 
 
+@njit
+def _bp_hp_run(y: np.ndarray, spans: np.ndarray, k: int, cb: np.ndarray, ch: np.ndarray, B: np.ndarray,
+               H: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Band-pass and high-pass biquads (coefficients ``cb``, ``ch``: b0, b1, b2, a1, a2) of every column of ``y``
+    on each window ``(warm, start, stop)`` (state reset at ``warm``), every k-th scored sample kept."""
+    n = y.shape[1]
+    g = 0
+    row = 0
+    for w in range(spans.shape[0]):
+        w0, s0, e0 = spans[w, 0], spans[w, 1], spans[w, 2]
+        for j in range(n):
+            zb0 = 0.0
+            zb1 = 0.0
+            zh0 = 0.0
+            zh1 = 0.0
+            gj = g
+            rj = row
+            for t in range(w0, e0):
+                x = y[t, j]
+                yb = cb[0] * x + zb0
+                zb0 = cb[1] * x - cb[3] * yb + zb1
+                zb1 = cb[2] * x - cb[4] * yb
+                yh = ch[0] * x + zh0
+                zh0 = ch[1] * x - ch[3] * yh + zh1
+                zh1 = ch[2] * x - ch[4] * yh
+                if t >= s0:
+                    if gj % k == 0:
+                        B[rj, j] = yb
+                        H[rj, j] = yh
+                        rj += 1
+                    gj += 1
+        # every column advanced the counters alike
+        for t in range(s0, e0):
+            if g % k == 0:
+                row += 1
+            g += 1
+
+
+def _bp_hp_design(y: np.ndarray, spans: np.ndarray, k: int, freq: float, damping: float,
+                  dt: float) -> np.ndarray:
+    """``[BP | HP]`` (columns) of the mode (freq, damping) on the windows ``spans``, every k-th row: the same filters as
+    :class:`~piezo_ff_ros.core.models.effects.UnmodelledMode` in one compiled pass."""
+    total = int(np.sum(spans[:, 2] - spans[:, 1]))
+    rows = -(-total // k)
+    n = y.shape[1]
+    BH = np.empty((rows, 2 * n))
+    cb = np.array(fx._bandpass_coeffs(freq, damping, dt))
+    ch = np.array(fx._highpass_coeffs(freq, damping, dt))
+    _bp_hp_run(y, spans, int(k), cb, ch, BH[:, :n], BH[:, n:])
+    return BH
+
+
+def _solve_normal(A: np.ndarray, B: np.ndarray, X_of, T: np.ndarray) -> np.ndarray:
+    """Solution of the normal equations ``A C = B`` (``A = XᵀX``, ``B = XᵀT``), column-scaled; when they are
+    ill-conditioned, the minimum-norm least-squares solution of ``X C ≈ T`` (``X_of()`` builds X)."""
+    d = np.sqrt(np.maximum(np.diag(A), 1e-300))
+    As = A / np.outer(d, d)
+    try:
+        C = np.linalg.solve(As, B / d[:, None])
+        if not np.all(np.isfinite(C)) or np.linalg.cond(As) > 1e10:
+            raise np.linalg.LinAlgError
+    except np.linalg.LinAlgError:
+        X = X_of()
+        dx = np.sqrt(np.einsum("ij,ij->j", X, X))
+        dx[dx == 0] = 1.0
+        return np.linalg.lstsq(X / dx, T, rcond=None)[0] / dx[:, None]
+    return C / d[:, None]
+
+
+def _explained(X: np.ndarray, T: np.ndarray) -> float:
+    """Energy of the least-squares projection of every column of ``T`` on the columns of ``X``
+    (``Σ_i ‖X c_i‖²`` with ``c_i`` the solution of ``X c ≈ T[:, i]``), by the normal equations."""
+    A = X.T @ X
+    B = X.T @ T
+    d = np.sqrt(np.maximum(np.diag(A), 1e-300))
+    As = A / np.outer(d, d)
+    Bs = B / d[:, None]
+    try:
+        C = np.linalg.solve(As, Bs)
+        if not np.all(np.isfinite(C)) or np.linalg.cond(As) > 1e10:
+            raise np.linalg.LinAlgError
+    except np.linalg.LinAlgError:
+        C = np.linalg.lstsq(As, Bs, rcond=1e-10)[0]
+    return float(np.sum(Bs * C))
+
+
 class _ModeSearch:
     """Greedy search of resonances in the training residual: each mode adds band-pass regressors of the base
     output; ``kind='cross'``: output i regresses on BP(Ŷ_j) of every axis j (cross-coupled gains);
@@ -278,33 +397,99 @@ class _ModeSearch:
         self.n = ctx.cfg.n_axes
         self.lev = _level_design(ctx.y_base, ctx.dt, win)[::self.k] if kind == "level" else None
         self.unit = max(_rms(self.r0), 1e-15)
+        self._regs_cache: dict = {}
+        self.y_base_c = np.ascontiguousarray(ctx.y_base, dtype=float)
+        self.spans = np.array([(0, 0, len(ctx.y_base))] if win.is_whole else win.spans, dtype=np.int64)
+        self.cube = (np.ascontiguousarray(self.y_base_c * (self.y_base_c / fx.LEVEL_REF) ** 2)
+                     if kind == "level" else None)
+        self._gram_cache: dict = {}
+        self._xtr_cache: dict = {}
+
+    def _grid_regs(self, f: float, z: float) -> list[np.ndarray]:
+        """:meth:`regs` without filling the cache (the coarse grid visits each pole pair once per mode)."""
+        hit = self._regs_cache.get((float(f), float(z)))
+        return hit if hit is not None else self._design(f, z)
 
     def regs(self, f: float, z: float) -> list[np.ndarray]:
-        """Per output i, the regressors [rows, p] this mode adds."""
-        B = _mode_design(self.ctx.y_base, f, z, self.ctx.dt, self.ctx.windows)[::self.k]
-        B = B - B.mean(axis=0)
-        Hp = _hp_design(self.ctx.y_base, f, z, self.ctx.dt, self.ctx.windows)[::self.k]
-        Hp = Hp - Hp.mean(axis=0)
-        if self.kind == "cross":
-            return [np.hstack([B, Hp])] * self.n
-        out = []
-        for i in range(self.n):  # the cross-coupled mode, plus its level-modulated direct terms
-            LB = self.lev[:, i] * B[:, i]
-            LH = self.lev[:, i] * Hp[:, i]
-            out.append(np.column_stack([B, Hp, LB - LB.mean(), LH - LH.mean()]))
+        """Per output i, the regressors [rows, p] this mode adds (cached per pole pair: the greedy search
+        refits every earlier mode's gains each time it tries a new one)."""
+        key = (float(f), float(z))
+        hit = self._regs_cache.get(key)
+        if hit is not None:
+            return hit
+        out = self._design(f, z)
+        if len(self._regs_cache) >= 64:  # keep the memory bounded (only the modes being refitted recur)
+            self._regs_cache.pop(next(iter(self._regs_cache)))
+        self._regs_cache[key] = out
         return out
 
+    def _design(self, f: float, z: float) -> list[np.ndarray]:
+        BH = _bp_hp_design(self.y_base_c, self.spans, self.k, f, z, self.ctx.dt)
+        BH -= np.full(len(BH), 1.0 / len(BH)) @ BH  # column means (a product: faster than an axis-0 mean)
+        B, Hp = BH[:, :self.n], BH[:, self.n:]
+        if self.kind == "cross":
+            out = [BH] * self.n
+        else:
+            out = []
+            CH = _bp_hp_design(self.cube, self.spans, self.k, f, z, self.ctx.dt)
+            CH -= np.full(len(CH), 1.0 / len(CH)) @ CH
+            for i in range(self.n):  # the cross-coupled mode, its level-modulated and its cubic direct terms
+                LB = self.lev[:, i] * B[:, i]
+                LH = self.lev[:, i] * Hp[:, i]
+                out.append(np.column_stack([B, Hp, LB - LB.mean(), LH - LH.mean(), CH[:, i], CH[:, self.n + i]]))
+        return out
+
+    def _gram(self, a: tuple, b: tuple, i: int) -> np.ndarray:
+        """``X_aᵀ X_b`` of output i's designs of pole pairs a and b (cached: the earlier modes recur)."""
+        key = (a, b, i if self.kind != "cross" else 0)
+        G = self._gram_cache.get(key)
+        if G is None:
+            G = self.regs(*a)[i].T @ self.regs(*b)[i]
+            if len(self._gram_cache) >= 256:
+                self._gram_cache.pop(next(iter(self._gram_cache)))
+            self._gram_cache[key] = G
+        return G
+
     def solve(self, modes: list) -> tuple[list, np.ndarray]:
-        """Joint least squares of all modes' gains per output: (coefficients per output, residual)."""
-        R = [self.regs(f, z) for f, z in modes]
+        """Joint least squares of all modes' gains per output: (coefficients per output, residual).
+
+        Normal equations assembled from cached blocks ``X_aᵀX_b`` and ``X_aᵀr`` (column-scaled, with a
+        minimum-norm fallback when they are ill-conditioned): the greedy search refits the earlier modes' gains
+        for every trial of a new one, and only the new mode's blocks are new."""
+        keys = [(float(f), float(z)) for f, z in modes]
+        R = [self.regs(*k) for k in keys]
         res = np.empty_like(self.r0)
         coefs = []
-        for i in range(self.n):
-            X = np.hstack([Ri[i] for Ri in R])
-            c, *_ = np.linalg.lstsq(X, self.r0[:, i], rcond=None)
-            coefs.append(c)
-            res[:, i] = self.r0[:, i] - X @ c
+        outs = [0] if self.kind == "cross" else range(self.n)
+        for i in outs:
+            A = np.block([[self._gram(a, b, i) for b in keys] for a in keys])
+            cols = slice(None) if self.kind == "cross" else slice(i, i + 1)
+            Bv = np.vstack([self._xtr(k, i) for k in keys])[:, cols]
+            C = _solve_normal(A, Bv, lambda: np.hstack([Ri[i] for Ri in R]), self.r0[:, cols])
+            fit = np.zeros((len(self.r0), C.shape[1]))
+            o = 0
+            for Ri in R:
+                p = Ri[i].shape[1]
+                fit += Ri[i] @ C[o:o + p]
+                o += p
+            if self.kind == "cross":
+                res[:] = self.r0 - fit
+                coefs = [C[:, j] for j in range(self.n)]
+            else:
+                res[:, i] = self.r0[:, i] - fit[:, 0]
+                coefs.append(C[:, 0])
         return coefs, res
+
+    def _xtr(self, key: tuple, i: int) -> np.ndarray:
+        """``X_keyᵀ r0`` (all outputs' columns) of output i's design (cached)."""
+        ck = (key, i if self.kind != "cross" else 0)
+        v = self._xtr_cache.get(ck)
+        if v is None:
+            v = self.regs(*key)[i].T @ self.r0
+            if len(self._xtr_cache) >= 256:
+                self._xtr_cache.pop(next(iter(self._xtr_cache)))
+            self._xtr_cache[ck] = v
+        return v
 
     def run(self, fmin: float, fmax: float) -> tuple[list, list, np.ndarray]:
         modes: list = []
@@ -316,12 +501,13 @@ class _ModeSearch:
             best = (0.0, None)
             for f in freqs:
                 for z in (0.01, 0.05, 0.2):
-                    R = self.regs(f, z)
+                    R = self._grid_regs(f, z)
                     gain = 0.0
-                    for i in range(self.n):
-                        Ri = R[i][::g]
-                        c, *_ = np.linalg.lstsq(Ri, res[::g, i], rcond=None)
-                        gain += float(np.sum((Ri @ c) ** 2)) * g
+                    if self.kind == "cross":  # one design shared by every output: one Gram matrix
+                        gain = _explained(R[0][::g], res[::g]) * g
+                    else:
+                        for i in range(self.n):
+                            gain += _explained(R[i][::g], res[::g, i:i + 1]) * g
                     if gain > best[0]:
                         best = (gain, (f, z))
             if best[1] is None or best[0] < MODE_MIN_GAIN * sse:
@@ -388,15 +574,18 @@ def fit_amplitude_dependent_dynamics(ctx: FitContext) -> FitResult:
     K = len(modes)
     G, Hg = np.zeros((K, n, n)), np.zeros((K, n, n))
     Kl, Kh = np.zeros((K, n)), np.zeros((K, n))
+    Kc, Hc = np.zeros((K, n)), np.zeros((K, n))
     for i in range(n):
-        c = np.asarray(coefs[i]).reshape(K, 2 * n + 2)
+        c = np.asarray(coefs[i]).reshape(K, 2 * n + 4)
         G[:, i, :], Hg[:, i, :] = c[:, :n], c[:, n:2 * n]
         Kl[:, i], Kh[:, i] = c[:, 2 * n], c[:, 2 * n + 1]
+        Kc[:, i], Hc[:, i] = c[:, 2 * n + 2], c[:, 2 * n + 3]
     params = {"freq": [m[0] for m in modes], "damping": [m[1] for m in modes], "gains": G.tolist(),
-              "hp_gains": Hg.tolist(), "level_gains": Kl.tolist(), "level_hp_gains": Kh.tolist()}
+              "hp_gains": Hg.tolist(), "level_gains": Kl.tolist(), "level_hp_gains": Kh.tolist(),
+              "cubic_gains": Kc.tolist(), "cubic_hp_gains": Hc.tolist()}
     return FitResult("amplitude_dependent_dynamics", params,
                      {k: None for k in params},
-                     [("amplitude_dependent_dynamics", params)], K * (2 + 2 * n * n + 2 * n), _rms(res),
+                     [("amplitude_dependent_dynamics", params)], K * (2 + 2 * n * n + 4 * n), _rms(res),
                      note=f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}")
 
 
@@ -471,13 +660,59 @@ def fit_amplifier_slew_limit(ctx: FitContext) -> FitResult:
                        math.exp)
 
 
+#: the rails are fitted apart when that lowers the training residual energy by at least this share
+RAIL_MIN_GAIN = 0.02
+
+
 def fit_amplifier_saturation(ctx: FitContext) -> FitResult:
+    """One symmetric limit first (grid + refinement); then each rail refined with the other held (amplifier
+    rails often differ by sign), kept when it lowers the training residual energy by ``RAIL_MIN_GAIN``."""
     a = np.abs(ctx.u)
     amax = float(a.max())
     lo = float(np.quantile(a, 0.5))
     grid = np.linspace(max(lo, 1e-3 * amax), amax * 1.01, 12)
-    return _fit_scalar(ctx, "amplifier_saturation", "limit", lambda z: {"limit": z}, grid, lambda z: z,
-                       lambda z: 1.0)
+    sym = _fit_scalar(ctx, "amplifier_saturation", "limit", lambda z: {"limit": z}, grid, lambda z: z,
+                      lambda z: 1.0)
+    L = float(sym.params["limit"])
+    top, bot = float(np.max(ctx.u)), float(-np.min(ctx.u))
+    if L >= min(top, bot):  # one rail is never reached: nothing to tell the rails apart
+        return sym
+    cache = {}
+
+    def sse(up, down):
+        key = (round(up, 9), round(down, 9))
+        if key not in cache:
+            r = ctx.sim_residual([("amplifier_saturation", {"limit": up, "lower_limit": down})])
+            cache[key] = (float(np.sum(r ** 2)), r)
+        return cache[key][0]
+
+    up, down = L, L
+    for _ in range(2):  # coordinate descent, each rail between lo and just above the largest voltage of its sign
+        for which in ("up", "down"):
+            hi = (top if which == "up" else bot) * 1.01
+            f = (lambda z: sse(z, down)) if which == "up" else (lambda z: sse(up, z))
+            sol = optimize.minimize_scalar(f, bounds=(max(lo, 1e-3 * amax), hi), method="bounded",
+                                           options={"xatol": 1e-3 * hi, "maxiter": 16})
+            cur = up if which == "up" else down
+            if sol.fun < f(cur):
+                if which == "up":
+                    up = float(sol.x)
+                else:
+                    down = float(sol.x)
+    s_sym = float(sym.train_rms ** 2 * ctx.target.size)
+    s_asym = sse(up, down)
+    if s_asym > (1 - RAIL_MIN_GAIN) * s_sym:
+        return sym
+    r = cache[(round(up, 9), round(down, 9))][1]
+    cols = []
+    for k, (du, dd) in enumerate(((1e-3 * up, 0.0), (0.0, 1e-3 * down))):
+        rp = ctx.sim_residual([("amplifier_saturation", {"limit": up + du, "lower_limit": down + dd})])
+        rm = ctx.sim_residual([("amplifier_saturation", {"limit": up - du, "lower_limit": down - dd})])
+        cols.append(((rp - rm) / (2 * max(du, dd))).reshape(-1))
+    se = _stderr(np.column_stack(cols), r)
+    p = {"limit": up, "lower_limit": down}
+    return FitResult("amplifier_saturation", p, {"limit": float(se[0]), "lower_limit": float(se[1])},
+                     [("amplifier_saturation", p)], 2, _rms(r), note="rails differ by sign")
 
 
 def fit_amplifier_bandwidth(ctx: FitContext) -> FitResult:
@@ -522,10 +757,34 @@ def fit_amplifier_bandwidth(ctx: FitContext) -> FitResult:
                      [("amplifier_bandwidth", p)], 2, best.train_rms, note=f"order {order}", extra=best.extra)
 
 
+#: a relaxation of the hysteretic state is kept when it lowers the training residual energy by this share
+RELAX_MIN_GAIN = 0.02
+
+
 def fit_hysteresis_rate_dependence(ctx: FitContext) -> FitResult:
+    """The rate-widened loop (``alpha``, grid + refinement), then a relaxation of the hysteretic state
+    (``relaxation`` τ, log grid 20 µs … 20 ms + refinement, with ``alpha`` refitted once under it); the
+    relaxation is kept when it lowers the training residual energy by ``RELAX_MIN_GAIN``."""
     grid = np.array([-0.6, -0.3, -0.1, 0.0, 0.1, 0.3, 0.6, 1.2, 2.5, 5.0])
-    return _fit_scalar(ctx, "hysteresis_rate_dependence", "alpha", lambda z: {"alpha": z}, grid, lambda z: z,
+    base = _fit_scalar(ctx, "hysteresis_rate_dependence", "alpha", lambda z: {"alpha": z}, grid, lambda z: z,
                        lambda z: 1.0)
+    alpha = float(base.params["alpha"])
+    lo = math.log(max(20e-6, 0.3 * ctx.dt))
+    tgrid = np.linspace(lo, math.log(20e-3), 10)
+    rel = _fit_scalar(ctx, "hysteresis_rate_dependence", "relaxation",
+                      lambda z: {"alpha": alpha, "relaxation": math.exp(z)}, tgrid, math.exp, math.exp)
+    tau = float(rel.params["relaxation"])
+    agrid = alpha + np.array([-0.4, -0.15, -0.05, 0.0, 0.05, 0.15, 0.4])
+    both = _fit_scalar(ctx, "hysteresis_rate_dependence", "alpha",
+                       lambda z: {"alpha": z, "relaxation": tau}, agrid, lambda z: z, lambda z: 1.0)
+    best = min((rel, both), key=lambda f: f.train_rms)
+    if best.train_rms ** 2 > (1 - RELAX_MIN_GAIN) * base.train_rms ** 2:
+        return base
+    p = dict(best.effects[0][1])
+    se = {"alpha": both.stderr.get("alpha") if best is both else base.stderr.get("alpha"),
+          "relaxation": rel.stderr.get("relaxation")}
+    return FitResult("hysteresis_rate_dependence", p, se, [("hysteresis_rate_dependence", p)], 2, best.train_rms,
+                     note=f"hysteretic state relaxes over {1e3 * p['relaxation']:.3g} ms")
 
 
 def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
@@ -553,12 +812,38 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
     # then the even, branch-dependent term, linear given the generalized Bouc-Wen: regression on its regressors
     y_w = simulate(ctx.cfg, ctx.u, list(ctx.base) + [("hysteresis_asymmetry", p)], ctx.windows)
     r_w = residual(ctx.target, y_w)
-    q, dq = fx.BranchEvenTerm(0.0, 0.0, ctx.dt, n).terms(y_w)
-    coef, res, se2 = _lin_per_axis(r_w, [q, dq])
-    p = dict(p, even=coef[0].tolist(), branch_even=coef[1].tolist())
+    q, dq = _windowed(lambda yy: fx.BranchEvenTerm(0.0, 0.0, ctx.dt, n).terms(yy), y_w, ctx.windows, 2)
+    # loop-width terms: classical plays on the displacement, radii a fixed share of the stroke
+    half = float(np.mean(0.5 * (np.max(y_w, axis=0) - np.min(y_w, axis=0))))
+    radii = [f * max(half, 1e-12) for f in PLAY_FRACTIONS]
+    W = _windowed(lambda yy: tuple(np.moveaxis(fx.PlayWidthTerm(radii, np.zeros((len(radii), n)), n).terms(yy),
+                                               1, 0)), y_w, ctx.windows, len(radii))
+    coef, res, se2 = _lin_per_axis(r_w, [q, dq] + list(W))
+    p = dict(p, even=coef[0].tolist(), branch_even=coef[1].tolist(), play_radii=radii,
+             play_gains=coef[2:].tolist())
     return FitResult("hysteresis_asymmetry", p, {"Delta1": se[:n].tolist(), "Delta2": se[n:].tolist(),
-                                                 "even": se2[0].tolist(), "branch_even": se2[1].tolist()},
-                     [("hysteresis_asymmetry", p)], 4 * n, _rms(res))
+                                                 "even": se2[0].tolist(), "branch_even": se2[1].tolist(),
+                                                 "play_radii": None, "play_gains": se2[2:].tolist()},
+                     [("hysteresis_asymmetry", p)], (4 + len(radii)) * n, _rms(res))
+
+
+#: radii of the loop-width play operators, as shares of half the displacement stroke on TRAIN
+PLAY_FRACTIONS = (0.05, 0.15, 0.4)
+
+
+def _windowed(fn, y_w: np.ndarray, windows: Windows, n_out: int):
+    """Apply a stateful term ``fn`` (a fresh stage per call) to each window of ``y_w`` (the windows' scored
+    samples, concatenated) separately, so that no state leaks from one window into the next."""
+    if windows.is_whole:
+        return fn(y_w)
+    outs = [[] for _ in range(n_out)]
+    o = 0
+    for _, s_, e_ in windows.spans:
+        parts = fn(y_w[o:o + e_ - s_])
+        for k in range(n_out):
+            outs[k].append(parts[k])
+        o += e_ - s_
+    return tuple(np.concatenate(v) for v in outs)
 
 
 CANDIDATES: dict[str, Callable[[FitContext], FitResult]] = {

@@ -78,8 +78,13 @@ def _feature_blocks(sig: np.ndarray, filters, scale: np.ndarray, rows: slice = s
 
 
 def _features(sig: np.ndarray, filters, scale: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
-    """All feature columns, [rows, n_sig·(1 + n_filters)]."""
-    return np.hstack(list(_feature_blocks(sig, filters, scale, rows)))
+    """All feature columns, [rows, n_sig·(1 + n_filters)] (filled block by block into one array)."""
+    m = sig.shape[1]
+    n_rows = len(range(*rows.indices(len(sig))))
+    X = np.empty((n_rows, m * (1 + len(filters))))
+    for k, F in enumerate(_feature_blocks(sig, filters, scale, rows)):
+        X[:, k * m:(k + 1) * m] = F
+    return X
 
 
 @dataclass
@@ -135,16 +140,20 @@ def fit_flexible(u: np.ndarray, y: np.ndarray, y_nom: np.ndarray, windows: Windo
     r = np.vstack(blocks_r)
     mean = X.mean(axis=0)
     rm = r.mean(axis=0)
-    fold = np.concatenate([np.full(len(b), i % 2) for i, b in enumerate(blocks_X)])
     Xc = X - mean
     rc = r - rm
     p = Xc.shape[1]
     stats = []
+    edges = np.cumsum([0] + [len(b) for b in blocks_X])
     for f in (0, 1):
-        m = fold == f
-        A = Xc[m].T @ Xc[m]
-        b = Xc[m].T @ rc[m]
-        c = np.sum(rc[m] ** 2, axis=0)
+        A = np.zeros((p, p))
+        b = np.zeros((p, rc.shape[1]))
+        c = np.zeros(rc.shape[1])
+        for i in range(f, len(blocks_X), 2):  # the blocks of fold f (contiguous rows: no masked copies)
+            Xi, ri = Xc[edges[i]:edges[i + 1]], rc[edges[i]:edges[i + 1]]
+            A += Xi.T @ Xi
+            b += Xi.T @ ri
+            c += np.sum(ri ** 2, axis=0)
         stats.append((A, b, c))
     A_all = stats[0][0] + stats[1][0]
     b_all = stats[0][1] + stats[1][1]

@@ -30,7 +30,8 @@ from ..kernels.limits import limit_run  # the driver guard's limiter (one source
 __all__ = [
     "InputDelay", "AmplifierSlewLimit", "AmplifierSaturation", "AmplifierBandwidth", "GainMismatch",
     "ThermalDrift", "CreepNonlinearity", "UnmodelledMode", "AmplitudeDependentDynamics", "BranchEvenTerm",
-    "HysteresisStage", "EffectSpec", "EFFECTS",
+    "HysteresisStage", "EffectSpec", "EFFECTS", "AsymmetricSaturation", "RelaxedHysteresisStage", "PlayWidthTerm",
+    "CubicAmplitudeDynamics",
     "EFFECT_NAMES", "build_plant", "RATE_REF", "CREEP_TAUS", "CREEP_YREF",
 ]
 
@@ -96,13 +97,8 @@ class InputDelay:
             if len(u) == 0:
                 return u.copy()
             self._hist = np.repeat(u[:1], m + 1, axis=0)
-        ext = np.concatenate([self._hist, u])
-        N = len(u)
-        # output k uses ext[k+1] (= u[k-m]) and ext[k] (= u[k-m-1])
-        a = ext[1:N + 1]
-        b = ext[0:N]
-        out = (1.0 - self._frac) * a + self._frac * b if self._frac > 0 else a.copy()
-        self._hist = ext[len(ext) - (m + 1):].copy()
+        out = np.empty_like(u)
+        self._hist = _frac_delay_run(self._hist, u, self._frac, out)
         return out
 
 
@@ -674,11 +670,12 @@ class EffectSpec:
 
 EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
     EffectSpec("hysteresis_asymmetry", "hysteresis", {"Delta1": ("1/V", True), "Delta2": ("1/V", True),
-                                                      "even": ("-", True), "branch_even": ("-", True)},
+                                                      "even": ("-", True), "branch_even": ("-", True),
+                                                      "play_radii": ("m", False), "play_gains": ("-", True)},
                "generalized Bouc-Wen (+ an even, branch-dependent term): ascending and descending branches not "
                "point-symmetric",
                "even harmonics in the residual (error correlates with U², not U)"),
-    EffectSpec("hysteresis_rate_dependence", "hysteresis", {"alpha": ("-", False)},
+    EffectSpec("hysteresis_rate_dependence", "hysteresis", {"alpha": ("-", False), "relaxation": ("s", False)},
                f"loop width grows with the voltage rate (A·(1 + α·tanh(|dU/dt|/{RATE_REF:g} V/s)))",
                "loop-width error grows with frequency (error correlates with sign(dU/dt)·|dU/dt|)"),
     EffectSpec("creep_nonlinearity", "post", {"gamma": ("-", True), "beta": ("-", False)},
@@ -692,7 +689,7 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                "residual ∝ −delay·dŶ/dt: phase lag growing linearly with frequency"),
     EffectSpec("amplifier_slew_limit", "pre", {"rate": ("V/s", False)},
                "amplifier slew-rate limit", "error concentrated where |dU/dt| is large (steps, fast ramps)"),
-    EffectSpec("amplifier_saturation", "pre", {"limit": ("V", False)},
+    EffectSpec("amplifier_saturation", "pre", {"limit": ("V", False), "lower_limit": ("V", False)},
                "amplifier output rails clip the voltage", "error only at the largest |U|"),
     EffectSpec("amplifier_bandwidth", "pre", {"cutoff": ("Hz", True), "order": ("-", False),
                                               "damping": ("-", False)},
@@ -704,7 +701,8 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                "narrow peaks in the residual spectrum"),
     EffectSpec("amplitude_dependent_dynamics", "post",
                {"freq": ("Hz", False), "damping": ("-", False), "gains": ("-", True), "hp_gains": ("-", True),
-                "level_gains": ("-", True), "level_hp_gains": ("-", True)},
+                "level_gains": ("-", True), "level_hp_gains": ("-", True), "cubic_gains": ("-", True),
+                "cubic_hp_gains": ("-", True)},
                f"resonances whose strength moves with the level (|Y| over {LEVEL_TAU:g} s per {LEVEL_REF:g} m)",
                "dynamics-band residual growing with the motion's amplitude"),
     EffectSpec("gain_mismatch", "post", {"gains": ("-", True), "cross_gains": ("-", True)},
@@ -721,6 +719,8 @@ def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
     if name == "amplifier_slew_limit":
         return AmplifierSlewLimit(p["rate"], dt, n)
     if name == "amplifier_saturation":
+        if p.get("lower_limit") is not None:
+            return AsymmetricSaturation(p["limit"], p["lower_limit"], n)
         return AmplifierSaturation(p["limit"], n)
     if name == "amplifier_bandwidth":
         return AmplifierBandwidth(p["cutoff"], dt, n, int(p.get("order", 1)), float(p.get("damping", 2 ** -0.5)))
@@ -733,6 +733,10 @@ def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
     if name == "unmodelled_mode":
         return UnmodelledMode(p["freq"], p["damping"], p["gains"], dt, n, p.get("hp_gains"))
     if name == "amplitude_dependent_dynamics":
+        if p.get("cubic_gains") is not None:
+            return CubicAmplitudeDynamics(p["freq"], p["damping"], p["gains"], p["level_gains"], dt, n,
+                                          p.get("hp_gains"), p.get("level_hp_gains"), p["cubic_gains"],
+                                          p.get("cubic_hp_gains"))
         return AmplitudeDependentDynamics(p["freq"], p["damping"], p["gains"], p["level_gains"], dt, n,
                                           p.get("hp_gains"), p.get("level_hp_gains"))
     raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
@@ -757,6 +761,7 @@ def build_plant(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[str, Any]
     pre: list[Processor] = []
     post: list[Processor] = []
     hcfg, alpha, custom_h = cfg.hysteresis, 0.0, False
+    relax = 0.0
     for name, p in effects:
         if name not in EFFECTS:
             raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
@@ -766,14 +771,217 @@ def build_plant(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[str, Any]
             custom_h = True
             if "even" in p or "branch_even" in p:
                 post.append(BranchEvenTerm(p.get("even", 0.0), p.get("branch_even", 0.0), cfg.dt, cfg.n_axes))
+            if p.get("play_radii"):
+                post.append(PlayWidthTerm(p["play_radii"], p["play_gains"], cfg.n_axes))
         elif name == "hysteresis_rate_dependence":
             alpha += float(p["alpha"])
             custom_h = True
+            if p.get("relaxation") is not None:
+                r = float(p["relaxation"])
+                if not (math.isfinite(r) and r >= 0):
+                    raise ValueError(f"hysteresis_rate_dependence.relaxation: must be >= 0 s, got {r!r}")
+                relax = max(relax, r)
         elif spec.position == "pre":
             pre.append(_stage(name, p, cfg))
         else:
             post.append(_stage(name, p, cfg))
     if custom_h:
-        pre.append(HysteresisStage(hcfg, alpha, cfg.dt))
+        pre.append(HysteresisStage(hcfg, alpha, cfg.dt) if relax <= 0 else
+                   RelaxedHysteresisStage(hcfg, alpha, cfg.dt, relax))
         return Plant(cfg, pre=pre, post=post, noise_std=noise_std, seed=seed, stages=("creep", "dynamics"))
     return Plant(cfg, pre=pre, post=post, noise_std=noise_std, seed=seed)
+
+
+@njit
+def _frac_delay_run(hist: np.ndarray, u: np.ndarray, frac: float, out: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """:class:`InputDelay` on one block without the temporaries: output k = (1 − frac)·ext[k+1] + frac·ext[k] of
+    ``ext = [hist; u]`` (``hist`` = the last m + 1 inputs); returns the new history."""
+    h = hist.shape[0]
+    N, n = u.shape
+    for k in range(N):
+        for j in range(n):
+            i1 = k + 1
+            a = hist[i1, j] if i1 < h else u[i1 - h, j]
+            if frac > 0:
+                b = hist[k, j] if k < h else u[k - h, j]
+                out[k, j] = (1.0 - frac) * a + frac * b
+            else:
+                out[k, j] = a
+    new = np.empty_like(hist)
+    for r in range(h):
+        i = N + r  # ext index of the kept sample: the last h of ext (length h + N)
+        for j in range(n):
+            new[r, j] = hist[i, j] if i < h else u[i - h, j]
+    return new
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Richer forms of four candidates (issue 8): asymmetric rails, a relaxing hysteretic state, a play-operator loop
+# width correction, an instantaneous (cubic) stiffness term of the modes
+# --------------------------------------------------------------------------------------------------------------
+
+class AsymmetricSaturation:
+    """Amplifier rails that differ by sign: the voltage is clipped to ``[−lower_limit, +limit]`` [V]
+    (``amplifier_saturation`` with ``lower_limit`` given; memoryless)."""
+
+    def __init__(self, limit: float, lower_limit: float, n_axes: int = 2):
+        for v, what in ((limit, "limit"), (lower_limit, "lower_limit")):
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"amplifier_saturation.{what}: must be > 0 V, got {v!r}")
+        self.limit, self.lower_limit, self.n = float(limit), float(lower_limit), n_axes
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        pass
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``."""
+        res: np.ndarray = np.clip(_block(u, self.n), -self.lower_limit, self.limit)
+        return res
+
+
+@njit
+def _relax2_run(x: np.ndarray, a: float, s1: np.ndarray, s2: np.ndarray, started: np.ndarray,
+                out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Two cascaded unit-DC first-order relaxations (critically damped, pole ``a`` twice), per column; started
+    settled at the first input."""
+    N, n = x.shape
+    for t in range(N):
+        for j in range(n):
+            if not started[0]:
+                s1[j] = x[t, j]
+                s2[j] = x[t, j]
+            s1[j] = a * s1[j] + (1.0 - a) * x[t, j]
+            s2[j] = a * s2[j] + (1.0 - a) * s1[j]
+            out[t, j] = s2[j]
+        started[0] = True
+
+
+class RelaxedHysteresisStage(HysteresisStage):
+    """:class:`HysteresisStage` whose hysteretic state reaches the output through a critically damped relaxation
+    ``1/(1 + s·τ)²`` (τ = ``relaxation`` [s]): ``Y_H = Dp·U − R_τ(h)``.  A viscous loop — it widens and turns with
+    the frequency, unlike the ``alpha`` term, which widens it with the voltage rate.  Part of
+    ``hysteresis_rate_dependence`` (parameter ``relaxation``)."""
+
+    def __init__(self, cfg: BoucWenConfig, alpha: float = 0.0, dt: float = 5e-5, relaxation: float = 0.0):
+        if not (math.isfinite(relaxation) and relaxation > 0):
+            raise ValueError(f"hysteresis_rate_dependence.relaxation: must be > 0 s, got {relaxation!r}")
+        self.relaxation = float(relaxation)
+        self._a_relax = math.exp(-dt / self.relaxation)
+        super().__init__(cfg, alpha, dt)
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        super().reset()
+        self._r1 = np.zeros(self.cfg.n_out)
+        self._r2 = np.zeros(self.cfg.n_out)
+        self._r_started = np.zeros(1, np.bool_)
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        u = _block(u, self.cfg.n_in)
+        y = super().process(u)
+        lin = u @ np.asarray(self._p[0], float).T  # Dp·U
+        h = lin - y
+        hr = np.empty_like(h)
+        _relax2_run(h, self._a_relax, self._r1, self._r2, self._r_started, hr)
+        res: np.ndarray = lin - hr
+        return res
+
+
+@njit
+def _play_run(y: np.ndarray, radii: np.ndarray, z: np.ndarray, started: np.ndarray,
+              out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Classical (symmetric) play operators of every column: out[t, k, j] = z_kj − y_j, z_kj clipped to
+    [y_j − r_k, y_j + r_k]; started at z = y."""
+    N, n = y.shape
+    K = radii.shape[0]
+    for t in range(N):
+        for j in range(n):
+            v = y[t, j]
+            for k in range(K):
+                if not started[0]:
+                    z[k, j] = v
+                zk = z[k, j]
+                if zk < v - radii[k]:
+                    zk = v - radii[k]
+                elif zk > v + radii[k]:
+                    zk = v + radii[k]
+                z[k, j] = zk
+                out[t, k, j] = zk - v
+        started[0] = True
+
+
+class PlayWidthTerm:
+    """Loop-width correction of the asymmetric hysteresis candidate: ``Y_i += Σ_k w_ki·(P_k(Y_i) − Y_i)``, with
+    ``P_k`` the classical play operator of radius ``play_radii[k]`` [m] on the displacement (each term is ±r_k on
+    the branches, and changes sides over a reversal of 2·r_k): a loop wider or narrower than the nominal
+    Bouc-Wen's, by an amount that depends on how far the motion has gone since it last reversed.  ``play_gains``:
+    [K][n] (or one value per radius, shared by the axes)."""
+
+    def __init__(self, play_radii: ArrayLike, play_gains: ArrayLike, n_axes: int = 2) -> None:
+        r = np.atleast_1d(np.asarray(play_radii, float)).reshape(-1)
+        if r.size == 0 or not np.all(np.isfinite(r)) or np.any(r <= 0):
+            raise ValueError(f"hysteresis_asymmetry.play_radii: expected positive radii [m], got {play_radii!r}")
+        g = np.asarray(play_gains, float)
+        if g.ndim <= 1:
+            g = np.repeat(np.atleast_1d(g).reshape(-1, 1), n_axes, axis=1) if g.size == r.size else g
+        if g.shape != (r.size, n_axes) or not np.all(np.isfinite(g)):
+            raise ValueError(f"hysteresis_asymmetry.play_gains: expected [{r.size}][{n_axes}] finite values, got "
+                             f"{play_gains!r}")
+        self.radii, self.gains, self.n = r, g, n_axes
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self._z = np.zeros((self.radii.size, self.n))
+        self._started = np.zeros(1, np.bool_)
+
+    def terms(self, y: np.ndarray) -> np.ndarray:
+        """``P_k(Y) − Y`` as [N, K, n] (advances the operators' state)."""
+        y = _block(y, self.n)
+        out = np.empty((len(y), self.radii.size, self.n))
+        _play_run(y, self.radii, self._z, self._started, out)
+        return out
+
+    def process(self, y: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        y = _block(y, self.n)
+        res: np.ndarray = y + np.einsum("tkj,kj->tj", self.terms(y), self.gains)
+        return res
+
+
+#: the cubic term of the amplitude-dependent dynamics acts on (Y/LEVEL_REF)²·Y
+class CubicAmplitudeDynamics(AmplitudeDependentDynamics):
+    """:class:`AmplitudeDependentDynamics` plus an instantaneous stiffness change of each mode with the level:
+    ``+ Σ_m (c_mi·BP_m + d_mi·HP_m)(Y_i·(Y_i/LEVEL_REF)²)`` — to first order, what a cubic (hardening or
+    softening) spring of the mode adds, where the slow-envelope term cannot follow a stiffness that changes
+    within each cycle.  ``cubic_gains``/``cubic_hp_gains``: ``[K][n]``."""
+
+    def __init__(self, freq: ArrayLike, damping: ArrayLike, gains: ArrayLike, level_gains: ArrayLike, dt: float,
+                 n_axes: int = 2, hp_gains: ArrayLike | None = None, level_hp_gains: ArrayLike | None = None,
+                 cubic_gains: ArrayLike = 0.0, cubic_hp_gains: ArrayLike | None = None) -> None:
+        super().__init__(freq, damping, gains, level_gains, dt, n_axes, hp_gains, level_hp_gains)
+        K = len(self.freqs)
+        name = "amplitude_dependent_dynamics"
+
+        def diag(v: ArrayLike, what: str) -> np.ndarray:
+            return np.diagonal(_mode_gains(v, K, n_axes, f"{name}.{what}"), axis1=1, axis2=2).copy()
+        self.Kc = diag(cubic_gains, "cubic_gains")
+        self.Hc = np.zeros_like(self.Kc) if cubic_hp_gains is None else diag(cubic_hp_gains, "cubic_hp_gains")
+        self._cubic = UnmodelledMode(self.freqs, self.dampings, np.zeros((K, n_axes, n_axes)), dt, n_axes)
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        super().reset()
+        if hasattr(self, "_cubic"):
+            self._cubic.reset()
+
+    def process(self, y: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        y = _block(y, self.n)
+        out = super().process(y)
+        c = y * (y / LEVEL_REF) ** 2
+        for m in range(len(self.freqs)):
+            out += self._cubic.bandpass(c, m) * self.Kc[m] + self._cubic.highpass(c, m) * self.Hc[m]
+        return out
