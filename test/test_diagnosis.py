@@ -142,3 +142,19 @@ def test_cli_on_csv_writes_json_report_and_corrected_config(cfg, tmp_path, capsy
     (tmp_path / "bad.csv").write_text("t,u_x,u_y,x,y\n0,1,2,3\n")
     assert main(["diagnose", "--data", str(tmp_path / "bad.csv")]) == 2
     assert "error" in capsys.readouterr().err
+
+
+def test_result_is_a_frozen_mapping_of_its_json_with_the_arrays_apart(cfg):
+    """Issue 11: the result used to be a dict carrying arrays under "_arrays" inside its "JSON-ready" report."""
+    from piezo_ff_ros.core.diagnosis import DiagnosisResult
+
+    train, test = make_runs(cfg, _case("gain_mismatch", {"gains": [1.0, 1.06]}), duration=DUR)
+    res = diagnose(cfg, train, test, DiagnosisOptions(candidates=("gain_mismatch",)))
+    assert isinstance(res, DiagnosisResult) and "_arrays" not in res
+    assert res["verdict"] == res.to_json()["verdict"] and set(res) == set(res.to_json())
+    assert res.arrays.y_test_nom.shape == test.y.shape and res.arrays.cfg is cfg
+    json.dumps(res.to_json(), allow_nan=False)              # plain JSON, no NaN
+    with pytest.raises(TypeError):
+        res.report["verdict"] = "none"                       # read-only
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        res.arrays = None

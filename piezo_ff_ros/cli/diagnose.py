@@ -79,27 +79,28 @@ def run(args) -> int:
     disc_run = load_run(args.discriminate) if args.discriminate else None
     res = diagnose(cfg, train, test, opts, test_history=train if args.data else None, discriminate=disc_run)
     proposal = _write_proposal(res, args)
-    A = res["_arrays"]
+    A = res.arrays
+    out = res.to_json()          # the JSON written by --json: the report, plus "apply" below
     apply_notes, tracking = None, None
     if args.apply:
-        effects = A["stack_effects"]
-        apply_notes = write_apply(args.apply, A["cfg"], effects, res)
+        effects = A.stack_effects
+        apply_notes = write_apply(args.apply, A.cfg, effects, res)
         ref = test.reference if test.reference is not None and test.reference.shape == test.y.shape \
-            else A["y_test_final"] - A["y_test_final"][:1]
+            else A.y_test_final - A.y_test_final[:1]
         if effects:
-            tracking = tracking_comparison(A["cfg"], effects, ref)
+            tracking = tracking_comparison(A.cfg, effects, ref)
             tracking["reference"] = ref
-            res["apply"] = {"config": str(args.apply), "notes": apply_notes,
-                            "tracking_rms_um": {"before": tracking["before"]["rms_um"],
-                                                "after": tracking["after"]["rms_um"]},
-                            "tracking_note": "simulated: the diagnosed model stands in for the rig"}
+            out["apply"] = json_ready({"config": str(args.apply), "notes": apply_notes,
+                                       "tracking_rms_um": {"before": tracking["before"]["rms_um"],
+                                                           "after": tracking["after"]["rms_um"]},
+                                       "tracking_note": "simulated: the diagnosed model stands in for the rig"})
         else:
-            res["apply"] = {"config": str(args.apply), "notes": [f"nothing to correct (verdict {res['verdict']})"]}
-            apply_notes = res["apply"]["notes"]
+            apply_notes = [f"nothing to correct (verdict {res['verdict']})"]
+            out["apply"] = {"config": str(args.apply), "notes": apply_notes}
         if not args.quiet:
             print(f"wrote {args.apply}")
     if args.json:
-        Path(args.json).write_text(json.dumps(json_ready(res), indent=2))
+        Path(args.json).write_text(json.dumps(out, indent=2))
         if not args.quiet:
             print(f"wrote {args.json}")
     if args.report:

@@ -23,11 +23,13 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Sequence
+from types import MappingProxyType
+from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
 from ..config import PiezoConfig
+from ..jsonable import JsonResult
 from ..models.effects import EFFECTS, build_plant
 from ..recording.run import RunData
 from . import discriminate as disc
@@ -39,7 +41,7 @@ from .replay import (Windows, check_run, input_period, model_for_run, noise_floo
                      residual, simulate)
 from .where import localise
 
-__all__ = ["DiagnosisOptions", "diagnose", "signatures", "MIN_SHARE", "TIE_Z", "NOISE_MARGIN"]
+__all__ = ["DiagnosisOptions", "DiagnosisResult", "DiagnosisArrays", "diagnose", "json_ready", "signatures", "MIN_SHARE", "TIE_Z", "NOISE_MARGIN"]
 
 #: an accepted candidate removes at least this share of the explainable held-out gap
 MIN_SHARE = 0.5
@@ -362,9 +364,65 @@ def _confidence(best: _Scored, runner: "_Scored | None", tie_z: float | None, zc
     return "low", why
 
 
+@dataclass(frozen=True)
+class DiagnosisArrays:
+    """What a diagnosis computed besides its JSON: the signals the report plots and ``--apply`` uses.
+
+    Attributes
+    ----------
+    cfg : PiezoConfig
+        The nominal model diagnosed.
+    train, test : RunData
+        The runs (``test``: the held-out one).
+    y_test_nom, y_test_final : ndarray [N, axes]
+        The nominal model's and the verdict-corrected (stacked) model's replay of ``test`` [m].
+    r_final : ndarray [N, axes]
+        The held-out residual left by the corrected model [m].
+    sigma : ndarray [axes]
+        The noise floor per axis [m].
+    verdict_effects, stack_effects : list
+        The fitted effect stages of the verdict and of the stack.
+    """
+
+    cfg: PiezoConfig
+    test: RunData
+    train: RunData
+    y_test_nom: np.ndarray
+    y_test_final: np.ndarray
+    r_final: np.ndarray
+    sigma: np.ndarray
+    verdict_effects: list[Any]
+    stack_effects: list[Any]
+
+
+@dataclass(frozen=True, eq=False)
+class DiagnosisResult(JsonResult, Mapping[str, Any]):
+    """The result of :func:`diagnose`: a read-only mapping of its JSON report (``res["verdict"]``,
+    ``res["heldout"]`` …, the keys of docs/diagnosis.md) plus the arrays (``res.arrays``), which stay out of
+    :meth:`to_json`.
+    """
+
+    report: Mapping[str, Any]
+    arrays: DiagnosisArrays
+
+    def __getitem__(self, key: str) -> Any:
+        return self.report[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.report)
+
+    def __len__(self) -> int:
+        return len(self.report)
+
+    def to_json(self) -> dict[str, Any]:
+        """The report as plain JSON values (NaN/Inf → None): what ``piezo-ff diagnose --json`` writes."""
+        out: dict[str, Any] = json_ready(dict(self.report))
+        return out
+
+
 def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: DiagnosisOptions | None = None,
-             log=None, test_history: RunData | None = None, discriminate: RunData | None = None) -> dict:
-    """Diagnose the gap between ``cfg`` and the measured runs; returns the JSON-ready result (issue 5 §5, issue 8).
+             log=None, test_history: RunData | None = None, discriminate: RunData | None = None) -> DiagnosisResult:
+    """Diagnose the gap between ``cfg`` and the measured runs (issue 5 §5, issue 8).
 
     ``test_history``: the part of the same record that precedes ``test`` (``--data`` split: the training part).
     Its voltages drive the model before the held-out part so that the held-out part does not start from an
@@ -373,7 +431,7 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
     ``discriminate``: a third run (e.g. the experiment a previous diagnosis proposed) on which the candidates that
     tie on ``test`` are compared; the one that explains it better becomes the verdict.
 
-    The result also carries, under the key ``"_arrays"`` (not JSON), the arrays the report plots.
+    Returns a :class:`DiagnosisResult`: the JSON report as a read-only mapping, and the arrays the report plots.
     """
     with single_threaded_blas():  # tall-thin products only: BLAS threads cost CPU time and gain nothing
         return _diagnose(cfg, train, test, options, log, test_history, discriminate)
@@ -667,14 +725,14 @@ def _diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosi
                  "train_source": str(train.meta.get("source", "")), "test_source": str(test.meta.get("source", ""))},
         "seconds": time.perf_counter() - t_start,
     }
-    result["_arrays"] = {"cfg": cfg, "test": test, "train": train, "y_test_nom": y_test_nom,
-                         "y_test_final": y_test_final, "r_final": r_final, "sigma": sigma,
-                         "verdict_effects": verdict.fit.effects if verdict is not None else [],
-                         "stack_effects": base}
+    arrays = DiagnosisArrays(cfg=cfg, test=test, train=train, y_test_nom=y_test_nom, y_test_final=y_test_final,
+                             r_final=r_final, sigma=sigma,
+                             verdict_effects=list(verdict.fit.effects) if verdict is not None else [],
+                             stack_effects=list(base))
     log(f"verdict: {result['verdict']} ({conf}); held-out {result['heldout']['before_nrmse_percent']:.3f} % -> "
         f"{result['heldout']['after_nrmse_percent']:.3f} % (stacked {stacked_nrmse:.3f} %, noise "
         f"{noise_nrmse:.3f} %) in {result['seconds']:.1f} s")
-    return result
+    return DiagnosisResult(report=MappingProxyType(result), arrays=arrays)
 
 
 def _centered_norm(x: np.ndarray) -> float:
@@ -703,10 +761,15 @@ RICHER = {("amplitude_dependent_dynamics", "unmodelled_mode")}
 NESTED = {frozenset(p) for p in RICHER}
 
 
-def json_ready(result: dict) -> dict:
-    """The result without the arrays, with floats made JSON-safe (NaN/Inf → None)."""
+def json_ready(result: Any) -> Any:
+    """``result`` (a :class:`DiagnosisResult`, or dicts/lists holding them) as JSON-safe values: floats NaN/Inf →
+    None, numpy types → Python ones, keys starting with ``_`` left out; non-string keys are kept."""
     def clean(v):
-        if isinstance(v, dict):
+        if isinstance(v, DiagnosisResult):
+            return clean(dict(v.report))
+        if isinstance(v, JsonResult):
+            return v.to_json()
+        if isinstance(v, (dict, MappingProxyType)):
             return {k: clean(x) for k, x in v.items() if not (isinstance(k, str) and k.startswith("_"))}
         if isinstance(v, (list, tuple)):
             return [clean(x) for x in v]

@@ -16,12 +16,16 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..config import CreepConfig, PiezoConfig
 from ..lti import TFMatrix
 from ..models.effects import asymmetric_hysteresis_config, build_plant
+
+if TYPE_CHECKING:
+    from .engine import DiagnosisResult
 from ..units import to_um
 from .where import BANDS
 
@@ -125,22 +129,22 @@ def tracking_comparison(cfg: PiezoConfig, effects, reference: np.ndarray) -> dic
 # Markdown + plots
 # ----------------------------------------------------------------------------------------------------------------
 
-def _plots(res: dict, outdir: Path, tracking: dict | None) -> list[str]:
+def _plots(res: DiagnosisResult, outdir: Path, tracking: dict | None) -> list[str]:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from scipy import signal
 
-    A = res["_arrays"]
-    test, cfg = A["test"], A["cfg"]
+    A = res.arrays
+    test, cfg = A.test, A.cfg
     axes = list(cfg.axes)
     fs = cfg.sample_rate
     y = test.y
-    r0 = y - A["y_test_nom"]
+    r0 = y - A.y_test_nom
     r0 -= r0.mean(0)
-    r1 = A["r_final"]
-    sigma = A["sigma"]
+    r1 = A.r_final
+    sigma = A.sigma
     files = []
     n = len(axes)
     N = len(y)
@@ -167,11 +171,11 @@ def _plots(res: dict, outdir: Path, tracking: dict | None) -> list[str]:
     fig, ax = plt.subplots(1, n, figsize=(5.5 * n, 4), squeeze=False)
     for i, a in enumerate(axes):
         j = min(i, test.u.shape[1] - 1)
-        off = np.mean(y[:, i] - A["y_test_final"][:, i])
-        off0 = np.mean(y[:, i] - A["y_test_nom"][:, i])
+        off = np.mean(y[:, i] - A.y_test_final[:, i])
+        off0 = np.mean(y[:, i] - A.y_test_nom[:, i])
         ax[0, i].plot(test.u[::step, j], to_um(y[::step, i]), ".", ms=1, color="k", label="measured")
-        ax[0, i].plot(test.u[::step, j], to_um(A["y_test_nom"][::step, i] + off0), lw=0.6, label="nominal model")
-        ax[0, i].plot(test.u[::step, j], to_um(A["y_test_final"][::step, i] + off), lw=0.6,
+        ax[0, i].plot(test.u[::step, j], to_um(A.y_test_nom[::step, i] + off0), lw=0.6, label="nominal model")
+        ax[0, i].plot(test.u[::step, j], to_um(A.y_test_final[::step, i] + off), lw=0.6,
                       label="with diagnosed effects")
         ax[0, i].set(xlabel=f"u_{axes[j]} [V]", ylabel=f"{a} [µm]", title=f"loops, held-out run, axis {a}")
         ax[0, i].legend(fontsize=8, markerscale=8)
@@ -237,7 +241,7 @@ def _pfmt(params: dict) -> str:
     return "; ".join(parts)
 
 
-def write_report(res: dict, outdir, tracking: dict | None = None, apply_notes=None) -> Path:
+def write_report(res: DiagnosisResult, outdir, tracking: dict | None = None, apply_notes=None) -> Path:
     """Write ``report.md`` and the PNG plots into ``outdir``; returns the Markdown path."""
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)

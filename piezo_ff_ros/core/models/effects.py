@@ -320,6 +320,7 @@ class CreepNonlinearity:
 
     @staticmethod
     def level_input(y: np.ndarray, beta: float) -> np.ndarray:
+        """The level-dependent input of the creep bank: ``y + beta·y·|y| / CREEP_YREF``."""
         res: np.ndarray = y + beta * y * np.abs(y) / CREEP_YREF
         return res
 
