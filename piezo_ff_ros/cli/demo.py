@@ -101,7 +101,7 @@ def _run(args: argparse.Namespace) -> int:
     apply_ros_env_defaults(domain_id=args.domain_id, force_domain=True)
     from ..core.analysis import analyze_run, format_report
     from ..core.config import load_config
-    from ..core.experiments import paper_experiments
+    from ..core.experiments import paper_experiments, select_experiments
     from ..core.recording.mcap_io import read_run
     from ..core.reproduce import evaluate, format_tables
     from ..ros.graph_session import GraphClient, sim_graph
@@ -114,12 +114,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.slew_limit is None:
         args.slew_limit = cfg.limits.slew
     exps = paper_experiments(cfg, creep_duration=args.creep_duration)
-    if args.only:
-        wanted = [s.strip() for s in args.only.split(",") if s.strip()]
-        unknown = set(wanted) - {e.name for e in exps}
-        if unknown:
-            raise ValueError(f"--only: unknown experiment(s) {sorted(unknown)}; have {[e.name for e in exps]}")
-        exps = [e for e in exps if e.name in wanted]
+    exps = select_experiments(exps, args.only)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     mcap_path = out / "run.mcap"

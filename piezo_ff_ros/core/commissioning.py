@@ -31,7 +31,7 @@ from .identification.bouc_wen import identify_bouc_wen
 from .identification.creep import identify_creep
 from .identification.dynamics import identify_dynamics
 from .identification.pipeline import (REFIT_TAG, build_config, fits_report, part_fits, plant_fit,
-                                      refit_hysteresis_without_creep, synthesize_for)
+                                      refit_hysteresis_without_creep, with_hinf_controller)
 from .recording.run import RunData
 from .stage import Processor, Stage
 from .trajectories import Trajectory
@@ -439,12 +439,7 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
     design, note = None, None
     if synthesize:
         t0 = time.perf_counter()
-        say("vibration: H∞ synthesis on the identified G_L")
-        design, note = synthesize_for(cfg, say)
-        vib = replace(cfg.vibration, controller=design.controller_matrices())
-        if note:   # keep the config re-synthesisable with the same bound
-            vib = replace(vib, gamma_max=1.05 * float(design.gamma))
-        cfg = replace(cfg, vibration=vib).validate()
+        cfg, design, note = with_hinf_controller(cfg, say)
         timing["hinf"] = time.perf_counter() - t0
     timing["total"] = time.perf_counter() - t_all
     report = CommissionReport(fit_percent=fits, orders={"creep": cf.orders, "dynamics": df.orders},

@@ -45,7 +45,7 @@ from .trajectories import Circle, Sequence, Sine, Step, Trajectory
 from .stage import Processor
 from .units import UM
 
-__all__ = ["Experiment", "Recorded", "paper_experiments", "experiment_sequence", "simulate_experiments",
+__all__ = ["Experiment", "Recorded", "paper_experiments", "select_experiments", "experiment_sequence", "simulate_experiments",
            "run_experiment", "STAGE_SETS"]
 
 #: compensator stages on, per system of Fig. 3 ("open": none, the cascade reduces to Dp⁻¹)
@@ -121,6 +121,34 @@ class Experiment:
         return {"experiment": self.name, "section": self.section, "system": self.system, "input": self.input,
                 "stages": list(self.stages), "metric": self.metric, "axis": self.axis,
                 "params": dict(self.params), "reset_before": True, "description": self.description}
+
+
+def select_experiments(experiments: Seq[Experiment], only: str | None) -> list[Experiment]:
+    """The experiments named in ``only`` (comma-separated, the ``--only`` option), in their own order.
+
+    Parameters
+    ----------
+    experiments : sequence of Experiment
+        All of them (e.g. :func:`paper_experiments`).
+    only : str or None
+        ``"name1,name2"``; None or empty keeps all.
+
+    Returns
+    -------
+    list of Experiment
+
+    Raises
+    ------
+    ValueError
+        ``--only: unknown experiment(s) …``, naming them and the known ones.
+    """
+    if not only:
+        return list(experiments)
+    wanted = [s.strip() for s in only.split(",") if s.strip()]
+    unknown = set(wanted) - {e.name for e in experiments}
+    if unknown:
+        raise ValueError(f"--only: unknown experiment(s) {sorted(unknown)}; have {[e.name for e in experiments]}")
+    return [e for e in experiments if e.name in wanted]
 
 
 def paper_experiments(cfg: PiezoConfig | None = None, creep_duration: float = 600.0, hysteresis_periods: int = 2,

@@ -32,7 +32,7 @@ def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     from ..core.characterisation import CharacterisationSettings
     from ..core.commissioning import commission, verify
     from ..core.config import load_config
-    from ..core.experiments import paper_experiments
+    from ..core.experiments import paper_experiments, select_experiments
     from ..core.jsonable import jsonable, parse_order
     from ..core.reproduce import format_tables
     from .graph_rig import GraphRig
@@ -52,12 +52,7 @@ def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
                                         creep_step=args.step_um * 1e-6, dynamics_step=args.step_um * 1e-6,
                                         creep_duration=args.creep_duration)
     exps = paper_experiments(printed, creep_duration=args.creep_duration)
-    if args.only:
-        wanted = [s.strip() for s in args.only.split(",") if s.strip()]
-        unknown = set(wanted) - {e.name for e in exps}
-        if unknown:
-            raise ValueError(f"--only: unknown experiment(s) {sorted(unknown)}; have {[e.name for e in exps]}")
-        exps = [e for e in exps if e.name in wanted]
+    exps = select_experiments(exps, args.only)
 
     client: GraphClient | None
     client = GraphClient("piezo_ff_commission", domain_id=int(os.environ["ROS_DOMAIN_ID"]))

@@ -35,7 +35,7 @@ if TYPE_CHECKING:
 
 Fits = dict[str, float | None]  #: fit [%] per axis/entry (None where not finite)
 
-__all__ = ["identify_all", "commission_sim", "split_runs", "build_config", "synthesize_for", "plant_fit",
+__all__ = ["identify_all", "commission_sim", "split_runs", "build_config", "synthesize_for", "with_hinf_controller", "plant_fit",
            "IdentificationReport"]
 
 STAGES = ("hysteresis", "creep", "dynamics")
@@ -201,12 +201,7 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
     design, note = None, None
     if synthesize and cfg.cascade.vibration:
         t0 = time.perf_counter()
-        say("vibration: H∞ synthesis on the identified G_L")
-        design, note = synthesize_for(cfg, say)
-        vib = replace(cfg.vibration, controller=design.controller_matrices())
-        if note:  # keep the config re-synthesisable with the same bound
-            vib = replace(vib, gamma_max=1.05 * float(design.gamma))
-        cfg = replace(cfg, vibration=vib).validate()
+        cfg, design, note = with_hinf_controller(cfg, say)
         timing["hinf"] = time.perf_counter() - t0
     timing["total"] = sum(v for k, v in timing.items() if k != "total")
     return cfg, IdentificationReport(fit_percent=fits, orders={"creep": cf.orders, "dynamics": df.orders},
@@ -235,6 +230,31 @@ def synthesize_for(cfg: PiezoConfig, say: Callable[[str], None] = lambda s: None
         say(note)
         vib = replace(vib, gamma_max=new)
     return synthesize_hinf(cfg.dynamics.G_L, vib), note
+
+
+def with_hinf_controller(cfg: PiezoConfig, say: Callable[[str], None] = lambda s: None
+                         ) -> tuple[PiezoConfig, HinfDesign, str | None]:
+    """``cfg`` with the H∞ controller synthesised on its G_L (:func:`synthesize_for`) in ``vibration.controller``.
+
+    Parameters
+    ----------
+    cfg : PiezoConfig
+        An identified configuration.
+    say : callable
+        Progress lines.
+
+    Returns
+    -------
+    (PiezoConfig, HinfDesign, str or None)
+        The configuration with the controller (and, when the DC bound forced it, ``gamma_max`` raised to 1.05 × γ
+        so that it stays re-synthesisable with the same bound), the design, and the note saying so (None if not).
+    """
+    say("vibration: H∞ synthesis on the identified G_L")
+    design, note = synthesize_for(cfg, say)
+    vib = replace(cfg.vibration, controller=design.controller_matrices())
+    if note:   # keep the config re-synthesisable with the same bound
+        vib = replace(vib, gamma_max=1.05 * float(design.gamma))
+    return replace(cfg, vibration=vib).validate(), design, note
 
 
 def commission_sim(plant: Processor, fs: float, axes: Sequence[str] = ("x", "y"),
