@@ -85,13 +85,16 @@ def test_a_vanished_lockstep_source_gives_the_watchdog_back(tmp_path, probe):
                         "-p", f"trajectory:='{json.dumps(spec)}'", "-p", "min_subscribers:=1",
                         "-p", "autostart:=true", log_dir=tmp_path)]
     try:
-        probe.spin_until(lambda: diags and diags[-1][2].get("stream_paced") == "True", 90,
-                         "the driver suspending its watchdog for the lockstep run")
-        assert diags[-1][2]["state"] == "active"
+        probe.spin_until(lambda: diags and diags[-1][2].get("stream_paced") == "True"
+                         and diags[-1][2].get("state") == "active", 90,
+                         "the driver active with its watchdog suspended for the lockstep run")
         procs[2].kill()
         procs[2].wait(10)
         probe.spin_until(lambda: diags[-1][2].get("state") == "safe", 30, "the stale ramp once the source is gone")
         assert diags[-1][2]["stream_paced"] == "False"
     finally:
+        if procs[2].poll() is None:     # never leave a playing trajectory behind on the test domain
+            procs[2].kill()
+            procs[2].wait(10)
         codes = [stop_node(p) for p in reversed(procs[:2])]
     assert codes == [0, 0]
