@@ -12,7 +12,7 @@ well conditioned, otherwise through a dense ZOH (``scipy.linalg.expm``) in a sin
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -20,6 +20,7 @@ from numpy.typing import ArrayLike
 
 from .kernels.fused import BANK, FusedPart
 from .kernels.modal import bank_run, bank_run_2x2, pad_to_2x2
+from .kernels.specialise import specialised_bank_run
 from .stage import StageState
 
 __all__ = [
@@ -470,6 +471,7 @@ class LTIFilter:
         self.two_axis = ss.n_in == 2 and ss.n_out == 2 and ss.small_blocks
         if self.two_axis:
             self.W, self.feeds = pad_to_2x2(self._Ablk, ss.packed_io(), self._offsets, ss.sizes)
+        self._run: Callable[..., None] | None = None  # the two-axis loop, specialised on first use
         self.x = np.zeros(ss.n_states)
 
     @property
@@ -493,7 +495,9 @@ class LTIFilter:
         if u.ndim != 2 or u.shape[1] != self.ss.n_in:
             raise ValueError(f"expected a block of shape [N, {self.ss.n_in}], got {u.shape}")
         if self.two_axis:
-            bank_run_2x2(self.W, self._offsets, self.ss.sizes, self.feeds, self.ss.D, self.x, u, y)
+            if self._run is None:
+                self._run = specialised_bank_run(self.W, self.ss.sizes, self.ss.D) or bank_run_2x2
+            self._run(self.W, self._offsets, self.ss.sizes, self.feeds, self.ss.D, self.x, u, y)
         else:
             bank_run(self._Ablk, self._offsets, self.ss.sizes, self.ss.B, self.ss.C, self.ss.D, self.x, u, y)
         return y

@@ -265,13 +265,15 @@ def _machine():
 
 def _kernels():
     """The compiled kernels of the core chain (numba dispatchers, or plain functions without numba)."""
-    from .kernels import bouc_wen, fused, modal
+    from .kernels import bouc_wen, modal, specialise
 
-    mods = {"modal": modal, "bouc_wen": bouc_wen, "fused": fused}
+    mods = {"modal": modal, "bouc_wen": bouc_wen}
     names = ["modal.bank_run", "modal.bank_run_2x2", "modal.inverse_affine_run", "modal.inverse_affine_run_2x2",
              "bouc_wen.bw_model_run", "bouc_wen.bw_model_run_2x2", "bouc_wen.bw_comp_run",
-             "bouc_wen.bw_comp_run_2x2", "fused.fused_run"]
-    return {name: getattr(mods[name.split(".")[0]], name.split(".")[1]) for name in names}
+             "bouc_wen.bw_comp_run_2x2"]
+    out = {name: getattr(mods[name.split(".")[0]], name.split(".")[1]) for name in names}
+    out.update(specialise.generated_kernels())  # loops specialised to the stages' structure, fused passes
+    return out
 
 
 def _jit_stats():

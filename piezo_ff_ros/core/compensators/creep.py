@@ -6,11 +6,14 @@ the discrete creep model.  No transfer function is inverted; the parameters are 
 """
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from ..config import CreepConfig
 from ..kernels.fused import INVERSE, FusedPart
 from ..kernels.modal import inverse_affine_run, inverse_affine_run_2x2, pad_to_2x2
+from ..kernels.specialise import specialised_inverse_run
 from ..lti import DiscreteModalSS, LTIFilter
 from ..models.creep import discretise_creep
 from ..stage import StageState, transfer_linear_state
@@ -55,6 +58,7 @@ class CreepCompensator:
         self.two_axis = self.ss.n_in == 2 and self.ss.n_out == 2 and self.ss.small_blocks
         if self.two_axis:
             self.W, self.feeds = pad_to_2x2(self._Ablk, self.ss.packed_io(), self._offsets, self.ss.sizes)
+        self._run: Callable[..., None] | None = None  # the two-axis loop, specialised on first use
         self.x = np.zeros(self.ss.n_states)
         # the Cr filter alone on the same state array: advances x from a given Y_H (re-synchronisation)
         self._cr = LTIFilter(self.ss)
@@ -81,7 +85,9 @@ class CreepCompensator:
         if yl.ndim != 2 or yl.shape[1] != self.n_in:
             raise ValueError(f"expected a block of shape [N, {self.n_in}], got {yl.shape}")
         if self.two_axis:
-            inverse_affine_run_2x2(self.Kinv, self.W, self._offsets, self.ss.sizes, self.feeds, self.x, yl, yh)
+            if self._run is None:
+                self._run = specialised_inverse_run(self.Kinv, self.W, self.ss.sizes) or inverse_affine_run_2x2
+            self._run(self.Kinv, self.W, self._offsets, self.ss.sizes, self.feeds, self.x, yl, yh)
         else:
             inverse_affine_run(self.Kinv, self._Ablk, self._offsets, self.ss.sizes, self.ss.B, self.ss.C, self.x,
                                 yl, yh)

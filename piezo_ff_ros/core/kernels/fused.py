@@ -7,8 +7,9 @@ in six slots::
         → MODEL (Bouc-Wen model) → CREEP (modal bank, D = K) → DYN (modal bank)
 
 Any run of consecutive stages that fills some of these slots in this order (a compensator cascade, a plant, both,
-or part of either) is run by :func:`fused_run`: one loop over the samples, each sample through every present slot
-with the stages' own loop kernels (:func:`~.modal.bank2_loop`, :func:`~.modal.inverse2_loop`,
+or part of either) is run by one compiled kernel (``fused_run``, source from :func:`fused_source`): one loop over the
+samples, each sample through every present slot with the stages' own loop kernels (the banks' loops specialised to
+their structure by :mod:`.specialise`, or the generic :func:`~.modal.bank2_loop`, :func:`~.modal.inverse2_loop`;
 :func:`~.bouc_wen.bw_comp_run_2x2`, :func:`~.bouc_wen.bw_model_run_2x2`), on the stages' own state arrays.  It
 therefore gives the numbers of the stages run one by one — and, like them, the same numbers whatever the block split
 — and one call replaces six.  The block is run chunk by chunk (:data:`_CHUNK` samples in a cache-resident buffer),
@@ -26,10 +27,12 @@ from typing import Any, Callable, NamedTuple, Sequence
 import numpy as np
 
 from .._jit import njit
-from .bouc_wen import FALLBACKS, N_COUNTERS, SATURATED, CompOptions, CompState, bw_comp_run_2x2, bw_model_run_2x2
-from .modal import bank2_loop, gather_2x2, inverse2_loop, scatter_2x2
+from .bouc_wen import N_COUNTERS
+from .modal import gather_2x2, scatter_2x2
+from .specialise import bank_loop_source, bank_structure, enabled, inverse_loop_source, load_generated
 
-__all__ = ["BANK", "INVERSE", "COMP", "MODEL", "SLOT_KINDS", "FusedPart", "FusedPass", "plan_fusion", "fused_run"]
+__all__ = ["BANK", "INVERSE", "COMP", "MODEL", "SLOT_KINDS", "FusedPart", "FusedPass", "plan_fusion",
+           "fused_source", "fused_kernel"]
 
 #: kinds of fusable stage
 BANK, INVERSE, COMP, MODEL = 0, 1, 2, 3
@@ -72,7 +75,7 @@ def _slots_of(parts: Sequence[FusedPart]) -> list[int] | None:
 
 
 class FusedPass:
-    """Consecutive fusable stages run by :func:`fused_run` (built by :func:`plan_fusion`)."""
+    """Consecutive fusable stages run by one compiled kernel (:func:`fused_kernel`; built by :func:`plan_fusion`)."""
 
     def __init__(self, stages: Sequence[Any], parts: Sequence[FusedPart]) -> None:
         slots = _slots_of(parts)
@@ -130,6 +133,7 @@ class FusedPass:
         self.L = np.ascontiguousarray(np.concatenate([L, *extra]))
         self.slots = slots
         self._counters = np.zeros(N_COUNTERS, np.int64)
+        self._kernel = fused_kernel(slots, parts)
 
     def reset(self) -> None:
         """All states back to rest."""
@@ -146,7 +150,7 @@ class FusedPass:
         x = self._x
         ch, cu, cs, cg = self._comp
         mh, mu, ms = self._model
-        fused_run(self.P, self.L, x[0], x[1], x[2], x[3], ch, cu, cs, cg, mh, mu, ms, counters, u, y)
+        self._kernel(self.P, self.L, x[0], x[1], x[2], x[3], ch, cu, cs, cg, mh, mu, ms, counters, u, y)
         if self._count is not None:
             self._count(counters)
         return y
@@ -215,23 +219,22 @@ def _unbank(L: np.ndarray, b: int, xp: np.ndarray, x: np.ndarray) -> None:  # pr
     scatter_2x2(L[L[base + 3]:L[base + 3] + nb], L[L[base + 4]:L[base + 4] + nb], xp, x)
 
 
-@njit
-def fused_run(P: np.ndarray, L: np.ndarray, x0: np.ndarray, x1: np.ndarray, x4: np.ndarray, x5: np.ndarray,
-              ch: np.ndarray, cu: np.ndarray, cs: np.ndarray, cg: np.ndarray, mh: np.ndarray, mu: np.ndarray,
-              ms: np.ndarray, counters: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
-    """The present slots of VIB → CINV → COMP → MODEL → CREEP → DYN over a block ``u [N, 2]`` → ``y [N, 2]``.
+_FUSED_HEAD = """
+import numpy as np
 
-    ``P``/``L``: the constants and their layout (:class:`FusedPass`); ``x0, x1, x4, x5``: the banks' states
-    (public layout); ``ch, cu, cs, cg``: the compensator's h, last voltage, started, signs; ``mh, mu, ms``: the
-    model's h, last voltage, started; ``counters[FALLBACKS]``, ``counters[SATURATED]`` ← this block's counts.
-    """
+from piezo_ff_ros.core.kernels.bouc_wen import FALLBACKS, SATURATED, CompOptions, CompState
+from piezo_ff_ros.core.kernels.bouc_wen import bw_comp_run_2x2, bw_model_run_2x2
+from piezo_ff_ros.core.kernels.fused import _CHUNK, _bank, _unbank
+from piezo_ff_ros.core.kernels.modal import bank2_loop, inverse2_loop
+"""
+
+# The body of the fused kernel; the generated module (:func:`fused_source`) keeps the lines of the present slots.
+# Each slot line calls its stage's own loop (``{loop0}`` … ``{loop5}``: the generic loops of :mod:`.modal` or the
+# ones :mod:`.specialise` wrote for the bank's structure — same numbers).
+_FUSED_BODY = """
+@njit
+def fused_run(P, L, x0, x1, x4, x5, ch, cu, cs, cg, mh, mu, ms, counters, u, y):  # pragma: no cover - compiled
     N = u.shape[0]
-    has_vib = L[0] != 0
-    has_inv = L[1] != 0
-    has_comp = L[2] != 0
-    has_model = L[3] != 0
-    has_creep = L[4] != 0
-    has_dyn = L[5] != 0
     W0, f0, D0, xp0 = _bank(P, L, 0, x0)
     W1, f1, K1, xp1 = _bank(P, L, 1, x1)
     W4, f4, D4, xp4 = _bank(P, L, 2, x4)
@@ -244,8 +247,6 @@ def fused_run(P: np.ndarray, L: np.ndarray, x0: np.ndarray, x1: np.ndarray, x4: 
     mco = P[L[40]:L[40] + 28].copy()
     counters[FALLBACKS] = 0
     counters[SATURATED] = 0
-    # Chunk by chunk: each slot runs its own loop kernel (the one its stage runs alone) over a chunk held in a small
-    # buffer (cache-resident): the processor overlaps successive samples of one stage as in the stage's own kernel.
     buf = np.empty((_CHUNK, 2))
     hs = np.empty((_CHUNK, 2))
     cst = CompState(ch, cu, cs, cg)
@@ -256,18 +257,12 @@ def fused_run(P: np.ndarray, L: np.ndarray, x0: np.ndarray, x1: np.ndarray, x4: 
         for i in range(n):
             b[i, 0] = u[c0 + i, 0]
             b[i, 1] = u[c0 + i, 1]
-        if has_vib:
-            bank2_loop(W0, f0, D0, xp0, b, b, n)
-        if has_inv:
-            inverse2_loop(K1, W1, f1, xp1, b, b, n)
-        if has_comp:
-            bw_comp_run_2x2(cco, cst, copt, b, b, counters)
-        if has_model:
-            bw_model_run_2x2(mco, mh, mu, ms, b, b, hs[:n])
-        if has_creep:
-            bank2_loop(W4, f4, D4, xp4, b, b, n)
-        if has_dyn:
-            bank2_loop(W5, f5, D5, xp5, b, b, n)
+        {loop0}(W0, f0, D0, xp0, b, b, n)  #slot0
+        {loop1}(K1, W1, f1, xp1, b, b, n)  #slot1
+        bw_comp_run_2x2(cco, cst, copt, b, b, counters)  #slot2
+        bw_model_run_2x2(mco, mh, mu, ms, b, b, hs[:n])  #slot3
+        {loop4}(W4, f4, D4, xp4, b, b, n)  #slot4
+        {loop5}(W5, f5, D5, xp5, b, b, n)  #slot5
         for i in range(n):
             y[c0 + i, 0] = b[i, 0]
             y[c0 + i, 1] = b[i, 1]
@@ -275,3 +270,73 @@ def fused_run(P: np.ndarray, L: np.ndarray, x0: np.ndarray, x1: np.ndarray, x4: 
     _unbank(L, 1, xp1, x1)
     _unbank(L, 2, xp4, x4)
     _unbank(L, 3, xp5, x5)
+"""
+
+
+def fused_source(slots: Sequence[int], loops: dict[int, tuple[str, str]]) -> str:
+    """Source of the fused kernel for the present ``slots``.
+
+    Parameters
+    ----------
+    slots : sequence of int
+        The slots present (0 VIB … 5 DYN).
+    loops : dict
+        For bank slots (0, 1, 4, 5) with a specialised loop: ``slot → (function name, source)``; the other bank
+        slots call the generic loop (:func:`~.modal.bank2_loop`, :func:`~.modal.inverse2_loop`).
+
+    Returns
+    -------
+    str
+        Module source defining ``fused_run(P, L, x0, x1, x4, x5, ch, cu, cs, cg, mh, mu, ms, counters, u, y)``:
+        the present slots of VIB → CINV → COMP → MODEL → CREEP → DYN over a block ``u [N, 2]`` → ``y [N, 2]``
+        (``P``/``L``: the constants and their layout, :class:`FusedPass`; ``x0, x1, x4, x5``: the banks' states in
+        their public layout; ``ch, cu, cs, cg``: the compensator's h, last voltage, started, signs; ``mh, mu, ms``:
+        the model's h, last voltage, started; ``counters`` ← this block's counts).  Chunk by chunk (``_CHUNK``
+        samples in a cache-resident buffer) each slot runs its own loop kernel over the chunk: the processor
+        overlaps successive samples of one stage as in the stage's own kernel.
+    """
+    names = {0: "bank2_loop", 1: "inverse2_loop", 4: "bank2_loop", 5: "bank2_loop"}
+    parts = [_FUSED_HEAD]
+    for slot, (name, src) in sorted(loops.items()):
+        names[slot] = name
+        parts.append(src)
+    body = []
+    for line in _FUSED_BODY.splitlines():
+        if "#slot" in line:
+            slot = int(line.rsplit("#slot", 1)[1])
+            if slot not in slots:
+                continue
+            line = line.rsplit("  #slot", 1)[0]
+        body.append(line)
+    text = "\n".join(body).format(loop0=names[0], loop1=names[1], loop4=names[4], loop5=names[5])
+    parts.append(text)
+    return "\n".join(parts) + "\n"
+
+
+def fused_kernel(slots: Sequence[int], parts: Sequence[FusedPart]) -> Callable[..., None]:
+    """The compiled fused kernel for these slots and parts (bank loops specialised when :func:`~.specialise.enabled`).
+
+    Parameters
+    ----------
+    slots : sequence of int
+        The slot of each part (from the slot order VIB, CINV, COMP, MODEL, CREEP, DYN).
+    parts : sequence of FusedPart
+        The stages' parts, in order.
+
+    Returns
+    -------
+    callable
+        ``fused_run`` of :func:`fused_source` (imported from the kernel cache: numba caches it on disk).
+    """
+    loops: dict[int, tuple[str, str]] = {}
+    if enabled():
+        for part, slot in zip(parts, slots):
+            if part.kind == BANK:
+                W, _feeds, D, _offsets, sizes = part.consts
+                loops[slot] = (f"loop{slot}", bank_loop_source(bank_structure(W, sizes, D), f"loop{slot}"))
+            elif part.kind == INVERSE:
+                W, _feeds, Kinv, _offsets, sizes = part.consts
+                loops[slot] = (f"loop{slot}", inverse_loop_source(bank_structure(W, sizes, Kinv), f"loop{slot}"))
+    mod = load_generated(fused_source(slots, loops), "fused")
+    fn: Callable[..., None] = mod.fused_run
+    return fn
