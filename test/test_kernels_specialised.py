@@ -184,3 +184,19 @@ def test_an_unwritable_cache_setting_falls_back_to_a_writable_directory(tmp_path
     monkeypatch.setenv("PIEZO_FF_KERNEL_CACHE", str(blocked / "sub"))
     d = sp.cache_dir()
     assert d != blocked / "sub" and d.is_dir()
+
+
+def test_a_changed_kernel_source_changes_every_generated_file_name(tmp_path):
+    """numba caches a function on its own file only: the kernels' digest in the generated source keeps a cached
+    fused pass from running the code of an older kernel."""
+    import shutil
+    from pathlib import Path
+    kernels = Path(sp.__file__).resolve().parent
+    copy = tmp_path / "kernels"
+    shutil.copytree(kernels, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(kernels.parent / "_jit.py", tmp_path / "_jit.py")
+    before = sp._kernel_fingerprint(copy)
+    assert before == sp._kernel_fingerprint(kernels) and before in sp._HEADER
+    src = copy / "bouc_wen.py"
+    src.write_text(src.read_text() + "\n# changed\n")
+    assert sp._kernel_fingerprint(copy) != before

@@ -3,8 +3,9 @@
 The increment of h for a voltage step dU (``dÛ = P·dU``)::
 
     dh = A·dU − B(|dÛ|∘h) − Γ(dÛ∘|h|) − Δ1(dÛ∘h) − Δ2(|dÛ|∘|h|)
+       = A·dU − Σ_j (|dÛ_j|·φ_ij + dÛ_j·ψ_ij),   φ_ij = B_ij h_j + Δ2_ij |h_j|,   ψ_ij = Γ_ij |h_j| + Δ1_ij h_j
 
-is written once for any size (:func:`bw_increment`) and once for two axes with the parameters in registers
+(the grouped form is the one computed: φ and ψ depend on h only) is written once for any size (:func:`bw_increment`) and once for two axes with the parameters in registers
 (:func:`bw2_increment`, 2.5–8× faster on the 2-axis tube).  Every ``*_2x2`` kernel is built from the per-sample
 step functions below (:func:`bw2_model_step`, :func:`bw2_comp_step`) — which the fused chain kernels
 (:mod:`.fused`) call too — and keeps the generic kernel's order of operations (``0.0 + …`` where a sum starts from
@@ -100,10 +101,12 @@ def bw_increment(p: BoucWenParams, h: np.ndarray, du: np.ndarray, dh: np.ndarray
         for j in range(k):
             acc += p.A[i, j] * du[j]
         for j in range(n):
+            # grouped by what multiplies |dÛ_j| (φ) and dÛ_j (ψ): φ and ψ depend on h only, so a compensator has
+            # them before it knows dU (the latency of its per-sample recursion)
             ah = abs(h[j])
-            ad = abs(duh[j])
-            acc -= p.B[i, j] * ad * h[j] + p.G[i, j] * duh[j] * ah + p.D1[i, j] * duh[j] * h[j] \
-                + p.D2[i, j] * ad * ah
+            phi = p.B[i, j] * h[j] + p.D2[i, j] * ah
+            psi = p.G[i, j] * ah + p.D1[i, j] * h[j]
+            acc -= abs(duh[j]) * phi + duh[j] * psi
         dh[i] = acc
 
 
@@ -140,11 +143,21 @@ def bw_model_run(p: BoucWenParams, h: np.ndarray, u_prev: np.ndarray, started: n
 @njit
 def solve_small(M: np.ndarray, r: np.ndarray, x: np.ndarray, a: np.ndarray,
                 b: np.ndarray) -> bool:  # pragma: no cover - compiled
-    """Gaussian elimination with partial pivoting for a small dense system; False if singular.
+    """Solve a small dense system (Cramer's rule for 2×2, else Gaussian elimination with partial pivoting); False
+    if singular.
 
     ``a`` (n×n) and ``b`` (n) are scratch for the factorisation: nothing is allocated per call.
     """
     n = r.shape[0]
+    if n == 2:
+        # Cramer's rule: two independent divisions instead of three dependent ones (the compensator's per-sample
+        # latency); M is well conditioned here (≈ Dp − A).  The two-axis kernel uses the same expressions.
+        det = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
+        if abs(det) < 1e-300:
+            return False
+        x[0] = (r[0] * M[1, 1] - M[0, 1] * r[1]) / det
+        x[1] = (M[0, 0] * r[1] - M[1, 0] * r[0]) / det
+        return True
     for i in range(n):
         b[i] = r[i]
         for j in range(n):
@@ -230,12 +243,11 @@ def bw_comp_run(p: BoucWenParams, Dp_pinv: np.ndarray, st: CompState, opt: CompO
                 else:
                     for i in range(n):
                         s[i] = 1.0 if ((q - 1) >> i) & 1 else -1.0
-                # W[i, l] = B s_l h_l + G |h_l| + D1 h_l + D2 s_l |h_l|;  (Dp − A + W·P)·dU = r
+                # W[i, l] = s_l φ_il + ψ_il (φ, ψ of bw_increment);  (Dp − A + W·P)·dU = r
                 for i in range(n):
                     for l in range(n):
                         ah = abs(h[l])
-                        W[i, l] = p.B[i, l] * s[l] * h[l] + p.G[i, l] * ah + p.D1[i, l] * h[l] \
-                            + p.D2[i, l] * s[l] * ah
+                        W[i, l] = s[l] * (p.B[i, l] * h[l] + p.D2[i, l] * ah) + (p.G[i, l] * ah + p.D1[i, l] * h[l])
                 for i in range(n):
                     for j in range(k):
                         acc = p.Dp[i, j] - p.A[i, j]
@@ -347,14 +359,20 @@ def bw2_increment(c: Coeffs2, h0: float, h1: float, du0: float,
     duh1 = 0.0 + p10 * du0 + p11 * du1
     ah0 = abs(h0)
     ah1 = abs(h1)
-    ad0 = abs(duh0)
-    ad1 = abs(duh1)
+    phi00 = b00 * h0 + f00 * ah0
+    psi00 = g00 * ah0 + e00 * h0
+    phi01 = b01 * h1 + f01 * ah1
+    psi01 = g01 * ah1 + e01 * h1
+    phi10 = b10 * h0 + f10 * ah0
+    psi10 = g10 * ah0 + e10 * h0
+    phi11 = b11 * h1 + f11 * ah1
+    psi11 = g11 * ah1 + e11 * h1
     dh0 = 0.0 + a00 * du0 + a01 * du1
-    dh0 -= b00 * ad0 * h0 + g00 * duh0 * ah0 + e00 * duh0 * h0 + f00 * ad0 * ah0
-    dh0 -= b01 * ad1 * h1 + g01 * duh1 * ah1 + e01 * duh1 * h1 + f01 * ad1 * ah1
+    dh0 -= abs(duh0) * phi00 + duh0 * psi00
+    dh0 -= abs(duh1) * phi01 + duh1 * psi01
     dh1 = 0.0 + a10 * du0 + a11 * du1
-    dh1 -= b10 * ad0 * h0 + g10 * duh0 * ah0 + e10 * duh0 * h0 + f10 * ad0 * ah0
-    dh1 -= b11 * ad1 * h1 + g11 * duh1 * ah1 + e11 * duh1 * h1 + f11 * ad1 * ah1
+    dh1 -= abs(duh0) * phi10 + duh0 * psi10
+    dh1 -= abs(duh1) * phi11 + duh1 * psi11
     return dh0, dh1
 
 
@@ -430,6 +448,14 @@ def bw2_comp_step(c: Coeffs2, exact: bool, ulim: float, dulim: float, h0: float,
         r1 = y1 + h1 - dp10 * up0 - dp11 * up1
         ah0 = abs(h0)
         ah1 = abs(h1)
+        phi00 = b00 * h0 + f00 * ah0
+        psi00 = g00 * ah0 + e00 * h0
+        phi01 = b01 * h1 + f01 * ah1
+        psi01 = g01 * ah1 + e01 * h1
+        phi10 = b10 * h0 + f10 * ah0
+        psi10 = g10 * ah0 + e10 * h0
+        phi11 = b11 * h1 + f11 * ah1
+        psi11 = g11 * ah1 + e11 * h1
         for q in range(5):
             if q == 0:
                 s0 = sg0
@@ -437,30 +463,20 @@ def bw2_comp_step(c: Coeffs2, exact: bool, ulim: float, dulim: float, h0: float,
             else:
                 s0 = 1.0 if (q - 1) & 1 else -1.0
                 s1 = 1.0 if ((q - 1) >> 1) & 1 else -1.0
-            w00 = b00 * s0 * h0 + g00 * ah0 + e00 * h0 + f00 * s0 * ah0
-            w01 = b01 * s1 * h1 + g01 * ah1 + e01 * h1 + f01 * s1 * ah1
-            w10 = b10 * s0 * h0 + g10 * ah0 + e10 * h0 + f10 * s0 * ah0
-            w11 = b11 * s1 * h1 + g11 * ah1 + e11 * h1 + f11 * s1 * ah1
+            w00 = s0 * phi00 + psi00
+            w01 = s1 * phi01 + psi01
+            w10 = s0 * phi10 + psi10
+            w11 = s1 * phi11 + psi11
             m00 = c00 + w00 * p00 + w01 * p10
             m01 = c01 + w00 * p01 + w01 * p11
             m10 = c10 + w10 * p00 + w11 * p10
             m11 = c11 + w10 * p01 + w11 * p11
-            rr0 = r0
-            rr1 = r1
-            # Gaussian elimination with partial pivoting (as solve_small)
-            if abs(m10) > abs(m00):
-                m00, m10 = m10, m00
-                m01, m11 = m11, m01
-                rr0, rr1 = rr1, rr0
-            if abs(m00) < 1e-300:
+            # Cramer's rule (as solve_small for n = 2)
+            det = m00 * m11 - m01 * m10
+            if abs(det) < 1e-300:
                 continue
-            fct = m10 / m00
-            m11 -= fct * m01
-            rr1 -= fct * rr0
-            if abs(m11) < 1e-300:
-                continue
-            du1 = rr1 / m11
-            du0 = (rr0 - m01 * du1) / m00
+            du0 = (r0 * m11 - m01 * r1) / det
+            du1 = (m00 * r1 - m10 * r0) / det
             if (0.0 + p00 * du0 + p01 * du1) * s0 < 0.0:
                 continue
             if (0.0 + p10 * du0 + p11 * du1) * s1 < 0.0:
