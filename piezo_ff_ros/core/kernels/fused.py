@@ -228,49 +228,39 @@ from piezo_ff_ros.core.kernels.fused import _CHUNK, _bank, _unbank
 from piezo_ff_ros.core.kernels.modal import bank2_loop, inverse2_loop
 """
 
-# The body of the fused kernel; the generated module (:func:`fused_source`) keeps the lines of the present slots.
-# Each slot line calls its stage's own loop (``{loop0}`` … ``{loop5}``: the generic loops of :mod:`.modal` or the
-# ones :mod:`.specialise` wrote for the bank's structure — same numbers).
-_FUSED_BODY = """
+# The fused kernel, written out for the present slots by :func:`fused_source`.  Each slot calls its stage's own loop:
+# a bank slot with a loop specialised to its structure (:mod:`.specialise`) reads its coefficients in place and its
+# state in the public layout; a generic bank slot gets a local copy of its table and its padded state (``_bank`` /
+# ``_unbank``) for :func:`~.modal.bank2_loop` / :func:`~.modal.inverse2_loop`.
+_FUSED_SETUP = """
 @njit
 def fused_run(P, L, x0, x1, x4, x5, ch, cu, cs, cg, mh, mu, ms, counters, u, y):  # pragma: no cover - compiled
     N = u.shape[0]
-    W0, f0, D0, xp0 = _bank(P, L, 0, x0)
-    W1, f1, K1, xp1 = _bank(P, L, 1, x1)
-    W4, f4, D4, xp4 = _bank(P, L, 2, x4)
-    W5, f5, D5, xp5 = _bank(P, L, 3, x5)
     pc = L[38]
-    cco = P[pc:pc + 36].copy()
+    cco = P[pc:pc + 36]
     exact = L[39] != 0
     ulim = P[pc + 36]
     dulim = P[pc + 37]
-    mco = P[L[40]:L[40] + 28].copy()
+    mco = P[L[40]:L[40] + 28]
     counters[FALLBACKS] = 0
     counters[SATURATED] = 0
     buf = np.empty((_CHUNK, 2))
     hs = np.empty((_CHUNK, 2))
     cst = CompState(ch, cu, cs, cg)
     copt = CompOptions(exact, ulim, dulim)
-    for c0 in range(0, N, _CHUNK):
+"""
+_FUSED_CHUNK = """    for c0 in range(0, N, _CHUNK):
         n = min(_CHUNK, N - c0)
         b = buf[:n]
         for i in range(n):
             b[i, 0] = u[c0 + i, 0]
             b[i, 1] = u[c0 + i, 1]
-        {loop0}(W0, f0, D0, xp0, b, b, n)  #slot0
-        {loop1}(K1, W1, f1, xp1, b, b, n)  #slot1
-        bw_comp_run_2x2(cco, cst, copt, b, b, counters)  #slot2
-        bw_model_run_2x2(mco, mh, mu, ms, b, b, hs[:n])  #slot3
-        {loop4}(W4, f4, D4, xp4, b, b, n)  #slot4
-        {loop5}(W5, f5, D5, xp5, b, b, n)  #slot5
-        for i in range(n):
+"""
+_FUSED_OUT = """        for i in range(n):
             y[c0 + i, 0] = b[i, 0]
             y[c0 + i, 1] = b[i, 1]
-    _unbank(L, 0, xp0, x0)
-    _unbank(L, 1, xp1, x1)
-    _unbank(L, 2, xp4, x4)
-    _unbank(L, 3, xp5, x5)
 """
+_BANK_INDEX = {0: 0, 1: 1, 4: 2, 5: 3}  # slot → bank number in the layout L
 
 
 def fused_source(slots: Sequence[int], loops: dict[int, tuple[str, str]]) -> str:
@@ -281,8 +271,9 @@ def fused_source(slots: Sequence[int], loops: dict[int, tuple[str, str]]) -> str
     slots : sequence of int
         The slots present (0 VIB … 5 DYN).
     loops : dict
-        For bank slots (0, 1, 4, 5) with a specialised loop: ``slot → (function name, source)``; the other bank
-        slots call the generic loop (:func:`~.modal.bank2_loop`, :func:`~.modal.inverse2_loop`).
+        For bank slots (0, 1, 4, 5) with a specialised loop: ``slot → (function name, source)``
+        (:func:`~.specialise.bank_loop_source`, :func:`~.specialise.inverse_loop_source`); the other bank slots
+        call the generic loop (:func:`~.modal.bank2_loop`, :func:`~.modal.inverse2_loop`).
 
     Returns
     -------
@@ -295,22 +286,33 @@ def fused_source(slots: Sequence[int], loops: dict[int, tuple[str, str]]) -> str
         samples in a cache-resident buffer) each slot runs its own loop kernel over the chunk: the processor
         overlaps successive samples of one stage as in the stage's own kernel.
     """
-    names = {0: "bank2_loop", 1: "inverse2_loop", 4: "bank2_loop", 5: "bank2_loop"}
-    parts = [_FUSED_HEAD]
-    for slot, (name, src) in sorted(loops.items()):
-        names[slot] = name
-        parts.append(src)
-    body = []
-    for line in _FUSED_BODY.splitlines():
-        if "#slot" in line:
-            slot = int(line.rsplit("#slot", 1)[1])
-            if slot not in slots:
-                continue
-            line = line.rsplit("  #slot", 1)[0]
-        body.append(line)
-    text = "\n".join(body).format(loop0=names[0], loop1=names[1], loop4=names[4], loop5=names[5])
-    parts.append(text)
-    return "\n".join(parts) + "\n"
+    head = [_FUSED_HEAD] + [src for _slot, (_name, src) in sorted(loops.items())]
+    setup, calls, finish = [_FUSED_SETUP], [], []
+    for slot in sorted(slots):
+        if slot in _BANK_INDEX:
+            k = _BANK_INDEX[slot]
+            x = f"x{slot}"
+            base = 6 + 8 * k
+            if slot in loops:
+                name = loops[slot][0]
+                setup.append(f"    nb{slot} = L[{base + 2}]\n"
+                             f"    W{slot} = P[L[{base}]:L[{base}] + 12 * nb{slot}].reshape((12, nb{slot}))\n"
+                             f"    D{slot} = P[L[{base + 1}]:L[{base + 1}] + 4].reshape((2, 2))\n")
+                args = f"D{slot}, W{slot}" if slot == 1 else f"W{slot}, D{slot}"
+                calls.append(f"        {name}({args}, {x}, b, b, n)\n")
+            else:
+                setup.append(f"    W{slot}, f{slot}, D{slot}, xp{slot} = _bank(P, L, {k}, {x})\n")
+                if slot == 1:
+                    calls.append(f"        inverse2_loop(D{slot}, W{slot}, f{slot}, xp{slot}, b, b, n)\n")
+                else:
+                    calls.append(f"        bank2_loop(W{slot}, f{slot}, D{slot}, xp{slot}, b, b, n)\n")
+                finish.append(f"    _unbank(L, {k}, xp{slot}, {x})\n")
+        elif slot == 2:
+            calls.append("        bw_comp_run_2x2(cco, cst, copt, b, b, counters)\n")
+        elif slot == 3:
+            calls.append("        bw_model_run_2x2(mco, mh, mu, ms, b, b, hs[:n])\n")
+    body = "".join(setup) + _FUSED_CHUNK + "".join(calls) + _FUSED_OUT + "".join(finish)
+    return "\n".join(head) + "\n" + body
 
 
 def fused_kernel(slots: Sequence[int], parts: Sequence[FusedPart]) -> Callable[..., None]:

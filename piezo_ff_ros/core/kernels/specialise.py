@@ -109,6 +109,7 @@ class _Bank:
         sizes, wmask, dmask = structure
         self.sizes = sizes
         self.nb = len(sizes)
+        self.offsets = [int(v) for v in np.concatenate([[0], np.cumsum(sizes)[:-1]])] if sizes else []
         self._w = np.array(wmask, bool).reshape(12, self.nb) if self.nb else np.zeros((12, 0), bool)
         self._d = np.array(dmask, bool).reshape(2, 2)
 
@@ -119,23 +120,23 @@ class _Bank:
         return self.sizes[b] == 2
 
     def load_lines(self, indent: str, coeffs: str = "W") -> list[str]:
-        """Non-zero coefficients and the state into locals."""
+        """Non-zero coefficients and the state (public layout ``x``: block b at ``offsets[b]``) into locals."""
         out = []
         for b in range(self.nb):
             for r in range(12):
                 if self.nz(r, b):
                     out.append(f"{indent}w{r}_{b} = {coeffs}[{r}, {b}]")
-            out.append(f"{indent}p{b} = xp[0, {b}]")
+            out.append(f"{indent}p{b} = x[{self.offsets[b]}]")
             if self.two(b):
-                out.append(f"{indent}q{b} = xp[1, {b}]")
+                out.append(f"{indent}q{b} = x[{self.offsets[b] + 1}]")
         return out
 
     def store_lines(self, indent: str) -> list[str]:
         out = []
         for b in range(self.nb):
-            out.append(f"{indent}xp[0, {b}] = p{b}")
+            out.append(f"{indent}x[{self.offsets[b]}] = p{b}")
             if self.two(b):
-                out.append(f"{indent}xp[1, {b}] = q{b}")
+                out.append(f"{indent}x[{self.offsets[b] + 1}] = q{b}")
         return out
 
     def output_expr(self, o: int) -> str:
@@ -211,7 +212,7 @@ from piezo_ff_ros.core._jit import njit
 
 def bank_loop_source(structure: tuple[tuple[int, ...], tuple[bool, ...], tuple[bool, ...]],
                      name: str = "bank_loop") -> str:
-    """Source of a loop with :func:`~.modal.bank2_loop`'s signature and numbers for one bank structure.
+    """Source of a loop with :func:`~.modal.bank2_loop`'s numbers for one bank structure.
 
     Parameters
     ----------
@@ -223,10 +224,12 @@ def bank_loop_source(structure: tuple[tuple[int, ...], tuple[bool, ...], tuple[b
     Returns
     -------
     str
-        Python source defining ``name(W, feeds, D, xp, src, dst, n)`` (``feeds`` unused: the structure says it).
+        Python source defining ``name(W, D, x, src, dst, n)``: ``n`` samples of ``src`` through the bank
+        (coefficient table ``W`` [12, blocks], feedthrough ``D``) into ``dst`` (may be ``src``), the state ``x`` in
+        its public layout (:meth:`~piezo_ff_ros.core.lti.DiscreteModalSS.packed` offsets) carried.
     """
     bk = _Bank(structure)
-    L = ["@njit", f"def {name}(W, feeds, D, xp, src, dst, n):  # pragma: no cover - compiled"]
+    L = ["@njit", f"def {name}(W, D, x, src, dst, n):  # pragma: no cover - compiled"]
     L += bk.load_lines("    ") + bk.d_lines("    ")
     L.append("    for k in range(n):")
     L.append("        u0 = src[k, 0]")
@@ -242,7 +245,7 @@ def bank_loop_source(structure: tuple[tuple[int, ...], tuple[bool, ...], tuple[b
 
 def inverse_loop_source(structure: tuple[tuple[int, ...], tuple[bool, ...], tuple[bool, ...]],
                         name: str = "inverse_loop") -> str:
-    """Source of a loop with :func:`~.modal.inverse2_loop`'s signature and numbers (the creep compensator's
+    """Source of a loop with :func:`~.modal.inverse2_loop`'s numbers (the creep compensator's
     ``Y_H = K⁻¹(Y_L − C x)``, ``x ← A x + B Y_H``) for one bank structure (``D`` in the structure is ``K⁻¹``).
 
     Parameters
@@ -255,10 +258,10 @@ def inverse_loop_source(structure: tuple[tuple[int, ...], tuple[bool, ...], tupl
     Returns
     -------
     str
-        Python source defining ``name(Kinv, W, feeds, xp, src, dst, n)``.
+        Python source defining ``name(Kinv, W, x, src, dst, n)`` (state ``x`` in its public layout).
     """
     bk = _Bank(structure)
-    L = ["@njit", f"def {name}(Kinv, W, feeds, xp, src, dst, n):  # pragma: no cover - compiled"]
+    L = ["@njit", f"def {name}(Kinv, W, x, src, dst, n):  # pragma: no cover - compiled"]
     L += bk.load_lines("    ") + bk.d_lines("    ", "Kinv")
     L.append("    for k in range(n):")
     L.append(f"        c0 = src[k, 0] - {bk.output_expr(0)}")
@@ -312,24 +315,16 @@ def load_generated(source: str, stem: str) -> ModuleType:
         return mod
 
 
-_RUN_IMPORTS = """
-from piezo_ff_ros.core.kernels.modal import gather_2x2, scatter_2x2
-"""
-
 _BANK_RUN = """
 @njit
 def bank_run(W, offsets, sizes, feeds, D, x, u, y):  # pragma: no cover - compiled
-    xp = gather_2x2(offsets, sizes, x)
-    bank_loop(W, feeds, D, xp, u, y, u.shape[0])
-    scatter_2x2(offsets, sizes, xp, x)
+    bank_loop(W, D, x, u, y, u.shape[0])
 """
 
 _INVERSE_RUN = """
 @njit
 def inverse_run(Kinv, W, offsets, sizes, feeds, x, yl, yh):  # pragma: no cover - compiled
-    xp = gather_2x2(offsets, sizes, x)
-    inverse_loop(Kinv, W, feeds, xp, yl, yh, yl.shape[0])
-    scatter_2x2(offsets, sizes, xp, x)
+    inverse_loop(Kinv, W, x, yl, yh, yl.shape[0])
 """
 
 
@@ -367,7 +362,7 @@ def specialised_bank_run(W: np.ndarray, sizes: np.ndarray, D: np.ndarray) -> Cal
     """
     if not enabled():
         return None
-    src = _RUN_IMPORTS + bank_loop_source(bank_structure(W, sizes, D)) + _BANK_RUN
+    src = bank_loop_source(bank_structure(W, sizes, D)) + _BANK_RUN
     fn: Callable[..., None] = load_generated(src, "bank").bank_run
     return fn
 
@@ -388,6 +383,6 @@ def specialised_inverse_run(Kinv: np.ndarray, W: np.ndarray, sizes: np.ndarray) 
     """
     if not enabled():
         return None
-    src = _RUN_IMPORTS + inverse_loop_source(bank_structure(W, sizes, Kinv)) + _INVERSE_RUN
+    src = inverse_loop_source(bank_structure(W, sizes, Kinv)) + _INVERSE_RUN
     fn: Callable[..., None] = load_generated(src, "inverse").inverse_run
     return fn
