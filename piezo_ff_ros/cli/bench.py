@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -33,7 +34,7 @@ __all__ = ["add_parser", "run", "run_benchmark", "main", "format_report"]
 # CLI
 # ----------------------------------------------------------------------------------------------------------------
 
-def add_parser(subparsers) -> argparse.ArgumentParser:
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "bench", help="throughput of the core stages and the full chain vs naive baselines",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -57,7 +58,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     _check_args(args)
     res = run_benchmark(duration=args.duration, repeats=args.repeats, block=args.block,
                         small_block=args.small_block, baseline_duration=args.baseline_duration,
@@ -71,7 +72,7 @@ def run(args) -> int:
     return 0
 
 
-def _check_args(args) -> None:
+def _check_args(args: argparse.Namespace) -> None:
     if not np.isfinite(args.duration) or args.duration <= 0:
         raise ValueError("--duration must be a positive number of seconds")
     if args.repeats < 1:
@@ -84,7 +85,7 @@ def _check_args(args) -> None:
         raise ValueError("--baseline-duration must be a positive number of seconds")
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``bench/bench_core.py`` (same options as ``piezo-ff bench``)."""
     parser = argparse.ArgumentParser(prog="bench_core.py")
     sub = parser.add_subparsers(dest="command")
@@ -101,16 +102,16 @@ def main(argv=None) -> int:
 # report
 # ----------------------------------------------------------------------------------------------------------------
 
-def _fmt_x(x, width=8):
+def _fmt_x(x: float, width: int = 8) -> str:
     """A factor: whole numbers when large, two decimals when small."""
     return f"{x:{width}.0f}" if x >= 10 else f"{x:{width}.2f}"
 
 
-def _fmt_rate(r):
+def _fmt_rate(r: float) -> str:
     return f"{r / 1e6:8.2f} M" if r >= 1e5 else f"{r / 1e3:8.1f} k"
 
 
-def format_report(res: dict) -> str:
+def format_report(res: dict[str, Any]) -> str:
     fs = res["sample_rate"]
     m = res["machine"]
     lines = [

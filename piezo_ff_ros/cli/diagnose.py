@@ -12,14 +12,19 @@ report or JSON directory), to play with the trajectory node while the compensato
 """
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Mapping
+
+if TYPE_CHECKING:
+    from ..core.recording.run import RunData
 
 __all__ = ["add_parser", "run"]
 
 
-def add_parser(subparsers):
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "diagnose", help="diagnose the sim-to-real gap of a model against measured runs",
         description="Replay the measured voltages through the model, localise the residual, fit a library of "
@@ -44,7 +49,7 @@ def add_parser(subparsers):
     return p
 
 
-def _load_inputs(args):
+def _load_inputs(args: argparse.Namespace) -> tuple[RunData, RunData]:
     from ..core.recording.run import load_run
 
     if args.data and (args.train or args.test):
@@ -59,7 +64,7 @@ def _load_inputs(args):
     return load_run(args.train), load_run(args.test)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.config import load_config
     from ..core.diagnosis import DiagnosisOptions, diagnose, json_ready
     from ..core.diagnosis.report import tracking_comparison, write_apply, write_report
@@ -125,7 +130,7 @@ def run(args) -> int:
     return 0
 
 
-def _write_proposal(res: dict, args) -> str:
+def _write_proposal(res: Mapping[str, Any], args: argparse.Namespace) -> str:
     """Write the discrimination trajectory when the verdict is ambiguous; returns the line to print ('' if none)."""
     import yaml
 

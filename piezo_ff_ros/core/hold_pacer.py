@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = ["HoldPacer"]
 
@@ -82,7 +83,7 @@ class HoldPacer:
         self.block_size = _positive_int(n, "block_size")
         self._start = None
 
-    def set_point(self, point) -> None:
+    def set_point(self, point: ArrayLike) -> None:
         """Hold ``point`` (one value per axis, finite) from now on."""
         p = np.array(point, float).ravel()
         if p.size == 0 or not np.all(np.isfinite(p)):

@@ -22,6 +22,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .kernels.limits import limit_run
 from .config import LimitsConfig
@@ -44,7 +45,8 @@ class GuardCounters:
     rejected_blocks: int = 0        #: NaN/Inf, wrong shape, oversized
     safe_ramps: int = 0             #: ramps to the safe state (stale input)
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, int]:
+        """The counters as a plain mapping."""
         return dict(self.__dict__)
 
 
@@ -60,6 +62,7 @@ class SafeRampConfig:
     slew: float = 1.0e4      #: maximum ramp slew [V/s] (applied together with the operating limit)
 
     def validate(self, prefix: str = "safe_ramp") -> "SafeRampConfig":
+        """Check the fields (``ConfigError`` naming ``prefix.<field>``); returns self."""
         from .config import ConfigError
 
         if not (isinstance(self.duration, (int, float)) and math.isfinite(self.duration) and 0 <= self.duration <= 60):
@@ -69,7 +72,7 @@ class SafeRampConfig:
         return self
 
 
-def safe_ramp(u_from, safe_voltage: float, sample_rate: float, ramp: SafeRampConfig,
+def safe_ramp(u_from: ArrayLike, safe_voltage: float, sample_rate: float, ramp: SafeRampConfig,
               operating_slew: float = math.inf) -> np.ndarray:
     """Samples ``[n, axes]`` from ``u_from`` (exclusive) to ``safe_voltage`` (the last row, exactly).
 
@@ -87,7 +90,8 @@ def safe_ramp(u_from, safe_voltage: float, sample_rate: float, ramp: SafeRampCon
     return out
 
 
-def slew_limit(target, u_prev, step: float, out=None, limit: float = math.inf) -> tuple[np.ndarray, int]:
+def slew_limit(target: ArrayLike, u_prev: np.ndarray, step: float, out: np.ndarray | None = None,
+               limit: float = math.inf) -> tuple[np.ndarray, int]:
     """Rate-limit ``target [N, axes]`` to at most ``step`` volts per sample starting from ``u_prev`` (updated in
     place to the last output sample), after clamping to ``±limit``; return ``(limited, samples where an axis was
     held back by the rate)``.  The rule is :func:`~piezo_ff_ros.core.kernels.limits.limit_step`, shared with the
@@ -96,7 +100,8 @@ def slew_limit(target, u_prev, step: float, out=None, limit: float = math.inf) -
     return out, n_slewed
 
 
-def limit_block(target, u_prev, step: float, limit: float = math.inf, out=None) -> tuple[np.ndarray, int, int]:
+def limit_block(target: ArrayLike, u_prev: np.ndarray, step: float, limit: float = math.inf,
+                out: np.ndarray | None = None) -> tuple[np.ndarray, int, int]:
     """Clamp to ``±limit`` then rate-limit to ``step`` per sample from ``u_prev`` (updated in place); return
     ``(limited, samples with an axis clamped, samples with an axis held back by the rate)``."""
     target = np.ascontiguousarray(target, dtype=float)
@@ -135,7 +140,7 @@ class VoltageGuard:
         self.u_last[:] = self.limits.safe_voltage
         self.counters = GuardCounters()
 
-    def check(self, block) -> np.ndarray:
+    def check(self, block: ArrayLike) -> np.ndarray:
         """Return the block as a float ``[N, axes]`` array or raise :class:`BlockRejected` (counted)."""
         try:
             u = np.asarray(block, dtype=float)
@@ -157,7 +162,7 @@ class VoltageGuard:
             raise BlockRejected(reason)
         return u
 
-    def apply(self, block) -> np.ndarray:
+    def apply(self, block: ArrayLike) -> np.ndarray:
         """Validated, clamped and slew-limited copy of ``block`` (what may be applied); updates the state."""
         u = self.check(block)
         out, n_clamped, n_limited = limit_block(u, self.u_last, self.step, self.limits.voltage)
@@ -173,6 +178,7 @@ class VoltageGuard:
 
     @property
     def at_safe(self) -> bool:
+        """True when the last applied voltage is the safe voltage on every axis."""
         return bool(np.all(self.u_last == self.limits.safe_voltage))
 
     def ramp_to_safe(self, ramp: SafeRampConfig | None = None) -> np.ndarray:

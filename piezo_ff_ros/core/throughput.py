@@ -18,14 +18,24 @@ import os
 import platform
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 import numpy as np
+
+if TYPE_CHECKING:   # annotations only: run_benchmark times the imports of the core itself
+    from .compensators.cascade import CompensatorCascade
+    from .config import PiezoConfig
 
 __all__ = ["run_benchmark"]
 
 _BUFFER_S = 10.0          # length of the replayed input (every tone is periodic in it)
 _TONES_HZ = (0.1, 1.0, 13.0)
+
+
+class _Proc(Protocol):
+    """Anything streamed by the benchmark: ``process(block) -> block``."""
+
+    def process(self, x: np.ndarray, /) -> np.ndarray: ...
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -36,12 +46,12 @@ class _NaiveBoucWen:
     """``h ← h + A dU − B(|dÛ|∘h) − Γ(dÛ∘|h|) − Δ1(dÛ∘h) − Δ2(|dÛ|∘|h|)``, ``Y = Dp U − h``, sample by
     sample."""
 
-    def __init__(self, p):
+    def __init__(self, p: dict[str, np.ndarray]) -> None:
         self.p = p
         self.h = np.zeros(p["Dp"].shape[0])
-        self.u_prev = None
+        self.u_prev: np.ndarray | None = None
 
-    def process(self, u):
+    def process(self, u: np.ndarray) -> np.ndarray:
         p = self.p
         y = np.empty((len(u), p["Dp"].shape[0]))
         for k in range(len(u)):
@@ -61,17 +71,17 @@ class _NaiveBoucWen:
 class _NaiveHysteresisCompensator:
     """``U = Dp⁻¹(Y_H + h)`` solved exactly per sample (sign pattern by sign pattern, ``np.linalg.solve``)."""
 
-    def __init__(self, p, exact=True):
+    def __init__(self, p: dict[str, np.ndarray], exact: bool = True) -> None:
         self.p = p
         self.exact = exact
         self.Dp_pinv = np.linalg.pinv(p["Dp"])
         n = p["Dp"].shape[0]
         self.h = np.zeros(n)
-        self.u_prev = None
+        self.u_prev: np.ndarray | None = None
         self.signs = np.ones(n)
         self.patterns = [np.array([1.0 if (q >> i) & 1 else -1.0 for i in range(n)]) for q in range(1 << n)]
 
-    def process(self, yh):
+    def process(self, yh: np.ndarray) -> np.ndarray:
         p = self.p
         u = np.empty((len(yh), p["Dp"].shape[1]))
         for k in range(len(yh)):
@@ -106,13 +116,13 @@ class _NaiveHysteresisCompensator:
 class _NaiveLTI:
     """Dense ``y = C x + D u; x ← A x + B u`` per sample."""
 
-    def __init__(self, dsys, feedthrough=None):
+    def __init__(self, dsys: Any, feedthrough: np.ndarray | None = None) -> None:
         self.A, self.B, self.C, self.D = (np.asarray(m, float) for m in (dsys.A, dsys.B, dsys.C, dsys.D))
         if feedthrough is not None:
             self.D = self.D + feedthrough
         self.x = np.zeros(self.A.shape[0])
 
-    def process(self, u):
+    def process(self, u: np.ndarray) -> np.ndarray:
         y = np.empty((len(u), self.C.shape[0]))
         for k in range(len(u)):
             y[k] = self.C @ self.x + self.D @ u[k]
@@ -123,12 +133,12 @@ class _NaiveLTI:
 class _NaiveCreepCompensator:
     """``Y_H = K⁻¹(Y_L − Cr x)``, ``x ← A x + B Y_H`` per sample."""
 
-    def __init__(self, dsys, K):
+    def __init__(self, dsys: Any, K: np.ndarray) -> None:
         self.A, self.B, self.C = (np.asarray(m, float) for m in (dsys.A, dsys.B, dsys.C))
         self.Kinv = np.linalg.inv(K)
         self.x = np.zeros(self.A.shape[0])
 
-    def process(self, yl):
+    def process(self, yl: np.ndarray) -> np.ndarray:
         yh = np.empty_like(yl)
         for k in range(len(yl)):
             yh[k] = self.Kinv @ (yl[k] - self.C @ self.x)
@@ -139,7 +149,7 @@ class _NaiveCreepCompensator:
 class _ForcedResponse:
     """python-control's ``forced_response`` on a discrete system, state carried between calls."""
 
-    def __init__(self, dsys, feedthrough=None):
+    def __init__(self, dsys: Any, feedthrough: np.ndarray | None = None) -> None:
         import control
 
         self.control = control
@@ -147,24 +157,25 @@ class _ForcedResponse:
         self.sys = control.ss(dsys.A, dsys.B, dsys.C, D, dsys.dt)
         self.x = np.zeros(self.sys.nstates)
 
-    def process(self, u):
+    def process(self, u: np.ndarray) -> np.ndarray:
         n = len(u)
         T = np.arange(n) * self.sys.dt
         r = self.control.forced_response(self.sys, T=T, U=u.T, X0=self.x, return_x=True)
         # state after the last sample (forced_response returns x up to the last input's time)
         self.x = self.sys.A @ r.states[:, -1] + self.sys.B @ u[-1]
-        return np.atleast_2d(r.outputs).T
+        y: np.ndarray = np.atleast_2d(r.outputs).T
+        return y
 
 
 class _Series:
-    def __init__(self, *stages):
+    def __init__(self, *stages: Any) -> None:
         self.stages = stages
 
-    def reset(self):
+    def reset(self) -> None:
         for s in self.stages:
             s.reset()
 
-    def process(self, x):
+    def process(self, x: np.ndarray) -> np.ndarray:
         for s in self.stages:
             x = s.process(x)
         return x
@@ -178,14 +189,14 @@ class _Series:
 class _Stage:
     name: str
     label: str
-    make: Any                 # () -> streaming stage (compiled core)
-    kind: str                 # 'voltage' or 'length' input
-    naive: Any = None         # () -> per-sample Python loop stage
-    forced: Any = None        # () -> forced_response variant (linear parts), or None
-    notes: list = field(default_factory=list)
+    make: Callable[[], _Proc]                     # () -> streaming stage (compiled core)
+    kind: str                                     # 'voltage' or 'length' input
+    naive: Callable[[], _Proc] | None = None      # () -> per-sample Python loop stage
+    forced: Callable[[], _Proc] | None = None     # () -> forced_response variant (linear parts), or None
+    notes: list[str] = field(default_factory=list)
 
 
-def _signals(cfg, fs):
+def _signals(cfg: PiezoConfig, fs: float) -> dict[str, np.ndarray]:
     n = int(round(_BUFFER_S * fs))
     t = np.arange(n) / fs
     base = np.column_stack([
@@ -196,10 +207,11 @@ def _signals(cfg, fs):
     return {"voltage": np.ascontiguousarray(160.0 * base), "length": np.ascontiguousarray(15e-6 * base)}
 
 
-def _blocks(buf, block):
+def _blocks(buf: np.ndarray, block: int) -> list[np.ndarray]:
     """Views of ``buf`` cut in blocks of ``block`` samples, wrapping around (the buffer is periodic)."""
     n = len(buf)
-    out, k = [], 0
+    out: list[np.ndarray] = []
+    k = 0
     while True:
         if k + block <= n:
             out.append(buf[k:k + block])
@@ -210,7 +222,7 @@ def _blocks(buf, block):
             return out
 
 
-def _stream(stage, blocks, n_blocks):
+def _stream(stage: _Proc, blocks: list[np.ndarray], n_blocks: int) -> tuple[float, float]:
     w0, c0 = time.perf_counter(), time.process_time()
     nb = len(blocks)
     for i in range(n_blocks):
@@ -218,10 +230,12 @@ def _stream(stage, blocks, n_blocks):
     return time.perf_counter() - w0, time.process_time() - c0
 
 
-def _timed_stream(make, buf, block, n_total, repeats):
+def _timed_stream(make: Callable[[], _Proc], buf: np.ndarray, block: int, n_total: int,
+                  repeats: int) -> tuple[int, list[float], list[float]]:
     blocks = _blocks(buf, block)
     n_blocks = max(1, int(round(n_total / block)))
-    walls, cpus = [], []
+    walls: list[float] = []
+    cpus: list[float] = []
     for _ in range(repeats):
         stage = make()
         w, c = _stream(stage, blocks, n_blocks)
@@ -230,18 +244,18 @@ def _timed_stream(make, buf, block, n_total, repeats):
     return n_blocks * block, walls, cpus
 
 
-def _rate(n, seconds):
+def _rate(n: float, seconds: float) -> float:
     return n / seconds if seconds > 0 else float("inf")
 
 
-def _machine():
+def _machine() -> dict[str, Any]:
     import scipy
 
     import control
 
     try:
         import numba
-        numba_version = numba.__version__
+        numba_version: str | None = numba.__version__
     except ImportError:  # the core still runs (pure-Python fallback), only slowly
         numba_version = None
 
@@ -255,7 +269,7 @@ def _machine():
     except OSError:
         pass
     try:
-        load = list(os.getloadavg())
+        load: list[float] | None = list(os.getloadavg())
     except OSError:
         load = None
     return {"cpu": cpu, "cpu_count": os.cpu_count(), "python": platform.python_version(),
@@ -263,7 +277,7 @@ def _machine():
             "control": control.__version__, "platform": platform.platform(), "loadavg_1_5_15": load}
 
 
-def _kernels():
+def _kernels() -> dict[str, Any]:
     """The compiled kernels of the core chain (numba dispatchers, or plain functions without numba)."""
     from .kernels import bouc_wen, modal, specialise
 
@@ -276,7 +290,7 @@ def _kernels():
     return out
 
 
-def _jit_stats():
+def _jit_stats() -> dict[str, dict[str, int]]:
     out = {}
     for name, k in _kernels().items():
         st = getattr(k, "stats", None)
@@ -287,11 +301,11 @@ def _jit_stats():
     return out
 
 
-def _controller(cfg, hinf, echo):
+def _controller(cfg: PiezoConfig, hinf: bool, echo: bool) -> tuple[Any, dict[str, Any]]:
     """The H∞ controller (synthesised and reduced, timed) or, when that is unavailable, a labelled stand-in."""
     import control
 
-    info = {"hinf_synthesis_s": None, "hinf_wall_s": None, "controller": None, "controller_order": None,
+    info: dict[str, Any] = {"hinf_synthesis_s": None, "hinf_wall_s": None, "controller": None, "controller_order": None,
             "note": None}
     design = None
     if hinf:
@@ -327,8 +341,9 @@ def _controller(cfg, hinf, echo):
     return stand_in, info
 
 
-def run_benchmark(duration=600.0, repeats=3, block=20000, small_block=200, baseline_duration=0.5, config=None,
-                  variant=None, hinf=True, echo=False) -> dict:
+def run_benchmark(duration: float = 600.0, repeats: int = 3, block: int = 20000, small_block: int = 200,
+                  baseline_duration: float = 0.5, config: str | None = None, variant: str | None = None,
+                  hinf: bool = True, echo: bool = False) -> dict[str, Any]:
     """Run every stage; return the figures (the JSON written by ``piezo-ff bench --json``)."""
     t_import = time.perf_counter()
     import control
@@ -363,20 +378,20 @@ def run_benchmark(duration=600.0, repeats=3, block=20000, small_block=200, basel
     Kinv = np.linalg.inv(K)
     ci_d = control.ss(cr_d.A - cr_d.B @ Kinv @ cr_d.C, cr_d.B @ Kinv, -Kinv @ cr_d.C, Kinv, dt)
 
-    def naive_cascade():
+    def naive_cascade() -> _Series:
         return _Series(_NaiveLTI(k_d), _NaiveCreepCompensator(cr_d, K),
                        _NaiveHysteresisCompensator(hp, loop == "exact"))
 
-    def naive_plant():
+    def naive_plant() -> _Series:
         return _Series(_NaiveBoucWen(hp), _NaiveLTI(cr_d, feedthrough=K), _NaiveLTI(gl_d))
 
-    def forced_cascade():
+    def forced_cascade() -> _Series:
         return _Series(_ForcedResponse(k_d), _ForcedResponse(ci_d), _NaiveHysteresisCompensator(hp, loop == "exact"))
 
-    def forced_plant():
+    def forced_plant() -> _Series:
         return _Series(_NaiveBoucWen(hp), _ForcedResponse(cr_d, feedthrough=K), _ForcedResponse(gl_d))
 
-    def cascade():
+    def cascade() -> CompensatorCascade:
         return CompensatorCascade(cfg, controller=ck)
 
     stages = [
@@ -409,7 +424,7 @@ def run_benchmark(duration=600.0, repeats=3, block=20000, small_block=200, basel
     jit_before = _jit_stats()
 
     # first calls: numba cache load (or compile), separately from the steady state
-    first_call = {}
+    first_call: dict[str, float] = {}
     for st in stages:
         x = sig[st.kind][:8]
         t0 = time.perf_counter()
@@ -417,7 +432,7 @@ def run_benchmark(duration=600.0, repeats=3, block=20000, small_block=200, basel
         first_call[st.name] = time.perf_counter() - t0
     jit_after = _jit_stats()
 
-    results = {}
+    results: dict[str, dict[str, Any]] = {}
     for st in stages:
         if echo:
             print(f"  {st.label} …", flush=True)
@@ -426,7 +441,7 @@ def run_benchmark(duration=600.0, repeats=3, block=20000, small_block=200, basel
         setup_s = time.perf_counter() - t0
         n, walls, cpus = _timed_stream(st.make, sig[st.kind], block, n_total, repeats)
         best = min(walls)
-        r = {"label": st.label, "samples": n, "block": block, "repeats": repeats, "setup_s": setup_s,
+        r: dict[str, Any] = {"label": st.label, "samples": n, "block": block, "repeats": repeats, "setup_s": setup_s,
              "first_call_s": first_call[st.name],
              "wall_s": walls, "cpu_s": cpus, "samples_per_s": _rate(n, best), "rt_factor": _rate(n, best) / fs,
              "cpu_rt_factor": _rate(n, min(cpus)) / fs}

@@ -12,7 +12,7 @@ from __future__ import annotations
 import ctypes
 import os
 from contextlib import contextmanager
-from typing import Iterator
+from typing import Any, Iterator
 
 __all__ = ["single_threaded_blas"]
 
@@ -22,9 +22,9 @@ _GETTERS = ("scipy_openblas_get_num_threads64_", "scipy_openblas_get_num_threads
             "openblas_get_num_threads")
 
 
-def _loaded_openblas() -> list:
+def _loaded_openblas() -> list[tuple[Any, Any]]:
     """(set, get) function pairs of every OpenBLAS mapped into this process (Linux: from /proc/self/maps)."""
-    out = []
+    out: list[tuple[Any, Any]] = []
     try:
         with open("/proc/self/maps") as fh:
             paths = sorted({line.split()[-1] for line in fh if "openblas" in line.lower() and ".so" in line})

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy import optimize
@@ -33,16 +33,17 @@ class FitContext:
     """What every fit needs: the model, the base effects, the training data and the base model's output."""
 
     cfg: PiezoConfig
-    base: list
+    base: list[Any]
     u: np.ndarray                 # training voltages [N, k]
     y: np.ndarray                 # measured displacements [N, n]
     y_base: np.ndarray            # base model output on the whole run [N, n]
     windows: Windows              # where voltage-side fits simulate
-    target: np.ndarray = None     # y on the windows, corrected for the windows' truncated history
-    y_base_win: np.ndarray = None
-    cache: dict = field(default_factory=dict)  # shared between the candidates fitted on this context
+    # y on the windows, corrected for the windows' truncated history
+    target: np.ndarray = None     # type: ignore[assignment]  # always set by __post_init__
+    y_base_win: np.ndarray = None  # type: ignore[assignment]  # always set by __post_init__
+    cache: dict[Any, Any] = field(default_factory=dict)  # shared between the candidates fitted on this context
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.windows.is_whole:
             self.target = self.y
             self.y_base_win = self.y_base
@@ -53,22 +54,26 @@ class FitContext:
 
     @property
     def dt(self) -> float:
+        """Sample period [s]."""
         return self.cfg.dt
 
-    def sim_residual(self, extra: Sequence) -> np.ndarray:
+    def sim_residual(self, extra: Sequence[Any]) -> np.ndarray:
+        """Residual on the windows of the base model plus ``extra`` effects, ``[(name, params)]``."""
         return residual(self.target, simulate(self.cfg, self.u, list(self.base) + list(extra), self.windows))
 
 
 @dataclass
 class FitResult:
+    """One candidate's fit: parameters, their standard errors, the effects to append and the training RMS."""
+
     effect: str
-    params: dict
-    stderr: dict
-    effects: list                 # [(name, params)] to append to the base model
+    params: dict[str, Any]
+    stderr: dict[str, Any]
+    effects: list[Any]            # [(name, params)] to append to the base model
     n_params: int
     train_rms: float              # RMS residual on the fitted samples [m]
     note: str = ""
-    extra: dict = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
 
 
 def n_eff_ratio(r: np.ndarray) -> float:
@@ -103,7 +108,7 @@ def _stride(n: int) -> int:
     return max(1, -(-n // MAX_REGRESSION_ROWS))
 
 
-def _rms(r) -> float:
+def _rms(r: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.asarray(r) ** 2)))
 
 
@@ -111,7 +116,7 @@ def _rms(r) -> float:
 # Displacement-side effects: regression on the base model's output
 # ----------------------------------------------------------------------------------------------------------------
 
-def _lin_per_axis(y: np.ndarray, regs: list[np.ndarray]):
+def _lin_per_axis(y: np.ndarray, regs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per axis i: least squares ``y_i − mean ≈ Σ_k c_ki·(reg_k,i − mean)``; returns coeffs [K, n], residual, std."""
     n = y.shape[1]
     K = len(regs)
@@ -169,7 +174,7 @@ def _creep_bank2(y: np.ndarray, a: np.ndarray, yref: float, S1: np.ndarray,
             S2[t, j] = acc2
 
 
-def _creep_regs(y_base: np.ndarray, dt: float, beta: float | None = None):
+def _creep_regs(y_base: np.ndarray, dt: float, beta: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The creep candidate's two regressors: the log-time relaxation bank of :class:`~..models.effects.
     CreepNonlinearity` applied to Ŷ and to Ŷ|Ŷ|/Y_ref (what ``CreepNonlinearity(γ=1, β=0)`` adds to its input)."""
     y = np.ascontiguousarray(y_base, dtype=float)
@@ -218,7 +223,7 @@ def fit_thermal_drift(ctx: FitContext) -> FitResult:
     rc = r0 - r0.mean(axis=0)
     ss_r = float(np.sum(rc ** 2))
 
-    def sse(log_tau):
+    def sse(log_tau: float) -> float:
         # one regressor shared by the axes: the least-squares residual energy in closed form
         shape = -np.expm1(-tk / math.exp(log_tau))
         shape -= shape.mean()
@@ -252,7 +257,7 @@ def fit_thermal_drift(ctx: FitContext) -> FitResult:
                      [("thermal_drift", params)], n + 1, _rms(res))
 
 
-def _mode_design(y_base, freq, damping, dt, windows: Windows | None):
+def _mode_design(y_base: np.ndarray, freq: float, damping: float, dt: float, windows: Windows | None) -> np.ndarray:
     n = y_base.shape[1]
     st = fx.UnmodelledMode(freq, damping, np.zeros(n), dt, n)
     if windows is None or windows.is_whole:
@@ -273,7 +278,7 @@ MODE_FMIN = 20.0
 MODE_ZMAX = 0.5
 
 
-def _hp_design(y_base, freq, damping, dt, windows: Windows | None):
+def _hp_design(y_base: np.ndarray, freq: float, damping: float, dt: float, windows: Windows | None) -> np.ndarray:
     n = y_base.shape[1]
     st = fx.UnmodelledMode(freq, damping, np.zeros(n), dt, n)
     if windows is None or windows.is_whole:
@@ -285,7 +290,7 @@ def _hp_design(y_base, freq, damping, dt, windows: Windows | None):
     return np.concatenate(outs)
 
 
-def _level_design(y_base, dt, windows: Windows | None):
+def _level_design(y_base: np.ndarray, dt: float, windows: Windows | None) -> np.ndarray:
     n = y_base.shape[1]
     st = fx.AmplitudeDependentDynamics(10.0, 0.1, np.zeros(n), np.zeros(n), dt, n)
     if windows is None or windows.is_whole:
@@ -349,7 +354,7 @@ def _bp_hp_design(y: np.ndarray, spans: np.ndarray, k: int, freq: float, damping
     return BH
 
 
-def _solve_normal(A: np.ndarray, B: np.ndarray, X_of, T: np.ndarray) -> np.ndarray:
+def _solve_normal(A: np.ndarray, B: np.ndarray, X_of: Callable[[], np.ndarray], T: np.ndarray) -> np.ndarray:
     """Solution of the normal equations ``A C = B`` (``A = XᵀX``, ``B = XᵀT``), column-scaled; when they are
     ill-conditioned, the minimum-norm least-squares solution of ``X C ≈ T`` (``X_of()`` builds X)."""
     d = np.sqrt(np.maximum(np.diag(A), 1e-300))
@@ -362,8 +367,10 @@ def _solve_normal(A: np.ndarray, B: np.ndarray, X_of, T: np.ndarray) -> np.ndarr
         X = X_of()
         dx = np.sqrt(np.einsum("ij,ij->j", X, X))
         dx[dx == 0] = 1.0
-        return np.linalg.lstsq(X / dx, T, rcond=None)[0] / dx[:, None]
-    return C / d[:, None]
+        C_ls: np.ndarray = np.linalg.lstsq(X / dx, T, rcond=None)[0] / dx[:, None]
+        return C_ls
+    out: np.ndarray = C / d[:, None]
+    return out
 
 
 def _explained(X: np.ndarray, T: np.ndarray) -> float:
@@ -383,6 +390,10 @@ def _explained(X: np.ndarray, T: np.ndarray) -> float:
     return float(np.sum(Bs * C))
 
 
+#: a resonance ``(frequency [Hz], damping ratio)``
+Mode = tuple[float, float]
+
+
 class _ModeSearch:
     """Greedy search of resonances in the training residual: each mode adds band-pass regressors of the base
     output; ``kind='cross'``: output i regresses on BP(Ŷ_j) of every axis j (cross-coupled gains);
@@ -395,15 +406,15 @@ class _ModeSearch:
         self.k = max(1, -(-len(r0) // 60_000))  # rows kept in the regressions (the filters run on every sample)
         self.r0 = r0[::self.k] - r0[::self.k].mean(axis=0)
         self.n = ctx.cfg.n_axes
-        self.lev = _level_design(ctx.y_base, ctx.dt, win)[::self.k] if kind == "level" else None
+        self.lev: np.ndarray | None = _level_design(ctx.y_base, ctx.dt, win)[::self.k] if kind == "level" else None
         self.unit = max(_rms(self.r0), 1e-15)
-        self._regs_cache: dict = {}
+        self._regs_cache: dict[tuple[float, float], list[np.ndarray]] = {}
         self.y_base_c = np.ascontiguousarray(ctx.y_base, dtype=float)
         self.spans = np.array([(0, 0, len(ctx.y_base))] if win.is_whole else win.spans, dtype=np.int64)
-        self.cube = (np.ascontiguousarray(self.y_base_c * (self.y_base_c / fx.LEVEL_REF) ** 2)
+        self.cube: np.ndarray | None = (np.ascontiguousarray(self.y_base_c * (self.y_base_c / fx.LEVEL_REF) ** 2)
                      if kind == "level" else None)
-        self._gram_cache: dict = {}
-        self._xtr_cache: dict = {}
+        self._gram_cache: dict[tuple[Mode, Mode, int], np.ndarray] = {}
+        self._xtr_cache: dict[tuple[Mode, int], np.ndarray] = {}
 
     def _grid_regs(self, f: float, z: float) -> list[np.ndarray]:
         """:meth:`regs` without filling the cache (the coarse grid visits each pole pair once per mode)."""
@@ -430,6 +441,7 @@ class _ModeSearch:
         if self.kind == "cross":
             out = [BH] * self.n
         else:
+            assert self.cube is not None and self.lev is not None   # kind "level"
             out = []
             CH = _bp_hp_design(self.cube, self.spans, self.k, f, z, self.ctx.dt)
             CH -= np.full(len(CH), 1.0 / len(CH)) @ CH
@@ -439,7 +451,7 @@ class _ModeSearch:
                 out.append(np.column_stack([B, Hp, LB - LB.mean(), LH - LH.mean(), CH[:, i], CH[:, self.n + i]]))
         return out
 
-    def _gram(self, a: tuple, b: tuple, i: int) -> np.ndarray:
+    def _gram(self, a: Mode, b: Mode, i: int) -> np.ndarray:
         """``X_aᵀ X_b`` of output i's designs of pole pairs a and b (cached: the earlier modes recur)."""
         key = (a, b, i if self.kind != "cross" else 0)
         G = self._gram_cache.get(key)
@@ -450,7 +462,7 @@ class _ModeSearch:
             self._gram_cache[key] = G
         return G
 
-    def solve(self, modes: list) -> tuple[list, np.ndarray]:
+    def solve(self, modes: list[Mode]) -> tuple[list[np.ndarray], np.ndarray]:
         """Joint least squares of all modes' gains per output: (coefficients per output, residual).
 
         Normal equations assembled from cached blocks ``X_aᵀX_b`` and ``X_aᵀr`` (column-scaled, with a
@@ -459,7 +471,7 @@ class _ModeSearch:
         keys = [(float(f), float(z)) for f, z in modes]
         R = [self.regs(*k) for k in keys]
         res = np.empty_like(self.r0)
-        coefs = []
+        coefs: list[np.ndarray] = []
         outs = [0] if self.kind == "cross" else range(self.n)
         for i in outs:
             A = np.block([[self._gram(a, b, i) for b in keys] for a in keys])
@@ -480,7 +492,7 @@ class _ModeSearch:
                 coefs.append(C[:, 0])
         return coefs, res
 
-    def _xtr(self, key: tuple, i: int) -> np.ndarray:
+    def _xtr(self, key: Mode, i: int) -> np.ndarray:
         """``X_keyᵀ r0`` (all outputs' columns) of output i's design (cached)."""
         ck = (key, i if self.kind != "cross" else 0)
         v = self._xtr_cache.get(ck)
@@ -491,14 +503,17 @@ class _ModeSearch:
             self._xtr_cache[ck] = v
         return v
 
-    def run(self, fmin: float, fmax: float) -> tuple[list, list, np.ndarray]:
-        modes: list = []
-        coefs, res = [], self.r0.copy()
+    def run(self, fmin: float, fmax: float) -> tuple[list[Mode], list[np.ndarray], np.ndarray]:
+        """Add modes greedily between ``fmin`` and ``fmax`` [Hz]: ``(modes (f, ζ), coefficients per output,
+        residual)``."""
+        modes: list[Mode] = []
+        coefs: list[np.ndarray] = []
+        res = self.r0.copy()
         sse = float(np.sum(res ** 2))
         freqs = np.geomspace(fmin, fmax, 40)
         g = max(1, len(res) // 40_000)  # the coarse grid scores on fewer rows
         for _ in range(MAX_MODES):
-            best = (0.0, None)
+            best: tuple[float, Mode | None] = (0.0, None)
             for f in freqs:
                 for z in (0.01, 0.05, 0.2):
                     R = self._grid_regs(f, z)
@@ -514,7 +529,7 @@ class _ModeSearch:
                 break
             f0, z0 = best[1]
 
-            def resid(theta, modes=modes):
+            def resid(theta: np.ndarray, modes: list[Mode] = modes) -> np.ndarray:
                 _, rr = self.solve(modes + [(math.exp(theta[0]), math.exp(theta[1]))])
                 return rr.reshape(-1) / self.unit
 
@@ -593,14 +608,14 @@ def fit_amplitude_dependent_dynamics(ctx: FitContext) -> FitResult:
 # Voltage-side and hysteresis effects: the model re-run per trial
 # ----------------------------------------------------------------------------------------------------------------
 
-def _fit_scalar(ctx: FitContext, name: str, pname: str, make: Callable[[float], dict], grid: np.ndarray,
+def _fit_scalar(ctx: FitContext, name: str, pname: str, make: Callable[[float], dict[str, Any]], grid: np.ndarray,
                 to_value: Callable[[float], float], dvalue: Callable[[float], float],
                 fine: Callable[[float], np.ndarray] | None = None) -> FitResult:
     """Grid over a transformed parameter ``z``, optionally a finer grid ``fine(best)`` around the best point (for
     costs that are not unimodal between grid points), then a bounded refinement around the best point."""
-    cache = {}
+    cache: dict[float, tuple[float, np.ndarray]] = {}
 
-    def sse(z):
+    def sse(z: float) -> float:
         z = float(z)
         if z not in cache:
             r = ctx.sim_residual([(name, make(z))])
@@ -643,7 +658,7 @@ def fit_input_delay(ctx: FitContext) -> FitResult:
     grid = np.unique(np.r_[0.0, np.geomspace(0.25 * ctx.dt, dmax, 11), max(d0, 0.0)])
     dt = ctx.dt
 
-    def fine(best):
+    def fine(best: float) -> np.ndarray:
         # linear interpolation makes the cost wiggle between whole samples: quarter-sample steps around the best
         return np.clip(best + dt * np.arange(-3.0, 3.01, 0.25), 0.0, None)
 
@@ -677,9 +692,9 @@ def fit_amplifier_saturation(ctx: FitContext) -> FitResult:
     top, bot = float(np.max(ctx.u)), float(-np.min(ctx.u))
     if L >= min(top, bot):  # one rail is never reached: nothing to tell the rails apart
         return sym
-    cache = {}
+    cache: dict[tuple[float, float], tuple[float, np.ndarray]] = {}
 
-    def sse(up, down):
+    def sse(up: float, down: float) -> float:
         key = (round(up, 9), round(down, 9))
         if key not in cache:
             r = ctx.sim_residual([("amplifier_saturation", {"limit": up, "lower_limit": down})])
@@ -690,7 +705,7 @@ def fit_amplifier_saturation(ctx: FitContext) -> FitResult:
     for _ in range(2):  # coordinate descent, each rail between lo and just above the largest voltage of its sign
         for which in ("up", "down"):
             hi = (top if which == "up" else bot) * 1.01
-            f = (lambda z: sse(z, down)) if which == "up" else (lambda z: sse(up, z))
+            f: Callable[[float], float] = (lambda z: sse(z, down)) if which == "up" else (lambda z: sse(up, z))
             sol = optimize.minimize_scalar(f, bounds=(max(lo, 1e-3 * amax), hi), method="bounded",
                                            options={"xatol": 1e-3 * hi, "maxiter": 16})
             cur = up if which == "up" else down
@@ -737,7 +752,7 @@ def fit_amplifier_bandwidth(ctx: FitContext) -> FitResult:
     if n > 1 and c0 < math.log(fs):
         unit = max(_rms(residual(ctx.target, ctx.y_base_win)), 1e-15)
 
-        def resid(theta):
+        def resid(theta: np.ndarray) -> np.ndarray:
             p = {"cutoff": np.exp(theta).tolist(), "order": order}
             return ctx.sim_residual([("amplifier_bandwidth", p)]).reshape(-1) / unit
 
@@ -792,14 +807,14 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
     B = np.abs(np.diag(ctx.cfg.hysteresis.arrays()["B"]))
     scale = np.r_[np.maximum(B, 1e-4), np.maximum(B, 1e-4)]
 
-    def make(theta):
+    def make(theta: np.ndarray) -> dict[str, Any]:
         d = theta * scale
         return {"Delta1": d[:n].tolist(), "Delta2": d[n:].tolist()}
 
     # residuals in units of the base model's RMS error: scipy's tolerances are absolute, metres are too small
     unit = max(_rms(residual(ctx.target, ctx.y_base_win)), 1e-15)
 
-    def resid(theta):
+    def resid(theta: np.ndarray) -> np.ndarray:
         return ctx.sim_residual([("hysteresis_asymmetry", make(theta))]).reshape(-1) / unit
 
     with warnings.catch_warnings():
@@ -831,12 +846,13 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
 PLAY_FRACTIONS = (0.05, 0.15, 0.4)
 
 
-def _windowed(fn, y_w: np.ndarray, windows: Windows, n_out: int):
+def _windowed(fn: Callable[[np.ndarray], tuple[np.ndarray, ...]], y_w: np.ndarray, windows: Windows,
+              n_out: int) -> tuple[np.ndarray, ...]:
     """Apply a stateful term ``fn`` (a fresh stage per call) to each window of ``y_w`` (the windows' scored
     samples, concatenated) separately, so that no state leaks from one window into the next."""
     if windows.is_whole:
         return fn(y_w)
-    outs = [[] for _ in range(n_out)]
+    outs: list[list[np.ndarray]] = [[] for _ in range(n_out)]
     o = 0
     for _, s_, e_ in windows.spans:
         parts = fn(y_w[o:o + e_ - s_])

@@ -12,6 +12,7 @@ tied candidates (still fitted on TRAIN only) on the recorded experiment and name
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, Any, Iterable
 
 import numpy as np
 
@@ -21,6 +22,10 @@ from ..trajectories import Sequence, from_dict
 from . import stats
 from .replay import residual, simulate
 
+if TYPE_CHECKING:   # annotations only (engine imports this module)
+    from .candidates import FitResult
+    from .engine import _Scored
+
 __all__ = ["designs", "propose", "decide_on_run", "TARGET_Z", "MAX_SECONDS"]
 
 #: the proposed experiment is made long enough for this expected z between the two explanations
@@ -29,14 +34,14 @@ TARGET_Z = 8.0
 MAX_SECONDS = 600.0
 
 
-def designs(cfg: PiezoConfig, u_max: float) -> dict:
+def designs(cfg: PiezoConfig, u_max: float) -> dict[str, tuple[dict[str, Any], str]]:
     """The candidate excitations (trajectory specs in volts) with a one-line purpose each."""
     fs = cfg.sample_rate
     axes = list(cfg.axes)
     a = float(u_max)
     f_hi = float(min(0.4 * fs, 5000.0))
 
-    def seq(*segs):
+    def seq(*segs: tuple[str, dict[str, Any]]) -> dict[str, Any]:
         return {"type": "sequence", "axes": axes,
                 "segments": [{"name": n, "trajectory": dict(t, axes=axes)} for n, t in segs]}
 
@@ -63,7 +68,7 @@ def designs(cfg: PiezoConfig, u_max: float) -> dict:
     return out
 
 
-def _repeat(spec: dict, times: int) -> dict:
+def _repeat(spec: dict[str, Any], times: int) -> dict[str, Any]:
     if times <= 1:
         return spec
     segs = []
@@ -73,7 +78,8 @@ def _repeat(spec: dict, times: int) -> dict:
     return dict(spec, segments=segs)
 
 
-def propose(cfg: PiezoConfig, best, rivals, psd: "stats.NoisePSD", sigma: np.ndarray, u_ref: np.ndarray) -> dict:
+def propose(cfg: PiezoConfig, best: FitResult, rivals: list[FitResult], psd: "stats.NoisePSD", sigma: np.ndarray,
+            u_ref: np.ndarray) -> dict[str, Any]:
     """The experiment that best separates the fitted ``best`` candidate from each of ``rivals`` (FitResults).
 
     ``u_ref``: the voltages of the held-out run (the proposal stays within their range and the config's limits).
@@ -84,7 +90,7 @@ def propose(cfg: PiezoConfig, best, rivals, psd: "stats.NoisePSD", sigma: np.nda
         u_max = min(u_max, float(cfg.limits.voltage))
     if not u_max > 0:
         raise ValueError("the held-out voltages are all zero: no range to design an experiment in")
-    rows = []
+    rows: list[dict[str, Any]] = []
     for name, (spec, why) in designs(cfg, u_max).items():
         traj = from_dict(spec)
         _, u = traj.sample(fs)
@@ -121,9 +127,9 @@ def propose(cfg: PiezoConfig, best, rivals, psd: "stats.NoisePSD", sigma: np.nda
     }
 
 
-def decide_on_run(cfg: PiezoConfig, scored, run: RunData) -> dict:
+def decide_on_run(cfg: PiezoConfig, scored: Iterable[_Scored], run: RunData) -> dict[str, Any]:
     """Which of the tied candidates (``_Scored`` with fits from TRAIN) explains the discrimination run best."""
-    res = {}
+    res: dict[str, np.ndarray] = {}
     for s in scored:
         res[s.fit.effect] = residual(run.y, simulate(cfg, run.u, s.fit.effects))
     r_nom = residual(run.y, simulate(cfg, run.u, []))

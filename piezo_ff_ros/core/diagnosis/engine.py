@@ -24,7 +24,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -110,6 +110,10 @@ class DiagnosisOptions:
     verbose: bool = False
 
 
+#: effects ``[(name, params)]`` added to the nominal model
+_Effects = Sequence[tuple[str, Mapping[str, Any]]]
+
+
 @dataclass
 class _Scored:
     fit: FitResult
@@ -120,18 +124,20 @@ class _Scored:
     after_nrmse: float
     accepted: bool
     seconds: float
-    extra: dict = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
 
 
 class _Held:
     """The held-out run on its scoring windows, with the base model's output."""
 
-    def __init__(self, cfg, run: RunData, base, windows: Windows, y_base_full=None):
+    def __init__(self, cfg: PiezoConfig, run: RunData, base: _Effects, windows: Windows,
+                 y_base_full: np.ndarray | None = None) -> None:
         self.cfg, self.run, self.base, self.windows = cfg, run, list(base), windows
+        self.y_base_full: np.ndarray | None
         if windows.is_whole:
             self.y_base_full = simulate(cfg, run.u, base) if y_base_full is None else y_base_full
             self.target = run.y
-            self.y_base = self.y_base_full
+            self.y_base: np.ndarray = self.y_base_full
         else:
             self.y_base_full = y_base_full
             y_win = simulate(cfg, run.u, base, windows)
@@ -144,14 +150,14 @@ class _Held:
         yt = self.target - self.target.mean(axis=0)
         self.den = float(np.sqrt(np.sum(yt ** 2)))
 
-    def nrmse(self, r) -> float:
+    def nrmse(self, r: np.ndarray) -> float:
         return float(100 * np.sqrt(np.sum(r ** 2)) / max(self.den, 1e-300))
 
-    def score(self, effects) -> np.ndarray:
+    def score(self, effects: _Effects) -> np.ndarray:
         return residual(self.target, simulate(self.cfg, self.run.u, self.base + list(effects), self.windows))
 
 
-def _fmt_params(fit: FitResult) -> dict:
+def _fmt_params(fit: FitResult) -> dict[str, dict[str, Any]]:
     out = {}
     for k, v in fit.params.items():
         out[k] = {"value": v, "stderr": fit.stderr.get(k), "unit": EFFECTS[fit.effect].params[k][0]}
@@ -162,7 +168,7 @@ def _fmt_params(fit: FitResult) -> dict:
 # Signatures
 # ----------------------------------------------------------------------------------------------------------------
 
-def _corr(a, b) -> float:
+def _corr(a: np.ndarray, b: np.ndarray) -> float:
     a = np.asarray(a, float).reshape(-1)
     b = np.asarray(b, float).reshape(-1)
     a = a - a.mean()
@@ -171,7 +177,7 @@ def _corr(a, b) -> float:
     return float(a @ b / d) if d > 0 else 0.0
 
 
-def _partial_corr(r, x, given):
+def _partial_corr(r: np.ndarray, x: np.ndarray, given: Sequence[np.ndarray]) -> float:
     """Correlation of r with x after removing from both their projection on ``given`` (per axis, pooled)."""
     rs, xs = [], []
     for i in range(r.shape[1]):
@@ -183,7 +189,7 @@ def _partial_corr(r, x, given):
     return _corr(np.concatenate(rs), np.concatenate(xs))
 
 
-def signatures(u: np.ndarray, y_hat: np.ndarray, r: np.ndarray, dt: float, sigma: np.ndarray) -> dict:
+def signatures(u: np.ndarray, y_hat: np.ndarray, r: np.ndarray, dt: float, sigma: np.ndarray) -> dict[str, float]:
     """Effect signatures of a residual (each in [0, 1], larger = stronger), used to explain the ranking.
 
     ``gain``: |corr(r, Ŷ)|; ``delay``: |corr(r, dŶ/dt)| beyond Ŷ (linear phase); ``even_harmonics``: |corr(r,
@@ -250,7 +256,7 @@ def _evaluate(fit: FitResult, held: _Held, t0: float) -> _Scored:
                    time.perf_counter() - t0, {"r_after": r_after})
 
 
-def _judge(scored: list, flex: "_Scored | None", held: _Held, sigma2: float, zc: float) -> "stats.NoisePSD":
+def _judge(scored: list[_Scored], flex: "_Scored | None", held: _Held, sigma2: float, zc: float) -> "stats.NoisePSD":
     """z of every held-out improvement (noise spectrum from the best residual), share of the explainable gap,
     acceptance; sorts ``scored`` best first.  Returns the noise spectrum used."""
     pool = list(scored) + ([flex] if flex is not None else [])
@@ -303,7 +309,8 @@ def _significant(s: _Scored, zc: float) -> bool:
     return bool(s.extra["z"] > zc and s.extra["delta"] >= MIN_DROP * s.sse_before)
 
 
-def _fit_all(cfg, train, y_base_train, base, names, held, opts, log):
+def _fit_all(cfg: PiezoConfig, train: RunData, y_base_train: np.ndarray, base: _Effects, names: Sequence[str],
+             held: _Held, opts: DiagnosisOptions, log: Callable[[str], None]) -> list[_Scored]:
     fs = train.sample_rate
     win = Windows.spread(len(train), opts.fit_samples, opts.n_windows, int(opts.warmup_s * fs))
     ctx = FitContext(cfg, list(base), train.u, train.y, y_base_train, win)
@@ -321,7 +328,8 @@ def _fit_all(cfg, train, y_base_train, base, names, held, opts, log):
     return scored
 
 
-def _fit_flexible(cfg, train, y_train_nom, held: _Held, test_ext: RunData, y_ext_nom, opts, log):
+def _fit_flexible(cfg: PiezoConfig, train: RunData, y_train_nom: np.ndarray, held: _Held, test_ext: RunData,
+                  y_ext_nom: np.ndarray, opts: DiagnosisOptions, log: Callable[[str], None]) -> _Scored | None:
     """The flexible reference model on TRAIN, scored on TEST like a candidate (``None`` if it cannot be fitted)."""
     t0 = time.perf_counter()
     fs = cfg.sample_rate
@@ -421,7 +429,8 @@ class DiagnosisResult(JsonResult, Mapping[str, Any]):
 
 
 def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: DiagnosisOptions | None = None,
-             log=None, test_history: RunData | None = None, discriminate: RunData | None = None) -> DiagnosisResult:
+             log: Callable[[str], None] | None = None, test_history: RunData | None = None,
+             discriminate: RunData | None = None) -> DiagnosisResult:
     """Diagnose the gap between ``cfg`` and the measured runs (issue 5 §5, issue 8).
 
     ``test_history``: the part of the same record that precedes ``test`` (``--data`` split: the training part).
@@ -438,7 +447,8 @@ def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosis
 
 
 def _diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: DiagnosisOptions | None = None,
-              log=None, test_history: RunData | None = None, discriminate: RunData | None = None) -> dict:
+              log: Callable[[str], None] | None = None, test_history: RunData | None = None,
+              discriminate: RunData | None = None) -> DiagnosisResult:
     opts = options or DiagnosisOptions()
     log = log or ((lambda m: print(m)) if opts.verbose else (lambda m: None))
     t_start = time.perf_counter()
@@ -472,7 +482,7 @@ def _diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosi
         test_ext = RunData(np.arange(H + len(test)) * cfg.dt, np.vstack([test_history.u, test.u]),
                            np.vstack([test_history.y, test.y]), test.axes)
 
-    def sim_test(effects):
+    def sim_test(effects: _Effects) -> np.ndarray:
         # displacement-side effects only: applied to the nominal output, no need to re-run the plant
         if all(EFFECTS[e].position == "post" for e, _ in effects):
             plant = build_plant(cfg, effects)
@@ -695,7 +705,7 @@ def _diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: Diagnosi
         })
     after_nrmse = _centered_nrmse(test.y, y_test_verdict, test_den)
     stacked_nrmse = after_nrmse if y_test_final is y_test_verdict else _centered_nrmse(test.y, y_test_final, test_den)
-    result = {
+    result: dict[str, Any] = {
         "verdict": name,
         "confidence": conf,
         "confidence_reason": why,
@@ -764,7 +774,7 @@ NESTED = {frozenset(p) for p in RICHER}
 def json_ready(result: Any) -> Any:
     """``result`` (a :class:`DiagnosisResult`, or dicts/lists holding them) as JSON-safe values: floats NaN/Inf →
     None, numpy types → Python ones, keys starting with ``_`` left out; non-string keys are kept."""
-    def clean(v):
+    def clean(v: Any) -> Any:
         if isinstance(v, DiagnosisResult):
             return clean(dict(v.report))
         if isinstance(v, JsonResult):

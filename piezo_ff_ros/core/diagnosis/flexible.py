@@ -11,11 +11,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 from scipy import signal
 
 from .replay import Windows
+
+#: a basis filter ``(name, b, a)`` (transfer function coefficients in z⁻¹)
+Filter = tuple[str, np.ndarray, np.ndarray]
 
 __all__ = ["FlexibleModel", "fit_flexible"]
 
@@ -41,10 +45,10 @@ def _excited_band(u: np.ndarray, fs: float, energy: float = 0.999) -> float:
     return float(f[min(np.searchsorted(c, energy * c[-1]), len(f) - 1)])
 
 
-def _filters(fs: float, duration: float, f_top: float | None = None):
+def _filters(fs: float, duration: float, f_top: float | None = None) -> list[Filter]:
     """(b, a) pairs of the basis filters for a run at ``fs`` lasting ``duration`` seconds; resonators up to
     ``f_top`` (the band TRAIN excites: above it the regression would only extrapolate)."""
-    out = [("diff", np.array([1.0, -1.0]), np.array([1.0]))]
+    out: list[Filter] = [("diff", np.array([1.0, -1.0]), np.array([1.0]))]
     for tau in (0.01, 0.1, 1.0, 10.0):
         if tau < duration / 3 and tau > 5 / fs:
             a = math.exp(-1 / (tau * fs))
@@ -58,12 +62,13 @@ def _filters(fs: float, duration: float, f_top: float | None = None):
             z = BASIS_DAMPING
             bp = signal.bilinear([2 * z * w, 0.0], [1.0, 2 * z * w, w * w], fs=fs)
             lp = signal.bilinear([w * w], [1.0, 2 * z * w, w * w], fs=fs)
-            out.append((f"bp{f:.0f}", *bp))
-            out.append((f"lp2_{f:.0f}", *lp))
+            out.append((f"bp{f:.0f}", bp[0], bp[1]))
+            out.append((f"lp2_{f:.0f}", lp[0], lp[1]))
     return out
 
 
-def _feature_blocks(sig: np.ndarray, filters, scale: np.ndarray, rows: slice = slice(None)):
+def _feature_blocks(sig: np.ndarray, filters: list[Filter], scale: np.ndarray,
+                    rows: slice = slice(None)) -> Iterator[np.ndarray]:
     """Yield the feature columns block by block: every signal (scaled), then each filter applied to every signal;
     each block filtered on all samples and then cut to ``rows``."""
     x = sig / scale
@@ -77,7 +82,7 @@ def _feature_blocks(sig: np.ndarray, filters, scale: np.ndarray, rows: slice = s
         yield y[rows]
 
 
-def _features(sig: np.ndarray, filters, scale: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
+def _features(sig: np.ndarray, filters: list[Filter], scale: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
     """All feature columns, [rows, n_sig·(1 + n_filters)] (filled block by block into one array)."""
     m = sig.shape[1]
     n_rows = len(range(*rows.indices(len(sig))))
@@ -94,7 +99,7 @@ class FlexibleModel:
     theta: np.ndarray        # [n_features, n_out]
     mean: np.ndarray         # feature means on TRAIN
     scale: np.ndarray        # per-signal scale
-    filters: list
+    filters: list[Filter]
     ridge: float
     n_features: int
 

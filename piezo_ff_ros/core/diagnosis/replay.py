@@ -8,18 +8,19 @@ exactly the same samples.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from ..config import PiezoConfig
 from ..models.effects import build_plant
+from ..models.plant import Plant
 from ..recording.run import RunData
 
 __all__ = ["nrmse_percent", "noise_floor", "noise_floor_periodic", "input_period", "Windows", "simulate", "residual", "check_run", "model_for_run"]
 
 
-def nrmse_percent(y: np.ndarray, y_hat: np.ndarray, axis=None) -> float | np.ndarray:
+def nrmse_percent(y: np.ndarray, y_hat: np.ndarray, axis: int | None = None) -> float | np.ndarray:
     """``100·‖y − ŷ‖/‖y − ȳ‖`` (over all axes, or per axis with ``axis=0``)."""
     y = np.asarray(y, float)
     e = y - y_hat
@@ -27,7 +28,8 @@ def nrmse_percent(y: np.ndarray, y_hat: np.ndarray, axis=None) -> float | np.nda
         den = np.sqrt(np.sum((y - y.mean(axis=0)) ** 2))
         return float(100.0 * np.sqrt(np.sum(e ** 2)) / max(den, 1e-300))
     den = np.sqrt(np.sum((y - y.mean(axis=0)) ** 2, axis=0))
-    return 100.0 * np.sqrt(np.sum(e ** 2, axis=0)) / np.maximum(den, 1e-300)
+    per_axis: np.ndarray = 100.0 * np.sqrt(np.sum(e ** 2, axis=0)) / np.maximum(den, 1e-300)
+    return per_axis
 
 
 def noise_floor(r: np.ndarray, max_samples: int | None = None) -> np.ndarray:
@@ -44,7 +46,8 @@ def noise_floor(r: np.ndarray, max_samples: int | None = None) -> np.ndarray:
     else:
         d2 = np.diff(r, n=2, axis=0)
     mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
-    return 1.4826 * mad / np.sqrt(6.0)
+    sigma: np.ndarray = 1.4826 * mad / np.sqrt(6.0)
+    return sigma
 
 
 def input_period(u: np.ndarray, max_periods: int = 8, rtol: float = 1e-3) -> int | None:
@@ -84,7 +87,8 @@ def noise_floor_periodic(y: np.ndarray, period: int) -> np.ndarray:
     y = np.asarray(y, float)
     d = y[-period:] - y[-2 * period:-period]
     d = d - d.mean(axis=0)
-    return np.sqrt(np.mean(d ** 2, axis=0) / 2.0)
+    out: np.ndarray = np.sqrt(np.mean(d ** 2, axis=0) / 2.0)
+    return out
 
 
 def check_run(run: RunData, name: str) -> None:
@@ -120,10 +124,11 @@ class Windows:
     """Simulation windows ``(warm_start, start, stop)``: the model runs from ``warm_start`` and is scored on
     ``start:stop``.  One window ``(0, 0, N)`` means the whole run."""
 
-    spans: list
+    spans: list[tuple[int, int, int]]
 
     @staticmethod
     def whole(n: int) -> "Windows":
+        """One window covering all ``n`` samples."""
         return Windows([(0, 0, n)])
 
     @staticmethod
@@ -148,17 +153,20 @@ class Windows:
 
     @property
     def n(self) -> int:
+        """Number of scored samples over all windows."""
         return sum(stop - start for _, start, stop in self.spans)
 
     def take(self, x: np.ndarray) -> np.ndarray:
+        """The scored samples of ``x`` (rows ``start:stop`` of every window), concatenated."""
         return np.concatenate([x[start:stop] for _, start, stop in self.spans])
 
     @property
     def is_whole(self) -> bool:
+        """True when the single window is the whole run."""
         return len(self.spans) == 1 and self.spans[0][0] == 0 and self.spans[0][1] == 0
 
 
-def simulate(cfg: PiezoConfig, u: np.ndarray, effects: Sequence[tuple[str, Mapping]] = (),
+def simulate(cfg: PiezoConfig, u: np.ndarray, effects: Sequence[tuple[str, Mapping[str, Any]]] = (),
              windows: Windows | None = None) -> np.ndarray:
     """Model output for the voltages ``u`` on ``windows`` (default: the whole run), concatenated."""
     if windows is None or windows.is_whole:
@@ -178,7 +186,7 @@ def simulate(cfg: PiezoConfig, u: np.ndarray, effects: Sequence[tuple[str, Mappi
 SIM_BLOCK = 1 << 20
 
 
-def _process_blocks(plant, u: np.ndarray) -> np.ndarray:
+def _process_blocks(plant: Plant, u: np.ndarray) -> np.ndarray:
     N = len(u)
     if N <= SIM_BLOCK:
         return plant.process(u)
@@ -193,4 +201,5 @@ def _process_blocks(plant, u: np.ndarray) -> np.ndarray:
 def residual(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
     """``y − ŷ`` with each axis' mean removed (the sensor zero)."""
     r = np.asarray(y, float) - y_hat
-    return r - r.mean(axis=0)
+    out: np.ndarray = r - r.mean(axis=0)
+    return out

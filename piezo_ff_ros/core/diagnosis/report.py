@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -25,6 +25,7 @@ from ..lti import TFMatrix
 from ..models.effects import asymmetric_hysteresis_config, build_plant
 
 if TYPE_CHECKING:
+    from ..compensators.cascade import CompensatorCascade
     from .engine import DiagnosisResult
 from ..units import to_um
 from .where import BANDS
@@ -34,9 +35,11 @@ __all__ = ["corrected_config", "write_apply", "write_report", "tracking_comparis
 APPLICABLE = ("hysteresis_asymmetry", "gain_mismatch", "input_delay", "amplifier_saturation", "amplifier_slew_limit")
 
 
-def corrected_config(cfg: PiezoConfig, effects) -> tuple[PiezoConfig, dict, list[str]]:
+def corrected_config(cfg: PiezoConfig, effects: Iterable[tuple[str, Mapping[str, Any]]]
+                     ) -> tuple[PiezoConfig, dict[str, Any], list[str]]:
     """Apply what the cascade can compensate; returns (config, extra YAML keys, notes on what was not applied)."""
-    extra, notes = {}, []
+    extra: dict[str, Any] = {}
+    notes: list[str] = []
     for name, p in effects:
         if name == "hysteresis_asymmetry":
             cfg = dataclasses.replace(cfg, hysteresis=asymmetric_hysteresis_config(cfg.hysteresis, p["Delta1"],
@@ -66,7 +69,8 @@ def corrected_config(cfg: PiezoConfig, effects) -> tuple[PiezoConfig, dict, list
     return cfg.validate(), extra, notes
 
 
-def write_apply(path, cfg: PiezoConfig, effects, result: dict) -> list[str]:
+def write_apply(path: str | Path, cfg: PiezoConfig, effects: Iterable[tuple[str, Mapping[str, Any]]],
+                result: Mapping[str, Any]) -> list[str]:
     """Write the corrected config YAML (µm, like the shipped configs) with a provenance header."""
     import yaml
 
@@ -84,10 +88,11 @@ def _advance(x: np.ndarray, delay: float, dt: float) -> np.ndarray:
     if delay <= 0:
         return x
     t = np.arange(len(x)) * dt
-    return np.column_stack([np.interp(t + delay, t, x[:, i]) for i in range(x.shape[1])])
+    out: np.ndarray = np.column_stack([np.interp(t + delay, t, x[:, i]) for i in range(x.shape[1])])
+    return out
 
 
-def _cascade_for(cfg: PiezoConfig):
+def _cascade_for(cfg: PiezoConfig) -> tuple[CompensatorCascade, str]:
     from ..compensators.cascade import CompensatorCascade
 
     note = ""
@@ -100,11 +105,12 @@ def _cascade_for(cfg: PiezoConfig):
     return CompensatorCascade(cfg), note
 
 
-def tracking_comparison(cfg: PiezoConfig, effects, reference: np.ndarray) -> dict:
+def tracking_comparison(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[str, Any]]],
+                        reference: np.ndarray) -> dict[str, Any]:
     """Simulated tracking of ``reference`` by the diagnosed plant with the nominal and the corrected cascade."""
     proxy = build_plant(cfg, effects)
     new, extra, notes = corrected_config(cfg, effects)
-    out = {"notes": notes}
+    out: dict[str, Any] = {"notes": notes}
     # what the model promises: the nominal plant under the nominal cascade (the H∞ reference model's lag included);
     # the tracking error charged to the model mismatch is the diagnosed plant's departure from it
     casc, note = _cascade_for(cfg)
@@ -129,7 +135,7 @@ def tracking_comparison(cfg: PiezoConfig, effects, reference: np.ndarray) -> dic
 # Markdown + plots
 # ----------------------------------------------------------------------------------------------------------------
 
-def _plots(res: DiagnosisResult, outdir: Path, tracking: dict | None) -> list[str]:
+def _plots(res: DiagnosisResult, outdir: Path, tracking: dict[str, Any] | None) -> list[str]:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -215,14 +221,14 @@ def _plots(res: DiagnosisResult, outdir: Path, tracking: dict | None) -> list[st
     return files
 
 
-def _table(rows, header) -> str:
+def _table(rows: Iterable[Sequence[Any]], header: Sequence[str]) -> str:
     out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
     return "\n".join(out)
 
 
-def _pfmt(params: dict) -> str:
-    def f(x):
+def _pfmt(params: Mapping[str, Mapping[str, Any]]) -> str:
+    def f(x: Any) -> str:
         if isinstance(x, (list, tuple)):
             return "[" + ", ".join(f(a) for a in x) + "]"
         return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.4g}"
@@ -241,7 +247,8 @@ def _pfmt(params: dict) -> str:
     return "; ".join(parts)
 
 
-def write_report(res: DiagnosisResult, outdir, tracking: dict | None = None, apply_notes=None) -> Path:
+def write_report(res: DiagnosisResult, outdir: str | Path, tracking: dict[str, Any] | None = None,
+                 apply_notes: Sequence[str] | None = None) -> Path:
     """Write ``report.md`` and the PNG plots into ``outdir``; returns the Markdown path."""
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)

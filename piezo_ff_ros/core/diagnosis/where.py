@@ -9,6 +9,7 @@ reported as ``unexplained``.
 from __future__ import annotations
 
 import math
+from typing import Any, Sequence
 
 import numpy as np
 from scipy import signal
@@ -21,17 +22,19 @@ __all__ = ["localise", "BANDS"]
 BANDS = (("creep", 0.0, 0.1), ("hysteresis", 0.1, 100.0), ("dynamics", 100.0, math.inf))
 
 
-def _energy_share(parts: dict, total: float) -> dict:
+def _energy_share(parts: dict[str, float], total: float) -> dict[str, float]:
     return {k: float(v / total) if total > 0 else 0.0 for k, v in parts.items()}
 
 
-def _lp(x, fc, dt):
+def _lp(x: np.ndarray, fc: float, dt: float) -> np.ndarray:
     a = math.exp(-2 * math.pi * fc * dt)
-    return signal.lfilter([1 - a], [1, -a], x, axis=0, zi=None) if x.ndim == 1 else \
+    y: np.ndarray
+    y = signal.lfilter([1 - a], [1, -a], x, axis=0, zi=None) if x.ndim == 1 else \
         signal.lfilter([1 - a], [1, -a], x, axis=0)
+    return y
 
 
-def _pairs(u, r, dt, axes):
+def _pairs(u: np.ndarray, r: np.ndarray, dt: float, axes: Sequence[str]) -> dict[str, dict[str, Any]]:
     n, k = r.shape[1], u.shape[1]
     fs = 1.0 / dt
     fcs = [f for f in (0.05, 0.5, 5.0, 50.0, 200.0) if f < 0.4 * fs]
@@ -42,7 +45,7 @@ def _pairs(u, r, dt, axes):
         X -= X.mean(axis=0)
         X /= np.maximum(X.std(axis=0), 1e-300)
         banks.append(X)
-    out = {}
+    out: dict[str, dict[str, Any]] = {}
     # the filters run on every sample; the regression uses every k-th row of a long run (≤ 200 k rows)
     step = max(1, len(r) // 200_000)
     banks = [b[::step] for b in banks]
@@ -53,7 +56,7 @@ def _pairs(u, r, dt, axes):
         c, *_ = np.linalg.lstsq(Xall, ri, rcond=None)
         tot = float(ri @ ri)
         m = banks[0].shape[1]
-        explained = {}
+        explained: dict[int, float] = {}
         for j in range(k):
             part = banks[j] @ c[j * m:(j + 1) * m]
             explained[j] = float(part @ part)
@@ -67,7 +70,7 @@ def _pairs(u, r, dt, axes):
     return out
 
 
-def _steps(u, dt, window_s=0.1):
+def _steps(u: np.ndarray, dt: float, window_s: float = 0.1) -> np.ndarray:
     """Boolean mask of samples within ``window_s`` after a voltage step (a jump > 5 % of the range in ≤ 2 ms)."""
     k = max(1, int(round(2e-3 / dt)))
     du = np.abs(u[k:] - u[:-k]).max(axis=1) if len(u) > k else np.zeros(0)
@@ -85,7 +88,8 @@ def _steps(u, dt, window_s=0.1):
     return mask
 
 
-def localise(u: np.ndarray, y: np.ndarray, y_hat: np.ndarray, dt: float, axes, sigma: np.ndarray) -> dict:
+def localise(u: np.ndarray, y: np.ndarray, y_hat: np.ndarray, dt: float, axes: Sequence[str],
+             sigma: np.ndarray) -> dict[str, Any]:
     """Split the gap ``r = y − ŷ`` (offset removed) of one run; see the module docstring.
 
     Parameters
@@ -104,13 +108,13 @@ def localise(u: np.ndarray, y: np.ndarray, y_hat: np.ndarray, dt: float, axes, s
     total = float(np.sum(r ** 2))
     yc = y - y.mean(axis=0)
     den_all = float(np.sqrt(np.sum(yc ** 2)))
-    out: dict = {"total": {"nrmse_percent": nrmse_percent(y - y.mean(0), y_hat - y_hat.mean(0)),
+    out: dict[str, Any] = {"total": {"nrmse_percent": nrmse_percent(y - y.mean(0), y_hat - y_hat.mean(0)),
                            "rms_um": float(np.sqrt(total / r.size)) * 1e6,
                            "noise_floor_rms_um": float(np.sqrt(np.mean(sigma ** 2))) * 1e6,
                            "noise_floor_nrmse_percent": float(100 * np.sqrt(N * np.sum(sigma ** 2)) / den_all)
                            if den_all > 0 else 0.0}}
     # -- axes
-    ax = {}
+    ax: dict[str, dict[str, float]] = {}
     for i, a in enumerate(axes):
         e = float(np.sum(r[:, i] ** 2))
         d = float(np.sqrt(np.sum(yc[:, i] ** 2)))
@@ -125,8 +129,8 @@ def localise(u: np.ndarray, y: np.ndarray, y_hat: np.ndarray, dt: float, axes, s
     nper = int(min(N, max(256, 2 ** int(math.log2(max(N // 8, 256))))))
     f, P = signal.welch(r, fs=fs, nperseg=nper, axis=0, detrend="constant")
     df = f[1] - f[0]
-    bands = {}
-    band_e = {}
+    bands: dict[str, dict[str, Any]] = {}
+    band_e: dict[str, float] = {}
     for name, lo, hi in BANDS:
         if lo >= fs / 2:
             continue  # the band lies above Nyquist at this sample rate
@@ -143,7 +147,7 @@ def localise(u: np.ndarray, y: np.ndarray, y_hat: np.ndarray, dt: float, axes, s
         bands[name]["energy_share"] = band_e[name] / tot_b if tot_b > 0 else 0.0
     out["band"] = bands
     # -- amplitude level: quartiles of the measured displacement's distance from its centre, per axis
-    amp = {}
+    amp: dict[str, dict[str, float]] = {}
     lev = np.abs(yc) / np.maximum(np.abs(yc).max(axis=0), 1e-300)
     for q, (lo, hi) in enumerate(((0, .25), (.25, .5), (.5, .75), (.75, 1.01))):
         sel = (lev >= lo) & (lev < hi)
@@ -154,7 +158,7 @@ def localise(u: np.ndarray, y: np.ndarray, y_hat: np.ndarray, dt: float, axes, s
             "sample_share": cnt / r.size}
     out["amplitude"] = amp
     # -- branch: ascending/descending direct voltage
-    br = {}
+    br: dict[str, dict[str, float]] = {}
     k = min(u.shape[1], n)
     du = np.gradient(u[:, :k], axis=0)
     for name, sel in (("ascending", du > 0), ("descending", du < 0), ("at rest", du == 0)):
@@ -184,7 +188,7 @@ def localise(u: np.ndarray, y: np.ndarray, y_hat: np.ndarray, dt: float, axes, s
     return out
 
 
-def _sentence(w: dict, axes) -> str:
+def _sentence(w: dict[str, Any], axes: Sequence[str]) -> str:
     tot = w["total"]
     if tot["rms_um"] <= 1.02 * tot["noise_floor_rms_um"]:
         return (f"The gap ({tot['rms_um']:.3g} µm RMS) is at the sensor noise floor "

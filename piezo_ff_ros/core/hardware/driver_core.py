@@ -23,6 +23,7 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
 
@@ -74,6 +75,7 @@ class DriverSettings:
     low_water: float = 0.01          #: clocked devices: below this margin the last voltage is held [s]
 
     def validate(self) -> "DriverSettings":
+        """Check every field (``ConfigError`` naming the field); returns self."""
         self.limits.validate()
         self.ramp.validate()
         if not (isinstance(self.max_block, int) and 1 <= self.max_block <= 10 * self.sample_rate):
@@ -88,6 +90,7 @@ class DriverSettings:
         return self
 
     def samples(self, seconds: float) -> int:
+        """``seconds`` as a whole number of samples at the stream rate."""
         return int(round(seconds * self.sample_rate))
 
 
@@ -95,11 +98,12 @@ class DriverSettings:
 class Emit:
     """What a call produced: blocks to publish and log lines ``(level, text)``."""
 
-    applied: list = field(default_factory=list)
-    displacement: list = field(default_factory=list)
-    log: list = field(default_factory=list)
+    applied: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    displacement: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    log: list[tuple[int, str]] = field(default_factory=list)
 
     def extend(self, other: "Emit") -> "Emit":
+        """Append ``other``'s blocks and log lines to this one; returns self."""
         self.applied += other.applied
         self.displacement += other.displacement
         self.log += other.log
@@ -111,7 +115,7 @@ class _Rechunker:
     ``displacement`` come one block per block applied (same stamps as the voltage blocks), whatever chunks the
     device delivers.  A hole in the delivered samples (lost sensor data) flushes what was buffered."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.cuts: deque[int] = deque()
         self._d0: int | None = None
         self._parts: list[np.ndarray] = []
@@ -128,6 +132,7 @@ class _Rechunker:
             self._parts, self._n = [], 0
         if not self._n:
             self._d0 = d0
+        assert self._d0 is not None   # set whenever samples are buffered
         self._parts.append(arr)
         self._n += arr.shape[0]
         while self.cuts and self.cuts[0] <= self._d0:
@@ -152,7 +157,8 @@ class _Rechunker:
 class DriverCore:
     """See the module docstring."""
 
-    def __init__(self, settings: DriverSettings, backend: StreamingBackend, now=time.monotonic):
+    def __init__(self, settings: DriverSettings, backend: StreamingBackend,
+                 now: Callable[[], float] = time.monotonic) -> None:
         self.s = settings.validate()
         self.backend = backend
         self.info = backend.info
@@ -215,9 +221,11 @@ class DriverCore:
 
     @property
     def started(self) -> bool:
+        """True once the device stream has started."""
         return self._started
 
     def close(self) -> None:
+        """Close the backend."""
         self.backend.close()
 
     def set_stream_paced(self, on: bool, why: str = "") -> Emit:
@@ -242,13 +250,14 @@ class DriverCore:
         return em
 
     # -- input ------------------------------------------------------------------------------------------------------
-    def on_block(self, stamp: int, block=None, *, n: int | None = None, reject: str | None = None) -> Emit:
+    def on_block(self, stamp: int, block: Any = None, *, n: int | None = None, reject: str | None = None) -> Emit:
         """A voltage block stamped ``stamp`` (first sample, ns); with ``reject`` (a reason) it is not applied and
         its ``n`` samples hold the last voltage (nothing if ``n`` is out of [1, max_block])."""
         em = Emit()
         if self.state == "fault":
             em.log.append((ERROR, f"block at {stamp} ignored: device fault ({self.last_error})"))
             return em
+        u: np.ndarray | None = None
         if reject is not None:
             self.guard.counters.rejected_blocks += 1
         else:
@@ -265,6 +274,7 @@ class DriverCore:
                           "samples")
             u = None
         else:
+            assert u is not None   # the guard accepted the block
             n = u.shape[0]
         self.last_block_wall = self.now()
         if self.info.clocked:
@@ -309,7 +319,7 @@ class DriverCore:
         self._commit_block(u, n, skip=d.skip)
         return em.extend(self._collect())
 
-    def _commit_block(self, u, n: int, skip: int = 0) -> None:
+    def _commit_block(self, u: np.ndarray | None, n: int, skip: int = 0) -> None:
         if u is None:
             self._commit(self.guard.hold(n - skip))
         else:
@@ -432,7 +442,8 @@ class DriverCore:
         self.last_error = text
         em.log.append((level, text))
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
+        """State, guard and stream counters and the device status, as a flat mapping."""
         st = {"state": self.state, **self.guard.counters.as_dict(), **self.book.counters.as_dict(),
               "starved_samples": self.starved_samples, "resumes": self.resumes, "stream_paced": self.stream_paced,
               **{f"{k}_faults": v for k, v in self.faults.items()},
@@ -448,6 +459,7 @@ class DriverCore:
         return st
 
     def lost_samples(self) -> int:
+        """Samples lost so far: stream gaps, late blocks and device starvation."""
         c = self.book.counters
         return c.gap_samples + c.late_samples + self.starved_samples
 

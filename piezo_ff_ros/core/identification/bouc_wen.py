@@ -22,9 +22,10 @@ The generalized (asymmetric) model starts from the classical solution with ``Δ1
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
 from ..config import BoucWenConfig
@@ -62,7 +63,7 @@ class BoucWenFit(JsonResult):
     fit_validation: np.ndarray | None
     generalized: bool
     delay: int = 0
-    info: dict = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
 
     def simulate(self, u: np.ndarray) -> np.ndarray:
         """Model output for a voltage record starting at rest (h = 0), offset included, delay not applied.
@@ -77,7 +78,8 @@ class BoucWenFit(JsonResult):
         array [N, n]
             Displacement [m].
         """
-        return simulate_bouc_wen(self.config, u) + self.offset
+        y: np.ndarray = simulate_bouc_wen(self.config, u) + self.offset
+        return y
 
 
 def simulate_bouc_wen(cfg: BoucWenConfig, u: np.ndarray) -> np.ndarray:
@@ -85,21 +87,26 @@ def simulate_bouc_wen(cfg: BoucWenConfig, u: np.ndarray) -> np.ndarray:
     return BoucWenModel(cfg).process(np.ascontiguousarray(u, float))
 
 
-def _cfg_from(Dp, A, B, G, D1=None, D2=None) -> BoucWenConfig:
-    t = lambda m: tuple(tuple(float(v) for v in row) for row in np.atleast_2d(m))  # noqa: E731
+def _cfg_from(Dp: ArrayLike, A: ArrayLike, B: ArrayLike, G: ArrayLike, D1: ArrayLike | None = None,
+              D2: ArrayLike | None = None) -> BoucWenConfig:
+    def t(m: ArrayLike) -> tuple[tuple[float, ...], ...]:
+        return tuple(tuple(float(v) for v in row) for row in np.atleast_2d(m))
+
     return BoucWenConfig(Dp=t(Dp), A=t(A), B=t(B), Gamma=t(G), Delta1=None if D1 is None else t(D1),
                          Delta2=None if D2 is None else t(D2))
 
 
 def _block_mean(a: np.ndarray, m: int) -> np.ndarray:
     n = (len(a) // m) * m
-    return a[:n].reshape(-1, m, a.shape[1]).mean(axis=1)
+    out: np.ndarray = a[:n].reshape(-1, m, a.shape[1]).mean(axis=1)
+    return out
 
 
 class _Problem:
     """Normalised parameter vector ↔ matrices, and simulation over several runs."""
 
-    def __init__(self, runs_u, runs_y, n, k, generalized, fit_offset, delay, skip, u_scale, y_scale):
+    def __init__(self, runs_u: Sequence[np.ndarray], runs_y: Sequence[np.ndarray], n: int, k: int,
+                 generalized: bool, fit_offset: bool, delay: int, skip: int, u_scale: float, y_scale: float) -> None:
         self.u = runs_u
         self.y = runs_y
         self.n, self.k = n, k
@@ -112,7 +119,8 @@ class _Problem:
         self.sl = y_scale / u_scale   # length per volt
         self.nmat = 4 + (2 if generalized else 0)
 
-    def pack(self, Dp, A, B, G, D1=None, D2=None, c=None) -> np.ndarray:
+    def pack(self, Dp: ArrayLike, A: ArrayLike, B: ArrayLike, G: ArrayLike, D1: ArrayLike | None = None,
+             D2: ArrayLike | None = None, c: ArrayLike | None = None) -> np.ndarray:
         parts = [np.ravel(Dp) / self.sl, np.ravel(A) / self.sl, np.ravel(B) * self.su, np.ravel(G) * self.su]
         if self.generalized:
             parts += [np.ravel(D1 if D1 is not None else np.zeros((self.n, self.n))) * self.su,
@@ -121,13 +129,13 @@ class _Problem:
             parts.append(np.ravel(c if c is not None else np.zeros(self.n)) / self.sy)
         return np.concatenate(parts)
 
-    def unpack(self, th):
+    def unpack(self, th: np.ndarray) -> tuple[BoucWenConfig, np.ndarray]:
         n, k = self.n, self.k
         i = 0
 
-        def take(size, shape, scale):
+        def take(size: int, shape: tuple[int, ...], scale: float) -> np.ndarray:
             nonlocal i
-            v = th[i:i + size].reshape(shape) * scale
+            v: np.ndarray = th[i:i + size].reshape(shape) * scale
             i += size
             return v
 
@@ -142,7 +150,7 @@ class _Problem:
         c = take(n, (n,), self.sy) if self.fit_offset else np.zeros(n)
         return _cfg_from(Dp, A, B, G, D1, D2), c
 
-    def residual(self, th) -> np.ndarray:
+    def residual(self, th: np.ndarray) -> np.ndarray:
         r = self._output_error(th)
         if self.ridge > 0 and self.theta0 is not None:
             # directions the data cannot see (e.g. Dp_xy − A_xy is all that one-axis-at-a-time sines determine)
@@ -153,7 +161,7 @@ class _Problem:
     ridge = 0.0
     theta0: np.ndarray | None = None
 
-    def _output_error(self, th) -> np.ndarray:
+    def _output_error(self, th: np.ndarray) -> np.ndarray:
         cfg, c = self.unpack(th)
         res = []
         for u, y in zip(self.u, self.y):
@@ -167,7 +175,8 @@ class _Problem:
         return r
 
 
-def _linear_abg(u, y, Dp, c, generalized):
+def _linear_abg(u: Sequence[np.ndarray], y: Sequence[np.ndarray], Dp: np.ndarray, c: np.ndarray, generalized: bool
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Given Dp and offset c, solve ``Δh = A·ΔU − B(|ΔU|∘h) − Γ(ΔU∘|h|) [− Δ1(ΔU∘h) − Δ2(|ΔU|∘|h|)]`` by LS."""
     n, k = Dp.shape
     rows_X, rows_t = [], []
@@ -273,7 +282,7 @@ def identify_bouc_wen(runs: Sequence[RunData], validation: Sequence[RunData] = (
     cfg, c = prob.unpack(sol.x)
     cfg = cfg.validate()
 
-    def fits(rs):
+    def fits(rs: Sequence[RunData]) -> np.ndarray | None:
         out = []
         for r in rs:
             yh = simulate_bouc_wen(cfg, r.u) + c
@@ -286,6 +295,7 @@ def identify_bouc_wen(runs: Sequence[RunData], validation: Sequence[RunData] = (
         return fit_percent(np.vstack([o[0] for o in out]), np.vstack([o[1] for o in out]))
 
     fit_tr = fits(runs)
+    assert fit_tr is not None   # runs is not empty (checked above)
     fit_val = fits(validation) if validation else None
     say(f"hysteresis: fit {np.round(fit_tr, 2).tolist()} % (fitted)"
         + (f", {np.round(fit_val, 2).tolist()} % (held out)" if fit_val is not None else ""))
@@ -294,7 +304,8 @@ def identify_bouc_wen(runs: Sequence[RunData], validation: Sequence[RunData] = (
                                          "status": sol.message})
 
 
-def _initialise(runs, prob: _Problem, generalized: bool, fit_offset: bool, say) -> np.ndarray:
+def _initialise(runs: Sequence[RunData], prob: _Problem, generalized: bool, fit_offset: bool,
+                say: Callable[[str], None]) -> np.ndarray:
     """Data-only start: secant slope → search Dp (and offset) with A, B, Γ from linear LS; simulated error."""
     n, k = prob.n, prob.k
     # block-averaged data (~3000 samples per run) for the linear regression: averages out the sensor noise
@@ -313,11 +324,11 @@ def _initialise(runs, prob: _Problem, generalized: bool, fit_offset: bool, say) 
     coarse = _Problem(us, ys, n, k, False, fit_offset, 0, int(len(us[0]) * prob.skip / max(len(prob.u[0]), 1)),
                       prob.su, prob.sy)
 
-    def inner(Dp, c):
+    def inner(Dp: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         A, B, G, _, _ = _linear_abg(us, ys, Dp, c, False)
         return A, B, G
 
-    def outer_res(x):
+    def outer_res(x: np.ndarray) -> np.ndarray:
         Dp = x[:n * k].reshape(n, k) * prob.sl
         c = x[n * k:] * prob.sy if fit_offset else np.zeros(n)
         A, B, G = inner(Dp, c)

@@ -21,7 +21,7 @@ simulated from the start of the record).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -29,7 +29,7 @@ from ..config import CreepConfig
 from ..lti import FactoredTF, TFMatrix
 from ..recording.run import RunData
 from .metrics import fit_percent, greedy_order_search
-from .modal import ModalFit, Structure, fit_row, simulate_row
+from .modal import EntryModel, ModalFit, Structure, fit_row, simulate_row
 
 __all__ = ["CreepFit", "identify_creep", "step_events"]
 
@@ -66,13 +66,15 @@ def _input_of(run: RunData) -> np.ndarray:
     return np.asarray(run.reference, float)
 
 
-def _block(a, m):
+def _block(a: np.ndarray, m: int) -> np.ndarray:
     n = (len(a) // m) * m
-    return a[:n].reshape(-1, m, a.shape[1]).mean(axis=1)
+    out: np.ndarray = a[:n].reshape(-1, m, a.shape[1]).mean(axis=1)
+    return out
 
 
-def _estimate_K(runs, t_transient, window):
-    rows_du, rows_dy = [], []
+def _estimate_K(runs: Sequence[RunData], t_transient: float, window: float) -> np.ndarray:
+    rows_du: list[np.ndarray] = []
+    rows_dy: list[np.ndarray] = []
     for r in runs:
         u = _input_of(r)
         n_tr = int(round(t_transient / r.dt))
@@ -90,10 +92,12 @@ def _estimate_K(runs, t_transient, window):
     if np.linalg.matrix_rank(dU) < dU.shape[1]:
         raise ValueError("creep identification: the steps do not excite every input (need a step on each axis)")
     Kt, *_ = np.linalg.lstsq(dU, dY, rcond=None)
-    return Kt.T
+    K: np.ndarray = Kt.T
+    return K
 
 
-def _prepare(runs, K, t_transient, fs_fit, validation=False):
+def _prepare(runs: Sequence[RunData], K: np.ndarray, t_transient: float, fs_fit: float,
+             validation: bool = False) -> list[dict[str, Any]]:
     """Block-averaged input/drift per run, plus cost masks and scoring masks."""
     recs = []
     for r in runs:
@@ -121,9 +125,10 @@ def _prepare(runs, K, t_transient, fs_fit, validation=False):
     return recs
 
 
-def _entry_fits(models_by_row, recs, n):
+def _entry_fits(models_by_row: Mapping[int, Sequence[EntryModel]], recs: Sequence[Mapping[str, Any]],
+                n: int) -> dict[tuple[int, int | None], float]:
     """Fit per entry 'ij' on records where only input j moves; per output 'i*' on the others."""
-    out = {}
+    out: dict[tuple[int, int | None], tuple[list[np.ndarray], list[np.ndarray]]] = {}
     for i in models_by_row:
         for rec in recs:
             yhat = simulate_row(models_by_row[i], [rec["u"][:, j] for j in range(n)], rec["dt"])
@@ -131,7 +136,7 @@ def _entry_fits(models_by_row, recs, n):
             if w.sum() < 3:
                 continue
             a = rec["anchor"]
-            key = (i, rec["moving"][0]) if len(rec["moving"]) == 1 else (i, None)
+            key: tuple[int, int | None] = (i, rec["moving"][0]) if len(rec["moving"]) == 1 else (i, None)
             out.setdefault(key, ([], []))
             out[key][0].append(rec["d"][w, i] - rec["d"][a, i])
             out[key][1].append(yhat[w] - yhat[a])
@@ -141,7 +146,7 @@ def _entry_fits(models_by_row, recs, n):
 def _starts(order: int, T: float, t_min: float) -> list[tuple[np.ndarray, Structure]]:
     """Initial pole sets: real poles spread over [1/T, 1/t_min], and (order ≥ 2) one slow lightly damped pair."""
     lo, hi = 2.0 / T, 1.0 / max(t_min, 1e-6)
-    starts = []
+    starts: list[tuple[np.ndarray, Structure]] = []
     for span in ((lo, hi), (lo, np.sqrt(lo * hi))):
         starts.append((np.log(np.geomspace(span[0], span[1], order)), Structure(order, 0)))
     if order >= 2:
@@ -151,7 +156,8 @@ def _starts(order: int, T: float, t_min: float) -> list[tuple[np.ndarray, Struct
     return starts
 
 
-def identify_creep(runs: Sequence[RunData], validation: Sequence[RunData] = (), order="auto", max_order: int = 3,
+def identify_creep(runs: Sequence[RunData], validation: Sequence[RunData] = (),
+                   order: str | int | dict[str, int] = "auto", max_order: int = 3,
                    t_transient: float = 0.2, window: float = 0.1, fs_fit: float = 5.0, tol: float = 0.5,
                    axes: Sequence[str] | None = None,
                    progress: Callable[[str], None] | None = None) -> CreepFit:
@@ -193,14 +199,14 @@ def identify_creep(runs: Sequence[RunData], validation: Sequence[RunData] = (), 
     dtf = fit_recs[0]["dt"]
     excited = sorted({j for r in fit_recs for j in r["moving"]})
 
-    def fixed_order(i, j):
+    def fixed_order(i: int, j: int) -> int:
         if isinstance(order, dict):
             return int(order.get(f"{axes[i]}{axes[j]}", order.get("default", 2)))
         return int(order)
 
-    def fit_with(i, orders):
+    def fit_with(i: int, orders: Mapping[int, int]) -> list[EntryModel]:
         """Best of several starts (by fitting cost) for row i with given per-input orders."""
-        best = None
+        best: tuple[list[EntryModel], float] | None = None
         per_input = []
         for j in range(n):
             o = orders.get(j, 0)
@@ -214,9 +220,11 @@ def identify_creep(runs: Sequence[RunData], validation: Sequence[RunData] = (), 
                                    [r["mask"] for r in fit_recs], max_nfev=60)
             if best is None or cost < best[1]:
                 best = (models, cost)
+        assert best is not None   # at least one start per row
         return best[0]
 
-    rows, orders_out = [], {}
+    rows: list[list[EntryModel]] = []
+    orders_out: dict[str, int] = {}
     for i in range(n):
         if order == "auto":
             recs = val_recs or fit_recs
@@ -234,7 +242,7 @@ def identify_creep(runs: Sequence[RunData], validation: Sequence[RunData] = (), 
     Kt = tuple(tuple(float(v) for v in row) for row in K)
     cfg = CreepConfig(K=Kt, Cr=TFMatrix.from_nested(entries)).validate(axes)
 
-    def named(d):
+    def named(d: Mapping[tuple[int, int | None], float]) -> dict[str, float]:
         return {(f"{axes[i]}{axes[j]}" if j is not None else axes[i]): v for (i, j), v in d.items()}
 
     fit_tr = named(_entry_fits({i: rows[i] for i in range(n)}, fit_recs, n))
@@ -244,7 +252,7 @@ def identify_creep(runs: Sequence[RunData], validation: Sequence[RunData] = (), 
                     info={"K_steps": True, "fs_fit": fs_fit})
 
 
-def _row_fits(models, recs, i, n) -> dict:
+def _row_fits(models: Sequence[EntryModel], recs: Sequence[Mapping[str, Any]], i: int, n: int) -> dict[int, float]:
     """{input j: fit of output i on records where only j moves}."""
     res = _entry_fits({i: models}, recs, n) if recs else {}
     return {j: v for (ii, j), v in res.items() if ii == i and j is not None}

@@ -18,7 +18,7 @@ Input runs carry the input of S_L (``Y_L``, m) in ``run.reference``; held-out ru
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import scipy.signal
@@ -55,9 +55,9 @@ def _baseline(r: RunData) -> np.ndarray:
     return r.y[:max(k, 1)].mean(axis=0) if np.allclose(u[0], 0) else np.zeros(r.y.shape[1])
 
 
-def _impulse_estimates(runs, n, L, smooth=0):
+def _impulse_estimates(runs: Sequence[RunData], n: int, L: int, smooth: int = 0) -> list[list[np.ndarray | None]]:
     """h[i][j]: impulse response estimates (length L+1) per entry."""
-    h = [[None] * n for _ in range(n)]
+    h: list[list[np.ndarray | None]] = [[None] * n for _ in range(n)]
     for r in runs:
         u = _inp(r)
         y = r.y - _baseline(r)
@@ -77,7 +77,8 @@ def _impulse_estimates(runs, n, L, smooth=0):
     for i in range(n):
         for j in range(n):
             if h[i][j] is None:  # FIR least squares over all records
-                rows, tgt = [], []
+                rows: list[np.ndarray] = []
+                tgt: list[np.ndarray] = []
                 for r in runs:
                     u = _inp(r)
                     y = r.y - _baseline(r)
@@ -132,13 +133,13 @@ def identify_dynamics(runs: Sequence[RunData], validation: Sequence[RunData] = (
     h = _impulse_estimates(runs, n, L, smooth=15 if noisy else 0)
     excited = sorted({j for r in runs for j in range(n) if np.ptp(_inp(r)[:, j]) > 0})
 
-    def recs(rs, scored):
+    def recs(rs: Sequence[RunData], scored: bool) -> list[dict[str, Any]]:
         out = []
         for r in rs:
             u = _inp(r)
             y = r.y - _baseline(r)
             score = np.ones(len(r), bool)
-            anchor = None
+            anchor: int | None = None
             if scored and int(r.meta.get("score_start", 0)) > 0:
                 # a held-out step starting from a held level: scored as the change from that level (the static
                 # error the hysteresis/creep compensators leave at a level is theirs, not G_L's)
@@ -153,17 +154,18 @@ def identify_dynamics(runs: Sequence[RunData], validation: Sequence[RunData] = (
     pole_min = 3.0 / (min(len(r) for r in runs) * dt)
     val_recs = recs(validation, True) if validation else []
 
-    def init(i, j, o):
-        if h[i][j] is None or o == 0:
+    def init(i: int, j: int, o: int) -> tuple[np.ndarray, Structure]:
+        hij = h[i][j]
+        if hij is None or o == 0:
             return np.zeros(0), Structure(0, 0)
-        p = era_poles(h[i][j], o, dt)
+        p = era_poles(hij, o, dt)
         th, st = poles_to_theta(p)
         return th, st
 
     separable = all(len(r["moving"]) == 1 for r in fit_recs)
-    cache = {}
+    cache: dict[tuple[int, int, int], EntryModel] = {}
 
-    def fit_entry(i, j, o):
+    def fit_entry(i: int, j: int, o: int) -> EntryModel:
         """One entry from the records where only input j moves (one axis at a time: the row separates)."""
         if (i, j, o) not in cache:
             rs = [r for r in fit_recs if r["moving"] == (j,)]
@@ -174,12 +176,13 @@ def identify_dynamics(runs: Sequence[RunData], validation: Sequence[RunData] = (
             cache[(i, j, o)] = models[j]
         return cache[(i, j, o)]
 
-    def fit_with(i, orders):
+    def fit_with(i: int, orders: Mapping[int, int]) -> list[EntryModel]:
         if separable:
             return [fit_entry(i, j, orders[j]) if orders.get(j, 0) else EntryModel(Structure(0, 0), np.zeros(0),
                                                                                      np.zeros(0))
                     for j in range(n)]
-        structs, th0 = [], []
+        structs: list[Structure] = []
+        th0: list[np.ndarray] = []
         for j in range(n):
             th, st = init(i, j, orders.get(j, 0))
             structs.append(st)
@@ -188,8 +191,9 @@ def identify_dynamics(runs: Sequence[RunData], validation: Sequence[RunData] = (
                             structs, th0, dt, max_nfev=max_nfev, pole_min=pole_min)
         return models
 
-    def entry_fits(models_by_row, rs):
-        acc = {}
+    def entry_fits(models_by_row: Mapping[int, Sequence[EntryModel]], rs: Sequence[Mapping[str, Any]]
+                   ) -> dict[tuple[int, int | None], float]:
+        acc: dict[tuple[int, int | None], tuple[list[np.ndarray], list[np.ndarray]]] = {}
         for i, models in models_by_row.items():
             for rec in rs:
                 yhat = simulate_row(models, [rec["u"][:, j] for j in range(n)], dt)
@@ -198,18 +202,19 @@ def identify_dynamics(runs: Sequence[RunData], validation: Sequence[RunData] = (
                 # level before the held-out step: mean of the last 20 samples (one noisy sample would bias it)
                 y0, yh0 = ((rec["y"][max(0, a - 19):a + 1, i].mean(), yhat[max(0, a - 19):a + 1].mean())
                            if a is not None else (0.0, 0.0))
-                key = (i, rec["moving"][0]) if len(rec["moving"]) == 1 else (i, None)
+                key: tuple[int, int | None] = (i, rec["moving"][0]) if len(rec["moving"]) == 1 else (i, None)
                 acc.setdefault(key, ([], []))
                 acc[key][0].append(rec["y"][w, i] - y0)
                 acc[key][1].append(yhat[w] - yh0)
         return {k: float(fit_percent(np.concatenate(a), np.concatenate(b))[0]) for k, (a, b) in acc.items()}
 
-    rows, orders_out = [], {}
+    rows: list[list[EntryModel]] = []
+    orders_out: dict[str, int] = {}
     for i in range(n):
         if order == "auto":
             scoring = val_recs or fit_recs
 
-            def score(m, i=i):
+            def score(m: list[EntryModel], i: int = i) -> dict[int, float]:
                 return {j: v for (ii, j), v in entry_fits({i: m}, scoring).items() if j is not None}
 
             orders, models = greedy_order_search(
@@ -228,7 +233,7 @@ def identify_dynamics(runs: Sequence[RunData], validation: Sequence[RunData] = (
                for i in range(n)]
     cfg = DynamicsConfig(TFMatrix.from_nested(entries)).validate(axes)
 
-    def named(d):
+    def named(d: Mapping[tuple[int, int | None], float]) -> dict[str, float]:
         return {(f"{axes[i]}{axes[j]}" if j is not None else axes[i]): v for (i, j), v in d.items()}
 
     fit_tr = named(entry_fits({i: rows[i] for i in range(n)}, fit_recs))

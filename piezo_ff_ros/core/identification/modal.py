@@ -15,7 +15,7 @@ Python equivalent is installed here).  Initial poles come from ERA/Ho–Kalman (
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -24,6 +24,9 @@ from scipy.optimize import least_squares
 
 from ..jsonable import JsonResult
 from ..lti import FactoredTF
+
+#: one factor of a :class:`FactoredTF` polynomial (``(1, a)`` or ``(1, a, b)``)
+_Factor = tuple[float, ...]
 
 __all__ = ["ModalFit", "Structure", "EntryModel", "mode_responses", "fit_row", "simulate_row", "era_poles",
            "poles_to_theta", "entry_to_factored"]
@@ -52,19 +55,24 @@ class ModalFit(JsonResult):
 
 @dataclass(frozen=True)
 class Structure:
+    """Pole structure of one entry: ``n_real`` real poles and ``n_pairs`` complex pairs."""
+
     n_real: int
     n_pairs: int
 
     @property
     def order(self) -> int:
+        """Model order (number of poles)."""
         return self.n_real + 2 * self.n_pairs
 
     @property
     def n_theta(self) -> int:
+        """Number of pole parameters θ."""
         return self.n_real + 2 * self.n_pairs
 
     @property
     def n_coef(self) -> int:
+        """Number of real basis coefficients."""
         return self.n_real + 2 * self.n_pairs
 
 
@@ -77,20 +85,23 @@ class EntryModel:
     coef: np.ndarray
 
     def poles(self) -> np.ndarray:
+        """The continuous poles (real ones, then one per pair with Im > 0) [rad/s]."""
         return theta_to_poles(self.theta, self.structure)
 
     def to_factored(self) -> FactoredTF:
+        """The entry as a :class:`FactoredTF` (real 1st/2nd-order factors)."""
         return entry_to_factored(self.poles(), self.coef, self.structure)
 
 
-def theta_to_poles(theta, st: Structure) -> np.ndarray:
+def theta_to_poles(theta: np.ndarray, st: Structure) -> np.ndarray:
+    """θ (log magnitudes of the real parts, and of the imaginary parts of pairs) → continuous poles."""
     th = np.asarray(theta, float)
     real = -np.exp(th[:st.n_real])
     pairs = -np.exp(th[st.n_real::2][:st.n_pairs]) + 1j * np.exp(th[st.n_real + 1::2][:st.n_pairs])
     return np.concatenate([real.astype(complex), pairs])
 
 
-def poles_to_theta(poles) -> tuple[np.ndarray, Structure]:
+def poles_to_theta(poles: np.ndarray) -> tuple[np.ndarray, Structure]:
     """Stable poles → (θ, structure); unstable/zero real parts are reflected/clipped into the left half plane."""
     p = np.asarray(poles, complex)
     real = [abs(x.real) for x in p if abs(x.imag) <= 1e-9 * max(1.0, abs(x))]
@@ -101,7 +112,7 @@ def poles_to_theta(poles) -> tuple[np.ndarray, Structure]:
     return np.array(th, float), Structure(len(real), len(pairs))
 
 
-def mode_responses(theta, st: Structure, u: np.ndarray, dt: float) -> np.ndarray:
+def mode_responses(theta: np.ndarray, st: Structure, u: np.ndarray, dt: float) -> np.ndarray:
     """Basis ``[N, n_coef]``: ZOH responses of ``1/(s − p)`` (real p) and Re/Im of ``1/(s − p)`` (pairs)."""
     p = theta_to_poles(theta, st)
     a = np.exp(p * dt)
@@ -119,7 +130,8 @@ def mode_responses(theta, st: Structure, u: np.ndarray, dt: float) -> np.ndarray
     return out
 
 
-def _row_basis(thetas, structs, inputs, dt):
+def _row_basis(thetas: Sequence[np.ndarray], structs: Sequence[Structure], inputs: Sequence[Sequence[np.ndarray]],
+               dt: float) -> np.ndarray:
     cols = []
     for th, st, u in zip(thetas, structs, inputs):
         if st.order == 0:
@@ -128,15 +140,16 @@ def _row_basis(thetas, structs, inputs, dt):
     return np.hstack(cols) if cols else np.zeros((sum(len(uu) for uu in inputs[0]), 0))
 
 
-def _split(theta_all, structs):
-    out, i = [], 0
+def _split(theta_all: np.ndarray, structs: Sequence[Structure]) -> list[np.ndarray]:
+    out: list[np.ndarray] = []
+    i = 0
     for st in structs:
         out.append(theta_all[i:i + st.n_theta])
         i += st.n_theta
     return out
 
 
-def _solve_coef(Phi, y, w):
+def _solve_coef(Phi: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Linear least squares for the residues: normal equations on unit-norm columns (a few columns, thousands of
     rows: ~5× cheaper than an SVD and free of BLAS threading overhead), SVD when they are ill-conditioned."""
     A = Phi[w]
@@ -146,12 +159,17 @@ def _solve_coef(Phi, y, w):
     G = As.T @ As
     ev = np.linalg.eigvalsh(G)
     if ev[0] > 1e-12 * ev[-1]:
-        return np.linalg.solve(G, As.T @ y[w]) / scale
+        sol: np.ndarray = np.linalg.solve(G, As.T @ y[w]) / scale
+        return sol
     c, *_ = np.linalg.lstsq(As, y[w], rcond=None)
-    return c / scale
+    out: np.ndarray = c / scale
+    return out
 
 
-def fit_row(y_records, u_records, structs, theta0s, dt, mask_records=None, max_nfev=200, pole_min=1e-7):
+def fit_row(y_records: Sequence[np.ndarray], u_records: Sequence[Sequence[np.ndarray]],
+            structs: Sequence[Structure], theta0s: Sequence[np.ndarray], dt: float,
+            mask_records: Sequence[np.ndarray] | None = None, max_nfev: int = 200,
+            pole_min: float = 1e-7) -> tuple[list[EntryModel], float]:
     """Fit one output row ``y_i = Σ_j G_ij u_j``.
 
     Parameters
@@ -179,12 +197,12 @@ def fit_row(y_records, u_records, structs, theta0s, dt, mask_records=None, max_n
     y = y / y_scale
     th0 = np.concatenate([np.asarray(t, float) for t in theta0s]) if theta0s else np.zeros(0)
 
-    def resid(th):
+    def resid(th: np.ndarray) -> np.ndarray:
         Phi = _row_basis(_split(th, structs), structs, u_records, dt)
         if Phi.shape[1] == 0:
-            return y[w]
+            return y[w]  # type: ignore[no-any-return]  # a boolean-mask index of an ndarray is an ndarray
         c = _solve_coef(Phi, y, w)
-        r = Phi[w] @ c - y[w]
+        r: np.ndarray = Phi[w] @ c - y[w]
         return r if np.all(np.isfinite(r)) else np.full(r.shape, 1e6 * (np.std(y[w]) + 1.0))
 
     if th0.size:
@@ -202,14 +220,15 @@ def fit_row(y_records, u_records, structs, theta0s, dt, mask_records=None, max_n
     Phi = _row_basis(thetas, structs, u_records, dt)
     c = _solve_coef(Phi, y, w) * y_scale if Phi.shape[1] else np.zeros(0)
     cost *= y_scale ** 2
-    models, i = [], 0
+    models: list[EntryModel] = []
+    i = 0
     for st, t in zip(structs, thetas):
         models.append(EntryModel(st, np.asarray(t), c[i:i + st.n_coef]))
         i += st.n_coef
     return models, cost
 
 
-def _separate(theta, st: Structure, rel: float = 1e-4) -> np.ndarray:
+def _separate(theta: np.ndarray, st: Structure, rel: float = 1e-4) -> np.ndarray:
     """Nudge coinciding poles of one entry apart (the modal realisation needs distinct poles).
 
     Two modes that converged onto the same pole carry the same basis column; moving one by ``rel`` (relative)
@@ -226,7 +245,7 @@ def _separate(theta, st: Structure, rel: float = 1e-4) -> np.ndarray:
     return th
 
 
-def simulate_row(models, u_inputs, dt) -> np.ndarray:
+def simulate_row(models: Sequence[EntryModel], u_inputs: Sequence[np.ndarray], dt: float) -> np.ndarray:
     """``Σ_j G_ij u_j`` for one record (``u_inputs`` list of [N] arrays, one per input)."""
     out = np.zeros(len(u_inputs[0]))
     for m, u in zip(models, u_inputs):
@@ -257,13 +276,15 @@ def era_poles(h: np.ndarray, order: int, dt: float, rows: int | None = None) -> 
     return np.array(keep, complex)
 
 
-def entry_to_factored(poles, coef, st: Structure) -> FactoredTF:
+def entry_to_factored(poles: np.ndarray, coef: np.ndarray, st: Structure) -> FactoredTF:
     """Modal form (poles, real basis coefficients) → :class:`FactoredTF` with real 1st/2nd-order factors."""
     if st.order == 0 or not np.any(coef):
         return FactoredTF(0.0)
     p = np.asarray(poles, complex)
     # real block-diagonal state space
-    blocks_A, Bs, Cs = [], [], []
+    blocks_A: list[np.ndarray] = []
+    Bs: list[float] = []
+    Cs: list[float] = []
     for m in range(st.n_real):
         blocks_A.append(np.array([[p[m].real]]))
         Bs.append(1.0)
@@ -291,9 +312,9 @@ def entry_to_factored(poles, coef, st: Structure) -> FactoredTF:
     z = np.roots(num_s) * sigma if len(num_s) > 1 else np.zeros(0, complex)
     scale = max(1.0, float(np.max(np.abs(p))))
     z = z[np.abs(z) < 1e6 * scale]
-    z = _conj_close(z)
+    zc = _conj_close(z)
     den = _factors(p, st)
-    num = _factors_from_roots(z)
+    num = _factors_from_roots(zc)
     # gain from a point where the response is well away from poles/zeros
     s0 = 1j * float(np.exp(np.mean(np.log(np.abs(p) + 1e-300)))) + 1e-3
     H = (C @ np.linalg.solve(s0 * np.eye(n) - A, B))[0, 0]
@@ -302,9 +323,9 @@ def entry_to_factored(poles, coef, st: Structure) -> FactoredTF:
     return FactoredTF(k, num, den)
 
 
-def _conj_close(z):
+def _conj_close(z: np.ndarray) -> list[complex]:
     z = np.asarray(z, complex)
-    out = []
+    out: list[complex] = []
     used = np.zeros(len(z), bool)
     for i, zi in enumerate(z):
         if used[i]:
@@ -321,16 +342,16 @@ def _conj_close(z):
     return out
 
 
-def _factors(p, st: Structure):
-    fs: list[tuple[float, ...]] = [(1.0, float(-p[m].real)) for m in range(st.n_real)]
+def _factors(p: np.ndarray, st: Structure) -> tuple[_Factor, ...]:
+    fs: list[_Factor] = [(1.0, float(-p[m].real)) for m in range(st.n_real)]
     for q in range(st.n_pairs):
         pm = p[st.n_real + q]
         fs.append((1.0, float(-2 * pm.real), float(abs(pm) ** 2)))
     return tuple(fs)
 
 
-def _factors_from_roots(z):
-    fs = []
+def _factors_from_roots(z: Sequence[complex]) -> tuple[_Factor, ...]:
+    fs: list[_Factor] = []
     for zi in z:
         if zi.imag == 0.0:
             fs.append((1.0, float(-zi.real)))

@@ -21,9 +21,13 @@ This module never imports rclpy.  It offers:
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Typestore
 
 __all__ = [
     "BLOCK_TYPE", "FRAME_ID", "FLOAT64", "sample_period_ns", "stamp_for_index", "index_for_stamp",
@@ -84,7 +88,7 @@ def stamp_to_ns(stamp: Any) -> int:
     return int(stamp.sec) * _NS + int(stamp.nanosec)
 
 
-def ns_to_stamp(stamp_ns: int) -> dict:
+def ns_to_stamp(stamp_ns: int) -> dict[str, int]:
     """Integer nanoseconds → ``{"sec": …, "nanosec": …}`` (``nanosec`` in [0, 1e9), as ROS requires)."""
     sec, nanosec = divmod(int(stamp_ns), _NS)
     if not -2**31 <= sec < 2**31:
@@ -95,7 +99,7 @@ def ns_to_stamp(stamp_ns: int) -> dict:
 # ----------------------------------------------------------------------------------------------------------------
 # block ↔ PointCloud2 fields (plain Python)
 
-def _as_block(block, n_axes: int | None = None) -> np.ndarray:
+def _as_block(block: ArrayLike, n_axes: int | None = None) -> np.ndarray:
     arr = np.asarray(block, dtype=np.float64)
     if arr.ndim == 1 and n_axes == 1:
         arr = arr[:, None]
@@ -106,7 +110,8 @@ def _as_block(block, n_axes: int | None = None) -> np.ndarray:
     return arr
 
 
-def encode_block(block, stamp_ns: int, axes: Sequence[str] = ("x", "y"), frame_id: str = FRAME_ID) -> dict:
+def encode_block(block: ArrayLike, stamp_ns: int, axes: Sequence[str] = ("x", "y"),
+                 frame_id: str = FRAME_ID) -> dict[str, Any]:
     """Block [N, axes] (float64, SI) → the fields of a ``sensor_msgs/msg/PointCloud2``, as plain Python.
 
     Returns ``{"header": {"stamp": {"sec", "nanosec"}, "frame_id"}, "height": 1, "width": N,
@@ -132,19 +137,19 @@ def encode_block(block, stamp_ns: int, axes: Sequence[str] = ("x", "y"), frame_i
     }
 
 
-def _get(msg, name):
+def _get(msg: Any, name: str) -> Any:
     if isinstance(msg, Mapping):
         return msg[name]
     return getattr(msg, name)
 
 
-def block_axes(msg) -> tuple[str, ...]:
+def block_axes(msg: Any) -> tuple[str, ...]:
     """Axis names of a block message (its field names, in offset order)."""
     fields = sorted(_get(msg, "fields"), key=lambda f: int(_get(f, "offset")))
     return tuple(str(_get(f, "name")) for f in fields)
 
 
-def _data_bytes(data) -> bytes | bytearray | memoryview | np.ndarray:
+def _data_bytes(data: Any) -> bytes | bytearray | memoryview | np.ndarray:
     if isinstance(data, (bytes, bytearray, memoryview)):
         return data
     if isinstance(data, np.ndarray):
@@ -156,7 +161,7 @@ def _data_bytes(data) -> bytes | bytearray | memoryview | np.ndarray:
         return bytes(data)
 
 
-def decode_block(msg, axes: Sequence[str] | None = None) -> tuple[int, np.ndarray]:
+def decode_block(msg: Any, axes: Sequence[str] | None = None) -> tuple[int, np.ndarray]:
     """PointCloud2 of the contract (dict or message-like) → ``(stamp_ns, block[N, axes])`` (float64, a copy).
 
     ``axes``: wanted columns by field name, in that order (default: all fields in offset order).  Anything that
@@ -177,7 +182,7 @@ def decode_block(msg, axes: Sequence[str] | None = None) -> tuple[int, np.ndarra
         raise ValueError("block.is_bigendian: must be false (little-endian float64)")
     if height != 1 and width != 0:
         raise ValueError(f"block.height: must be 1, got {height}")
-    offsets = {}
+    offsets: dict[str, int] = {}
     for f in fields:
         name, off, dtype, count = str(_get(f, "name")), int(_get(f, "offset")), int(_get(f, "datatype")), \
             int(_get(f, "count"))
@@ -210,20 +215,20 @@ def decode_block(msg, axes: Sequence[str] | None = None) -> tuple[int, np.ndarra
 # CDR (de)serialisation without ROS, via the rosbags type store
 
 @lru_cache(maxsize=1)
-def typestore():
+def typestore() -> Typestore:
     """The ``rosbags`` type store of the standard ROS 2 (Kilted) message types."""
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS2_KILTED)
 
 
-def _build(ts, type_name: str, value):
+def _build(ts: Typestore, type_name: str, value: Any) -> Any:
     """Nested dicts/lists → rosbags message objects of ``type_name``."""
     if not isinstance(value, Mapping):
         return value  # already a message object
     cls = ts.types[type_name]
     fields = ts.fielddefs[type_name][1]
-    kwargs = {}
+    kwargs: dict[str, Any] = {}
     for fname, (kind, spec) in fields:
         if fname not in value:
             raise ValueError(f"{type_name}.{fname}: missing")
@@ -232,7 +237,7 @@ def _build(ts, type_name: str, value):
     return cls(**kwargs)
 
 
-def _build_field(ts, kind, spec, v):
+def _build_field(ts: Typestore, kind: Any, spec: Any, v: Any) -> Any:
     from rosbags.typesys.base import Nodetype
 
     if kind == Nodetype.NAME:
@@ -252,7 +257,7 @@ def _build_field(ts, kind, spec, v):
     return v
 
 
-def serialize_message(value, type_name: str) -> bytes:
+def serialize_message(value: Any, type_name: str) -> bytes:
     """A standard message given as nested dicts (or rosbags objects) → CDR bytes (little-endian, with header)."""
     ts = typestore()
     if type_name not in ts.types:
@@ -260,7 +265,7 @@ def serialize_message(value, type_name: str) -> bytes:
     return bytes(ts.serialize_cdr(_build(ts, type_name, value), type_name))
 
 
-def deserialize_message(raw: bytes, type_name: str):
+def deserialize_message(raw: bytes, type_name: str) -> Any:
     """CDR bytes → a rosbags message object (attributes as in the .msg; arrays of numbers as numpy arrays).
 
     Raises ``ValueError`` for an unknown type or bytes that do not decode.
@@ -274,7 +279,8 @@ def deserialize_message(raw: bytes, type_name: str):
         raise ValueError(f"{type_name}: cannot decode CDR message ({type(exc).__name__}: {exc})") from None
 
 
-def serialize_block(block, stamp_ns: int, axes: Sequence[str] = ("x", "y"), frame_id: str = FRAME_ID) -> bytes:
+def serialize_block(block: ArrayLike, stamp_ns: int, axes: Sequence[str] = ("x", "y"),
+                    frame_id: str = FRAME_ID) -> bytes:
     """Block [N, axes] → CDR-serialised ``sensor_msgs/msg/PointCloud2`` of the contract (bytes as in MCAP)."""
     return serialize_message(encode_block(block, stamp_ns, axes, frame_id), BLOCK_TYPE)
 

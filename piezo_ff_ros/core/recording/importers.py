@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import csv
 from pathlib import Path
+from typing import Any, Iterable, NoReturn, Sequence
 
 import numpy as np
 
@@ -39,11 +40,11 @@ AXIS_ORDER = ("x", "y", "z")
 UNIFORM_TOL = 1e-3
 
 
-def _fail(path, msg: str):
+def _fail(path: Any, msg: str) -> NoReturn:
     raise ValueError(f"{path}: {msg}")
 
 
-def canonical_axes(names) -> tuple[str, ...]:
+def canonical_axes(names: Iterable[str]) -> tuple[str, ...]:
     """Axis names in a fixed order — x, y, z first, then the others as given — so that the column order of a
     file never changes which column is which axis."""
     names = list(names)
@@ -57,7 +58,8 @@ def _time_unit_hint(dt: float) -> str:
     return "check its unit (s expected)"
 
 
-def check_run_arrays(path, t: np.ndarray, u: np.ndarray, y: np.ndarray, u_names, y_names,
+def check_run_arrays(path: Any, t: np.ndarray, u: np.ndarray, y: np.ndarray, u_names: Sequence[str],
+                     y_names: Sequence[str],
                      row_offset: int = 0, ref: np.ndarray | None = None) -> None:
     """Validate arrays of a run; raise ``ValueError`` saying what is wrong and where.
 
@@ -118,7 +120,7 @@ def check_run_arrays(path, t: np.ndarray, u: np.ndarray, y: np.ndarray, u_names,
                         f"{MAX_VOLTAGE:g} V expected); the column looks like mV or raw counts — convert to V")
 
 
-def load_csv(path, delimiter: str | None = None, axes=None) -> RunData:
+def load_csv(path: str | Path, delimiter: str | None = None, axes: Sequence[str] | None = None) -> RunData:
     """Load a run from CSV with header ``t,u_<axis>…,<axis>…`` (s, V, m), uniformly sampled.
 
     Parameters
@@ -218,7 +220,7 @@ def load_csv(path, delimiter: str | None = None, axes=None) -> RunData:
     return RunData(t=t, u=u, y=y, axes=tuple(axes), reference=ref, meta=meta)
 
 
-def load_mat(path, axes=None) -> RunData:
+def load_mat(path: str | Path, axes: Sequence[str] | None = None) -> RunData:
     """Load a run from a MATLAB ``.mat`` file with variables ``t`` [N], ``u`` [N×axes], ``y`` [N×axes].
 
     Row/column vectors are accepted for one axis; ``u``/``y`` given as axes×N are transposed when unambiguous.
@@ -245,7 +247,7 @@ def load_mat(path, axes=None) -> RunData:
         found = sorted(k for k in d if not k.startswith("__"))
         _fail(p, f"missing variable(s) {missing}; found {found} (expected t [N], u [N×axes], y [N×axes])")
 
-    def num(name):
+    def num(name: str) -> np.ndarray:
         try:
             return np.asarray(d[name], float)
         except (TypeError, ValueError):
@@ -254,7 +256,7 @@ def load_mat(path, axes=None) -> RunData:
     t = num("t").ravel()
     n = len(t)
 
-    def as_matrix(name):
+    def as_matrix(name: str) -> np.ndarray:
         a = num(name)
         if a.ndim != 2:
             _fail(p, f"variable {name!r}: expected a matrix, got {a.ndim} dimension(s)")

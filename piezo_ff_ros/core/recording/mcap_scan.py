@@ -24,18 +24,19 @@ class McapContents:
     source: str
     profile: str = ""
     library: str = ""
-    topics: dict = field(default_factory=dict)  # topic -> type name
-    encodings: dict = field(default_factory=dict)  # topic -> message encoding
-    channel_metadata: dict = field(default_factory=dict)  # topic -> channel metadata
-    messages: dict = field(default_factory=lambda: defaultdict(list))
-    metadata: list = field(default_factory=list)  # [(name, {k: v})] in file order
+    topics: dict[str, str] = field(default_factory=dict)  # topic -> type name
+    encodings: dict[str, str] = field(default_factory=dict)  # topic -> message encoding
+    channel_metadata: dict[str, dict[str, str]] = field(default_factory=dict)  # topic -> channel metadata
+    messages: dict[str, list[tuple[int, int, bytes]]] = field(default_factory=lambda: defaultdict(list))
+    metadata: list[tuple[str, dict[str, str]]] = field(default_factory=list)  # [(name, {k: v})] in file order
     statistics: Any = None
     truncated: bool = False
     error: str | None = None
-    files: list = field(default_factory=list)
-    losses: list = field(default_factory=list)  # per file: what could not be read (see iter_mcap_records)
+    files: list[str] = field(default_factory=list)
+    # per file: what could not be read (see iter_mcap_records)
+    losses: list[dict[str, Any]] = field(default_factory=list)
 
-    def loss_summary(self) -> dict:
+    def loss_summary(self) -> dict[str, Any]:
         """What could not be read, summed over the files: chunk/message/byte counts and lost log-time ranges."""
         out: dict[str, Any] = {"chunks_total": 0, "chunks_lost": 0, "messages_lost": 0, "bytes_skipped": 0, "records_skipped": 0,
                "orphan_messages": 0, "lost_time_ranges_ns": [], "messages_lost_by_topic": {}, "truncated": False,
@@ -51,9 +52,9 @@ class McapContents:
                 out["messages_lost_by_topic"][t] = out["messages_lost_by_topic"].get(t, 0) + k
         return out
 
-    def metadata_record(self, name: str = METADATA_NAME) -> dict:
+    def metadata_record(self, name: str = METADATA_NAME) -> dict[str, str]:
         """The Metadata records called ``name``, merged in file order (later keys win)."""
-        out: dict = {}
+        out: dict[str, str] = {}
         for n, d in self.metadata:
             if n == name:
                 out.update(d)
@@ -64,10 +65,12 @@ _MCAP_MAGIC = b"\x89MCAP0\r\n"
 _OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_MESSAGE_INDEX = 1, 2, 3, 4, 5, 6, 7
 _OP_DATA_END = 0x0F
 _COMPRESSIONS = (b"", b"lz4", b"zstd")
+#: the bytes a file is read from (memory-mapped, or empty)
+_Buf = mmap.mmap | bytes
 _MAX_RANGES = 50  # lost time ranges listed individually (the counts are always complete)
 
 
-def _new_loss() -> dict:
+def _new_loss() -> dict[str, Any]:
     """The reader's account of what it could not read (every count is a lower bound on what was lost)."""
     return {"chunks_total": 0, "chunks_lost": 0, "messages_lost": 0, "messages_lost_by_channel": Counter(),
             "lost_time_ranges_ns": [], "bytes_skipped": 0, "records_skipped": 0, "orphan_messages": 0,
@@ -79,7 +82,7 @@ def _plausible_opcode(op: int) -> bool:
     return 0x01 <= op <= 0x0F or op >= 0x80
 
 
-def _chunk_header_at(buf, pos: int) -> tuple[int, int, int] | None:
+def _chunk_header_at(buf: _Buf, pos: int) -> tuple[int, int, int] | None:
     """If a complete, self-consistent Chunk record starts at ``pos``: (total length, start_time, end_time)."""
     n = len(buf)
     if pos + 9 + 40 > n or buf[pos] != _OP_CHUNK:
@@ -98,7 +101,7 @@ def _chunk_header_at(buf, pos: int) -> tuple[int, int, int] | None:
     return 9 + length, t_start, t_end
 
 
-def _find_next_chunk(buf, start: int) -> int | None:
+def _find_next_chunk(buf: _Buf, start: int) -> int | None:
     """Offset of the next complete Chunk record at or after ``start`` (resynchronisation after damaged framing)."""
     i = start
     while True:
@@ -110,7 +113,7 @@ def _find_next_chunk(buf, start: int) -> int | None:
         i += 1
 
 
-def _partial_chunk_times(buf, pos: int) -> tuple[int, int] | None:
+def _partial_chunk_times(buf: _Buf, pos: int) -> tuple[int, int] | None:
     if pos + 9 + 16 <= len(buf) and buf[pos] == _OP_CHUNK:
         t0, t1 = struct.unpack_from("<QQ", buf, pos + 9)
         if t0 <= t1:
@@ -118,7 +121,7 @@ def _partial_chunk_times(buf, pos: int) -> tuple[int, int] | None:
     return None
 
 
-def _lose_chunk(loss: dict, times: tuple[int, int] | None, why: str) -> None:
+def _lose_chunk(loss: dict[str, Any], times: tuple[int, int] | None, why: str) -> None:
     loss["chunks_lost"] += 1
     if times is not None and len(loss["lost_time_ranges_ns"]) < _MAX_RANGES:
         loss["lost_time_ranges_ns"].append([int(times[0]), int(times[1])])
@@ -126,7 +129,7 @@ def _lose_chunk(loss: dict, times: tuple[int, int] | None, why: str) -> None:
         loss["errors"].append(why)
 
 
-def iter_mcap_records(path, loss: dict | None = None) -> Iterator:
+def iter_mcap_records(path: str | Path, loss: dict[str, Any] | None = None) -> Iterator[Any]:
     """Every record of an MCAP file, in file order, with the records inside chunks expanded; damage-tolerant.
 
     Unlike ``mcap``'s stream reader, which stops at the first bad record, this walks the top-level records
@@ -240,7 +243,7 @@ def _scan_one(path: Path, out: McapContents) -> None:
     loss = _new_loss()
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
-    by_channel: dict[int, list] = defaultdict(list)
+    by_channel: dict[int, list[tuple[int, int, bytes]]] = defaultdict(list)
     n_messages = 0
     for rec in iter_mcap_records(path, loss):
         if isinstance(rec, Message):
@@ -334,7 +337,7 @@ def _scan_db3(path: Path, out: McapContents) -> None:
     out.files.append(str(path))
 
 
-def scan_mcap(path) -> McapContents:
+def scan_mcap(path: str | Path) -> McapContents:
     """Read all records of an MCAP file or a rosbag2 directory (``metadata.yaml`` + ``.mcap``/``.db3`` files).
 
     Uses the non-seeking stream reader, so a file cut short (a killed recorder) is read up to its last complete

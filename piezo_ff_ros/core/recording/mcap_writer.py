@@ -15,7 +15,7 @@ import threading
 import time
 from collections import Counter, deque
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Literal, Mapping
 
 from .qos import qos_profiles_yaml
 from .schemas import METADATA_NAME, ros2msg_definition, type_hash
@@ -27,12 +27,12 @@ class RecordingStopped(OSError):
     """Writing failed (disk full, file-size limit, I/O error): the recorder ended the file at its last durable
     record boundary (readable by every MCAP reader) and accepts nothing more.  ``info`` says what was kept."""
 
-    def __init__(self, text: str, info: dict):
+    def __init__(self, text: str, info: dict[str, Any]) -> None:
         super().__init__(text)
         self.info = info
 
 
-def _metadata_value(v) -> str:
+def _metadata_value(v: Any) -> str:
     if isinstance(v, str):
         return v
     return json.dumps(v, default=str)
@@ -64,8 +64,9 @@ class McapRecorder:
     >>> rec.close()                                                                         # doctest: +SKIP
     """
 
-    def __init__(self, path, *, chunk_size: int = 512 * 1024, flush_interval: float | None = 1.0,
-                 compression: str = "zstd", metadata: Mapping | None = None, library: str | None = None):
+    def __init__(self, path: str | os.PathLike[str], *, chunk_size: int = 512 * 1024,
+                 flush_interval: float | None = 1.0, compression: str = "zstd",
+                 metadata: Mapping[str, Any] | None = None, library: str | None = None) -> None:
         from mcap.writer import CompressionType, Writer
 
         comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
@@ -88,7 +89,7 @@ class McapRecorder:
         self._lock = threading.Lock()
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, tuple[int, str]] = {}
-        self._sequence: Counter = Counter()
+        self._sequence: Counter[int] = Counter()
         self._metadata: dict[str, str] = {}
         self._flush_interval = flush_interval
         self._unflushed_since: float | None = None
@@ -98,14 +99,14 @@ class McapRecorder:
         self.closed = False
         #: why writing stopped early (None while all is well); then ``failure`` holds what was kept
         self.failed: str | None = None
-        self.failure: dict = {}
+        self.failure: dict[str, Any] = {}
         # record boundaries known to be on disk, with the message count up to each: where a failed file is cut
         self._durable: deque[tuple[int, int]] = deque([(self._file.tell(), 0)], maxlen=32)
         if metadata:
             self.set_metadata(metadata)
 
     # -- API used by the recorder node --------------------------------------------------------------------------
-    def register_topic(self, topic: str, type_name: str, qos_profiles: Iterable | None = None) -> int:
+    def register_topic(self, topic: str, type_name: str, qos_profiles: Iterable[Any] | None = None) -> int:
         """Declare ``topic`` of ``type_name`` (``pkg/msg/Type``); returns its channel id (idempotent).
 
         ``qos_profiles``: the publishers' offered profiles (rclpy ``QoSProfile``-like objects from
@@ -174,7 +175,7 @@ class McapRecorder:
         with self._lock:
             if not self.closed:
                 try:
-                    self._writer.flush()
+                    self._writer.flush()  # type: ignore[no-untyped-call]  # mcap's Writer carries no annotations
                     self._mark_durable()
                 except OSError as exc:
                     self._stop_on_error(exc)
@@ -187,7 +188,7 @@ class McapRecorder:
             if self.closed:
                 return
             try:
-                self._writer.finish()
+                self._writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer carries no annotations
                 self._file.flush()
             except OSError as exc:
                 self._stop_on_error(exc)
@@ -200,7 +201,7 @@ class McapRecorder:
         """Registered topics → type names."""
         return {t: tn for t, (_, tn) in self._channels.items()}
 
-    def _check_open(self):
+    def _check_open(self) -> None:
         if self.failed is not None:
             raise RecordingStopped(f"{self.path}: recording stopped ({self.failed})", self.failure)
         if self.closed:
@@ -235,7 +236,7 @@ class McapRecorder:
         b = RecordBuilder()
         DataEnd(0).write(b)
         Footer(summary_start=0, summary_offset_start=0, summary_crc=0).write(b)
-        ending = b.end() + b"\x89MCAP0\r\n"
+        ending = b.end() + b"\x89MCAP0\r\n"  # type: ignore[no-untyped-call]  # mcap: no annotations
         kept = None
         out = os.open(self.path, os.O_WRONLY)
         try:
@@ -266,7 +267,7 @@ class McapRecorder:
         raise RecordingStopped(f"{self.path}: write failed ({reason}): {where}; "
                                f"{self.failure['lost_messages']} message(s) written after it lost", self.failure)
 
-    def _maybe_flush(self):
+    def _maybe_flush(self) -> None:
         pos = self._file.tell()
         if pos != self._last_pos:  # the writer has just written a full chunk: push it to the OS now
             self._file.flush()
@@ -278,15 +279,15 @@ class McapRecorder:
         if self._unflushed_since is None:
             self._unflushed_since = now
         if self._flush_interval is not None and now - self._unflushed_since >= self._flush_interval:
-            self._writer.flush()
+            self._writer.flush()  # type: ignore[no-untyped-call]  # mcap's Writer carries no annotations
             self._mark_durable()
             self._last_pos = self._file.tell()
             self._unflushed_since = None
 
-    def __enter__(self):
+    def __enter__(self) -> "McapRecorder":
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> Literal[False]:
         self.close()
         return False
 

@@ -23,7 +23,7 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -54,6 +54,7 @@ class Case:
 
     @property
     def label(self) -> str:
+        """Short human-readable name, e.g. ``circle 20 µm 10 Hz``."""
         return f"{self.trajectory} {self.size_um:g} µm {self.frequency_hz:g} Hz"
 
 
@@ -86,6 +87,7 @@ def evaluation_window(case: Case, r: np.ndarray, n_lead: int, fs: float) -> np.n
     if case.trajectory == "circle":
         mask[n - int(round(fs / case.frequency_hz)):] = True
     elif case.trajectory == "raster":
+        assert isinstance(case.traj, Raster)   # the raster cases carry a Raster
         fast = r[:, case.traj.axes.index(case.traj.fast_axis)]
         acc = np.abs(np.gradient(np.gradient(fast)))
         mask[n_lead + int(round(fs / case.frequency_hz)):] = True
@@ -95,7 +97,7 @@ def evaluation_window(case: Case, r: np.ndarray, n_lead: int, fs: float) -> np.n
     return mask
 
 
-def _metrics(y: np.ndarray, r: np.ndarray, u: np.ndarray, mask: np.ndarray, fs: float) -> dict:
+def _metrics(y: np.ndarray, r: np.ndarray, u: np.ndarray, mask: np.ndarray, fs: float) -> dict[str, float]:
     e = np.linalg.norm(y[mask] - r[mask], axis=1)
     du = np.abs(np.diff(u, axis=0)) * fs
     return {"rms_error_um": float(np.sqrt(np.mean(e ** 2)) * 1e6), "max_error_um": float(e.max() * 1e6),
@@ -123,6 +125,7 @@ class _Model:
         return _Model(cfg, casc, comp, PreviewStage(cfg, ctrl, preview_cfg, model=comp))
 
     def shaped(self, r: np.ndarray, stage: PreviewStage | None = None) -> np.ndarray:
+        """``r`` through the preview stage (fed ``preview_samples`` ahead, the tail held at the last sample)."""
         st = stage or self.preview
         st.reset()
         L = st.preview_samples
@@ -130,12 +133,14 @@ class _Model:
         return st.process(ahead)
 
     def drive(self, plant: Plant, yr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(u, y)``: ``yr`` through the cascade, then the plant (both reset first)."""
         self.cascade.reset()
         plant.reset()
         u = self.cascade.process(yr)
         return u, plant.process(u)
 
     def open_loop(self, plant: Plant, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(u, y)`` with the static inverse gain only (clamped to the voltage limit)."""
         Dp_pinv = np.linalg.pinv(np.array(self.cfg.hysteresis.Dp, float))
         lim = self.cfg.limits
         u = np.clip(r @ Dp_pinv.T, -lim.voltage, lim.voltage)
@@ -150,9 +155,10 @@ def _truth_plant(printed: PiezoConfig, truth: str, noise: float, seed: int) -> P
 
 
 def run_benchmark(printed: PiezoConfig, identified: PiezoConfig | None = None, quick: bool = False,
-                  truths: tuple = TRUTHS, ilc: ILCConfig | None = None, preview_cfg: PreviewConfig | None = None,
+                  truths: tuple[str, ...] = TRUTHS, ilc: ILCConfig | None = None,
+                  preview_cfg: PreviewConfig | None = None,
                   constrained: bool = True, progress: Callable[[str], None] | None = None,
-                  corrections_dir: str | None = None) -> dict:
+                  corrections_dir: str | None = None) -> dict[str, Any]:
     """Run every case; returns ``{"cases": [...], "limits": {...}, "learning": {...}, "conditions": {...}}``.
 
     ``identified`` is required for the ``identified`` truth (else that truth is skipped).  ``constrained`` also
@@ -170,14 +176,16 @@ def run_benchmark(printed: PiezoConfig, identified: PiezoConfig | None = None, q
     models = {"printed": _Model.build(printed, preview_cfg)}
     if "identified" in truths:
         say("build the compensators (identified model)")
+        assert identified is not None   # "identified" was dropped from truths without it
         models["identified"] = _Model.build(identified, preview_cfg)
-    cases_out, learning_out = [], {}
+    cases_out: list[dict[str, Any]] = []
+    learning_out: dict[str, Any] = {}
     constrained_cfg = dataclasses.replace(preview_cfg, constrained=True)
-    constrained_stage = None
+    constrained_stage: PreviewStage | None = None
     for case in benchmark_cases(quick):
         r, n_lead = reference_with_lead_in(case, fs)
         mask = evaluation_window(case, r, n_lead, fs)
-        shaped = {}
+        shaped: dict[int, np.ndarray] = {}
         for truth in truths:
             m = models["identified" if truth == "identified" else "printed"]
             key = id(m)
@@ -193,7 +201,7 @@ def run_benchmark(printed: PiezoConfig, identified: PiezoConfig | None = None, q
             u, y = m.drive(clean, r)
             cases_out.append({**base, "method": "cascade", **_metrics(y, r, u, mask, fs)})
             u, y = m.drive(clean, yr)
-            row = {**base, "method": "preview", **_metrics(y, r, u, mask, fs)}
+            row: dict[str, Any] = {**base, "method": "preview", **_metrics(y, r, u, mask, fs)}
             u_ask, _ = CascadeReplica(m.cfg, controller_matrices(m.cascade)).process(yr)
             row["asked_peak_voltage_v"] = float(np.abs(u_ask).max())
             cases_out.append(row)
@@ -212,7 +220,8 @@ def run_benchmark(printed: PiezoConfig, identified: PiezoConfig | None = None, q
             # learning: trials on the truth with its sensor, then one sensorless trial
             trial = [0]
 
-            def run_trial(delta, m=m, yr=yr, truth=truth, noise=noise):
+            def run_trial(delta: np.ndarray, m: _Model = m, yr: np.ndarray = yr, truth: str = truth,
+                          noise: float = noise) -> np.ndarray:
                 trial[0] += 1
                 plant = _truth_plant(printed, truth, noise, seed=trial[0])
                 return m.drive(plant, yr + delta)[1]
@@ -247,18 +256,19 @@ def run_benchmark(printed: PiezoConfig, identified: PiezoConfig | None = None, q
                            "compute_s": time.perf_counter() - t_start}}
 
 
-def physical_limits(models: dict, printed: PiezoConfig, preview_cfg: PreviewConfig, ilc: ILCConfig, quick: bool,
-                    say) -> dict:
+def physical_limits(models: dict[str, _Model], printed: PiezoConfig, preview_cfg: PreviewConfig, ilc: ILCConfig,
+                    quick: bool, say: Callable[[str], None]) -> dict[str, Any]:
     """Preview horizon needed (error vs horizon), the RHP zeros behind it, and the learning condition per truth."""
     m = models["printed"]
     fs = printed.sample_rate
-    out = {"g_l_rhp_zeros_rad_s": {}, "kernel": m.preview.kernel.truncation}
+    rhp_zeros: dict[str, list[list[float]]] = {}
+    out: dict[str, Any] = {"g_l_rhp_zeros_rad_s": rhp_zeros, "kernel": m.preview.kernel.truncation}
     axes = printed.axes
     for i, a in enumerate(axes):
         for j, b in enumerate(axes):
             z = printed.dynamics.G_L[i, j].zeros()
             rhp = z[z.real > 0]
-            out["g_l_rhp_zeros_rad_s"][f"{a}{b}"] = [[float(v.real), float(v.imag)] for v in rhp]
+            rhp_zeros[f"{a}{b}"] = [[float(v.real), float(v.imag)] for v in rhp]
     # horizon sweep on the 20 µm circle at 10 Hz (model = plant)
     case = Case("circle", 20, 10, Circle(radius=20e-6, frequency=10, revolutions=4))
     r, n_lead = reference_with_lead_in(case, fs)
@@ -285,7 +295,7 @@ def physical_limits(models: dict, printed: PiezoConfig, preview_cfg: PreviewConf
 
 
 def violation_demo(m: _Model, printed: PiezoConfig, ilc: ILCConfig, r: np.ndarray, mask: np.ndarray,
-                   quick: bool, delay_s: float = 1e-3) -> dict:
+                   quick: bool, delay_s: float = 1e-3) -> dict[str, Any]:
     """The learning condition violated on purpose: a truth with an unmodelled 1 ms input delay (its phase error
     passes 60° at 1/(6·delay) ≈ 167 Hz, where ``|1 − γ·T̂⁻¹T| ≥ 1`` for γ = 1) and 100 nm sensor noise, learned
     with a Q too wide to cut it (4 kHz) — without the guard, with it — and with the default Q."""
@@ -295,13 +305,13 @@ def violation_demo(m: _Model, printed: PiezoConfig, ilc: ILCConfig, r: np.ndarra
     n_iter = 6 if quick else 15
     f, T_model = m.compensated.frequency_response()
     T_true = T_model * np.exp(-2j * np.pi * f * delay_s)[:, None, None]
-    runs = {}
+    runs: dict[str, Any] = {}
     for label, cfg in (("wide_q_no_guard", dataclasses.replace(ilc, q_bandwidth_hz=4000.0, patience=10 ** 6)),
                        ("wide_q_guard", dataclasses.replace(ilc, q_bandwidth_hz=4000.0)),
                        ("default_q", ilc)):
         trial = [0]
 
-        def run_trial(delta, cfg=cfg):
+        def run_trial(delta: np.ndarray, cfg: ILCConfig = cfg) -> np.ndarray:
             trial[0] += 1
             plant = Plant(printed, pre=[InputDelay(delay_s, 1.0 / fs, printed.n_axes)], noise_std=NOISE_M,
                           seed=trial[0])

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..config import ConfigError, PiezoConfig
 from .ilc import LearnedCorrection, load_correction
+from .linear import ControllerABCD
 from .preview import PreviewConfig, PreviewStage
 
 __all__ = ["FRONT_DEFAULTS", "is_front_param", "front_settings", "TrackingFront"]
@@ -27,6 +28,7 @@ FRONT_DEFAULTS: dict[str, Any] = {
 
 
 def is_front_param(name: str) -> bool:
+    """True for the parameter names the tracking front owns (see ``FRONT_DEFAULTS``)."""
     return name in FRONT_DEFAULTS
 
 
@@ -46,7 +48,7 @@ def front_settings(values: Mapping[str, Any]) -> tuple[PreviewConfig | None, str
 class TrackingFront:
     """Streaming ``reference → preview (optional) → + learned correction (optional)``; identity when both off."""
 
-    def __init__(self, cfg: PiezoConfig, controller: tuple | None, values: Mapping[str, Any]):
+    def __init__(self, cfg: PiezoConfig, controller: ControllerABCD | None, values: Mapping[str, Any]) -> None:
         self.settings, self.learning_file = front_settings(values)
         self.preview = PreviewStage(cfg, controller, self.settings) if self.settings is not None else None
         self.learned = None
@@ -59,6 +61,7 @@ class TrackingFront:
 
     @property
     def active(self) -> bool:
+        """True when preview or learned correction is on (else the front is the identity)."""
         return self.preview is not None or self.learned is not None
 
     @property
@@ -67,6 +70,7 @@ class TrackingFront:
         return 0.0 if self.preview is None else self.preview.preview_samples / self.fs
 
     def reset(self) -> None:
+        """Reset both stages (a new stream starts)."""
         for st in (self.preview, self.learned):
             if st is not None:
                 st.reset()
@@ -78,6 +82,7 @@ class TrackingFront:
             self.learned.k = other.learned.k
 
     def process(self, block: np.ndarray) -> np.ndarray:
+        """Reference block ``[N, axes]`` [m] through the preview, then plus the learned correction."""
         x = block
         if self.preview is not None:
             x = self.preview.process(x)

@@ -50,7 +50,7 @@ class ILCConfig:
     tolerance: float = 0.1          #: "growing" = more than this fraction above the best trial's error
     pad_s: float = 0.25             #: zero padding of each trial for the offline FFT filtering [s]
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ("gain", "q_bandwidth_hz", "pad_s", "tolerance"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
@@ -62,17 +62,18 @@ class ILCConfig:
             object.__setattr__(self, name, int(v))
 
     @staticmethod
-    def from_dict(d: Mapping | None) -> "ILCConfig":
+    def from_dict(d: Mapping[str, Any] | None) -> "ILCConfig":
         """From a mapping of the field names (unknown keys refused, naming them and the closest known one)."""
         return dataclass_from_mapping(ILCConfig, d, "learning")
 
 
 def q_filter_response(f: np.ndarray, bandwidth_hz: float, order: int) -> np.ndarray:
     """Zero-phase Q: ``1/(1 + (f/bandwidth)^(2·order))``."""
-    return 1.0 / (1.0 + (np.abs(f) / bandwidth_hz) ** (2 * order))
+    out: np.ndarray = 1.0 / (1.0 + (np.abs(f) / bandwidth_hz) ** (2 * order))
+    return out
 
 
-def convergence_factor(model_T: np.ndarray, true_T: np.ndarray, f: np.ndarray, cfg: ILCConfig) -> dict:
+def convergence_factor(model_T: np.ndarray, true_T: np.ndarray, f: np.ndarray, cfg: ILCConfig) -> dict[str, Any]:
     """ρ = sup_ω σ_max(Q (I − γ T̂⁻¹ T)) on a frequency grid, and where it peaks.
 
     Parameters
@@ -106,11 +107,12 @@ class LearningResult:
     """What :meth:`IterativeLearning.learn` returns."""
 
     correction: np.ndarray                    #: [N, axes] learned Δ (the best trial's)
-    rms_history_m: list = field(default_factory=list)   #: measured RMS error per trial (trial 0: no correction)
-    q_bandwidth_hz: list = field(default_factory=list)  #: Q bandwidth used for each update
+    rms_history_m: list[float] = field(default_factory=list)   #: measured RMS error per trial (trial 0: no correction)
+    q_bandwidth_hz: list[float] = field(default_factory=list)  #: Q bandwidth used for each update
     guard_events: int = 0                     #: times the guard restored the best correction and halved Q
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
+        """The history as JSON-ready values (RMS in µm)."""
         return {"rms_history_um": [1e6 * v for v in self.rms_history_m], "q_bandwidth_hz": self.q_bandwidth_hz,
                 "guard_events": self.guard_events}
 
@@ -118,12 +120,12 @@ class LearningResult:
 class IterativeLearning:
     """Offline ILC updates with the model's inverse as learning operator (see the module docstring)."""
 
-    def __init__(self, model: CompensatedModel, cfg: ILCConfig | None = None):
+    def __init__(self, model: CompensatedModel, cfg: ILCConfig | None = None) -> None:
         self.model = model
         self.cfg = cfg or ILCConfig()
         self.fs = 1.0 / model.dt
 
-    def _filtered(self, x: np.ndarray, weight) -> np.ndarray:
+    def _filtered(self, x: np.ndarray, weight: Callable[[np.ndarray, int], np.ndarray]) -> np.ndarray:
         """Apply ``weight(f) [nf, axes, axes]`` (or [nf]) to a trial on a zero-padded FFT grid (no wrap-around)."""
         n = x.shape[0]
         pad = int(round(self.cfg.pad_s * self.fs))
@@ -132,20 +134,23 @@ class IterativeLearning:
         X = np.fft.rfft(np.vstack([x, np.zeros((n_fft - n, x.shape[1]))]), axis=0)
         W = weight(f, n_fft)
         Y = np.einsum("fij,fj->fi", W, X) if W.ndim == 3 else W[:, None] * X
-        return np.fft.irfft(Y, n=n_fft, axis=0)[:n]
+        out: np.ndarray = np.fft.irfft(Y, n=n_fft, axis=0)[:n]
+        return out
 
     def update(self, correction: np.ndarray, error: np.ndarray, q_bandwidth_hz: float | None = None) -> np.ndarray:
         """One learning step ``Q·(Δ + γ·T̂⁻¹·e)`` on whole trials ``[N, axes]``."""
         bw = q_bandwidth_hz or self.cfg.q_bandwidth_hz
         model = self.model
 
-        def inverse(f, n_fft):
+        def inverse(f: np.ndarray, n_fft: int) -> np.ndarray:
             Tf = model.frequency_response(n_fft)[1]
-            return np.linalg.inv(Tf) * q_filter_response(f, bw, self.cfg.q_order)[:, None, None]
+            w: np.ndarray = np.linalg.inv(Tf) * q_filter_response(f, bw, self.cfg.q_order)[:, None, None]
+            return w
 
         step = self._filtered(np.asarray(error, float), inverse)
         kept = self._filtered(np.asarray(correction, float), lambda f, n: q_filter_response(f, bw, self.cfg.q_order))
-        return kept + self.cfg.gain * step
+        out: np.ndarray = kept + self.cfg.gain * step
+        return out
 
     def learn(self, run_trial: Callable[[np.ndarray], np.ndarray], reference: np.ndarray,
               correction: np.ndarray | None = None, iterations: int | None = None,
@@ -198,18 +203,22 @@ class LearnedCorrection:
 
     @property
     def n_axes(self) -> int:
-        return self.table.shape[1]
+        """Number of axes of the correction."""
+        return int(self.table.shape[1])
 
     def reset(self) -> None:
+        """Back to the correction's first row."""
         self.k = 0
 
     def process(self, block: np.ndarray) -> np.ndarray:
+        """``block + Δ[k … k + N)`` (Δ held at its last row past its end)."""
         x = np.ascontiguousarray(block, float)
         if x.ndim != 2 or x.shape[1] != self.n_axes:
             raise ValueError(f"expected a block of shape [N, {self.n_axes}], got {x.shape}")
         idx = np.minimum(np.arange(self.k, self.k + len(x)), len(self.table) - 1)
         self.k += len(x)
-        return x + self.table[idx]
+        out: np.ndarray = x + self.table[idx]
+        return out
 
 
 def save_correction(path: str | Path, correction: np.ndarray, sample_rate: float, trajectory: Mapping[str, Any],
@@ -224,7 +233,7 @@ def save_correction(path: str | Path, correction: np.ndarray, sample_rate: float
 
 
 def load_correction(path: str | Path, sample_rate: float | None = None,
-                    trajectory: Mapping[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+                    trajectory: Mapping[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
     """Load ``(correction, info)``; refuses a file learned at another rate or for another trajectory."""
     p = Path(path)
     if not p.is_file():

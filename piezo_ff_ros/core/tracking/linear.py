@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -21,16 +22,22 @@ from ..compensators.vibration import VibrationCompensator
 from ..config import PiezoConfig
 from ..models.dynamics import DynamicsModel
 
-__all__ = ["CompensatedModel", "CascadeReplica", "controller_matrices"]
+__all__ = ["CompensatedModel", "CascadeReplica", "controller_matrices", "ControllerABCD"]
+
+#: C(s) as continuous state-space matrices ``(A, B, C, D)``.
+ControllerABCD = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
-def controller_matrices(cascade) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+def controller_matrices(cascade: Any) -> ControllerABCD | None:
     """The continuous ``(A, B, C, D)`` of a :class:`~..compensators.cascade.CompensatorCascade`'s C(s), or None."""
     vib = getattr(cascade, "vibration", None)
-    return None if vib is None else vib.continuous
+    if vib is None:
+        return None
+    abcd: ControllerABCD = vib.continuous
+    return abcd
 
 
-def _impulse_response(make_chain, n_axes: int, n: int) -> np.ndarray:
+def _impulse_response(make_chain: Callable[[], Sequence[Any]], n_axes: int, n: int) -> np.ndarray:
     """``h[k, i, j]``: output i at sample k for a unit impulse on input j at sample 0 (fresh chain per input)."""
     h = np.zeros((n, n_axes, n_axes))
     for j in range(n_axes):
@@ -62,7 +69,7 @@ class CompensatedModel:
     dt: float
 
     @staticmethod
-    def from_config(cfg: PiezoConfig, controller: tuple | None, n: int = 1 << 15) -> "CompensatedModel":
+    def from_config(cfg: PiezoConfig, controller: ControllerABCD | None, n: int = 1 << 15) -> "CompensatedModel":
         """Build from a config and C(s) as continuous ``(A, B, C, D)`` (None: no vibration stage, C = I).
 
         ``n`` samples of impulse response; the creep inverse carries a near-integrator (|z| = 1 − 1e-10), so
@@ -72,12 +79,13 @@ class CompensatedModel:
         na = cfg.n_axes
         Dp_pinv = np.linalg.pinv(np.array(cfg.hysteresis.Dp, float))
 
-        def vib():
+        def vib() -> list[Any]:
             return [VibrationCompensator(*controller, dt)] if controller is not None else []
 
         class _Gain:
-            def process(self, x):
-                return x @ Dp_pinv.T
+            def process(self, x: np.ndarray) -> np.ndarray:
+                y: np.ndarray = x @ Dp_pinv.T
+                return y
 
         T = _impulse_response(lambda: vib() + [DynamicsModel(cfg.dynamics, dt)], na, n)
         V = _impulse_response(lambda: vib() + ([CreepCompensator(cfg.creep, dt)] if cfg.cascade.creep else [])
@@ -86,7 +94,8 @@ class CompensatedModel:
 
     @property
     def n_axes(self) -> int:
-        return self.T.shape[1]
+        """Number of axes."""
+        return int(self.T.shape[1])
 
     def frequency_response(self, n_fft: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``(f [Hz], T(e^{jωT}) [len(f), axes, axes])`` on the rfft grid of ``n_fft`` points (default len(T))."""
@@ -112,7 +121,7 @@ class CascadeReplica:
     :meth:`predict` runs a copy on a candidate continuation without touching the state.
     """
 
-    def __init__(self, cfg: PiezoConfig, controller: tuple | None):
+    def __init__(self, cfg: PiezoConfig, controller: ControllerABCD | None) -> None:
         dt = cfg.dt
         self.vibration = VibrationCompensator(*controller, dt) if controller is not None else None
         self.creep = CreepCompensator(cfg.creep, dt) if cfg.cascade.creep else None
@@ -121,12 +130,14 @@ class CascadeReplica:
         self.u_last = np.zeros(cfg.n_axes)
 
     def reset(self) -> None:
+        """Back to rest (every stage and the last voltage)."""
         for st in (self.vibration, self.creep, self.hysteresis, self.dynamics):
             if st is not None:
                 st.reset()
         self.u_last[:] = 0.0
 
     def process(self, yr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Feed a cascade input block; returns ``(U [V], Y [m])`` and advances the state."""
         yl = self.vibration.process(yr) if self.vibration is not None else np.ascontiguousarray(yr, float)
         yh = self.creep.process(yl) if self.creep is not None else yl
         u = self.hysteresis.process(yh)

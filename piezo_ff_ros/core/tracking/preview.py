@@ -33,7 +33,7 @@ import numpy as np
 
 from .._jit import njit
 from ..config import ConfigError, PiezoConfig, dataclass_from_mapping
-from .linear import CascadeReplica, CompensatedModel
+from .linear import CascadeReplica, CompensatedModel, ControllerABCD
 from .qp import QPSolver
 
 __all__ = ["PreviewConfig", "InverseKernel", "design_inverse", "PreviewStage"]
@@ -65,7 +65,7 @@ class PreviewConfig:
     qp_knot_s: float = 0.0005        #: spacing of the move knots [s]
     voltage_margin: float = 2.0      #: V kept below the voltage limit (hysteresis slope, linearisation)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ("horizon_s", "tail_s", "bandwidth_hz", "qp_horizon_s", "qp_step_s", "qp_knot_s"):
             object.__setattr__(self, name, _positive(getattr(self, name), f"preview.{name}"))
         object.__setattr__(self, "voltage_margin", _positive(self.voltage_margin, "preview.voltage_margin", True))
@@ -82,14 +82,15 @@ class PreviewConfig:
                 raise ConfigError(f"preview.{name}", f"must be <= {top:g} s, got {getattr(self, name)}")
 
     @staticmethod
-    def from_dict(d: Mapping | None) -> "PreviewConfig":
+    def from_dict(d: Mapping[str, Any] | None) -> "PreviewConfig":
         """From a mapping of the field names (unknown keys refused, naming them and the closest known one)."""
         return dataclass_from_mapping(PreviewConfig, d, "preview")
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
+        """The settings as a plain mapping (the inverse of :meth:`from_dict`)."""
         return dataclasses.asdict(self)
 
-    def samples(self, fs: float) -> dict:
+    def samples(self, fs: float) -> dict[str, int]:
         """The durations as sample counts at rate ``fs``."""
         q = max(1, int(round(self.qp_knot_s * fs)))
         h = max(q, int(round(self.qp_horizon_s * fs)) // q * q)
@@ -99,7 +100,7 @@ class PreviewConfig:
     def preview_samples(self, fs: float) -> int:
         """How far ahead the reference must arrive (samples): the inverse's horizon, plus the constrained one."""
         s = self.samples(fs)
-        return s["horizon"] + (s["qp_horizon"] if self.constrained else 0)
+        return int(s["horizon"] + (s["qp_horizon"] if self.constrained else 0))
 
 
 @dataclass(frozen=True)
@@ -109,16 +110,19 @@ class InverseKernel:
     taps: np.ndarray        #: [horizon + tail + 1, axes, axes]
     horizon: int
     tail: int
-    truncation: dict        #: kernel envelope beyond the kept range and the lags holding 1-1e-3 / 1-1e-6 of it
+    truncation: dict[str, Any]  #: kernel envelope beyond the kept range and the lags holding 1-1e-3 / 1-1e-6 of it
 
     @property
     def dc_gain(self) -> np.ndarray:
-        return self.taps.sum(axis=0)
+        """Sum of the taps ``[axes, axes]`` (the inverse's static gain)."""
+        g: np.ndarray = self.taps.sum(axis=0)
+        return g
 
 
 def lowpass_response(f: np.ndarray, bandwidth_hz: float, order: int) -> np.ndarray:
     """Zero-phase ``|F| = 1/(1 + (f/bandwidth)^(2·order))``."""
-    return 1.0 / (1.0 + (np.abs(f) / bandwidth_hz) ** (2 * order))
+    out: np.ndarray = 1.0 / (1.0 + (np.abs(f) / bandwidth_hz) ** (2 * order))
+    return out
 
 
 def design_inverse(model: CompensatedModel, cfg: PreviewConfig) -> InverseKernel:
@@ -157,7 +161,7 @@ def design_inverse(model: CompensatedModel, cfg: PreviewConfig) -> InverseKernel
 
 
 @njit
-def _fir_run(taps, r, start, out):  # pragma: no cover - compiled
+def _fir_run(taps: np.ndarray, r: np.ndarray, start: int, out: np.ndarray) -> None:  # pragma: no cover - compiled
     """``out[k] = Σ_j taps[j] · r[start + k − j]`` (MIMO; fixed summation order → split-invariant)."""
     nt, na, nb = taps.shape
     for k in range(out.shape[0]):
@@ -171,7 +175,6 @@ def _fir_run(taps, r, start, out):  # pragma: no cover - compiled
 
 
 class PreviewStage:
-    PASSES = 5   #: re-linearisations at most (the hysteresis slope is not in the linear voltage map)
     """Streaming ``reference (preview_samples ahead) [m] → shaped reference [m]`` for the cascade.
 
     Parameters
@@ -186,8 +189,10 @@ class PreviewStage:
         Precomputed impulse responses (else computed here, ~0.1 s).
     """
 
-    def __init__(self, cfg: PiezoConfig, controller: tuple | None, preview: PreviewConfig | None = None,
-                 model: CompensatedModel | None = None):
+    PASSES = 5   #: re-linearisations at most (the hysteresis slope is not in the linear voltage map)
+
+    def __init__(self, cfg: PiezoConfig, controller: ControllerABCD | None, preview: PreviewConfig | None = None,
+                 model: CompensatedModel | None = None) -> None:
         self.cfg = cfg
         self.settings = preview or PreviewConfig()
         self.model = model or CompensatedModel.from_config(cfg, controller)
@@ -206,7 +211,7 @@ class PreviewStage:
         self.reset()
 
     # -- constrained problem (P, A fixed; q, bounds per chunk) ------------------------------------------------------
-    def _setup_qp(self, s: dict) -> None:
+    def _setup_qp(self, s: dict[str, int]) -> None:
         H, q, na = s["qp_horizon"], s["qp_knot"], self.n_axes
         self._H, self._B = H, s["qp_step"]
         knots = np.arange(0, H, q)
@@ -235,14 +240,15 @@ class PreviewStage:
         self._dvmax = lim.slew * self.cfg.dt
 
     def reset(self) -> None:
-        self._r = None                  # known reference; _r[p] is the sample at absolute index p + _r0
+        """Forget the stream (history, caches, QP warm start and counters)."""
+        self._r: np.ndarray | None = None  # known reference; _r[p] is the sample at absolute index p + _r0
         self._r0 = 0
         self._n_in = 0                  # stream samples received
         self._f = np.zeros((0, self.n_axes))
         self._f0 = 0                    # absolute index of _f[0] (FIR candidate cache)
         self._out = np.zeros((0, self.n_axes))
         self._out0 = 0                  # absolute index of _out[0] (decided output not yet emitted)
-        self._x_prev = None             # last QP solution (warm start)
+        self._x_prev: np.ndarray | None = None  # last QP solution (warm start)
         if self.replica is not None:
             self.replica.reset()
         self.qp_solves = 0
@@ -250,6 +256,7 @@ class PreviewStage:
 
     # -- streaming -------------------------------------------------------------------------------------------------
     def process(self, block: np.ndarray) -> np.ndarray:
+        """One reference block ``[N, axes]`` received ``preview_samples`` ahead; returns N shaped samples."""
         x = np.ascontiguousarray(block, dtype=float)
         if x.ndim != 2 or x.shape[1] != self.n_axes:
             raise ValueError(f"expected a reference block of shape [N, {self.n_axes}], got {x.shape}")
@@ -273,6 +280,7 @@ class PreviewStage:
     def _fir(self, a: int, b: int) -> np.ndarray:
         """FIR candidate for absolute samples [a, b) (reference known up to a + La … b − 1 + La)."""
         out = np.empty((b - a, self.n_axes))
+        assert self._r is not None      # set by the first process() call, before any candidate is asked
         _fir_run(self.kernel.taps, self._r, a + self._La - self._r0, out)
         return out
 
@@ -293,6 +301,7 @@ class PreviewStage:
 
     def _chunk(self, c: int) -> np.ndarray:
         H, B = self._H, self._B
+        assert self.replica is not None and self._r is not None   # constrained mode, after the first block
         cand = self._candidate(c, c + H).copy()
         u, y = self.replica.predict(cand)
         if not self._violates(u):
@@ -310,11 +319,13 @@ class PreviewStage:
         return chunk
 
     def _violates(self, u: np.ndarray) -> bool:
+        assert self.replica is not None   # constrained mode only
         du = np.diff(np.vstack([self.replica.u_last[None, :], u]), axis=0)
         return bool(np.max(np.abs(u)) > self._vmax + 1e-9 or np.max(np.abs(du)) > self._dvmax + 1e-9)
 
-    def _solve(self, cand, u, y, r) -> np.ndarray:
+    def _solve(self, cand: np.ndarray, u: np.ndarray, y: np.ndarray, r: np.ndarray) -> np.ndarray:
         """Deviation knots z [µm] minimising the predicted error subject to the limits (linearised at cand)."""
+        assert self.replica is not None   # constrained mode only
         e = ((y - r) * 1e6).ravel()
         q = self._TPhi.T @ e
         uf = u.ravel()
@@ -327,6 +338,7 @@ class PreviewStage:
         return res.x
 
     def _trim(self, next_out: int) -> None:
+        assert self._r is not None                   # called after a block was received
         keep_from = next_out - self._M - 1           # the FIR looks back tail samples
         cut = keep_from - self._r0
         if cut > 4096:

@@ -15,6 +15,10 @@ import scipy.linalg
 __all__ = ["QPSolver", "QPResult"]
 
 
+def _big(*vs: np.ndarray) -> float:
+    """Largest absolute entry over ``vs`` (0 for empty arrays): the scale of the residual tolerances."""
+    return max(np.max(np.abs(v), initial=0.0) for v in vs)  # type: ignore[no-any-return]  # numpy max is Any
+
 @dataclass(frozen=True)
 class QPResult:
     """Solution ``x``, multipliers ``y``, iterations used, and the final primal/dual residuals (∞-norm)."""
@@ -90,9 +94,8 @@ class QPSolver:
                 Aty = A.T @ y
                 rp = float(np.max(np.abs(Ax - z), initial=0.0))
                 rd = float(np.max(np.abs(Px + q + Aty), initial=0.0))
-                big = lambda *vs: max(np.max(np.abs(v), initial=0.0) for v in vs)  # noqa: E731
-                tol_p = self.eps_abs + self.eps_rel * big(Ax, z)
-                tol_d = self.eps_abs + self.eps_rel * big(Px, Aty, q)
+                tol_p = self.eps_abs + self.eps_rel * _big(Ax, z)
+                tol_d = self.eps_abs + self.eps_rel * _big(Px, Aty, q)
                 if rp <= tol_p and rd <= tol_d:
                     return QPResult(x, y * self.row_scale, it, rp, rd, True)
         return QPResult(x, y * self.row_scale, it, rp, rd, False)
