@@ -17,6 +17,7 @@ options as :class:`CompOptions`, and its counters in an int64 array indexed by :
 """
 from __future__ import annotations
 
+import math
 from typing import Mapping, NamedTuple
 
 import numpy as np
@@ -25,8 +26,8 @@ from .._jit import njit
 from .limits import CLAMPED, SLEWED, limit_step
 
 __all__ = ["BoucWenParams", "CompState", "CompOptions", "FALLBACKS", "SATURATED", "N_COUNTERS", "params_of",
-           "bw_increment", "bw_model_run", "bw_model_run_2x2", "bw_comp_run", "bw_comp_run_2x2", "solve_small",
-           "coeffs_2x2", "bw2_increment", "bw2_model_step", "bw2_comp_step", "bw2_comp_first", "comp_coeffs_2x2",
+           "bw_increment", "bw_model_run", "bw_model_rate_run", "bw_model_run_2x2", "bw_comp_run", "bw_comp_run_2x2", "solve_small",
+           "coeffs_2x2", "bw2_factors", "bw2_increment", "bw2_model_step", "bw2_comp_step", "bw2_comp_first", "comp_coeffs_2x2",
            "coeff_tuple", "model_coeff_tuple"]
 
 #: index in the compensator's counters: samples where no sign pattern was consistent (delayed formula used)
@@ -114,10 +115,24 @@ def bw_increment(p: BoucWenParams, h: np.ndarray, du: np.ndarray, dh: np.ndarray
 def bw_model_run(p: BoucWenParams, h: np.ndarray, u_prev: np.ndarray, started: np.ndarray, u: np.ndarray,
                  y: np.ndarray, hs: np.ndarray) -> None:  # pragma: no cover - compiled
     """The model ``Y = Dp·U − h`` over a block ``u [N, k]``: ``y``, ``hs`` [N, n] written, state carried."""
+    bw_model_rate_run(p, 0.0, 1.0, 0.0, 1.0, np.zeros(u.shape[1]), h, u_prev, started, u, y, hs)
+
+
+@njit
+def bw_model_rate_run(p: BoucWenParams, alpha: float, rate_ref: float, a_smooth: float, dt: float,
+                      rate: np.ndarray, h: np.ndarray, u_prev: np.ndarray, started: np.ndarray, u: np.ndarray,
+                      y: np.ndarray, hs: np.ndarray) -> None:  # pragma: no cover - compiled
+    """:func:`bw_model_run` with an optional rate dependence of the A term (``alpha = 0``: the model itself).
+
+    ``A·dU`` becomes ``A·((1 + α·tanh(r/r_ref))∘dU)``, r the voltage rate ``|dU|/dt`` smoothed by
+    ``r ← a_smooth·r + (1 − a_smooth)·|dU|/dt`` (state ``rate`` [k]); B/Γ/Δ still see the true dU.  Used by the
+    hysteresis-replacement effect (:class:`~piezo_ff_ros.core.models.effects.HysteresisStage`).
+    """
     N = u.shape[0]
     k = u.shape[1]
     n = h.shape[0]
     du = np.zeros(k)
+    dus = np.zeros(k)
     dh = np.zeros(n)
     duh = np.zeros(n)
     for t in range(N):
@@ -128,6 +143,16 @@ def bw_model_run(p: BoucWenParams, h: np.ndarray, u_prev: np.ndarray, started: n
         for j in range(k):
             du[j] = u[t, j] - u_prev[j]
         bw_increment(p, h, du, dh, duh)
+        if alpha != 0.0:
+            # the rate only enlarges the A term: added separately, so the nominal increment stays the same numbers
+            for j in range(k):
+                rate[j] = a_smooth * rate[j] + (1.0 - a_smooth) * abs(du[j]) / dt
+                dus[j] = du[j] * (1.0 + alpha * math.tanh(rate[j] / rate_ref))
+            for i in range(n):
+                acc = 0.0
+                for j in range(k):
+                    acc += p.A[i, j] * (dus[j] - du[j])
+                dh[i] += acc
         for i in range(n):
             h[i] += dh[i]
         for j in range(k):
@@ -346,27 +371,25 @@ def model_coeff_tuple(c: np.ndarray) -> Coeffs2:  # pragma: no cover - compiled
 
 
 @njit(inline="always")
+def bw2_factors(c: Coeffs2, h0: float, h1: float) -> tuple[float, float, float, float, float, float, float,
+                                                           float]:  # pragma: no cover - compiled
+    """The h-only factors of the increment for two axes: ``(φ00, φ01, φ10, φ11, ψ00, ψ01, ψ10, ψ11)``,
+    ``φ_ij = B_ij h_j + Δ2_ij |h_j|`` and ``ψ_ij = Γ_ij |h_j| + Δ1_ij h_j`` (as :func:`bw_increment`)."""
+    ah0 = abs(h0)
+    ah1 = abs(h1)
+    return (c[8] * h0 + c[20] * ah0, c[9] * h1 + c[21] * ah1, c[10] * h0 + c[22] * ah0, c[11] * h1 + c[23] * ah1,
+            c[12] * ah0 + c[16] * h0, c[13] * ah1 + c[17] * h1, c[14] * ah0 + c[18] * h0, c[15] * ah1 + c[19] * h1)
+
+
+@njit(inline="always")
 def bw2_increment(c: Coeffs2, h0: float, h1: float, du0: float,
                   du1: float) -> tuple[float, float]:  # pragma: no cover - compiled
     """:func:`bw_increment` for two axes (same order of operations): ``(dh0, dh1)``."""
     a00, a01, a10, a11 = c[4], c[5], c[6], c[7]
-    b00, b01, b10, b11 = c[8], c[9], c[10], c[11]
-    g00, g01, g10, g11 = c[12], c[13], c[14], c[15]
-    e00, e01, e10, e11 = c[16], c[17], c[18], c[19]
-    f00, f01, f10, f11 = c[20], c[21], c[22], c[23]
     p00, p01, p10, p11 = c[24], c[25], c[26], c[27]
     duh0 = 0.0 + p00 * du0 + p01 * du1
     duh1 = 0.0 + p10 * du0 + p11 * du1
-    ah0 = abs(h0)
-    ah1 = abs(h1)
-    phi00 = b00 * h0 + f00 * ah0
-    psi00 = g00 * ah0 + e00 * h0
-    phi01 = b01 * h1 + f01 * ah1
-    psi01 = g01 * ah1 + e01 * h1
-    phi10 = b10 * h0 + f10 * ah0
-    psi10 = g10 * ah0 + e10 * h0
-    phi11 = b11 * h1 + f11 * ah1
-    psi11 = g11 * ah1 + e11 * h1
+    phi00, phi01, phi10, phi11, psi00, psi01, psi10, psi11 = bw2_factors(c, h0, h1)
     dh0 = 0.0 + a00 * du0 + a01 * du1
     dh0 -= abs(duh0) * phi00 + duh0 * psi00
     dh0 -= abs(duh1) * phi01 + duh1 * psi01
@@ -431,10 +454,6 @@ def bw2_comp_step(c: Coeffs2, exact: bool, ulim: float, dulim: float, h0: float,
     and this sample's counts.
     """
     dp00, dp01, dp10, dp11 = c[0], c[1], c[2], c[3]
-    b00, b01, b10, b11 = c[8], c[9], c[10], c[11]
-    g00, g01, g10, g11 = c[12], c[13], c[14], c[15]
-    e00, e01, e10, e11 = c[16], c[17], c[18], c[19]
-    f00, f01, f10, f11 = c[20], c[21], c[22], c[23]
     p00, p01, p10, p11 = c[24], c[25], c[26], c[27]
     q00, q01, q10, q11 = c[28], c[29], c[30], c[31]
     c00, c01, c10, c11 = c[32], c[33], c[34], c[35]
@@ -446,16 +465,7 @@ def bw2_comp_step(c: Coeffs2, exact: bool, ulim: float, dulim: float, h0: float,
     if exact:
         r0 = y0 + h0 - dp00 * up0 - dp01 * up1
         r1 = y1 + h1 - dp10 * up0 - dp11 * up1
-        ah0 = abs(h0)
-        ah1 = abs(h1)
-        phi00 = b00 * h0 + f00 * ah0
-        psi00 = g00 * ah0 + e00 * h0
-        phi01 = b01 * h1 + f01 * ah1
-        psi01 = g01 * ah1 + e01 * h1
-        phi10 = b10 * h0 + f10 * ah0
-        psi10 = g10 * ah0 + e10 * h0
-        phi11 = b11 * h1 + f11 * ah1
-        psi11 = g11 * ah1 + e11 * h1
+        phi00, phi01, phi10, phi11, psi00, psi01, psi10, psi11 = bw2_factors(c, h0, h1)
         for q in range(5):
             if q == 0:
                 s0 = sg0

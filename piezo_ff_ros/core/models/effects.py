@@ -24,7 +24,7 @@ from .._jit import njit
 from ..config import BoucWenConfig, PiezoConfig
 from ..stage import Processor
 from .plant import Plant
-from ..kernels.bouc_wen import BoucWenParams, bw_increment  # the core increment (one source)
+from ..kernels.bouc_wen import bw_model_rate_run, params_of  # the model loop (one source)
 from ..kernels.limits import limit_run  # the driver guard's limiter (one source)
 
 __all__ = [
@@ -572,50 +572,6 @@ def _lp1_run(u: np.ndarray, y_prev: np.ndarray, started: np.ndarray, a: float, o
 # Hysteresis replacement: generalized + rate-dependent Bouc-Wen
 # --------------------------------------------------------------------------------------------------------------
 
-@njit
-def _bw_rate_run(Dp: np.ndarray, A: np.ndarray, B: np.ndarray, G: np.ndarray, D1: np.ndarray, D2: np.ndarray,
-                 P: np.ndarray, alpha: float, rate_ref: float, a_smooth: float, dt: float, h: np.ndarray,
-                 u_prev: np.ndarray, rate: np.ndarray, started: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
-    N = u.shape[0]
-    k = u.shape[1]
-    n = h.shape[0]
-    du = np.zeros(k)
-    dus = np.zeros(k)
-    dh = np.zeros(n)
-    duh = np.zeros(n)  # scratch of the core increment
-    prm = BoucWenParams(Dp, A, B, G, D1, D2, P)
-    for t in range(N):
-        if not started[0]:
-            for j in range(k):
-                u_prev[j] = u[t, j]
-            started[0] = True
-        for j in range(k):
-            du[j] = u[t, j] - u_prev[j]
-            rate[j] = a_smooth * rate[j] + (1.0 - a_smooth) * abs(du[j]) / dt
-        if alpha != 0.0:
-            # A·dU with A scaled by (1 + α·tanh(|u̇|/rate_ref)): the loop widens with the rate, up to (1 + α)
-            for j in range(k):
-                dus[j] = du[j] * (1.0 + alpha * math.tanh(rate[j] / rate_ref))
-            # the rate only enlarges the A term: add it separately so B/Γ/Δ still see the true dU
-            bw_increment(prm, h, du, dh, duh)
-            for i in range(n):
-                acc = 0.0
-                for j in range(k):
-                    acc += A[i, j] * (dus[j] - du[j])
-                dh[i] += acc
-        else:
-            bw_increment(prm, h, du, dh, duh)
-        for i in range(n):
-            h[i] += dh[i]
-        for j in range(k):
-            u_prev[j] = u[t, j]
-        for i in range(n):
-            acc = 0.0
-            for j in range(k):
-                acc += Dp[i, j] * u[t, j]
-            y[t, i] = acc - h[i]
-
-
 class HysteresisStage:
     """Bouc-Wen hysteresis with the generalized (asymmetric) terms and an optional rate dependence.
 
@@ -626,8 +582,7 @@ class HysteresisStage:
 
     def __init__(self, cfg: BoucWenConfig, alpha: float = 0.0, dt: float = 5e-5):
         self.cfg = cfg
-        p = cfg.arrays()
-        self._p = (p["Dp"], p["A"], p["B"], p["Gamma"], p["Delta1"], p["Delta2"], p["P"])
+        self._p = params_of(cfg.arrays())
         if not math.isfinite(alpha):
             raise ValueError(f"hysteresis_rate_dependence.alpha: must be finite, got {alpha!r}")
         self.alpha, self.dt = float(alpha), float(dt)
@@ -645,8 +600,8 @@ class HysteresisStage:
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         u = _block(u, self.cfg.n_in)
         y = np.empty((len(u), self.cfg.n_out))
-        _bw_rate_run(*self._p, self.alpha, RATE_REF, self._a_smooth, self.dt,
-                     self._h, self._u_prev, self._rate, self._started, u, y)
+        bw_model_rate_run(self._p, self.alpha, RATE_REF, self._a_smooth, self.dt, self._rate, self._h,
+                          self._u_prev, self._started, u, y, np.empty_like(y))
         return y
 
 
