@@ -7,6 +7,8 @@ the first sample = ``t0 + k0·dt_ns`` with ``dt_ns = round(1e9/fs)`` so that sam
 from __future__ import annotations
 
 import sys
+import threading
+import time
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -117,6 +119,21 @@ def unpack_block(msg: PointCloud2, axes: Sequence[str] | None = None) -> np.ndar
     return table.astype(float)
 
 
+#: how long a callback's fault may precede the context's shutdown and still count as part of the stop [s]
+SHUTDOWN_GRACE_S = 0.5
+
+
+def _context_ends(context: Any, within: float) -> bool:
+    """True when ``context`` is shut down now or within ``within`` seconds (polled every 10 ms)."""
+    deadline = time.monotonic() + within
+    wake = threading.Event()
+    while context.ok():
+        if time.monotonic() >= deadline:
+            return False
+        wake.wait(0.01)
+    return True
+
+
 def spin_node(node: Any, on_exit: Callable[[], None] | None = None) -> int:
     """Spin until SIGINT/SIGTERM (ExternalShutdownException in these rclpy versions); clean exit code 0."""
     code = 0
@@ -126,11 +143,13 @@ def spin_node(node: Any, on_exit: Callable[[], None] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as exc:  # noqa: BLE001 - last resort: a clear one-line message, not a traceback
-        if node.context.ok():
+        if _context_ends(node.context, SHUTDOWN_GRACE_S):
+            # SIGINT/SIGTERM shut the context down under a running callback (publish → InvalidHandle), or the
+            # executor met a handle the shutdown had already destroyed just before the context said so: clean
+            print(f"{name}: stopped during a callback ({type(exc).__name__}: {exc})", file=sys.stderr)
+        else:
             print(f"{name}: fatal: {exc}", file=sys.stderr)
             code = 1
-        else:   # SIGINT/SIGTERM shut the context down under a running callback (publish → InvalidHandle): clean
-            print(f"{name}: stopped during a callback ({type(exc).__name__}: {exc})", file=sys.stderr)
     finally:
         if on_exit is not None:
             try:
