@@ -262,11 +262,7 @@ def _mode_design(y_base: np.ndarray, freq: float, damping: float, dt: float, win
     st = fx.UnmodelledMode(freq, damping, np.zeros(n), dt, n)
     if windows is None or windows.is_whole:
         return st.bandpass(y_base)
-    outs = []
-    for w, s, e in windows.spans:
-        st.reset()
-        outs.append(st.bandpass(y_base[w:e])[s - w:])
-    return np.concatenate(outs)
+    return windows.apply(st.reset, st.bandpass, y_base)
 
 
 #: at most this many modes per fit, and the share of the current training residual a new mode must remove
@@ -283,11 +279,7 @@ def _hp_design(y_base: np.ndarray, freq: float, damping: float, dt: float, windo
     st = fx.UnmodelledMode(freq, damping, np.zeros(n), dt, n)
     if windows is None or windows.is_whole:
         return st.highpass(y_base)
-    outs = []
-    for w, s, e in windows.spans:
-        st.reset()
-        outs.append(st.highpass(y_base[w:e])[s - w:])
-    return np.concatenate(outs)
+    return windows.apply(st.reset, st.highpass, y_base)
 
 
 def _level_design(y_base: np.ndarray, dt: float, windows: Windows | None) -> np.ndarray:
@@ -295,11 +287,7 @@ def _level_design(y_base: np.ndarray, dt: float, windows: Windows | None) -> np.
     st = fx.AmplitudeDependentDynamics(10.0, 0.1, np.zeros(n), np.zeros(n), dt, n)
     if windows is None or windows.is_whole:
         return st.level(y_base)
-    outs = []
-    for w, s, e in windows.spans:
-        st.reset()
-        outs.append(st.level(y_base[w:e])[s - w:])
-    return np.concatenate(outs)
+    return windows.apply(st.reset, st.level, y_base)
 
 
 @njit

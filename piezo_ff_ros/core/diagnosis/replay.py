@@ -8,7 +8,7 @@ exactly the same samples.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -151,6 +151,15 @@ class Windows:
             spans.append((int(w), int(s), int(s + per)))
         return Windows(spans)
 
+    def apply(self, reset: Callable[[], None], fn: Callable[[np.ndarray], np.ndarray], x: np.ndarray) -> np.ndarray:
+        """``fn`` (a stateful block processor) over each window from its warm start, ``reset()`` first; the scored
+        samples of every window, concatenated."""
+        outs = []
+        for w, s, e in self.spans:
+            reset()
+            outs.append(fn(x[w:e])[s - w:])
+        return np.concatenate(outs)
+
     @property
     def n(self) -> int:
         """Number of scored samples over all windows."""
@@ -169,14 +178,10 @@ class Windows:
 def simulate(cfg: PiezoConfig, u: np.ndarray, effects: Sequence[tuple[str, Mapping[str, Any]]] = (),
              windows: Windows | None = None) -> np.ndarray:
     """Model output for the voltages ``u`` on ``windows`` (default: the whole run), concatenated."""
-    if windows is None or windows.is_whole:
-        return _process_blocks(build_plant(cfg, effects), u)
     plant = build_plant(cfg, effects)
-    outs = []
-    for w, s, e in windows.spans:
-        plant.reset()
-        outs.append(plant.process(u[w:e])[s - w:])
-    return np.concatenate(outs)
+    if windows is None or windows.is_whole:
+        return _process_blocks(plant, u)
+    return windows.apply(plant.reset, plant.process, u)
 
 
 
