@@ -179,46 +179,33 @@ def paper_experiments(cfg: PiezoConfig | None = None, creep_duration: float = 60
     period = 1.0 / HYST_FREQUENCY
     hyst_T = period * int(hysteresis_periods)
     exps: list[Experiment] = []
+    def sine(amplitude: float) -> Callable[[str], Trajectory]:
+        return lambda a: Sine(amplitude=amplitude, frequency=HYST_FREQUENCY, axis=a, duration=hyst_T, axes=axes)
 
-    def step(a: str) -> dict[str, float]:  # step amplitude per axis: 20 µm on the driven axis, 0 on the others
-        return {a: AMPLITUDE}
+    def step(hold: float) -> Callable[[str], Trajectory]:  # 20 µm on the driven axis, 0 on the others
+        return lambda a: Step(amplitude={a: AMPLITUDE}, t_step=T_STEP, hold=hold, axes=axes)
 
-    for a in axes:
-        exps.append(Experiment(
-            f"hyst_S0_{a}", "IV-A", "S0", "voltage",
-            Sine(amplitude=HYST_VOLTAGE, frequency=HYST_FREQUENCY, axis=a, duration=hyst_T, axes=axes),
-            "hysteresis", a, {"period": period}, 10,
-            f"{HYST_VOLTAGE:g} V {HYST_FREQUENCY:g} Hz sine on U_{a}, no compensation (Fig. 4)"))
-    for a in axes:
-        exps.append(Experiment(
-            f"hyst_SH_{a}", "IV-C", "S_H", "reference",
-            Sine(amplitude=AMPLITUDE, frequency=HYST_FREQUENCY, axis=a, duration=hyst_T, axes=axes),
-            "hysteresis", a, {"period": period}, 10,
-            f"20 µm {HYST_FREQUENCY:g} Hz sine on {a}_h through the hysteresis compensator (Fig. 6)"))
-    for a in axes:
-        exps.append(Experiment(
-            f"creep_SH_{a}", "V-A", "S_H", "reference",
-            Step(amplitude=step(a), t_step=T_STEP, hold=creep_duration, axes=axes),
-            "creep", a, {"t_step": T_STEP, "t_creep": creep_duration}, 20,
-            f"20 µm step on {a}_h for {creep_duration:g} s, hysteresis compensated (Fig. 7)"))
-    for a in axes:
-        exps.append(Experiment(
-            f"creep_SL_{a}", "V-C", "S_L", "reference",
-            Step(amplitude=step(a), t_step=T_STEP, hold=creep_duration, axes=axes),
-            "creep", a, {"t_step": T_STEP, "t_creep": creep_duration}, 20,
-            f"20 µm step on {a}_l for {creep_duration:g} s through creep and hysteresis compensators (Fig. 10)"))
-    for a in axes:
-        exps.append(Experiment(
-            f"step_SL_{a}", "VI-A", "S_L", "reference",
-            Step(amplitude=step(a), t_step=T_STEP, hold=step_hold, axes=axes),
-            "overshoot", a, {"t_step": T_STEP}, 1,
-            f"20 µm step on {a}_l, hysteresis and creep compensated (Fig. 11)"))
-    for a in axes:
-        exps.append(Experiment(
-            f"step_T_{a}", "VI-C", "T", "reference",
-            Step(amplitude=step(a), t_step=T_STEP, hold=step_hold, axes=axes),
-            "overshoot", a, {"t_step": T_STEP}, 1,
-            f"20 µm step on {a}_r through the complete compensator (Fig. 14)"))
+    f = f"{HYST_FREQUENCY:g} Hz"
+    creep_params = {"t_step": T_STEP, "t_creep": creep_duration}
+    # name prefix, section, system, input, trajectory per driven axis, metric, params, decimation, description
+    rows: list[tuple[str, str, str, str, Callable[[str], Trajectory], str, dict[str, float], int, str]] = [
+        ("hyst_S0", "IV-A", "S0", "voltage", sine(HYST_VOLTAGE), "hysteresis", {"period": period}, 10,
+         f"{HYST_VOLTAGE:g} V {f} sine on U_{{a}}, no compensation (Fig. 4)"),
+        ("hyst_SH", "IV-C", "S_H", "reference", sine(AMPLITUDE), "hysteresis", {"period": period}, 10,
+         f"20 µm {f} sine on {{a}}_h through the hysteresis compensator (Fig. 6)"),
+        ("creep_SH", "V-A", "S_H", "reference", step(creep_duration), "creep", creep_params, 20,
+         f"20 µm step on {{a}}_h for {creep_duration:g} s, hysteresis compensated (Fig. 7)"),
+        ("creep_SL", "V-C", "S_L", "reference", step(creep_duration), "creep", creep_params, 20,
+         f"20 µm step on {{a}}_l for {creep_duration:g} s through creep and hysteresis compensators (Fig. 10)"),
+        ("step_SL", "VI-A", "S_L", "reference", step(step_hold), "overshoot", {"t_step": T_STEP}, 1,
+         "20 µm step on {a}_l, hysteresis and creep compensated (Fig. 11)"),
+        ("step_T", "VI-C", "T", "reference", step(step_hold), "overshoot", {"t_step": T_STEP}, 1,
+         "20 µm step on {a}_r through the complete compensator (Fig. 14)"),
+    ]
+    for prefix, section, system, kind, trajectory, metric, params, decimate, text in rows:
+        for a in axes:
+            exps.append(Experiment(f"{prefix}_{a}", section, system, kind, trajectory(a), metric, a, dict(params),
+                                   decimate, text.format(a=a)))
     if len(axes) == 2:
         for r in circle_radii:
             tag = f"{r / UM:g}".replace(".", "p")

@@ -27,8 +27,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable, Mapping, NamedTuple, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -162,6 +163,16 @@ class _Context:
         """Zero-phase low-pass [Hz] for step peaks (measured data) or None."""
         return 3000.0 if self.robust else None
 
+    def runs(self, kind: str, phases: Sequence[tuple[str, str]]) -> Iterator[tuple[str, str, int, str, str, _Signals]]:
+        """``(phase, system, axis index, axis, name, signals)`` of every recorded ``<kind>_<system>_<axis>`` run,
+        for ``phases`` = ``((phase, system), …)``, in that order then axis by axis."""
+        for phase, system in phases:
+            for i, a in enumerate(self.axes):
+                name = f"{kind}_{system}_{a}"
+                r = self.signals(name)
+                if r is not None:
+                    yield phase, system, i, a, name, r
+
     def signals(self, name: str) -> _Signals | None:
         """One experiment's signals as float arrays (2-D), None when not recorded; ValueError on NaN/inf."""
         if name not in self.recorded:
@@ -178,27 +189,28 @@ class _Context:
         return _Signals(np.asarray(t, float), r, np.asarray(u, float), y)
 
 
+@contextmanager
+def _kept_apart(out: dict[str, Any], name: str) -> Iterator[None]:
+    """One unreadable experiment must not lose the others: its ValueError goes to ``out["errors"][name]``."""
+    try:
+        yield
+    except ValueError as exc:
+        out["errors"][name] = str(exc)
+
+
 def _read_hysteresis(ctx: _Context, out: dict[str, Any]) -> None:
     """Hysteresis (IV-A before, IV-C after) and the range-based cross-coupling (Table II before)."""
     ranges = {}
-    for phase, system in (("before", "S0"), ("after", "SH")):
-        for i, a in enumerate(ctx.axes):
-            name = f"hyst_{system}_{a}"
-            r = ctx.signals(name)
-            if r is None:
-                continue
-            try:
-                period = ctx.by_name[name].params["period"]
-                res = M.hysteresis_ratio(r.reference[:, i], r.y[:, i], period_t=r.t, period=period, bins=ctx.bins)
-                out[phase]["hysteresis_percent"][a] = _pct(res.ratio)
-                last = M.last_period(r.t, period, r.y)[0]
-                ranges[(system, a)] = last
-                out["details"][name] = {"h_m": res.h, "H_m": res.H, "u_at_max_width": res.u_at_max,
-                                        "output_range_m": {b: float(np.ptp(last[:, j]))
-                                                           for j, b in enumerate(ctx.axes)},
-                                        "peak_voltage_V": float(np.abs(r.u).max())}
-            except ValueError as exc:  # one unreadable experiment must not lose the others
-                out["errors"][name] = str(exc)
+    for phase, system, i, a, name, r in ctx.runs("hyst", (("before", "S0"), ("after", "SH"))):
+        with _kept_apart(out, name):
+            period = ctx.by_name[name].params["period"]
+            res = M.hysteresis_ratio(r.reference[:, i], r.y[:, i], period_t=r.t, period=period, bins=ctx.bins)
+            out[phase]["hysteresis_percent"][a] = _pct(res.ratio)
+            last = M.last_period(r.t, period, r.y)[0]
+            ranges[(system, a)] = last
+            out["details"][name] = {"h_m": res.h, "H_m": res.H, "u_at_max_width": res.u_at_max,
+                                    "output_range_m": {b: float(np.ptp(last[:, j])) for j, b in enumerate(ctx.axes)},
+                                    "peak_voltage_V": float(np.abs(r.u).max())}
     for i, a in enumerate(ctx.axes):
         for b in ctx.axes:
             if b == a or ("S0", a) not in ranges or ("S0", b) not in ranges:
@@ -212,55 +224,40 @@ def _read_hysteresis(ctx: _Context, out: dict[str, Any]) -> None:
 
 def _read_creep(ctx: _Context, out: dict[str, Any]) -> None:
     """Creep (V-A before, V-C after) and the static error of the S_L creep run."""
-    for phase, system in (("before", "SH"), ("after", "SL")):
-        for i, a in enumerate(ctx.axes):
-            name = f"creep_{system}_{a}"
-            r = ctx.signals(name)
-            if r is None:
-                continue
-            try:
-                t_step = ctx.by_name[name].params["t_step"]
-                cr = M.creep_ratio(r.t, r.y[:, i], t_step=t_step)
-                out[phase]["creep_percent"][a] = _pct(cr.ratio)
-                out["creep_over_Am_percent"][phase][a] = _pct(cr.ratio_over_Am)
-                cross_creep = {b: M.creep_ratio(r.t, r.y[:, j], t_step=t_step)
-                               for j, b in enumerate(ctx.axes) if b != a}
-                out["details"][name] = {"A_f_m": cr.A_f, "A_m_m": cr.A_m, "creep_time_s": float(r.t[-1] - t_step),
-                                        "cross_A_f_m": {b: c.A_f for b, c in cross_creep.items()},
-                                        "cross_A_m_m": {b: c.A_m for b, c in cross_creep.items()}}
-                if phase == "after":
-                    ref_final = float(r.reference[-1, i])
-                    out["static_error_percent"]["S_L"][a] = _pct(_rel(cr.A_m - ref_final, ref_final))
-            except ValueError as exc:  # one unreadable experiment must not lose the others
-                out["errors"][name] = str(exc)
+    for phase, _system, i, a, name, r in ctx.runs("creep", (("before", "SH"), ("after", "SL"))):
+        with _kept_apart(out, name):
+            t_step = ctx.by_name[name].params["t_step"]
+            cr = M.creep_ratio(r.t, r.y[:, i], t_step=t_step)
+            out[phase]["creep_percent"][a] = _pct(cr.ratio)
+            out["creep_over_Am_percent"][phase][a] = _pct(cr.ratio_over_Am)
+            cross_creep = {b: M.creep_ratio(r.t, r.y[:, j], t_step=t_step) for j, b in enumerate(ctx.axes) if b != a}
+            out["details"][name] = {"A_f_m": cr.A_f, "A_m_m": cr.A_m, "creep_time_s": float(r.t[-1] - t_step),
+                                    "cross_A_f_m": {b: c.A_f for b, c in cross_creep.items()},
+                                    "cross_A_m_m": {b: c.A_m for b, c in cross_creep.items()}}
+            if phase == "after":
+                ref_final = float(r.reference[-1, i])
+                out["static_error_percent"]["S_L"][a] = _pct(_rel(cr.A_m - ref_final, ref_final))
 
 
 def _read_steps(ctx: _Context, out: dict[str, Any]) -> None:
     """Overshoot (VI-A before, VI-C after), settling, static error, final-value cross-coupling (Table II after)."""
     finals = {}
-    for phase, system in (("before", "SL"), ("after", "T")):
-        for i, a in enumerate(ctx.axes):
-            name = f"step_{system}_{a}"
-            r = ctx.signals(name)
-            if r is None:
-                continue
-            try:
-                t_step = ctx.by_name[name].params["t_step"]
-                ov = M.overshoot_ratio(r.t, r.y[:, i], t_step=t_step, lowpass_hz=ctx.lowpass)
-                out[phase]["overshoot_percent"][a] = _pct(ov.ratio)
-                ts = M.settling_time(r.t, r.y[:, i], t_step=t_step, band=0.02)
-                out["settling_time_s"][phase][a] = None if not math.isfinite(ts) else ts
-                for j, b in enumerate(ctx.axes):
-                    finals[(system, b, a)] = M.overshoot_ratio(r.t, r.y[:, j], t_step=t_step).A_f
-                out["details"][name] = {"A_f_m": ov.A_f, "A_m_m": ov.A_m, "t_peak_s": ov.t_peak,
-                                        "settling_time_2pct_s": out["settling_time_s"][phase][a],
-                                        "final_values_m": {b: finals[(system, b, a)] for b in ctx.axes},
-                                        "peak_voltage_V": float(np.abs(r.u).max())}
-                if phase == "after":
-                    ref_final = float(r.reference[-1, i])
-                    out["static_error_percent"]["T"][a] = _pct(_rel(ov.A_f - ref_final, ref_final))
-            except ValueError as exc:  # one unreadable experiment must not lose the others
-                out["errors"][name] = str(exc)
+    for phase, system, i, a, name, r in ctx.runs("step", (("before", "SL"), ("after", "T"))):
+        with _kept_apart(out, name):
+            t_step = ctx.by_name[name].params["t_step"]
+            ov = M.overshoot_ratio(r.t, r.y[:, i], t_step=t_step, lowpass_hz=ctx.lowpass)
+            out[phase]["overshoot_percent"][a] = _pct(ov.ratio)
+            ts = M.settling_time(r.t, r.y[:, i], t_step=t_step, band=0.02)
+            out["settling_time_s"][phase][a] = None if not math.isfinite(ts) else ts
+            for j, b in enumerate(ctx.axes):
+                finals[(system, b, a)] = M.overshoot_ratio(r.t, r.y[:, j], t_step=t_step).A_f
+            out["details"][name] = {"A_f_m": ov.A_f, "A_m_m": ov.A_m, "t_peak_s": ov.t_peak,
+                                    "settling_time_2pct_s": out["settling_time_s"][phase][a],
+                                    "final_values_m": {b: finals[(system, b, a)] for b in ctx.axes},
+                                    "peak_voltage_V": float(np.abs(r.u).max())}
+            if phase == "after":
+                ref_final = float(r.reference[-1, i])
+                out["static_error_percent"]["T"][a] = _pct(_rel(ov.A_f - ref_final, ref_final))
     for a in ctx.axes:
         for b in ctx.axes:
             if b != a and ("T", a, a) in finals and ("T", a, b) in finals:
@@ -277,7 +274,7 @@ def _read_tracking(ctx: _Context, out: dict[str, Any], exps: Sequence[Experiment
         r = ctx.signals(e.name)
         if r is None:
             continue
-        try:
+        with _kept_apart(out, e.name):
             mask = r.t >= e.params.get("skip", 0.0) - 1e-12
             te = M.tracking_errors(r.reference, r.y, mask=mask)
             radius = float(e.params.get("radius", np.nan))
@@ -291,8 +288,6 @@ def _read_tracking(ctx: _Context, out: dict[str, Any], exps: Sequence[Experiment
                 rw = _first_order_zoh(r.t, r.reference, float(reference_model_tau))
                 tw = M.tracking_errors(rw, r.y, mask=mask)
                 out["tracking"][e.name].update({"rms_error_vs_Wr_m": tw.rms_norm, "max_error_vs_Wr_m": tw.max_norm})
-        except ValueError as exc:  # one unreadable experiment must not lose the others
-            out["errors"][e.name] = str(exc)
 
 
 def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Experiment] | None = None,
