@@ -124,3 +124,32 @@ def test_params_round_trip_and_field_named_errors(cfg):
         with pytest.raises(ConfigError) as e:
             params_to_config(bad, cfg)
         assert str(e.value).startswith(field), str(e.value)
+
+
+def _generated_state():
+    """Every generated kernel module loaded in this process and how many type signatures each compiled."""
+    from piezo_ff_ros.core.kernels import specialise
+    return {name: len(getattr(fn, "signatures", ()) or ()) for name, fn in specialise.generated_kernels().items()}
+
+
+def test_a_new_structure_compiles_while_building_never_on_the_live_path(cfg):
+    """Kernels specialised to a stage's structure compile on first use (≈ 1 s): a swap to a controller of a new
+    order must compile them while the new cascade is built (off the block path), not in the first live blocks —
+    a 1 s stall there would let the driver's stale-input watchdog ramp the stage to safe."""
+    rng = np.random.default_rng(20261123)
+    n = 5   # an order no other test uses: its kernels are not compiled yet in this process
+    A = np.diag(-rng.uniform(500.0, 5000.0, n))
+    A[1, 2], A[2, 1] = 3000.0, -3000.0
+    new_ctrl = {"A": A.tolist(), "B": rng.uniform(100.0, 900.0, (n, 2)).round(3).tolist(),
+                "C": rng.uniform(0.1, 0.4, (2, n)).round(4).tolist(), "D": [[0.93, 0.011], [0.012, 0.91]]}
+    new = replace(cfg, vibration=replace(cfg.vibration, controller=new_ctrl)).validate()
+    hs = HotSwapCascade(cfg, crossfade_samples=200)
+    ref = reference(2000)
+    hs.process(ref[:200], k0=0)
+    hs.request(new, background=False)          # built (and warmed) here
+    built = _generated_state()
+    for i in range(200, 2000, 200):            # swap, crossfade, then the new cascade alone
+        hs.process(ref[i:i + 200], k0=i)
+        hs.applied(i, np.zeros((200, 2)))
+    assert hs.version == 2 and not hs.crossfading
+    assert _generated_state() == built

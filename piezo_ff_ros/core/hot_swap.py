@@ -190,11 +190,16 @@ class HotSwapCascade:
         if design is not None and cfg.vibration.controller is None:
             with self._lock:
                 self._designs[synthesis_key(cfg)] = design
-        # compile/warm the kernels off the hot path (a throw-away copy, state untouched)
+        # compile/warm the kernels off the hot path (a throw-away copy, state untouched): every way the live path
+        # runs a cascade — fused, stage by stage with taps, the front alone (crossfade), following the applied
+        # voltage (re-synchronisation) — since a stage's loops are compiled for its structure on first use
+        z = np.zeros((1, cfg.n_axes))
         warm = copy.deepcopy(casc)
-        warm.process(np.zeros((1, cfg.n_axes)))
+        warm.process(z)
+        warm.process_with_taps(z)
+        warm.process_front(z)
         if warm.can_follow:
-            warm.follow_applied(np.zeros((1, cfg.n_axes)))
+            warm.follow_applied(z)
         return casc
 
     def request(self, cfg: PiezoConfig, background: bool | None = None) -> int:
