@@ -19,6 +19,10 @@ from piezo_ff_ros.core.lti import DiscreteModalSS, LTIFilter
 from piezo_ff_ros.core.models.plant import Plant
 
 DT = 1 / 20000.0
+# test_chain.py's 4th-order 2×2 stand-in for C(s) (real and complex modes, D ≠ 0)
+STAND_IN_C = (np.array([[-300.0, 0, 0, 0], [0, -2000.0, 0, 0], [0, 0, -500.0, 4000.0], [0, 0, -4000.0, -500.0]]),
+              np.array([[300.0, 0.0], [0.0, 2000.0], [100.0, 50.0], [0.0, 80.0]]),
+              np.array([[0.2, 0.0, 0.1, 0.05], [0.0, 0.1, 0.02, 0.1]]), np.array([[0.9, 0.01], [0.02, 0.85]]))
 
 
 def _random_ss(seed: int, siso: bool, feedthrough: bool, strictly_proper: bool = False) -> DiscreteModalSS:
@@ -121,8 +125,7 @@ def _flatten(state, prefix=()):
 def test_the_fused_chain_gives_the_same_numbers_with_or_without_specialisation(monkeypatch):
     cfg = load_config()
     cfg = replace(cfg, limits=replace(cfg.limits, voltage=80.0))
-    ctrl = _random_ss(21, siso=False, feedthrough=True)
-    k = (ctrl.A, ctrl.B, ctrl.C, ctrl.D)  # a discrete realisation used as continuous data: any 2×2 LTI will do
+    k = STAND_IN_C   # the chain tests' stand-in C(s) (test_chain.py): its specialised kernels are compiled once
 
     def run(flag: str) -> tuple[np.ndarray, dict]:
         monkeypatch.setenv("PIEZO_FF_SPECIALISE", flag)
