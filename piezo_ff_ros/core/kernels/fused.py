@@ -29,7 +29,7 @@ import numpy as np
 from .._jit import njit
 from .bouc_wen import N_COUNTERS
 from .modal import gather_2x2, scatter_2x2
-from .specialise import bank_loop_source, bank_structure, enabled, inverse_loop_source, load_generated
+from .specialise import bank_loop_module, enabled, inverse_loop_module, load_generated
 
 __all__ = ["BANK", "INVERSE", "COMP", "MODEL", "SLOT_KINDS", "FusedPart", "FusedPass", "plan_fusion",
            "fused_source", "fused_kernel"]
@@ -271,9 +271,10 @@ def fused_source(slots: Sequence[int], loops: dict[int, tuple[str, str]]) -> str
     slots : sequence of int
         The slots present (0 VIB … 5 DYN).
     loops : dict
-        For bank slots (0, 1, 4, 5) with a specialised loop: ``slot → (function name, source)``
-        (:func:`~.specialise.bank_loop_source`, :func:`~.specialise.inverse_loop_source`); the other bank slots
-        call the generic loop (:func:`~.modal.bank2_loop`, :func:`~.modal.inverse2_loop`).
+        For bank slots (0, 1, 4, 5) with a specialised loop: ``slot → (function name, source line that imports it)``
+        (from :func:`~.specialise.bank_loop_module`, :func:`~.specialise.inverse_loop_module`: the loop the stage
+        runs alone, compiled once); the other bank slots call the generic loop (:func:`~.modal.bank2_loop`,
+        :func:`~.modal.inverse2_loop`).
 
     Returns
     -------
@@ -335,10 +336,12 @@ def fused_kernel(slots: Sequence[int], parts: Sequence[FusedPart]) -> Callable[.
         for part, slot in zip(parts, slots):
             if part.kind == BANK:
                 W, _feeds, D, _offsets, sizes = part.consts
-                loops[slot] = (f"loop{slot}", bank_loop_source(bank_structure(W, sizes, D), f"loop{slot}"))
+                mod = bank_loop_module(W, sizes, D)
+                loops[slot] = (f"loop{slot}", f"from {mod.__name__} import bank_loop as loop{slot}\n")
             elif part.kind == INVERSE:
                 W, _feeds, Kinv, _offsets, sizes = part.consts
-                loops[slot] = (f"loop{slot}", inverse_loop_source(bank_structure(W, sizes, Kinv), f"loop{slot}"))
+                mod = inverse_loop_module(Kinv, W, sizes)
+                loops[slot] = (f"loop{slot}", f"from {mod.__name__} import inverse_loop as loop{slot}\n")
     mod = load_generated(fused_source(slots, loops), "fused")
     fn: Callable[..., None] = mod.fused_run
     return fn

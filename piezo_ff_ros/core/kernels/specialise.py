@@ -33,7 +33,8 @@ from typing import Any, Callable
 import numpy as np
 
 __all__ = ["enabled", "cache_dir", "bank_structure", "bank_loop_source", "inverse_loop_source",
-           "specialised_bank_run", "specialised_inverse_run", "load_generated", "generated_kernels"]
+           "specialised_bank_run", "specialised_inverse_run", "load_generated", "generated_kernels",
+           "bank_loop_module", "inverse_loop_module"]
 
 #: rows of the coefficient table (see :mod:`.modal`)
 _A_PP, _A_PQ, _A_QP, _A_QQ, _B_P0, _B_P1, _B_Q0, _B_Q1, _C_0P, _C_0Q, _C_1P, _C_1Q = range(12)
@@ -328,6 +329,39 @@ def inverse_run(Kinv, W, offsets, sizes, feeds, x, yl, yh):  # pragma: no cover 
 """
 
 
+def bank_loop_module(W: np.ndarray, sizes: np.ndarray, D: np.ndarray) -> ModuleType:
+    """The generated module holding this bank structure's ``bank_loop`` (:func:`bank_loop_source`), shared by the
+    stage's own run and every fused pass it joins (compiled once).
+
+    Parameters
+    ----------
+    W, sizes, D : ndarray
+        The bank (:func:`~.modal.pad_to_2x2`), its block sizes and feedthrough.
+
+    Returns
+    -------
+    module
+        Imported (and registered in ``sys.modules``) under its content-addressed name.
+    """
+    return load_generated(bank_loop_source(bank_structure(W, sizes, D)), "bankloop")
+
+
+def inverse_loop_module(Kinv: np.ndarray, W: np.ndarray, sizes: np.ndarray) -> ModuleType:
+    """The generated module holding this creep compensator structure's ``inverse_loop``
+    (:func:`inverse_loop_source`), shared like :func:`bank_loop_module`.
+
+    Parameters
+    ----------
+    Kinv, W, sizes : ndarray
+        ``K⁻¹``, the bank (:func:`~.modal.pad_to_2x2`) and its block sizes.
+
+    Returns
+    -------
+    module
+    """
+    return load_generated(inverse_loop_source(bank_structure(W, sizes, Kinv)), "inverseloop")
+
+
 def generated_kernels() -> dict[str, Any]:
     """The compiled functions of every generated module loaded in this process, by ``<stem>_<hash>.<name>``.
 
@@ -362,7 +396,8 @@ def specialised_bank_run(W: np.ndarray, sizes: np.ndarray, D: np.ndarray) -> Cal
     """
     if not enabled():
         return None
-    src = bank_loop_source(bank_structure(W, sizes, D)) + _BANK_RUN
+    loop = bank_loop_module(W, sizes, D)
+    src = f"from {loop.__name__} import bank_loop\n" + _BANK_RUN
     fn: Callable[..., None] = load_generated(src, "bank").bank_run
     return fn
 
@@ -383,6 +418,7 @@ def specialised_inverse_run(Kinv: np.ndarray, W: np.ndarray, sizes: np.ndarray) 
     """
     if not enabled():
         return None
-    src = inverse_loop_source(bank_structure(W, sizes, Kinv)) + _INVERSE_RUN
+    loop = inverse_loop_module(Kinv, W, sizes)
+    src = f"from {loop.__name__} import inverse_loop\n" + _INVERSE_RUN
     fn: Callable[..., None] = load_generated(src, "inverse").inverse_run
     return fn
