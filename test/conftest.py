@@ -62,3 +62,50 @@ def paper_design(paper_config):
     from piezo_ff_ros.core.synthesis.hinf import synthesize_hinf
 
     return synthesize_hinf(paper_config.dynamics.G_L, paper_config.vibration)
+
+
+def _nodes_left_on_our_domain() -> dict[int, str]:
+    """Node processes (``piezo_ff_ros.nodes.*`` or a node console script) still running on this session's domain."""
+    found: dict[int, str] = {}
+    me = os.getpid()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == me:
+            continue
+        try:
+            cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            if "piezo_ff_ros.nodes." not in cmd and not any(f"/bin/{n} " in cmd + " " for n in _NODE_SCRIPTS):
+                continue
+            env = (entry / "environ").read_bytes().split(b"\0")
+        except OSError:
+            continue   # gone meanwhile, or not ours to read
+        if f"ROS_DOMAIN_ID={_DOMAIN}".encode() in env:
+            found[int(entry.name)] = cmd.strip()[:160]
+    return found
+
+
+_NODE_SCRIPTS = ("driver", "compensator", "trajectory", "recorder")
+
+
+@pytest.fixture(autouse=True)
+def _no_node_outlives_its_test():
+    """A node a test leaves running keeps publishing on the session's domain and breaks later graph tests (seen:
+    an orphaned lockstep trajectory). Each test must stop what it started: one that does not is an error here,
+    naming the process, which is then killed so that the next tests run on a clean domain."""
+    yield
+    if not Path("/proc").is_dir():
+        return
+    import signal
+    import time
+
+    left = _nodes_left_on_our_domain()
+    deadline = time.monotonic() + 10.0
+    while left and time.monotonic() < deadline:   # a node may still be finishing its SIGINT shutdown
+        time.sleep(0.2)
+        left = _nodes_left_on_our_domain()
+    if left:
+        for pid in left:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+        pytest.fail(f"node processes left running on ROS domain {_DOMAIN} after the test (killed): {left}")
