@@ -54,8 +54,5 @@ def test_playing_waits_until_the_recorder_matched_every_block_writer(tmp_path):
         probe.spin_until(lambda: any(s["state"] == "finished" for s in states[n:]), 30, "the recorded run")
         assert got.count("/reference") >= 1
     finally:
-        # (a clean SIGINT exit is what test_trajectory_table and the graph tests check; here the node once did not
-        # exit within 15 s of a SIGINT after a finished run, in a full-suite run — killed, its log printed — and
-        # the subject of this test is when playing starts, so the exit code is not asserted)
-        stop_node(traj)
+        assert stop_node(traj) == 0
         probe.close()
