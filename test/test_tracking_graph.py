@@ -47,3 +47,48 @@ def test_learning_through_the_graph_beats_the_cascade_and_the_preview(tmp_path):
     corr, info = load_correction(learning["correction_file"], 20000.0)
     assert info["meta"]["source"] == "graph" and corr.shape == (10000, 2) and np.any(corr)
 
+
+class _FakeGraph:
+    """GraphLauncher stand-in: every node alive."""
+
+    procs: dict = {}
+
+    def check_alive(self):
+        pass
+
+
+class _FakeClient:
+    """GraphClient stand-in whose recorder matches the block writers one spin at a time (as DDS does under load)."""
+
+    def __init__(self, matched_steps):
+        self.recorder, self.states, self.start = {}, [{"state": "idle"}], "/trajectory/start"
+        self._steps = list(matched_steps)
+        self.started_with = None
+
+    def spin_until(self, cond, timeout, what):
+        while not cond():
+            if not self._steps:
+                raise RuntimeError(f"timed out waiting for {what}")
+            self.recorder = {"publishers": self._steps.pop(0)}
+
+    def trigger(self, client):
+        assert client == self.start
+        self.started_with = dict(self.recorder.get("publishers", {}))
+        self.states += [{"state": "playing"}, {"state": "finished", "unanswered_blocks": 0}]
+
+
+def test_the_graph_case_starts_only_once_the_recorder_matched_every_block_writer():
+    """CI lost the first blocks of a graph case: the trajectory autostarted once the recorder's readers were
+    *discovered*, before the writers had *matched* them. The start now waits on the recorder's matched counts."""
+    from piezo_ff_ros.cli.track_graph import _play_when_recorded
+
+    steps = [{"/reference": 1}, {"/reference": 1, "/voltage": 1},
+             {"/reference": 1, "/voltage": 1, "/displacement": 1}]
+    client = _FakeClient(steps)
+    _play_when_recorded(_FakeGraph(), client, timeout=1.0)
+    assert client.started_with == {"/reference": 1, "/voltage": 1, "/displacement": 1}
+
+    never = _FakeClient([{"/reference": 1, "/voltage": 1}])   # the displacement writer never matches: no start
+    with pytest.raises(RuntimeError, match="recorder to match"):
+        _play_when_recorded(_FakeGraph(), never, timeout=1.0)
+    assert never.started_with is None

@@ -34,6 +34,7 @@ import numpy as np
 if TYPE_CHECKING:
     from ..core.experiments import Recorded
     from ..core.tracking.benchmark import Case
+    from ..ros.graph_session import GraphClient
     from ..ros.launcher import GraphLauncher
 
 SEGMENT = "circle20_10hz"
@@ -107,6 +108,7 @@ def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str =
         Displacement and voltage on the compensator's stream index.
     """
     from ..core.tracking.preview import PreviewConfig
+    from ..ros.graph_session import GraphClient
     from ..ros.launcher import GraphLauncher
 
     fs = 20000.0
@@ -124,8 +126,8 @@ def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str =
     comp = ["-p", f"preview.enabled:={'true' if preview else 'false'}"]
     if learning_file:
         comp += ["-p", f"learning.file:={learning_file}"]
-    # autostart: the trajectory node plays once the recorder has matched every block writer (its recorder/status)
-    traj = ["-p", "mode:=lockstep", "-p", "autostart:=true", "-p", "min_subscribers:=2", "-p", f"preview_s:={preview_s}",
+    # no autostart: the trajectory starts once the recorder has matched every block publisher (below)
+    traj = ["-p", "mode:=lockstep", "-p", "min_subscribers:=2", "-p", f"preview_s:={preview_s}",
             "-p", f"lockstep_timeout:={float(timeout)}", "-p", f"trajectory:='{json.dumps(spec)}'"]
     # lockstep: the chain pauses whenever a process is descheduled (a loaded machine, a lazy JIT compilation); the
     # simulated driver must not take such a pause for a dead stream and ramp to its safe state in the middle of
@@ -138,15 +140,14 @@ def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str =
     n = len(r)
     t0 = time.monotonic()
     g.start(timeout=timeout)
+    client: GraphClient | None = None
     try:
-        t_play = time.monotonic()
-        while "trajectory finished" not in g.procs["trajectory"].log():
-            g.check_alive()
-            if "trajectory failed" in g.procs["trajectory"].log() or time.monotonic() - t_play > timeout:
-                raise RuntimeError(f"graph case: the trajectory did not finish:\n{g.procs['trajectory'].log()[-800:]}")
-            time.sleep(0.2)
+        client = GraphClient("piezo_ff_track_graph", domain_id=int(g.env["ROS_DOMAIN_ID"]))
+        _play_when_recorded(g, client, timeout)
         _wait_recorded(g, mcap, n, timeout)
     finally:
+        if client is not None:
+            client.close()
         g.stop()
     seg = _recorded_segment(mcap, n, strict=True)
     if seg is None or seg.reference is None:   # (strict: _recorded_segment raises instead)
@@ -167,21 +168,49 @@ def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str =
     return GraphRun(y=np.asarray(y, float), u=np.asarray(u, float), mcap=mcap, preview_s=preview_s, seconds=dt)
 
 
+def _play_when_recorded(g: GraphLauncher, client: GraphClient, timeout: float) -> None:
+    """Start the trajectory once the recorder has *matched* every block publisher, and wait until it has played.
+
+    The trajectory's own check (``min_subscribers``: the recorder's readers discovered, then a 0.5 s settle) is not
+    enough on a loaded machine: a writer that has not matched the recorder's reader yet drops its first blocks for
+    it, and the recorded segment is never whole (seen in CI).  The recorder's ``~/status`` reports the matched
+    publisher counts, so this waits on the condition itself.
+    """
+    from ..ros.graph_session import BLOCK_TOPICS
+
+    def alive(cond: Callable[[], bool]) -> Callable[[], bool]:
+        def check() -> bool:
+            g.check_alive()
+            return cond()
+        return check
+
+    client.spin_until(alive(lambda: all(client.recorder.get("publishers", {}).get(t, 0) >= 1 for t in BLOCK_TOPICS)),
+                      timeout, "the recorder to match the block publishers")
+    n_before = len(client.states)
+    client.trigger(client.start)
+    ends = ("finished", "failed", "stopped")
+    client.spin_until(alive(lambda: any(s["state"] in ends for s in client.states[n_before:])), timeout,
+                      "the trajectory to finish")
+    end = next(s for s in client.states[n_before:] if s["state"] in ends)
+    if end["state"] != "finished" or end.get("unanswered_blocks", 0):
+        raise RuntimeError(f"graph case: the trajectory {end['state']} ({end}):\n{g.procs['trajectory'].log()[-800:]}")
+
+
 def _wait_recorded(g: GraphLauncher, mcap: Path, n: int, timeout: float, idle_s: float = 15.0) -> None:
     """Wait until the MCAP (flushed every second, readable while written) holds the whole segment.
 
     The trajectory has its last displacement back, the recorder may still be behind (it writes every message).  A
-    segment whose recorded length stops changing for ``idle_s`` without being whole will never be: the strict
-    reading then says what is missing, at once rather than after ``timeout``.
+    file that stops growing for ``idle_s`` without the whole segment will never hold it: the strict reading then
+    says what is missing, at once rather than after ``timeout``.
     """
     t_rec = last_change = time.monotonic()
-    progress: dict[str, int] = {}
-    seen = None
-    while _recorded_segment(mcap, n, progress=progress) is None:
+    size = -1
+    while _recorded_segment(mcap, n) is None:
         g.check_alive()
         now = time.monotonic()
-        if progress.get("samples") != seen:
-            seen, last_change = progress.get("samples"), now
+        new_size = mcap.stat().st_size if mcap.exists() else -1
+        if new_size != size:
+            size, last_change = new_size, now
         if now - last_change > idle_s:
             _recorded_segment(mcap, n, strict=True)   # raises, naming what is missing
         if now - t_rec > timeout:
@@ -189,10 +218,9 @@ def _wait_recorded(g: GraphLauncher, mcap: Path, n: int, timeout: float, idle_s:
         time.sleep(0.5)
 
 
-def _recorded_segment(mcap: Path, n: int, strict: bool = False,
-                      progress: dict[str, int] | None = None) -> Recorded | None:
+def _recorded_segment(mcap: Path, n: int, strict: bool = False) -> Recorded | None:
     """The recorded segment ``(t, reference, u, y)`` when the MCAP holds all its ``n`` samples, else None (or, with
-    ``strict``, a RuntimeError saying what is missing); ``progress["samples"]`` gets the samples recorded so far."""
+    ``strict``, a RuntimeError saying what is missing)."""
     from ..core.analysis import segment_signals
     from ..core.recording.run import load_run
 
@@ -203,8 +231,6 @@ def _recorded_segment(mcap: Path, n: int, strict: bool = False,
             raise RuntimeError(f"graph case: {mcap}: {exc}") from None
         return None
     seg = recorded.get(SEGMENT)
-    if progress is not None:
-        progress["samples"] = -1 if seg is None else len(seg[3])
     if seg is None or len(seg[3]) != n or not all(a is not None and np.all(np.isfinite(a)) for a in seg[1:]):
         if strict:
             got = "absent" if seg is None else f"{len(seg[3])} of {n} samples"

@@ -20,8 +20,7 @@ text naming the field — and used from the next start):
   displacement for a later stamp gives up the earlier blocks at once, the driver's stream never going back),
   ``t0_ns`` (stamp of sample index 0; 0 = the wall clock at start-up), ``min_subscribers`` (playing starts
   once ``reference``, ``voltage`` and ``displacement`` each have that many readers — 2 with a recorder — and, in
-  lockstep, ``voltage`` and ``displacement`` a writer); with a recorder on the graph (its ``recorder/status``),
-  playing also waits until the recorder has matched every block writer there is, so that it misses no block).
+  lockstep, ``voltage`` and ``displacement`` a writer).
 
 A table can also arrive as a message: a block (``sensor_msgs/PointCloud2``, the topic contract of docs/topics.md,
 N samples × the axes, [m]) on ``~/table`` is written to ``table_dir`` (default: a temporary directory) as ``.npy``
@@ -141,9 +140,6 @@ class TrajectoryNode(Node):
         self.pub_state = self.create_publisher(String, "~/state", LATCHED_QOS)
         self.create_subscription(PointCloud2, "displacement", self.on_displacement, BLOCK_QOS)
         self.create_subscription(PointCloud2, "~/table", self.on_table, LATCHED_QOS)
-        # a recorder on the graph says on its ~/status which writers it has matched: playing waits for them
-        self._recorder_status: dict[str, Any] = {}
-        self.create_subscription(String, "recorder/status", self._on_recorder_status, LATCHED_QOS)
         self._tmp_tables: tempfile.TemporaryDirectory | None = None
         self.create_service(Trigger, "~/start", self.on_start)
         self.create_service(Trigger, "~/stop", self.on_stop)
@@ -298,45 +294,15 @@ class TrajectoryNode(Node):
             # lockstep needs the whole chain; realtime may feed a compensator (or any reader) alone
             writers = {"voltage": self.count_publishers("voltage"),
                        "displacement": self.count_publishers("displacement")} if lockstep else {}
-            unrecorded = self._unrecorded_writers()
-            if all(c >= need for c in counts.values()) and all(w >= 1 for w in writers.values()) and not unrecorded:
+            if all(c >= need for c in counts.values()) and all(w >= 1 for w in writers.values()):
                 break
             settle = True
             if time.monotonic() > deadline:
                 raise TimeoutError(f"graph not ready after {timeout} s: subscribers {counts} (need {need} each), "
-                                   f"publishers {writers} (need 1 each), recorder not yet matched to {unrecorded}")
+                                   f"publishers {writers} (need 1 each)")
             time.sleep(0.05)
         if settle:
             time.sleep(0.5)  # graph discovery precedes endpoint matching by a little
-
-    def _on_recorder_status(self, msg: String) -> None:
-        try:
-            status = json.loads(msg.data)
-        except ValueError:
-            return
-        if isinstance(status, dict):
-            self._recorder_status = status
-
-    def _unrecorded_writers(self) -> list[str]:
-        """Block topics with a writer on the graph that a recorder here subscribes to but has not matched yet.
-
-        The subscriber counts above see the recorder's readers once *discovered*; a writer that has not *matched*
-        such a reader yet drops its first blocks for it (a graph case in CI lost them, the recorded segment never
-        whole).  The recorder's ``~/status`` (``recorder/status`` in this namespace, transient-local) reports the
-        matched writer count per topic.  No recorder (or one named otherwise, or one whose recording stopped): [].
-        """
-        if self.count_publishers("recorder/status") == 0:
-            return []                           # (a status left by a recorder that is gone says nothing)
-        status = self._recorder_status
-        if not status:
-            return ["recorder/status"]          # a recorder is there, its status not yet delivered
-        if status.get("error"):
-            return []
-        ns = self.pub_ref.topic_name.rsplit("/", 1)[0]
-        subscribed = set(status.get("subscribed") or [])
-        matched = status.get("publishers") or {}
-        return [t for t in (f"{ns}/{name}" for name in ("reference", "voltage", "displacement"))
-                if t in subscribed and self.count_publishers(t) > 0 and matched.get(t, 0) < 1]
 
     def _set_state(self, state: str, **extra: Any) -> None:
         self.state = {"state": state, "mode": self._run_mode or self.param("mode"), "k": int(self.k_stream),
