@@ -200,17 +200,18 @@ def _wait_recorded(g: GraphLauncher, mcap: Path, n: int, timeout: float, idle_s:
     """Wait until the MCAP (flushed every second, readable while written) holds the whole segment.
 
     The trajectory has its last displacement back, the recorder may still be behind (it writes every message).  A
-    file that stops growing for ``idle_s`` without the whole segment will never hold it: the strict reading then
-    says what is missing, at once rather than after ``timeout``.
+    segment whose recorded length stops changing for ``idle_s`` without being whole will never be (the file itself
+    keeps growing with /diagnostics): the strict reading then says what is missing, at once rather than after
+    ``timeout``.
     """
     t_rec = last_change = time.monotonic()
-    size = -1
-    while _recorded_segment(mcap, n) is None:
+    progress: dict[str, int] = {}
+    seen = None
+    while _recorded_segment(mcap, n, progress=progress) is None:
         g.check_alive()
         now = time.monotonic()
-        new_size = mcap.stat().st_size if mcap.exists() else -1
-        if new_size != size:
-            size, last_change = new_size, now
+        if progress.get("samples") != seen:
+            seen, last_change = progress.get("samples"), now
         if now - last_change > idle_s:
             _recorded_segment(mcap, n, strict=True)   # raises, naming what is missing
         if now - t_rec > timeout:
@@ -218,9 +219,10 @@ def _wait_recorded(g: GraphLauncher, mcap: Path, n: int, timeout: float, idle_s:
         time.sleep(0.5)
 
 
-def _recorded_segment(mcap: Path, n: int, strict: bool = False) -> Recorded | None:
+def _recorded_segment(mcap: Path, n: int, strict: bool = False,
+                      progress: dict[str, int] | None = None) -> Recorded | None:
     """The recorded segment ``(t, reference, u, y)`` when the MCAP holds all its ``n`` samples, else None (or, with
-    ``strict``, a RuntimeError saying what is missing)."""
+    ``strict``, a RuntimeError saying what is missing); ``progress["samples"]`` gets the samples recorded so far."""
     from ..core.analysis import segment_signals
     from ..core.recording.run import load_run
 
@@ -231,6 +233,8 @@ def _recorded_segment(mcap: Path, n: int, strict: bool = False) -> Recorded | No
             raise RuntimeError(f"graph case: {mcap}: {exc}") from None
         return None
     seg = recorded.get(SEGMENT)
+    if progress is not None:
+        progress["samples"] = -1 if seg is None else len(seg[3])
     if seg is None or len(seg[3]) != n or not all(a is not None and np.all(np.isfinite(a)) for a in seg[1:]):
         if strict:
             got = "absent" if seg is None else f"{len(seg[3])} of {n} samples"
