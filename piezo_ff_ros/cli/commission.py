@@ -19,8 +19,6 @@ pushed live to the compensator node before the next is characterised, everything
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
 import math
 import sys
 import time
@@ -120,8 +118,8 @@ def after_vs_printed(after: Mapping[str, Mapping[str, float | None]],
 def run(args: argparse.Namespace) -> int:
     from ..core.characterisation import CharacterisationSettings
     from ..core.config import load_config
-    from ..core.commissioning import SimRig, commission
-    from ..core.jsonable import jsonable, parse_order
+    from ..core.commissioning import SimRig, commission, save_config, save_report
+    from ..core.jsonable import parse_order
     from ..core.reproduce import format_tables, truth_plant
     from . import output_dir
 
@@ -159,8 +157,7 @@ def run(args: argparse.Namespace) -> int:
                         dynamics_order=parse_order(args.dynamics_order), progress=say)
     cfg, design, note, report = result.config, result.design, result.hinf_note, result.report
     cfg_path = out / "config.yaml"
-    cfg.to_yaml(cfg_path)
-    load_config(cfg_path)  # what the compensator node will do: fails loudly if the file is not loadable
+    save_config(cfg, cfg_path)
     say(f"wrote {cfg_path}")
 
     t0 = time.perf_counter()
@@ -195,17 +192,8 @@ def run(args: argparse.Namespace) -> int:
                 print(f"  {key:<24} {a}  {_f(c['identified'])}   {_f(c['printed'])}            {verdict}")
     out_json["timing_s"] = {k: round(v, 2) for k, v in timing.items()}
     print()
-    print("held-out fit [%] (MATLAB compare):")
-    for stage, d in report.fit_percent.items():
-        print(f"  {stage:10s} " + "  ".join(f"{k}: {_f(v)}" for k, v in d.items()))
-    print(f"  (plant = identified whole-plant model vs the {report.plant_fit_basis}, held-out voltage record)")
-    if report.plant_fit_noise_free is not None:
-        print("  plant vs the noise-free truth: " + "  ".join(
-            f"{k}: {_f(v)}" for k, v in report.plant_fit_noise_free.items()))
-    text = json.dumps(jsonable(out_json), indent=2)
-    (out / "commission.json").write_text(text)
-    if args.json:
-        Path(args.json).write_text(text)
+    print(report.format_fits())
+    save_report(out_json, out, args.json)
     say(f"done in {time.perf_counter() - t_start:.1f} s")
     return 0
 

@@ -17,8 +17,10 @@ Pure: no ROS import.
 """
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
@@ -26,7 +28,7 @@ import numpy as np
 from .characterisation import (CharacterisationSettings, creep_trajectories, dynamics_trajectories,
                                hysteresis_trajectories, plant_validation_trajectory, run_open_loop)
 from .config import PiezoConfig, load_config
-from .jsonable import JsonResult
+from .jsonable import JsonResult, jsonable
 from .identification.bouc_wen import identify_bouc_wen
 from .identification.creep import identify_creep
 from .identification.dynamics import identify_dynamics
@@ -41,7 +43,7 @@ if TYPE_CHECKING:  # imported where used (the simulation and the evaluation are 
     from .reproduce import ReproduceResult
 
 __all__ = ["CommissioningError", "PlannedRun", "Rig", "RigLimits", "SimRig", "CommissionResult", "CommissionReport",
-           "characterisation_plan", "check_voltage_runs", "commission", "verify"]
+           "characterisation_plan", "check_voltage_runs", "commission", "verify", "save_config", "save_report"]
 
 Progress = Callable[[str], None]
 
@@ -291,6 +293,59 @@ class CommissionReport(JsonResult):
     plant_fit_parts: dict[str, dict[str, float]]
     timing_s: dict[str, float]
     plant_fit_noise_free: dict[str, float | None] | None = field(default=None, metadata={"omit_none": True})
+
+    def format_fits(self) -> str:
+        """The held-out fits as the printed table of ``piezo-ff commission`` (sim-only and graph alike).
+
+        Returns
+        -------
+        str
+            One line per stage (``—`` where a fit is undefined), then the whole-plant basis and, for a simulated
+            rig, the fit against the noise-free truth.
+        """
+        def f(v: float | None) -> str:
+            return "—" if v is None else f"{v:8.3f}"
+        lines = ["held-out fit [%] (MATLAB compare):"]
+        lines += [f"  {stage:10s} " + "  ".join(f"{k}: {f(v)}" for k, v in d.items())
+                  for stage, d in self.fit_percent.items()]
+        lines.append(f"  (plant = identified whole-plant model vs the {self.plant_fit_basis}, held-out voltage record)")
+        if self.plant_fit_noise_free is not None:
+            lines.append("  plant vs the noise-free truth: " + "  ".join(
+                f"{k}: {f(v)}" for k, v in self.plant_fit_noise_free.items()))
+        return "\n".join(lines)
+
+
+def save_config(cfg: PiezoConfig, path: Path) -> None:
+    """Write the identified ``cfg`` as YAML and load it back as the compensator node will (fails loudly if the file
+    is not loadable).
+
+    Parameters
+    ----------
+    cfg : PiezoConfig
+        The identified configuration.
+    path : Path
+        The YAML file to write.
+    """
+    cfg.to_yaml(path)
+    load_config(path)
+
+
+def save_report(report: Mapping[str, Any], out_dir: Path, extra: str | None = None) -> None:
+    """Write the commissioning report as ``out_dir/commission.json`` (and to ``extra`` too, when given).
+
+    Parameters
+    ----------
+    report : mapping
+        The report (any values :func:`~piezo_ff_ros.core.jsonable.jsonable` accepts).
+    out_dir : Path
+        The commissioning output directory.
+    extra : str or None
+        A second path (``--json``).
+    """
+    text = json.dumps(jsonable(report), indent=2)
+    (out_dir / "commission.json").write_text(text)
+    if extra:
+        Path(extra).write_text(text)
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,6 @@ Everything goes through the topics into ``DIR/commission.mcap``.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -30,10 +29,10 @@ def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     # before rclpy is imported: localhost discovery; probe the given (or the caller's) domain for a driver
     apply_ros_env_defaults(domain_id=args.domain_id, force_domain=args.domain_id is not None)
     from ..core.characterisation import CharacterisationSettings
-    from ..core.commissioning import commission, verify
+    from ..core.commissioning import commission, save_config, save_report, verify
     from ..core.config import load_config
     from ..core.experiments import paper_experiments, select_experiments
-    from ..core.jsonable import jsonable, parse_order
+    from ..core.jsonable import parse_order
     from ..core.reproduce import format_tables
     from .graph_rig import GraphRig
     from .graph_session import GraphClient, displacement_present, driver_present, sim_graph
@@ -94,8 +93,7 @@ def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
                             progress=say)
         cfg, design, note = result.config, result.design, result.hinf_note
         cfg_path = out / "config.yaml"
-        cfg.to_yaml(cfg_path)
-        load_config(cfg_path)  # what the compensator node will do: fails loudly if the file is not loadable
+        save_config(cfg, cfg_path)
         say(f"wrote {cfg_path}; pushing the complete identified configuration live")
         rig.configure(cfg, frozenset({"hysteresis", "creep", "vibration"}))
         say(f"verify: {len(exps)} paper experiments through the graph with the identified cascade")
@@ -131,12 +129,7 @@ def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
                 "timing_s": {k: round(v, 2) for k, v in timing.items()}}
     print(format_tables(res, label="identified cascade (ROS graph)", axes=axes))
     print()
-    print("held-out fit [%] (MATLAB compare):")
-    for stage, d in report.fit_percent.items():
-        print(f"  {stage:10s} " + "  ".join(f"{k}: {'—' if v is None else f'{v:8.3f}'}" for k, v in d.items()))
-    text = json.dumps(jsonable(out_json), indent=2)
-    (out / "commission.json").write_text(text)
-    if args.json:
-        Path(args.json).write_text(text)
+    print(report.format_fits())
+    save_report(out_json, out, args.json)
     say(f"done in {timing['total']:.1f} s; recording {mcap_path}, config {out / 'config.yaml'}")
     return 0
