@@ -1,0 +1,222 @@
+"""Hysteresis-side effects: the replacement of the nominal Bouc-Wen and the loop-shape terms that go with it.
+
+:class:`HysteresisStage` is the generalized (asymmetric ``Δ1``, ``Δ2``) and rate-dependent Bouc-Wen that replaces
+the nominal hysteresis (``hysteresis_rate_dependence``, ``hysteresis_asymmetry``); :class:`RelaxedHysteresisStage`
+lets its hysteretic state reach the output through a relaxation (``relaxation``).  :class:`BranchEvenTerm` (an even,
+branch-dependent bend) and :class:`PlayWidthTerm` (a play-operator loop-width correction) are displacement-side
+stages of ``hysteresis_asymmetry``; :func:`asymmetric_hysteresis_config` adds its ``Δ`` terms to a config.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..._jit import njit
+from ...config import BoucWenConfig
+from ...kernels.bouc_wen import bw_model_rate_run, params_of  # the model loop (one source)
+from .common import DIRECTION_TAU, LEVEL_REF, RATE_REF, RATE_SMOOTHING, _block, _per_axis
+
+__all__ = ["HysteresisStage", "RelaxedHysteresisStage", "BranchEvenTerm", "PlayWidthTerm",
+           "asymmetric_hysteresis_config"]
+
+
+class HysteresisStage:
+    """Bouc-Wen hysteresis with the generalized (asymmetric) terms and an optional rate dependence.
+
+    Replaces the nominal hysteresis part: ``Y_H = Dp·U − h``, ``dh = A·(1 + α·tanh(r/r_ref))∘dU − B(|dÛ|∘h) − Γ(dÛ∘|h|)
+    − Δ1(dÛ∘h) − Δ2(|dÛ|∘|h|)`` where r is |dU/dt| smoothed over :data:`RATE_SMOOTHING` and r_ref =
+    :data:`RATE_REF`.  ``alpha = 0`` and zero Δ give exactly the nominal :class:`BoucWenModel`.
+    """
+
+    def __init__(self, cfg: BoucWenConfig, alpha: float = 0.0, dt: float = 5e-5):
+        self.cfg = cfg
+        self._p = params_of(cfg.arrays())
+        if not math.isfinite(alpha):
+            raise ValueError(f"hysteresis_rate_dependence.alpha: must be finite, got {alpha!r}")
+        self.alpha, self.dt = float(alpha), float(dt)
+        self._a_smooth = math.exp(-self.dt / RATE_SMOOTHING)
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self._h = np.zeros(self.cfg.n_out)
+        self._u_prev = np.zeros(self.cfg.n_in)
+        self._rate = np.zeros(self.cfg.n_in)
+        self._started = np.zeros(1, np.bool_)
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        u = _block(u, self.cfg.n_in)
+        y = np.empty((len(u), self.cfg.n_out))
+        bw_model_rate_run(self._p, self.alpha, RATE_REF, self._a_smooth, self.dt, self._rate, self._h,
+                          self._u_prev, self._started, u, y, np.empty_like(y))
+        return y
+
+
+@njit
+def _relax2_run(x: np.ndarray, a: float, s1: np.ndarray, s2: np.ndarray, started: np.ndarray,
+                out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Two cascaded unit-DC first-order relaxations (critically damped, pole ``a`` twice), per column; started
+    settled at the first input."""
+    N, n = x.shape
+    for t in range(N):
+        for j in range(n):
+            if not started[0]:
+                s1[j] = x[t, j]
+                s2[j] = x[t, j]
+            s1[j] = a * s1[j] + (1.0 - a) * x[t, j]
+            s2[j] = a * s2[j] + (1.0 - a) * s1[j]
+            out[t, j] = s2[j]
+        started[0] = True
+
+
+class RelaxedHysteresisStage(HysteresisStage):
+    """:class:`HysteresisStage` whose hysteretic state reaches the output through a critically damped relaxation
+    ``1/(1 + s·τ)²`` (τ = ``relaxation`` [s]): ``Y_H = Dp·U − R_τ(h)``.  A viscous loop — it widens and turns with
+    the frequency, unlike the ``alpha`` term, which widens it with the voltage rate.  Part of
+    ``hysteresis_rate_dependence`` (parameter ``relaxation``)."""
+
+    def __init__(self, cfg: BoucWenConfig, alpha: float = 0.0, dt: float = 5e-5, relaxation: float = 0.0):
+        if not (math.isfinite(relaxation) and relaxation > 0):
+            raise ValueError(f"hysteresis_rate_dependence.relaxation: must be > 0 s, got {relaxation!r}")
+        self.relaxation = float(relaxation)
+        self._a_relax = math.exp(-dt / self.relaxation)
+        super().__init__(cfg, alpha, dt)
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        super().reset()
+        self._r1 = np.zeros(self.cfg.n_out)
+        self._r2 = np.zeros(self.cfg.n_out)
+        self._r_started = np.zeros(1, np.bool_)
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        u = _block(u, self.cfg.n_in)
+        y = super().process(u)
+        lin = u @ np.asarray(self._p[0], float).T  # Dp·U
+        h = lin - y
+        hr = np.empty_like(h)
+        _relax2_run(h, self._a_relax, self._r1, self._r2, self._r_started, hr)
+        res: np.ndarray = lin - hr
+        return res
+
+
+class BranchEvenTerm:
+    """The even, branch-dependent part of an asymmetric loop: ``Y_i += (e_i + b_i·D_i(t))·Y_i²/LEVEL_REF`` with
+    ``D_i = sign(Y_i − LP(Y_i))`` the direction of motion (LP over :data:`DIRECTION_TAU`): an ascending and a
+    descending branch bent differently, which a point-symmetric loop cannot have.  Part of
+    ``hysteresis_asymmetry`` (parameters ``even``, ``branch_even``)."""
+
+    def __init__(self, even: ArrayLike, branch_even: ArrayLike, dt: float, n_axes: int = 2) -> None:
+        self.n, self.dt = n_axes, float(dt)
+        self.even = _per_axis(even, n_axes, "hysteresis_asymmetry.even")
+        self.branch = _per_axis(branch_even, n_axes, "hysteresis_asymmetry.branch_even")
+        self._a = math.exp(-self.dt / DIRECTION_TAU)
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self._lp = np.zeros(self.n)
+        self._started = np.zeros(1, np.bool_)
+
+    def terms(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(q, D·q) of every column, q = Y²/LEVEL_REF (advances the direction state)."""
+        y = _block(y, self.n)
+        lp = np.empty_like(y)
+        _lp1_run(y, self._lp, self._started, self._a, lp)
+        q = y * y / LEVEL_REF
+        return q, np.sign(y - lp) * q
+
+    def process(self, y: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        y = _block(y, self.n)
+        q, dq = self.terms(y)
+        res: np.ndarray = y + q * self.even + dq * self.branch
+        return res
+
+
+@njit
+def _lp1_run(u: np.ndarray, y_prev: np.ndarray, started: np.ndarray, a: float, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    N, n = u.shape
+    for t in range(N):
+        for j in range(n):
+            if not started[0]:
+                y_prev[j] = u[t, j]
+            y_prev[j] = a * y_prev[j] + (1.0 - a) * u[t, j]
+            out[t, j] = y_prev[j]
+        started[0] = True
+
+
+@njit
+def _play_run(y: np.ndarray, radii: np.ndarray, z: np.ndarray, started: np.ndarray,
+              out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Classical (symmetric) play operators of every column: out[t, k, j] = z_kj − y_j, z_kj clipped to
+    [y_j − r_k, y_j + r_k]; started at z = y."""
+    N, n = y.shape
+    K = radii.shape[0]
+    for t in range(N):
+        for j in range(n):
+            v = y[t, j]
+            for k in range(K):
+                if not started[0]:
+                    z[k, j] = v
+                zk = z[k, j]
+                if zk < v - radii[k]:
+                    zk = v - radii[k]
+                elif zk > v + radii[k]:
+                    zk = v + radii[k]
+                z[k, j] = zk
+                out[t, k, j] = zk - v
+        started[0] = True
+
+
+class PlayWidthTerm:
+    """Loop-width correction of the asymmetric hysteresis candidate: ``Y_i += Σ_k w_ki·(P_k(Y_i) − Y_i)``, with
+    ``P_k`` the classical play operator of radius ``play_radii[k]`` [m] on the displacement (each term is ±r_k on
+    the branches, and changes sides over a reversal of 2·r_k): a loop wider or narrower than the nominal
+    Bouc-Wen's, by an amount that depends on how far the motion has gone since it last reversed.  ``play_gains``:
+    [K][n] (or one value per radius, shared by the axes)."""
+
+    def __init__(self, play_radii: ArrayLike, play_gains: ArrayLike, n_axes: int = 2) -> None:
+        r = np.atleast_1d(np.asarray(play_radii, float)).reshape(-1)
+        if r.size == 0 or not np.all(np.isfinite(r)) or np.any(r <= 0):
+            raise ValueError(f"hysteresis_asymmetry.play_radii: expected positive radii [m], got {play_radii!r}")
+        g = np.asarray(play_gains, float)
+        if g.ndim <= 1:
+            g = np.repeat(np.atleast_1d(g).reshape(-1, 1), n_axes, axis=1) if g.size == r.size else g
+        if g.shape != (r.size, n_axes) or not np.all(np.isfinite(g)):
+            raise ValueError(f"hysteresis_asymmetry.play_gains: expected [{r.size}][{n_axes}] finite values, got "
+                             f"{play_gains!r}")
+        self.radii, self.gains, self.n = r, g, n_axes
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self._z = np.zeros((self.radii.size, self.n))
+        self._started = np.zeros(1, np.bool_)
+
+    def terms(self, y: np.ndarray) -> np.ndarray:
+        """``P_k(Y) − Y`` as [N, K, n] (advances the operators' state)."""
+        y = _block(y, self.n)
+        out = np.empty((len(y), self.radii.size, self.n))
+        _play_run(y, self.radii, self._z, self._started, out)
+        return out
+
+    def process(self, y: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        y = _block(y, self.n)
+        res: np.ndarray = y + np.einsum("tkj,kj->tj", self.terms(y), self.gains)
+        return res
+
+
+def asymmetric_hysteresis_config(hcfg: BoucWenConfig, delta1: ArrayLike, delta2: ArrayLike) -> BoucWenConfig:
+    """The nominal Bouc-Wen with diagonal generalized terms ``Δ1 = diag(delta1)``, ``Δ2 = diag(delta2)`` added."""
+    n = hcfg.n_out
+    p = hcfg.arrays()
+    D1 = p["Delta1"] + np.diag(_per_axis(delta1, n, "hysteresis_asymmetry.Delta1"))
+    D2 = p["Delta2"] + np.diag(_per_axis(delta2, n, "hysteresis_asymmetry.Delta2"))
+    return replace(hcfg, Delta1=tuple(map(tuple, D1)), Delta2=tuple(map(tuple, D2)))

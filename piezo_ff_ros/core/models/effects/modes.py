@@ -1,0 +1,243 @@
+"""Structural-mode effects (``post`` stages): resonances the nominal dynamics ``G_L`` lacks, fixed or level-dependent.
+
+:class:`UnmodelledMode` adds band-pass and high-pass terms of one or several pole pairs (bilinear, prewarped
+biquads), :class:`AmplitudeDependentDynamics` adds terms modulated by the motion's level (|Y| low-passed over
+:data:`~.common.LEVEL_TAU`, per :data:`~.common.LEVEL_REF`), and :class:`CubicAmplitudeDynamics` an instantaneous
+(cubic-spring) stiffness term on top.  The biquad coefficients (``_bandpass_coeffs``, ``_highpass_coeffs``) are also
+used by the diagnosis's mode fit.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..._jit import njit
+from .common import LEVEL_REF, LEVEL_TAU, _block, _per_axis
+
+__all__ = ["UnmodelledMode", "AmplitudeDependentDynamics", "CubicAmplitudeDynamics"]
+
+
+@njit
+def _biquad_run(x: np.ndarray, b0: float, b1: float, b2: float, a1: float, a2: float, z: np.ndarray,
+                out: np.ndarray) -> None:  # pragma: no cover - compiled
+    N, n = x.shape
+    for t in range(N):
+        for j in range(n):
+            xi = x[t, j]
+            yi = b0 * xi + z[0, j]
+            z[0, j] = b1 * xi - a1 * yi + z[1, j]
+            z[1, j] = b2 * xi - a2 * yi
+            out[t, j] = yi
+
+
+def _bandpass_coeffs(freq: float, damping: float, dt: float) -> tuple[float, float, float, float, float]:
+    """Bilinear (prewarped at ω) discretisation of ``2ζωs/(s² + 2ζωs + ω²)`` (unit gain at the peak)."""
+    w = 2 * math.pi * freq
+    K = w / math.tan(w * dt / 2)
+    a0 = K * K + 2 * damping * w * K + w * w
+    b0 = 2 * damping * w * K / a0
+    b1 = 0.0
+    b2 = -b0
+    a1 = (2 * w * w - 2 * K * K) / a0
+    a2 = (K * K - 2 * damping * w * K + w * w) / a0
+    return b0, b1, b2, a1, a2
+
+
+def _highpass_coeffs(freq: float, damping: float, dt: float) -> tuple[float, float, float, float, float]:
+    """Bilinear (prewarped at ω) discretisation of ``s²/(s² + 2ζωs + ω²)`` (0 at DC, 1 far above ω)."""
+    w = 2 * math.pi * freq
+    K = w / math.tan(w * dt / 2)
+    a0 = K * K + 2 * damping * w * K + w * w
+    b0 = K * K / a0
+    a1 = (2 * w * w - 2 * K * K) / a0
+    a2 = (K * K - 2 * damping * w * K + w * w) / a0
+    return b0, -2.0 * b0, b0, a1, a2
+
+
+def _modes_spec(freq: ArrayLike, damping: ArrayLike, dt: float, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Validated lists of mode frequencies and dampings (scalars mean one mode)."""
+    f = np.atleast_1d(np.asarray(freq, float)).reshape(-1)
+    z = np.atleast_1d(np.asarray(damping, float)).reshape(-1)
+    if z.size == 1 and f.size > 1:
+        z = np.full(f.size, float(z[0]))
+    if f.size == 0 or z.size != f.size:
+        raise ValueError(f"{name}.damping: expected {f.size} value(s), got {damping!r}")
+    for fi in f:
+        if not (math.isfinite(fi) and 0 < fi < 0.5 / dt):
+            raise ValueError(f"{name}.freq: must be in (0, Nyquist={0.5 / dt:g}) Hz, got {freq!r}")
+    for zi in z:
+        if not (math.isfinite(zi) and 0 < zi < 5):
+            raise ValueError(f"{name}.damping: must be in (0, 5), got {damping!r}")
+    return f, z
+
+
+def _mode_gains(gains: ArrayLike, K: int, n: int, name: str) -> np.ndarray:
+    """Gains as [K, n, n] (output i, input j); a per-axis list (one mode) or [K][n] means diagonal."""
+    g = np.asarray(gains, float)
+    if g.ndim <= 1 and K == 1:
+        return np.diag(_per_axis(g, n, name))[None]
+    if g.ndim == 2 and g.shape == (K, n):
+        return np.stack([np.diag(row) for row in g])
+    if g.shape == (K, n, n) and np.all(np.isfinite(g)):
+        return g
+    raise ValueError(f"{name}: expected {n} per-axis gains (one mode), [{K}][{n}] or [{K}][{n}][{n}], got "
+                     f"shape {g.shape}")
+
+
+class UnmodelledMode:
+    """Structural resonances the nominal G_L lacks: ``Y_i ← Y_i + Σ_m Σ_j (g_mij·BP_m + h_mij·HP_m)(Y_j)``.
+
+    ``BP_m(s) = 2ζ_mω_m·s/(s² + 2ζ_mω_m·s + ω_m²)``: unit peak gain at ``freq[m]`` [Hz];
+    ``HP_m(s) = s²/(s² + 2ζ_mω_m·s + ω_m²)``.  Both vanish at DC, so together they are any second-order correction
+    with that pole pair and no static effect — a resonance, or a pole–zero pair (anti-resonance) in series, which
+    leaves a gain change above it.  ``freq``/``damping``: scalars (one mode) or lists (several); ``gains`` and
+    ``hp_gains`` (default 0): per axis (one mode), ``[K][n]`` or ``[K][n][n]`` (output i through axis j:
+    cross-coupled modes).
+    """
+
+    def __init__(self, freq: ArrayLike, damping: ArrayLike, gains: ArrayLike, dt: float, n_axes: int = 2,
+                 hp_gains: ArrayLike | None = None) -> None:
+        self.n, self.dt = n_axes, float(dt)
+        self.freqs, self.dampings = _modes_spec(freq, damping, self.dt, "unmodelled_mode")
+        self.freq, self.damping = float(self.freqs[0]), float(self.dampings[0])
+        K = len(self.freqs)
+        self.G = _mode_gains(gains, K, n_axes, "unmodelled_mode.gains")
+        self.H = np.zeros_like(self.G) if hp_gains is None else _mode_gains(hp_gains, K, n_axes,
+                                                                            "unmodelled_mode.hp_gains")
+        self._c = [_bandpass_coeffs(float(f), float(z), self.dt) for f, z in zip(self.freqs, self.dampings)]
+        self._ch = [_highpass_coeffs(float(f), float(z), self.dt) for f, z in zip(self.freqs, self.dampings)]
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self._z = [np.zeros((2, self.n)) for _ in self._c]
+        self._zh = [np.zeros((2, self.n)) for _ in self._c]
+
+    def highpass(self, y: np.ndarray, m: int = 0) -> np.ndarray:
+        """``HP_m`` of every column of ``y`` (advances mode ``m``'s high-pass state)."""
+        y = _block(y, self.n)
+        out = np.empty_like(y)
+        _biquad_run(y, *self._ch[m], self._zh[m], out)
+        return out
+
+    def bandpass(self, y: np.ndarray, m: int = 0) -> np.ndarray:
+        """``BP_m`` of every column of ``y`` (advances mode ``m``'s state)."""
+        y = _block(y, self.n)
+        out = np.empty_like(y)
+        _biquad_run(y, *self._c[m], self._z[m], out)
+        return out
+
+    def process(self, y: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        y = _block(y, self.n)
+        out = y.copy()
+        for m in range(len(self._c)):
+            out += self.bandpass(y, m) @ self.G[m].T
+            if np.any(self.H[m]):
+                out += self.highpass(y, m) @ self.H[m].T
+        return out
+
+
+@njit
+def _level_run(y: np.ndarray, a: float, state: np.ndarray, started: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    N, n = y.shape
+    for t in range(N):
+        for j in range(n):
+            v = abs(y[t, j])
+            if not started[0]:
+                state[j] = v
+            state[j] = a * state[j] + (1.0 - a) * v
+            out[t, j] = state[j]
+        started[0] = True
+
+
+class AmplitudeDependentDynamics:
+    """Resonances whose shape moves with the motion's level (softening/hardening, damping growing with
+    amplitude): the :class:`UnmodelledMode` correction plus level-modulated terms,
+    ``Y_i ← Y_i + Σ_m Σ_j (g_mij·BP_m + h_mij·HP_m)(Y_j) + Σ_m A_i(t)·(k_mi·BP_m + l_mi·HP_m)(Y_i)``.
+
+    ``A_i(t)`` = the level of axis i, ``|Y_i|`` low-passed over :data:`LEVEL_TAU` and divided by
+    :data:`LEVEL_REF` (dimensionless).  A pole pair shifted by δω, δζ at level A changes the response, to first
+    order, by A times a combination of the band-pass and high-pass terms around ω — the ``k``, ``l`` terms.
+    ``gains``/``hp_gains``: as for :class:`UnmodelledMode`; ``level_gains``/``level_hp_gains``: ``[K][n]``.
+    """
+
+    def __init__(self, freq: ArrayLike, damping: ArrayLike, gains: ArrayLike, level_gains: ArrayLike, dt: float,
+                 n_axes: int = 2, hp_gains: ArrayLike | None = None, level_hp_gains: ArrayLike | None = None) -> None:
+        self.n, self.dt = n_axes, float(dt)
+        self.freqs, self.dampings = _modes_spec(freq, damping, self.dt, "amplitude_dependent_dynamics")
+        K = len(self.freqs)
+        name = "amplitude_dependent_dynamics"
+        self.base = UnmodelledMode(self.freqs, self.dampings,
+                                   _mode_gains(gains, K, n_axes, f"{name}.gains"), dt, n_axes,
+                                   None if hp_gains is None else _mode_gains(hp_gains, K, n_axes, f"{name}.hp_gains"))
+
+        def diag(v: ArrayLike, what: str) -> np.ndarray:
+            return np.diagonal(_mode_gains(v, K, n_axes, f"{name}.{what}"), axis1=1, axis2=2).copy()
+        self.Kl = diag(level_gains, "level_gains")
+        self.Kh = np.zeros_like(self.Kl) if level_hp_gains is None else diag(level_hp_gains, "level_hp_gains")
+        self._a = math.exp(-self.dt / LEVEL_TAU)
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self.base.reset()
+        self._lev = np.zeros(self.n)
+        self._started = np.zeros(1, np.bool_)
+
+    def level(self, y: np.ndarray) -> np.ndarray:
+        """``A(t)`` of every column (advances the level state)."""
+        y = _block(y, self.n)
+        out = np.empty_like(y)
+        _level_run(y, self._a, self._lev, self._started, out)
+        return out / LEVEL_REF
+
+    def process(self, y: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        y = _block(y, self.n)
+        lev = self.level(y)
+        out = y.copy()
+        b = self.base
+        for m in range(len(b._c)):
+            bp = b.bandpass(y, m)
+            hp = b.highpass(y, m)
+            out += bp @ b.G[m].T + hp @ b.H[m].T + lev * (bp * self.Kl[m] + hp * self.Kh[m])
+        return out
+
+
+#: the cubic term of the amplitude-dependent dynamics acts on (Y/LEVEL_REF)²·Y
+class CubicAmplitudeDynamics(AmplitudeDependentDynamics):
+    """:class:`AmplitudeDependentDynamics` plus an instantaneous stiffness change of each mode with the level:
+    ``+ Σ_m (c_mi·BP_m + d_mi·HP_m)(Y_i·(Y_i/LEVEL_REF)²)`` — to first order, what a cubic (hardening or
+    softening) spring of the mode adds, where the slow-envelope term cannot follow a stiffness that changes
+    within each cycle.  ``cubic_gains``/``cubic_hp_gains``: ``[K][n]``."""
+
+    def __init__(self, freq: ArrayLike, damping: ArrayLike, gains: ArrayLike, level_gains: ArrayLike, dt: float,
+                 n_axes: int = 2, hp_gains: ArrayLike | None = None, level_hp_gains: ArrayLike | None = None,
+                 cubic_gains: ArrayLike = 0.0, cubic_hp_gains: ArrayLike | None = None) -> None:
+        super().__init__(freq, damping, gains, level_gains, dt, n_axes, hp_gains, level_hp_gains)
+        K = len(self.freqs)
+        name = "amplitude_dependent_dynamics"
+
+        def diag(v: ArrayLike, what: str) -> np.ndarray:
+            return np.diagonal(_mode_gains(v, K, n_axes, f"{name}.{what}"), axis1=1, axis2=2).copy()
+        self.Kc = diag(cubic_gains, "cubic_gains")
+        self.Hc = np.zeros_like(self.Kc) if cubic_hp_gains is None else diag(cubic_hp_gains, "cubic_hp_gains")
+        self._cubic = UnmodelledMode(self.freqs, self.dampings, np.zeros((K, n_axes, n_axes)), dt, n_axes)
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        super().reset()
+        if hasattr(self, "_cubic"):
+            self._cubic.reset()
+
+    def process(self, y: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        y = _block(y, self.n)
+        out = super().process(y)
+        c = y * (y / LEVEL_REF) ** 2
+        for m in range(len(self.freqs)):
+            out += self._cubic.bandpass(c, m) * self.Kc[m] + self._cubic.highpass(c, m) * self.Hc[m]
+        return out

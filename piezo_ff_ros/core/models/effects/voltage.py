@@ -1,0 +1,209 @@
+"""Voltage-side effects (``pre`` stages): the amplifier and timing between the commanded and the acting voltage.
+
+:class:`InputDelay` (a pure, fractional delay), :class:`AmplifierSlewLimit`, :class:`AmplifierSaturation` (and
+:class:`AsymmetricSaturation`, rails that differ by sign) and :class:`AmplifierBandwidth` (a 1st- or 2nd-order
+roll-off), each with its compiled per-sample loop.  A stage maps a voltage block ``[N, axes]`` [V] to a voltage
+block, carries its state between blocks and gives the same output whatever the block split.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..._jit import njit
+from ...kernels.limits import limit_run  # the driver guard's limiter (one source)
+from .common import _block, _per_axis
+
+__all__ = ["InputDelay", "AmplifierSlewLimit", "AmplifierSaturation", "AsymmetricSaturation", "AmplifierBandwidth"]
+
+
+class InputDelay:
+    """Pure (fractional) delay of the voltage: ``U_out(t) = U(t − delay)`` by linear interpolation between samples.
+
+    Before the first sample the voltage is held at its first value (the actuator was at rest there).
+    """
+
+    def __init__(self, delay: float, dt: float, n_axes: int = 2):
+        if not (math.isfinite(delay) and delay >= 0):
+            raise ValueError(f"input_delay.delay: must be >= 0 s, got {delay!r}")
+        self.delay, self.dt, self.n = float(delay), float(dt), n_axes
+        d = self.delay / self.dt
+        self._m = int(math.floor(d))
+        self._frac = d - self._m
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self._hist: np.ndarray | None = None  # last m + 1 input samples, oldest first
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        u = _block(u, self.n)
+        m = self._m
+        if self._hist is None:
+            if len(u) == 0:
+                return u.copy()
+            self._hist = np.repeat(u[:1], m + 1, axis=0)
+        out = np.empty_like(u)
+        self._hist = _frac_delay_run(self._hist, u, self._frac, out)
+        return out
+
+
+@njit
+def _frac_delay_run(hist: np.ndarray, u: np.ndarray, frac: float, out: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """:class:`InputDelay` on one block without the temporaries: output k = (1 − frac)·ext[k+1] + frac·ext[k] of
+    ``ext = [hist; u]`` (``hist`` = the last m + 1 inputs); returns the new history."""
+    h = hist.shape[0]
+    N, n = u.shape
+    for k in range(N):
+        for j in range(n):
+            i1 = k + 1
+            a = hist[i1, j] if i1 < h else u[i1 - h, j]
+            if frac > 0:
+                b = hist[k, j] if k < h else u[k - h, j]
+                out[k, j] = (1.0 - frac) * a + frac * b
+            else:
+                out[k, j] = a
+    new = np.empty_like(hist)
+    for r in range(h):
+        i = N + r  # ext index of the kept sample: the last h of ext (length h + N)
+        for j in range(n):
+            new[r, j] = hist[i, j] if i < h else u[i - h, j]
+    return new
+
+
+class AmplifierSlewLimit:
+    """Amplifier slew-rate limit: the voltage changes by at most ``rate·dt`` per sample [V/s]."""
+
+    def __init__(self, rate: float, dt: float, n_axes: int = 2):
+        if not (math.isfinite(rate) and rate > 0):
+            raise ValueError(f"amplifier_slew_limit.rate: must be > 0 V/s, got {rate!r}")
+        self.rate, self.dt, self.n = float(rate), float(dt), n_axes
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self._prev = np.zeros(self.n)
+        self._started = np.zeros(1, np.bool_)
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        u = _block(u, self.n)
+        out = np.empty_like(u)
+        limit_run(u, self._prev, self._started, np.inf, self.rate * self.dt, out, np.zeros(2, np.int64))
+        return out
+
+
+class AmplifierSaturation:
+    """Amplifier output rails: the voltage is clipped to ``[−limit, +limit]`` [V] (memoryless)."""
+
+    def __init__(self, limit: float, n_axes: int = 2):
+        if not (math.isfinite(limit) and limit > 0):
+            raise ValueError(f"amplifier_saturation.limit: must be > 0 V, got {limit!r}")
+        self.limit, self.n = float(limit), n_axes
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        pass
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        res: np.ndarray = np.clip(_block(u, self.n), -self.limit, self.limit)
+        return res
+
+
+class AsymmetricSaturation:
+    """Amplifier rails that differ by sign: the voltage is clipped to ``[−lower_limit, +limit]`` [V]
+    (``amplifier_saturation`` with ``lower_limit`` given; memoryless)."""
+
+    def __init__(self, limit: float, lower_limit: float, n_axes: int = 2):
+        for v, what in ((limit, "limit"), (lower_limit, "lower_limit")):
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"amplifier_saturation.{what}: must be > 0 V, got {v!r}")
+        self.limit, self.lower_limit, self.n = float(limit), float(lower_limit), n_axes
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        pass
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``."""
+        res: np.ndarray = np.clip(_block(u, self.n), -self.lower_limit, self.limit)
+        return res
+
+
+@njit
+def _ap2_run(u: np.ndarray, state: np.ndarray, started: np.ndarray, g: np.ndarray, a1: np.ndarray, a2: np.ndarray,
+             out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Per column j: ``y[k] = g_j·u[k] − a1_j·y[k−1] − a2_j·y[k−2]``, started settled at the first input."""
+    N, n = u.shape
+    for t in range(N):
+        for j in range(n):
+            if not started[0]:
+                state[0, j] = u[t, j]
+                state[1, j] = u[t, j]
+            y = g[j] * u[t, j] - a1[j] * state[0, j] - a2[j] * state[1, j]
+            state[1, j] = state[0, j]
+            state[0, j] = y
+            out[t, j] = y
+        started[0] = True
+
+
+def _pole_matched(cutoff: float, order: int, damping: float, dt: float) -> tuple[float, float, float]:
+    """Unit-DC-gain all-pole discretisation (poles ``e^{pT}``) of a 1st/2nd-order low-pass: (g, a1, a2).
+
+    As the cutoff grows beyond the sample rate the poles go to 0 and the filter to the identity, so "no bandwidth
+    limit" is a point of the parameter space (unlike a ZOH or bilinear discretisation)."""
+    w = 2.0 * math.pi * cutoff
+    if order == 1:
+        a = math.exp(-w * dt)
+        return 1.0 - a, -a, 0.0
+    z = damping
+    if z < 1.0:
+        r = math.exp(-z * w * dt)
+        a1 = -2.0 * r * math.cos(w * dt * math.sqrt(1.0 - z * z))
+        a2 = r * r
+    else:
+        s = math.sqrt(z * z - 1.0)
+        p1, p2 = -w * (z - s), -w * (z + s)
+        a1 = -(math.exp(p1 * dt) + math.exp(p2 * dt))
+        a2 = math.exp((p1 + p2) * dt)
+    return 1.0 + a1 + a2, a1, a2
+
+
+class AmplifierBandwidth:
+    """Amplifier roll-off on the voltage: first order ``1/(s/ωc + 1)`` or second order
+    ``ωc²/(s² + 2ζωc·s + ωc²)`` (``order=2``, damping ``ζ``), with a cutoff per axis or shared.
+
+    Pole-matched, unit DC gain, started settled at the first voltage it sees.  Unlike a pure delay it attenuates
+    (≈ (f/fc)²/2 at order 1) and rounds steps instead of shifting them.
+    """
+
+    def __init__(self, cutoff: ArrayLike, dt: float, n_axes: int = 2, order: int = 1,
+                 damping: float = 1 / math.sqrt(2)) -> None:
+        c = _per_axis(cutoff, n_axes, "amplifier_bandwidth.cutoff")
+        if not np.all(c > 0):
+            raise ValueError(f"amplifier_bandwidth.cutoff: must be > 0 Hz, got {cutoff!r}")
+        if int(order) not in (1, 2):
+            raise ValueError(f"amplifier_bandwidth.order: must be 1 or 2, got {order!r}")
+        if not (math.isfinite(damping) and damping > 0):
+            raise ValueError(f"amplifier_bandwidth.damping: must be > 0, got {damping!r}")
+        self.cutoff, self.dt, self.n = c, float(dt), n_axes
+        self.order, self.damping = int(order), float(damping)
+        co = np.array([_pole_matched(float(f), self.order, self.damping, self.dt) for f in c])
+        self._g, self._a1, self._a2 = (np.ascontiguousarray(co[:, i]) for i in range(3))
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self._state = np.zeros((2, self.n))
+        self._started = np.zeros(1, np.bool_)
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        u = _block(u, self.n)
+        out = np.empty_like(u)
+        _ap2_run(u, self._state, self._started, self._g, self._a1, self._a2, out)
+        return out
