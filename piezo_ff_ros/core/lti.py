@@ -29,9 +29,43 @@ __all__ = [
     "DiscreteModalSS",
     "LTIFilter",
     "FilterStage",
+    "static_gain",
 ]
 
 _PAIR_TOL = 1e-9
+
+
+def static_gain(x: ArrayLike, M: ArrayLike) -> np.ndarray:
+    """``x @ M.T`` for a block ``x [N, n_in]`` and a gain ``M [n_out, n_in]``, each output summed input by input,
+    so that every row gets the same numbers whatever N.
+
+    ``x @ M.T`` itself does not: BLAS takes another path for a single row than for many, and the two round
+    differently (~1e-21 m on a 1e-5 m signal) — a stream cut into one-sample blocks would not give the numbers of
+    one whole block.
+
+    Parameters
+    ----------
+    x : array_like
+        ``[N, n_in]``.
+    M : array_like
+        ``[n_out, n_in]``.
+
+    Returns
+    -------
+    ndarray
+        ``[N, n_out]``: ``y[k, i] = (…(M[i, 0]·x[k, 0] + M[i, 1]·x[k, 1]) + …)``.
+    """
+    xa = np.asarray(x, float)
+    Ma = np.asarray(M, float)
+    if xa.ndim != 2 or Ma.ndim != 2 or xa.shape[1] != Ma.shape[1]:
+        raise ValueError(f"static_gain: a block [N, {Ma.shape[-1]}] and a gain [n_out, n_in] expected, got "
+                         f"{xa.shape} and {Ma.shape}")
+    if Ma.shape[1] == 0:
+        return np.zeros((xa.shape[0], Ma.shape[0]))
+    y: np.ndarray = xa[:, 0:1] * Ma[:, 0]
+    for j in range(1, Ma.shape[1]):
+        y += xa[:, j:j + 1] * Ma[:, j]
+    return y
 
 #: one polynomial factor in s, highest power first
 Factor = tuple[float, ...]

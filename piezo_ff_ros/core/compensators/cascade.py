@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..chain import Chain
+from ..lti import static_gain
 from ..config import PiezoConfig
 from .creep import CreepCompensator
 from .hysteresis import HysteresisCompensator
@@ -45,7 +46,7 @@ class _Gain:
         pass
 
     def process(self, x: np.ndarray) -> np.ndarray:
-        y: np.ndarray = np.ascontiguousarray(x, float) @ self.M.T
+        y: np.ndarray = static_gain(x, self.M)
         return y
 
     def state(self) -> dict[str, np.ndarray]:
@@ -74,7 +75,7 @@ class _Linearizer:
         self.comp.reset()
 
     def process(self, x: np.ndarray) -> np.ndarray:
-        y: np.ndarray = self.comp.process(x) @ self.Dp.T
+        y: np.ndarray = static_gain(self.comp.process(x), self.Dp)
         return y
 
     def state(self) -> dict[str, np.ndarray]:
@@ -193,7 +194,7 @@ class CompensatorCascade(Chain):
         if self.hysteresis is not None:
             yh = self.hysteresis.follow(u)
         else:
-            yh = u @ np.asarray(self.cfg.hysteresis.Dp, float).T
+            yh = static_gain(u, self.cfg.hysteresis.Dp)
         if self.creep is not None:
             self.creep.follow(yh)
 

@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..._jit import njit
+from ...lti import static_gain
 from .common import CREEP_TAUS, CREEP_YREF, _block, _per_axis
 
 __all__ = ["GainMismatch", "ThermalDrift", "CreepNonlinearity"]
@@ -45,7 +46,7 @@ class GainMismatch:
     def process(self, y: np.ndarray) -> np.ndarray:
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         y = _block(y, self.n)
-        res: np.ndarray = y * self.gains if self._diag else y @ self.G.T
+        res: np.ndarray = y * self.gains if self._diag else static_gain(y, self.G)
         return res
 
 

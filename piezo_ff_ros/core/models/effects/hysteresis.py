@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..._jit import njit
+from ...lti import static_gain
 from ...config import BoucWenConfig
 from ...kernels.bouc_wen import bw_model_rate_run, params_of  # the model loop (one source)
 from .common import DIRECTION_TAU, LEVEL_REF, RATE_REF, RATE_SMOOTHING, _block, _per_axis
@@ -97,7 +98,7 @@ class RelaxedHysteresisStage(HysteresisStage):
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         u = _block(u, self.cfg.n_in)
         y = super().process(u)
-        lin = u @ np.asarray(self._p[0], float).T  # Dp·U
+        lin = static_gain(u, self._p[0])  # Dp·U
         h = lin - y
         hr = np.empty_like(h)
         _relax2_run(h, self._a_relax, self._r1, self._r2, self._r_started, hr)

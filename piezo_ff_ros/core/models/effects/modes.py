@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..._jit import njit
+from ...lti import static_gain
 from .common import LEVEL_REF, LEVEL_TAU, _block, _per_axis
 
 __all__ = ["UnmodelledMode", "AmplitudeDependentDynamics", "CubicAmplitudeDynamics"]
@@ -134,9 +135,9 @@ class UnmodelledMode:
         y = _block(y, self.n)
         out = y.copy()
         for m in range(len(self._c)):
-            out += self.bandpass(y, m) @ self.G[m].T
+            out += static_gain(self.bandpass(y, m), self.G[m])
             if np.any(self.H[m]):
-                out += self.highpass(y, m) @ self.H[m].T
+                out += static_gain(self.highpass(y, m), self.H[m])
         return out
 
 
@@ -203,7 +204,7 @@ class AmplitudeDependentDynamics:
         for m in range(len(b._c)):
             bp = b.bandpass(y, m)
             hp = b.highpass(y, m)
-            out += bp @ b.G[m].T + hp @ b.H[m].T + lev * (bp * self.Kl[m] + hp * self.Kh[m])
+            out += static_gain(bp, b.G[m]) + static_gain(hp, b.H[m]) + lev * (bp * self.Kl[m] + hp * self.Kh[m])
         return out
 
 
