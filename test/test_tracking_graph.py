@@ -7,6 +7,7 @@ import pytest
 
 from piezo_ff_ros.core.config import ConfigError
 from piezo_ff_ros.core.tracking.front import front_settings
+from piezo_ff_ros.ros.graph_session import GraphClient
 
 
 @pytest.mark.parametrize("values,field", [({"preview.enabled": "yes"}, "preview.enabled"),
@@ -57,38 +58,70 @@ class _FakeGraph:
         pass
 
 
-class _FakeClient:
-    """GraphClient stand-in whose recorder matches the block writers one spin at a time (as DDS does under load)."""
+class _Readers:
+    """The client node's view of the graph: readers per block topic."""
 
-    def __init__(self, matched_steps):
-        self.recorder, self.states, self.start = {}, [{"state": "idle"}], "/trajectory/start"
-        self._steps = list(matched_steps)
+    def __init__(self, readers):
+        self.readers = readers
+
+    def count_subscribers(self, topic):
+        return self.readers[topic]
+
+
+class _SteppedClient(GraphClient):
+    """The real GraphClient's waiting logic without ROS: at each spin the recorder's status and the nodes'
+    diagnostics move one step on (as DDS matches endpoints, one by one, on a loaded machine)."""
+
+    def __init__(self, steps, readers):   # no rclpy: the transport is the steps
+        self.recorder, self.diag, self.states, self.start = {}, {}, [{"state": "idle"}], "/trajectory/start"
+        self.node = _Readers(readers)
+        self._steps = list(steps)
         self.started_with = None
 
     def spin_until(self, cond, timeout, what):
         while not cond():
             if not self._steps:
-                raise RuntimeError(f"timed out waiting for {what}")
-            self.recorder = {"publishers": self._steps.pop(0)}
+                raise RuntimeError(f"timed out after {timeout:g} s waiting for {what}")
+            self.recorder, self.diag = self._steps.pop(0)
 
     def trigger(self, client):
         assert client == self.start
-        self.started_with = dict(self.recorder.get("publishers", {}))
+        self.started_with = (dict(self.recorder.get("publishers", {})), {k: dict(v) for k, v in self.diag.items()})
         self.states += [{"state": "playing"}, {"state": "finished", "unanswered_blocks": 0}]
 
 
-def test_the_graph_case_starts_only_once_the_recorder_matched_every_block_writer():
-    """CI lost the first blocks of a graph case: the trajectory autostarted once the recorder's readers were
-    *discovered*, before the writers had *matched* them. The start now waits on the recorder's matched counts."""
+_ALL_RECORDED = {"publishers": {"/reference": 1, "/voltage": 1, "/displacement": 1}}
+_READERS = {"/voltage": 2, "/voltage_applied": 2, "/displacement": 2}   # next node + recorder
+
+
+def _diag(voltage, applied, displacement):
+    return {"compensator": {"matched.voltage": str(voltage)},
+            "driver": {"matched.voltage_applied": str(applied), "matched.displacement": str(displacement),
+                       "has_sensor": "True"}}
+
+
+def test_the_graph_case_starts_only_once_the_recorder_and_every_block_writer_matched():
+    """CI lost the first blocks of a graph case (and a commissioning run lost its first run, sine_x, on a loaded
+    machine): the recorder's *readers* had matched the writers, but a *writer* had not matched the recorder yet, and
+    a volatile writer sends nothing to a reader it has not matched.  The start waits until the recorder reports
+    every block publisher and every writer reports every reader of its topic matched."""
     from piezo_ff_ros.cli.track_graph import _play_when_recorded
 
-    steps = [{"/reference": 1}, {"/reference": 1, "/voltage": 1},
-             {"/reference": 1, "/voltage": 1, "/displacement": 1}]
-    client = _FakeClient(steps)
+    steps = [({"publishers": {"/reference": 1}}, {}),
+             (_ALL_RECORDED, {}),                                  # writers not reporting yet
+             (_ALL_RECORDED, _diag(2, 2, 1)),                      # the driver's displacement writer: 1 of 2
+             (_ALL_RECORDED, _diag(2, 2, 2))]
+    client = _SteppedClient(steps, _READERS)
     _play_when_recorded(_FakeGraph(), client, timeout=1.0)
-    assert client.started_with == {"/reference": 1, "/voltage": 1, "/displacement": 1}
+    assert client.started_with == (_ALL_RECORDED["publishers"], _diag(2, 2, 2))
 
-    never = _FakeClient([{"/reference": 1, "/voltage": 1}])   # the displacement writer never matches: no start
-    with pytest.raises(RuntimeError, match="recorder to match"):
+    never = _SteppedClient([(_ALL_RECORDED, _diag(2, 1, 2))], _READERS)  # voltage_applied never matches both
+    with pytest.raises(RuntimeError, match=r"block writers to match.*driver\.voltage_applied.*matched 1 of 2"):
         _play_when_recorded(_FakeGraph(), never, timeout=1.0)
     assert never.started_with is None
+
+    no_sensor = _diag(2, 2, 0)
+    no_sensor["driver"]["has_sensor"] = "False"   # a driver without a sensor writes no displacement
+    client = _SteppedClient([(_ALL_RECORDED, no_sensor)], _READERS)
+    _play_when_recorded(_FakeGraph(), client, timeout=1.0)
+    assert client.started_with is not None

@@ -140,7 +140,7 @@ def _run(args: argparse.Namespace) -> int:
     hinf = None
     try:
         client = GraphClient("piezo_ff_demo")
-        client.wait_recorder_connected()
+        client.wait_recorder_connected(check=graph.check_alive)
         for i, exp in enumerate(exps):
             graph.check_alive()
             bypass = exp.input == "voltage"

@@ -169,23 +169,16 @@ def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str =
 
 
 def _play_when_recorded(g: GraphLauncher, client: GraphClient, timeout: float) -> None:
-    """Start the trajectory once the recorder has *matched* every block publisher, and wait until it has played.
-
-    The trajectory's own check (``min_subscribers``: the recorder's readers discovered, then a 0.5 s settle) is not
-    enough on a loaded machine: a writer that has not matched the recorder's reader yet drops its first blocks for
-    it, and the recorded segment is never whole (seen in CI).  The recorder's ``~/status`` reports the matched
-    publisher counts, so this waits on the condition itself.
-    """
-    from ..ros.graph_session import BLOCK_TOPICS
-
+    """Start the trajectory once the recorder and every block writer have matched (the trajectory's own check,
+    ``min_subscribers``, sees readers discovered, not matched by the other nodes' writers: on a loaded machine the
+    first blocks of the segment were lost for the recorder — seen in CI), and wait until it has played."""
     def alive(cond: Callable[[], bool]) -> Callable[[], bool]:
         def check() -> bool:
             g.check_alive()
             return cond()
         return check
 
-    client.spin_until(alive(lambda: all(client.recorder.get("publishers", {}).get(t, 0) >= 1 for t in BLOCK_TOPICS)),
-                      timeout, "the recorder to match the block publishers")
+    client.wait_recorder_connected(timeout, check=g.check_alive)
     n_before = len(client.states)
     client.trigger(client.start)
     ends = ("finished", "failed", "stopped")

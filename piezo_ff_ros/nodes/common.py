@@ -19,7 +19,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import PointCloud2, PointField
 
 __all__ = ["BLOCK_QOS", "RECORD_QOS", "LATCHED_QOS", "CONFIG_QOS", "FRAME_ID", "dt_ns", "pack_block", "unpack_block",
-           "stamp_to_ns", "ns_to_stamp", "k0_of", "spin_node", "BlockFormatError"]
+           "stamp_to_ns", "ns_to_stamp", "k0_of", "spin_node", "BlockFormatError", "writer_matches"]
 
 FRAME_ID = "piezo"
 
@@ -179,6 +179,17 @@ def run_node(name: str, make_node: Callable[[], Any], on_exit: Callable[[Any], N
         rclpy.try_shutdown()
         return 2
     return spin_node(node, on_exit=(lambda: on_exit(node)) if on_exit is not None else None)
+
+
+def writer_matches(publishers: Mapping[str, Any]) -> dict[str, int]:
+    """``{"matched.<topic>": readers this node's writer has matched}`` for its ``/diagnostics``.
+
+    Discovery is asymmetric: a reader may match a writer (the recorder reports it connected) before the writer has
+    matched the reader, and a volatile writer sends nothing to a reader it has not matched yet — the first blocks
+    of a run would be missing from the recording.  A client that must not lose them waits until every writer has
+    matched every reader of its topic (:meth:`piezo_ff_ros.ros.graph_session.GraphClient.wait_recorder_connected`).
+    """
+    return {f"matched.{t}": int(p.get_subscription_count()) for t, p in publishers.items() if p is not None}
 
 
 def diag_values(d: Mapping[str, Any]) -> list[Any]:

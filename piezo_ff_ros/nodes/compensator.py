@@ -62,7 +62,7 @@ from ..core.param_map import config_to_params, is_config_param, needs_synthesis,
 from ..core.tracking.front import FRONT_DEFAULTS, TrackingFront, front_settings, is_front_param
 from ..core.tracking.linear import controller_matrices
 from .common import (BLOCK_QOS, CONFIG_QOS, BlockFormatError, diag_values, dt_ns, pack_block, run_node, stamp_to_ns,
-                     unpack_block)
+                     unpack_block, writer_matches)
 
 _DESCRIPTIONS = {
     "hysteresis.": "Bouc-Wen matrix, flat row-major, one row per axis (Dp, A in m/V; B, Gamma, Delta1/2 in 1/V)",
@@ -618,7 +618,7 @@ class CompensatorNode(Node):
         return st
 
     def publish_diagnostics(self) -> None:
-        st = self.status()
+        st = {**self.status(), **writer_matches({"voltage": self.pub_u})}
         warn = [k for k in ("failed_builds", "rejected_blocks", "input_gaps", "input_late_blocks",
                             "input_workspace_clamped_samples") if st.get(k)]
         level = DiagnosticStatus.WARN if warn else DiagnosticStatus.OK

@@ -39,7 +39,7 @@ from ..core.hardware.driver_core import ERROR, WARN, Emit, lockstep_pacing
 from ..core.safety import SafeRampConfig
 from .backends import get_spec
 from .common import (BLOCK_QOS, LATCHED_QOS, BlockFormatError, diag_values, pack_block, run_node, stamp_to_ns,
-                     unpack_block)
+                     unpack_block, writer_matches)
 
 _LEVEL = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
 
@@ -223,7 +223,8 @@ class DriverNode(Node):
     def publish_diagnostics(self) -> None:
         self.check_conflict()
         st = {**self.core.status(), "malformed_blocks": self.malformed_blocks, "backend": self.backend_name,
-              "has_sensor": self.has_sensor}
+              "has_sensor": self.has_sensor,
+              **writer_matches({"voltage_applied": self.pub_u, "displacement": self.pub_y})}
         level, message = self.core.health()
         if self.conflict:
             level, message = ERROR, self.conflict

@@ -286,15 +286,18 @@ class TrajectoryNode(Node):
         deadline = time.monotonic() + timeout
         settle = False
         while not self._stop.is_set():
-            # reference: readers matched by our own writer (discovered is not enough: a reader this writer has not
-            # matched yet misses the first blocks — a recorder after a restart of this node lost 3 of them)
-            counts = {"reference": min(self.count_subscribers("reference"), self.pub_ref.get_subscription_count()),
+            # reference: every reader discovered is matched by our own writer (discovered is not enough: a reader
+            # this writer has not matched yet misses the first blocks — a recorder after a restart of this node lost
+            # 3 of them)
+            ref_matched = self.pub_ref.get_subscription_count()
+            counts = {"reference": min(self.count_subscribers("reference"), ref_matched),
                       "voltage": self.count_subscribers("voltage"),
                       "displacement": self.count_subscribers("displacement")}  # includes our own
             # lockstep needs the whole chain; realtime may feed a compensator (or any reader) alone
             writers = {"voltage": self.count_publishers("voltage"),
                        "displacement": self.count_publishers("displacement")} if lockstep else {}
-            if all(c >= need for c in counts.values()) and all(w >= 1 for w in writers.values()):
+            if all(c >= need for c in counts.values()) and all(w >= 1 for w in writers.values()) \
+                    and ref_matched >= self.count_subscribers("reference"):
                 break
             settle = True
             if time.monotonic() > deadline:

@@ -85,7 +85,7 @@ def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     try:
         if client is None:
             client = GraphClient("piezo_ff_commission", domain_id=int(os.environ["ROS_DOMAIN_ID"]))
-        client.wait_recorder_connected()
+        client.wait_recorder_connected(check=graph.check_alive)
         rig = GraphRig(client, graph, mcap_path, fs, axes, vlim, slim, say=say)
         result = commission(rig, base=printed, settings=settings, generalized=args.generalized,
                             creep_order=parse_order(args.creep_order),

@@ -25,6 +25,9 @@ if TYPE_CHECKING:
 
 STAGE_ORDER = ("vibration", "creep", "hysteresis")
 BLOCK_TOPICS = ("/reference", "/voltage", "/displacement")
+#: the block topics each node of the graph writes (its ``/diagnostics`` report ``matched.<topic>``); the
+#: trajectory's ``reference`` writer waits for its own readers before it plays
+BLOCK_WRITERS = {"compensator": ("voltage",), "driver": ("voltage_applied", "displacement")}
 
 
 def stage_string(stages: Iterable[str]) -> str:
@@ -120,6 +123,7 @@ class GraphClient:
         self.executor.add_node(self.node)
         self.states: list[dict[str, Any]] = []
         self.comp_diag: dict[str, Any] = {}
+        self.diag: dict[str, dict[str, str]] = {}   # the last /diagnostics values of each node, by node name
         self.hinf: dict[str, Any] | None = None    # γ/orders of the compensator's H∞ design, from its diagnostics
         self.recorder: dict[str, Any] = {}
         self.node.create_subscription(String, "/trajectory/state", lambda m: self.states.append(json.loads(m.data)),
@@ -141,6 +145,7 @@ class GraphClient:
 
     def _on_diag(self, msg: Any) -> None:
         for st in msg.status:
+            self.diag[st.name.rsplit("/", 1)[-1]] = {kv.key: kv.value for kv in st.values}
             if st.name.endswith("compensator"):
                 self.comp_diag = {kv.key: kv.value for kv in st.values}
                 self.comp_diag["_t"] = time.monotonic()
@@ -212,10 +217,40 @@ class GraphClient:
         self.rclpy.try_shutdown(context=self.context)
 
     # -- graph operations ------------------------------------------------------------------------------------------
-    def wait_recorder_connected(self, timeout: float = 120.0) -> None:
-        """The recorder must be connected to every block publisher before the first sample is sent."""
-        self.spin_until(lambda: all(self.recorder.get("publishers", {}).get(t, 0) >= 1 for t in BLOCK_TOPICS),
-                        timeout, "the recorder to connect to the block topics")
+    def recorder_connected(self) -> bool:
+        """The recorder reports a matched publisher on every block topic (its readers have matched them)."""
+        return all(self.recorder.get("publishers", {}).get(t, 0) >= 1 for t in BLOCK_TOPICS)
+
+    def writers_unmatched(self) -> dict[str, str]:
+        """``{node.topic: why}`` for each block writer of the graph that has not matched every reader of its topic
+        (from the nodes' ``matched.<topic>`` diagnostics; empty when all have)."""
+        out = {}
+        for node, topics in BLOCK_WRITERS.items():
+            d = self.diag.get(node, {})
+            for t in topics:
+                if t == "displacement" and d.get("has_sensor") == "False":
+                    continue
+                readers = self.node.count_subscribers("/" + t)
+                matched = d.get(f"matched.{t}")
+                if matched is None or int(matched) < readers:
+                    out[f"{node}.{t}"] = f"matched {matched or 'not reported'} of {readers} readers"
+        return out
+
+    def wait_recorder_connected(self, timeout: float = 120.0, check: Callable[[], None] | None = None) -> None:
+        """Before the first sample is sent: the recorder's readers have matched every block publisher, and every
+        block writer (compensator, driver) has matched every reader of its topic — a writer sends nothing to a
+        reader it has not matched yet (discovery is asymmetric), so the first blocks of a run would be missing from
+        the recording (seen on a loaded machine).  ``check``: called at each spin (e.g. the launched nodes alive).
+        """
+        def ready() -> bool:
+            if check is not None:
+                check()
+            return self.recorder_connected() and not self.writers_unmatched()
+        try:
+            self.spin_until(ready, timeout, "the recorder and the block writers to match")
+        except RuntimeError as exc:
+            raise RuntimeError(f"{exc}: recorder {self.recorder.get('publishers', {})}, writers "
+                               f"{self.writers_unmatched() or 'all matched'}") from None
 
     def configure(self, stages: Iterable[str] = (), bypass: bool = False, params: Mapping[str, Any] | None = None,
                   timeout: float = 900.0, say: Callable[[str], None] = lambda m: None) -> bool:
