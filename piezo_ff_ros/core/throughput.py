@@ -341,140 +341,312 @@ def _controller(cfg: PiezoConfig, hinf: bool, echo: bool) -> tuple[Any, dict[str
     return stand_in, info
 
 
-def run_benchmark(duration: float = 600.0, repeats: int = 3, block: int = 20000, small_block: int = 200,
-                  baseline_duration: float = 0.5, config: str | None = None, variant: str | None = None,
-                  hinf: bool = True, echo: bool = False) -> dict[str, Any]:
-    """Run every stage; return the figures (the JSON written by ``piezo-ff bench --json``)."""
+def _time_core_imports() -> float:
+    """Wall time [s] of importing python-control and the core's stage modules (the first import in this process;
+    later imports of them are cached)."""
     t_import = time.perf_counter()
+    import control  # noqa: F401
+
+    from .compensators.cascade import CompensatorCascade  # noqa: F401
+    from .compensators.creep import CreepCompensator  # noqa: F401
+    from .compensators.hysteresis import HysteresisCompensator  # noqa: F401
+    from .compensators.vibration import VibrationCompensator  # noqa: F401
+    from .config import load_config  # noqa: F401
+    from .models.bouc_wen import BoucWenModel  # noqa: F401
+    from .models.creep import CreepModel  # noqa: F401
+    from .models.dynamics import DynamicsModel  # noqa: F401
+    from .models.plant import Plant  # noqa: F401
+    from .chain import Chain  # noqa: F401
+    from ._jit import HAVE_NUMBA  # noqa: F401
+    return time.perf_counter() - t_import
+
+
+@dataclass(frozen=True)
+class _Baselines:
+    """The linear parts as the baselines run them: ZOH discretisations (dense realisations) of Cr, G_L and the
+    controller, and the creep compensator ``(K + Cr)⁻¹`` as a discrete state space; with the Bouc-Wen arrays."""
+
+    hp: dict[str, np.ndarray]     #: Bouc-Wen parameter arrays
+    exact: bool                   #: the hysteresis compensator solves its loop exactly
+    K: np.ndarray                 #: creep static gain
+    cr_d: Any                     #: Cr, ZOH
+    gl_d: Any                     #: G_L, ZOH
+    k_d: Any                      #: the controller, ZOH
+    ci_d: Any                     #: (K + Cr)⁻¹, discrete
+
+    def naive_cascade(self) -> _Series:
+        """Controller → creep compensator → hysteresis compensator, per-sample loops."""
+        return _Series(_NaiveLTI(self.k_d), _NaiveCreepCompensator(self.cr_d, self.K),
+                       _NaiveHysteresisCompensator(self.hp, self.exact))
+
+    def naive_plant(self) -> _Series:
+        """Bouc-Wen → K + Cr → G_L, per-sample loops."""
+        return _Series(_NaiveBoucWen(self.hp), _NaiveLTI(self.cr_d, feedthrough=self.K), _NaiveLTI(self.gl_d))
+
+    def forced_cascade(self) -> _Series:
+        """The cascade with ``forced_response`` for its linear parts."""
+        return _Series(_ForcedResponse(self.k_d), _ForcedResponse(self.ci_d),
+                       _NaiveHysteresisCompensator(self.hp, self.exact))
+
+    def forced_plant(self) -> _Series:
+        """The plant with ``forced_response`` for its linear parts."""
+        return _Series(_NaiveBoucWen(self.hp), _ForcedResponse(self.cr_d, feedthrough=self.K),
+                       _ForcedResponse(self.gl_d))
+
+
+def _baselines(cfg: PiezoConfig, ctrl: Any) -> _Baselines:
+    """The baselines' realisations of ``cfg`` with the controller ``ctrl`` (continuous → ZOH at ``cfg.dt``).
+
+    Parameters
+    ----------
+    cfg : PiezoConfig
+        The piezo config.
+    ctrl : control.StateSpace
+        The vibration compensator (continuous).
+
+    Returns
+    -------
+    _Baselines
+    """
     import control
 
-    from .compensators.cascade import CompensatorCascade
-    from .compensators.creep import CreepCompensator
-    from .compensators.hysteresis import HysteresisCompensator
-    from .compensators.vibration import VibrationCompensator
-    from .config import load_config
-    from .models.bouc_wen import BoucWenModel
-    from .models.creep import CreepModel
-    from .models.dynamics import DynamicsModel
-    from .models.plant import Plant
-    from .chain import Chain
-    from ._jit import HAVE_NUMBA
-    import_s = time.perf_counter() - t_import
-
-    cfg = load_config(config, variant=variant)
-    fs, dt = cfg.sample_rate, cfg.dt
-    machine = _machine()
-    ctrl, ctrl_info = _controller(cfg, hinf, echo)
-    ck = (ctrl.A, ctrl.B, ctrl.C, ctrl.D)
-    hp = cfg.hysteresis.arrays()
-    loop = cfg.cascade.hysteresis_loop
+    dt = cfg.dt
     K = np.array(cfg.creep.K, float)
-
-    # continuous → ZOH discretised linear parts for the baselines (dense realisations)
     cr_d = control.c2d(cfg.creep.Cr.to_control(), dt, "zoh")
     gl_d = control.c2d(cfg.dynamics.G_L.to_control(), dt, "zoh")
     k_d = control.c2d(ctrl, dt, "zoh")
     # the creep compensator is linear too: (K + Cr)⁻¹ as a discrete state space
     Kinv = np.linalg.inv(K)
     ci_d = control.ss(cr_d.A - cr_d.B @ Kinv @ cr_d.C, cr_d.B @ Kinv, -Kinv @ cr_d.C, Kinv, dt)
+    return _Baselines(cfg.hysteresis.arrays(), cfg.cascade.hysteresis_loop == "exact", K, cr_d, gl_d, k_d, ci_d)
 
-    def naive_cascade() -> _Series:
-        return _Series(_NaiveLTI(k_d), _NaiveCreepCompensator(cr_d, K),
-                       _NaiveHysteresisCompensator(hp, loop == "exact"))
 
-    def naive_plant() -> _Series:
-        return _Series(_NaiveBoucWen(hp), _NaiveLTI(cr_d, feedthrough=K), _NaiveLTI(gl_d))
+def _stages(cfg: PiezoConfig, ctrl: Any, ctrl_order: Any, b: _Baselines) -> list[_Stage]:
+    """Every stage benchmarked, in report order (the full chain last), each with its baselines.
 
-    def forced_cascade() -> _Series:
-        return _Series(_ForcedResponse(k_d), _ForcedResponse(ci_d), _NaiveHysteresisCompensator(hp, loop == "exact"))
+    Parameters
+    ----------
+    cfg : PiezoConfig
+        The piezo config.
+    ctrl : control.StateSpace
+        The vibration compensator.
+    ctrl_order : int
+        Its order (in the stage's label).
+    b : _Baselines
+        The baselines' realisations.
 
-    def forced_plant() -> _Series:
-        return _Series(_NaiveBoucWen(hp), _ForcedResponse(cr_d, feedthrough=K), _ForcedResponse(gl_d))
+    Returns
+    -------
+    list of _Stage
+    """
+    from .compensators.cascade import CompensatorCascade
+    from .compensators.creep import CreepCompensator
+    from .compensators.hysteresis import HysteresisCompensator
+    from .compensators.vibration import VibrationCompensator
+    from .models.bouc_wen import BoucWenModel
+    from .models.creep import CreepModel
+    from .models.dynamics import DynamicsModel
+    from .models.plant import Plant
+    from .chain import Chain
+
+    dt, loop, hp, K = cfg.dt, cfg.cascade.hysteresis_loop, b.hp, b.K
+    ck = (ctrl.A, ctrl.B, ctrl.C, ctrl.D)
 
     def cascade() -> CompensatorCascade:
         return CompensatorCascade(cfg, controller=ck)
 
-    stages = [
+    return [
         _Stage("bouc_wen", "Bouc-Wen model", lambda: BoucWenModel(cfg.hysteresis), "voltage",
                naive=lambda: _NaiveBoucWen(hp)),
         _Stage("hysteresis_comp", f"hysteresis compensator ({loop})",
                lambda: HysteresisCompensator(cfg.hysteresis, loop), "length",
-               naive=lambda: _NaiveHysteresisCompensator(hp, loop == "exact")),
+               naive=lambda: _NaiveHysteresisCompensator(hp, b.exact)),
         _Stage("creep_model", "creep model", lambda: CreepModel(cfg.creep, dt), "length",
-               naive=lambda: _NaiveLTI(cr_d, feedthrough=K), forced=lambda: _ForcedResponse(cr_d, feedthrough=K)),
+               naive=lambda: _NaiveLTI(b.cr_d, feedthrough=K), forced=lambda: _ForcedResponse(b.cr_d, feedthrough=K)),
         _Stage("creep_comp", "creep compensator", lambda: CreepCompensator(cfg.creep, dt), "length",
-               naive=lambda: _NaiveCreepCompensator(cr_d, K), forced=lambda: _ForcedResponse(ci_d)),
+               naive=lambda: _NaiveCreepCompensator(b.cr_d, K), forced=lambda: _ForcedResponse(b.ci_d)),
         _Stage("dynamics", "dynamics G_L", lambda: DynamicsModel(cfg.dynamics, dt), "length",
-               naive=lambda: _NaiveLTI(gl_d), forced=lambda: _ForcedResponse(gl_d)),
-        _Stage("vibration_comp", f"vibration compensator (order {ctrl_info['controller_order']})",
+               naive=lambda: _NaiveLTI(b.gl_d), forced=lambda: _ForcedResponse(b.gl_d)),
+        _Stage("vibration_comp", f"vibration compensator (order {ctrl_order})",
                lambda: VibrationCompensator(*ck, dt), "length",
-               naive=lambda: _NaiveLTI(k_d), forced=lambda: _ForcedResponse(k_d)),
+               naive=lambda: _NaiveLTI(b.k_d), forced=lambda: _ForcedResponse(b.k_d)),
         _Stage("plant", "plant (hysteresis+creep+dynamics)", lambda: Plant(cfg), "voltage",
-               naive=naive_plant, forced=forced_plant),
-        _Stage("cascade", "compensator cascade", cascade, "length", naive=naive_cascade, forced=forced_cascade),
+               naive=b.naive_plant, forced=b.forced_plant),
+        _Stage("cascade", "compensator cascade", cascade, "length", naive=b.naive_cascade, forced=b.forced_cascade),
         _Stage("full_chain", "full chain (cascade + plant)",
                lambda: Chain([("cascade", cascade()), ("plant", Plant(cfg))]), "length",
-               naive=lambda: _Series(naive_cascade(), naive_plant()),
-               forced=lambda: _Series(forced_cascade(), forced_plant())),
+               naive=lambda: _Series(b.naive_cascade(), b.naive_plant()),
+               forced=lambda: _Series(b.forced_cascade(), b.forced_plant())),
     ]
 
-    sig = _signals(cfg, fs)
-    n_total = int(round(duration * fs))
-    n_base = max(2, int(round(baseline_duration * fs)))
-    jit_before = _jit_stats()
 
-    # first calls: numba cache load (or compile), separately from the steady state
+@dataclass(frozen=True)
+class _Sizes:
+    """How much each run streams."""
+
+    fs: float                     #: sample rate [Hz]
+    block: int                    #: samples per process() call of the timed runs
+    repeats: int                  #: timed repeats (best reported)
+    n_total: int                  #: samples per timed run
+    n_base: int                   #: samples the baselines run (extrapolated)
+
+
+def _first_calls(stages: list[_Stage], sig: dict[str, np.ndarray]) -> dict[str, float]:
+    """Wall time [s] of each stage's first ``process`` call on 8 samples: the numba cache load (or compile), kept
+    apart from the steady state.
+
+    Parameters
+    ----------
+    stages : list of _Stage
+        In order (kernels shared with an earlier stage are loaded by then).
+    sig : dict
+        The input signals by kind.
+
+    Returns
+    -------
+    dict
+        Seconds per stage name.
+    """
     first_call: dict[str, float] = {}
     for st in stages:
         x = sig[st.kind][:8]
         t0 = time.perf_counter()
         st.make().process(x)
         first_call[st.name] = time.perf_counter() - t0
-    jit_after = _jit_stats()
+    return first_call
 
-    results: dict[str, dict[str, Any]] = {}
-    for st in stages:
-        if echo:
-            print(f"  {st.label} …", flush=True)
-        t0 = time.perf_counter()
-        st.make()
-        setup_s = time.perf_counter() - t0
-        n, walls, cpus = _timed_stream(st.make, sig[st.kind], block, n_total, repeats)
-        best = min(walls)
-        r: dict[str, Any] = {"label": st.label, "samples": n, "block": block, "repeats": repeats, "setup_s": setup_s,
-             "first_call_s": first_call[st.name],
-             "wall_s": walls, "cpu_s": cpus, "samples_per_s": _rate(n, best), "rt_factor": _rate(n, best) / fs,
-             "cpu_rt_factor": _rate(n, min(cpus)) / fs}
-        # baselines on a slice, extrapolated; their output is compared with the compiled stage's
-        x = sig[st.kind][:n_base]
-        y_fast = st.make().process(x)
-        scale = max(float(np.max(np.abs(y_fast))), 1e-300)
-        for kind, mk in (("naive", st.naive), ("forced_response", st.forced)):
-            if mk is None:
-                r[kind] = None
-                continue
-            stage = mk()
-            w0 = time.perf_counter()
-            y = stage.process(x)
-            w = time.perf_counter() - w0
-            r[kind] = {"samples": n_base, "wall_s": w, "samples_per_s": _rate(n_base, w),
-                       "rt_factor": _rate(n_base, w) / fs, "extrapolated_from_s": n_base / fs,
-                       "max_rel_diff": float(np.max(np.abs(y - y_fast)) / scale)}
-        results[st.name] = r
 
-    if small_block:
-        if echo:
-            print(f"  full chain, {small_block}-sample blocks …", flush=True)
-        # node-sized blocks: per-call overhead shows; at most 60 s simulated (it is the slow run)
-        n_small = min(n_total, int(round(60.0 * fs)))
-        n, walls, cpus = _timed_stream(stages[-1].make, sig["length"], small_block, n_small, repeats)
-        results["full_chain_small_blocks"] = {
-            "label": f"full chain, {small_block}-sample blocks", "samples": n, "block": small_block,
-            "repeats": repeats, "wall_s": walls, "cpu_s": cpus, "samples_per_s": _rate(n, min(walls)),
+def _measure_stage(st: _Stage, sig: dict[str, np.ndarray], sizes: _Sizes, first_call_s: float,
+                   echo: bool) -> dict[str, Any]:
+    """One stage's figures: setup time, the timed streaming runs, and its baselines on a slice.
+
+    Parameters
+    ----------
+    st : _Stage
+        The stage.
+    sig : dict
+        The input signals by kind.
+    sizes : _Sizes
+        Run lengths.
+    first_call_s : float
+        Its first call's time (:func:`_first_calls`).
+    echo : bool
+        Print the stage's label first.
+
+    Returns
+    -------
+    dict
+        ``results['stages'][name]`` of the benchmark.
+    """
+    if echo:
+        print(f"  {st.label} …", flush=True)
+    fs = sizes.fs
+    t0 = time.perf_counter()
+    st.make()
+    setup_s = time.perf_counter() - t0
+    n, walls, cpus = _timed_stream(st.make, sig[st.kind], sizes.block, sizes.n_total, sizes.repeats)
+    best = min(walls)
+    r: dict[str, Any] = {"label": st.label, "samples": n, "block": sizes.block, "repeats": sizes.repeats,
+                         "setup_s": setup_s, "first_call_s": first_call_s,
+                         "wall_s": walls, "cpu_s": cpus, "samples_per_s": _rate(n, best), "rt_factor": _rate(n, best) / fs,
+                         "cpu_rt_factor": _rate(n, min(cpus)) / fs}
+    r.update(_baseline_figures(st, sig[st.kind][:sizes.n_base], sizes))
+    return r
+
+
+def _baseline_figures(st: _Stage, x: np.ndarray, sizes: _Sizes) -> dict[str, dict[str, Any] | None]:
+    """The stage's baselines run once on ``x``, extrapolated, their output compared with the compiled stage's.
+
+    Parameters
+    ----------
+    st : _Stage
+        The stage.
+    x : ndarray
+        The slice the baselines run (the first ``sizes.n_base`` samples of the input).
+    sizes : _Sizes
+        ``n_base`` and ``fs`` of the figures.
+
+    Returns
+    -------
+    dict
+        ``{'naive': {…} or None, 'forced_response': {…} or None}``.
+    """
+    n_base, fs = sizes.n_base, sizes.fs
+    y_fast = st.make().process(x)
+    scale = max(float(np.max(np.abs(y_fast))), 1e-300)
+    out: dict[str, dict[str, Any] | None] = {}
+    for kind, mk in (("naive", st.naive), ("forced_response", st.forced)):
+        if mk is None:
+            out[kind] = None
+            continue
+        stage = mk()
+        w0 = time.perf_counter()
+        y = stage.process(x)
+        w = time.perf_counter() - w0
+        out[kind] = {"samples": n_base, "wall_s": w, "samples_per_s": _rate(n_base, w),
+                     "rt_factor": _rate(n_base, w) / fs, "extrapolated_from_s": n_base / fs,
+                     "max_rel_diff": float(np.max(np.abs(y - y_fast)) / scale)}
+    return out
+
+
+def _small_block_run(full_chain: _Stage, buf: np.ndarray, small_block: int, sizes: _Sizes,
+                     echo: bool) -> dict[str, Any]:
+    """The full chain in node-sized blocks (per-call overhead shows), at most 60 s simulated (it is the slow run).
+
+    Parameters
+    ----------
+    full_chain : _Stage
+        The full chain stage.
+    buf : ndarray
+        Its input (length signal).
+    small_block : int
+        Samples per block.
+    sizes : _Sizes
+        Run length and repeats.
+    echo : bool
+        Print a line first.
+
+    Returns
+    -------
+    dict
+        ``results['stages']['full_chain_small_blocks']``.
+    """
+    if echo:
+        print(f"  full chain, {small_block}-sample blocks …", flush=True)
+    fs = sizes.fs
+    n_small = min(sizes.n_total, int(round(60.0 * fs)))
+    n, walls, cpus = _timed_stream(full_chain.make, buf, small_block, n_small, sizes.repeats)
+    return {"label": f"full chain, {small_block}-sample blocks", "samples": n, "block": small_block,
+            "repeats": sizes.repeats, "wall_s": walls, "cpu_s": cpus, "samples_per_s": _rate(n, min(walls)),
             "rt_factor": _rate(n, min(walls)) / fs, "cpu_rt_factor": _rate(n, min(cpus)) / fs}
 
+
+def _figures(sizes: _Sizes, ctrl_info: dict[str, Any], import_s: float, jit: dict[str, Any],
+             results: dict[str, dict[str, Any]], machine: dict[str, Any]) -> dict[str, Any]:
+    """The benchmark's result (the JSON of ``piezo-ff bench --json``), headline figures from the full chain.
+
+    Parameters
+    ----------
+    sizes : _Sizes
+        Run lengths.
+    ctrl_info : dict
+        The controller's facts (:func:`_controller`).
+    import_s : float
+        Import time of the core.
+    jit : dict
+        First calls and numba cache statistics before and after them.
+    results : dict
+        Figures per stage.
+    machine : dict
+        The machine's facts.
+
+    Returns
+    -------
+    dict
+    """
+    from ._jit import HAVE_NUMBA
+
     fc = results["full_chain"]
-    machine["loadavg_end"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
     return {
         "full_chain_rt_factor": fc["rt_factor"],
         "full_chain_cpu_rt_factor": fc["cpu_rt_factor"],  # per core of CPU time (robust to a shared machine)
@@ -482,14 +654,14 @@ def run_benchmark(duration: float = 600.0, repeats: int = 3, block: int = 20000,
         "baseline_forced_response_rt_factor": fc["forced_response"]["rt_factor"],
         "hinf_synthesis_s": ctrl_info["hinf_synthesis_s"],
         "full_chain_s_per_600s": 600.0 / fc["rt_factor"],
-        "sample_rate": fs,
-        "duration_s": n_total / fs,
-        "baseline_duration_s": n_base / fs,
-        "block": block,
+        "sample_rate": sizes.fs,
+        "duration_s": sizes.n_total / sizes.fs,
+        "baseline_duration_s": sizes.n_base / sizes.fs,
+        "block": sizes.block,
         "controller": ctrl_info,
         "numba": HAVE_NUMBA,
         "import_s": import_s,
-        "jit": {"first_call_s": first_call, "cache_before": jit_before, "cache_after": jit_after},
+        "jit": jit,
         "stages": results,
         "machine": machine,
         "notes": [
@@ -500,3 +672,30 @@ def run_benchmark(duration: float = 600.0, repeats: int = 3, block: int = 20000,
             "kernels shared with an earlier stage are already loaded",
         ],
     }
+
+
+def run_benchmark(duration: float = 600.0, repeats: int = 3, block: int = 20000, small_block: int = 200,
+                  baseline_duration: float = 0.5, config: str | None = None, variant: str | None = None,
+                  hinf: bool = True, echo: bool = False) -> dict[str, Any]:
+    """Run every stage; return the figures (the JSON written by ``piezo-ff bench --json``)."""
+    import_s = _time_core_imports()
+    from .config import load_config
+
+    cfg = load_config(config, variant=variant)
+    fs = cfg.sample_rate
+    machine = _machine()
+    ctrl, ctrl_info = _controller(cfg, hinf, echo)
+    stages = _stages(cfg, ctrl, ctrl_info["controller_order"], _baselines(cfg, ctrl))
+
+    sig = _signals(cfg, fs)
+    sizes = _Sizes(fs, block, repeats, int(round(duration * fs)), max(2, int(round(baseline_duration * fs))))
+    jit_before = _jit_stats()
+    first_call = _first_calls(stages, sig)
+    jit_after = _jit_stats()
+    results = {st.name: _measure_stage(st, sig, sizes, first_call[st.name], echo) for st in stages}
+    if small_block:
+        results["full_chain_small_blocks"] = _small_block_run(stages[-1], sig["length"], small_block, sizes, echo)
+
+    machine["loadavg_end"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
+    jit = {"first_call_s": first_call, "cache_before": jit_before, "cache_after": jit_after}
+    return _figures(sizes, ctrl_info, import_s, jit, results, machine)

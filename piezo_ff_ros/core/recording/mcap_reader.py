@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from collections import Counter
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, NamedTuple
 
 import numpy as np
 
@@ -318,6 +318,282 @@ def _segments(markers: list[dict[str, Any]], k_offset: int, n: int, start: int,
     return segments
 
 
+class _Selected(NamedTuple):
+    """What the scan of a recording found and which block topic plays which role."""
+
+    contents: McapContents            #: the scan (raw messages still held)
+    md: dict[str, Any]                #: the ``piezo_ff_ros`` metadata record ({} without one)
+    roles: dict[str, str]             #: role → topic, for the block topics found (CDR only)
+    topic_counts: dict[str, int]      #: messages per topic, counted before any is released
+
+
+def _select_topics(path: str | Path, namespace: str | None, warnings: list[str]) -> _Selected:
+    """Scan the recording and pick its block topic for each role.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.mcap`` file or rosbag2 directory.
+    namespace : str or None
+        The namespace of the topics, where the file holds several.
+    warnings : list of str
+        Appended to: truncation, topics with a non-CDR encoding.
+
+    Returns
+    -------
+    _Selected
+
+    Raises
+    ------
+    ValueError
+        Not MCAP, nothing readable, no block topic, several candidates for a role.
+    """
+    contents = scan_mcap(path)
+    if contents.truncated and contents.error:   # (scan_mcap sets both together)
+        warnings.append(contents.error)
+    non_cdr = {t: e for t, e in contents.encodings.items() if e != "cdr"}
+    if non_cdr:
+        warnings.append(f"topics with a non-CDR encoding ignored: {non_cdr}")
+    md = contents.metadata_record()
+
+    picked = {r: _pick_topic(contents, r, BLOCK_TYPE, namespace) for r in BLOCK_ROLES}
+    roles = {r: t for r, t in picked.items() if t is not None and contents.encodings.get(t) == "cdr"}
+    if not roles:
+        raise ValueError(f"{path}: no block topic (reference/voltage/displacement of type {BLOCK_TYPE}); "
+                         f"topics found: {contents.topics or 'none'}")
+    topic_counts = {t: len(contents.messages.get(t, [])) for t in contents.topics}
+    return _Selected(contents, md, roles, topic_counts)
+
+
+class _Timeline(NamedTuple):
+    """The decoded blocks of the main time span and the sample grid they lie on."""
+
+    decoded: Blocks                   #: per role ``[(stamp_ns, block)]``; emptied by :func:`_place_blocks`
+    outliers: Blocks                  #: per role, the blocks stamped outside the recording's span
+    malformed: Counter[str]           #: undecodable blocks per role
+    axes: list[str]                   #: axis names, in the fixed x, y, z order
+    dt_ns: int                        #: sample period [ns]
+    t0_ns: int                        #: stamp of sample index 0 [ns]
+
+
+def _decode_on_grid(path: str | Path, sel: _Selected, sample_rate: float | None,
+                    warnings: list[str]) -> _Timeline:
+    """Decode every block, settle the sample period and origin, and set aside the blocks stamped off the span.
+
+    Parameters
+    ----------
+    path : str or Path
+        The recording (named in errors).
+    sel : _Selected
+        The scan; its block topics' raw messages are released as they are decoded.
+    sample_rate : float or None
+        Override [Hz].
+    warnings : list of str
+        Appended to (metadata axes/rate/t0 not usable, malformed blocks, outliers).
+
+    Returns
+    -------
+    _Timeline
+
+    Raises
+    ------
+    ValueError
+        No decodable block; no usable sample rate.
+    """
+    decoded, axes, malformed = _decode_blocks(sel.contents, sel.roles, _metadata_axes(sel.md, warnings), warnings)
+    if axes is None or not any(decoded.values()):
+        raise ValueError(f"{path}: the block topics {sorted(sel.roles.values())} hold no decodable block")
+
+    dt_ns = _sample_period(path, sel.md, decoded, sample_rate, warnings)
+    # stamps far outside the span of the data (a clock glitch, a corrupt stamp) are set aside and reported: the
+    # arrays are sized from the data, never from the stamp span
+    decoded, outliers = _split_outliers(decoded, dt_ns)
+    for role, outs in outliers.items():
+        if outs:
+            warnings.append(f"{sel.roles[role]}: {len(outs)} block(s) stamped outside the recording's span ignored "
+                            f"(stamps {[s for s, _ in outs[:5]]} ns{' …' if len(outs) > 5 else ''})")
+    all_stamps = [s for blks in decoded.values() for s, _ in blks]
+    t0_ns = _run_origin(sel.md, all_stamps, dt_ns, warnings)
+    return _Timeline(decoded, outliers, malformed, axes, dt_ns, t0_ns)
+
+
+class _Placed(NamedTuple):
+    """Every role's blocks placed by sample index, over the span from the first block to the end of the last."""
+
+    arrays: dict[str, np.ndarray]         #: per role, ``(length, n_axes)``, NaN where no block
+    covered: dict[str, np.ndarray]        #: per role, the samples a block covers
+    info: dict[str, dict[str, Any]]       #: per role, the bookkeeping of ``meta['blocks']``
+    k_first: int                          #: sample index of array row 0
+    length: int                           #: rows
+
+
+def _place_blocks(tl: _Timeline, roles: dict[str, str], warnings: list[str]) -> _Placed:
+    """Place each role's blocks into its array, releasing the decoded blocks role by role.
+
+    Parameters
+    ----------
+    tl : _Timeline
+        The decoded blocks (``tl.decoded`` is emptied) and the sample grid.
+    roles : dict
+        Role → topic (named in the bookkeeping and warnings).
+    warnings : list of str
+        Appended to: block stamps off the sample grid.
+
+    Returns
+    -------
+    _Placed
+    """
+    dt_ns, t0_ns, decoded = tl.dt_ns, tl.t0_ns, tl.decoded
+    k_first = min(_index_of(s, t0_ns, dt_ns) for blks in decoded.values() for s, _ in blks)
+    k_end = max(_index_of(s, t0_ns, dt_ns) + len(b) for blks in decoded.values() for s, b in blks)
+    length = int(k_end - k_first)
+    arrays, covered, info = {}, {}, {}
+    for role in list(decoded):
+        blks = decoded.pop(role)  # placed below: each role's decoded blocks are released once in its array
+        arrays[role], covered[role], placed = _place_role(blks, len(tl.axes), length, k_first, t0_ns, dt_ns)
+        info[role] = {
+            "topic": roles[role], **placed, "malformed": tl.malformed[role],
+            "outliers": len(tl.outliers.get(role, [])),
+            "outlier_stamps_ns": [int(st) for st, _ in tl.outliers.get(role, [])[:_MAX_RANGES]],
+        }
+        if placed["off_grid"]:
+            warnings.append(f"{roles[role]}: {placed['off_grid']} block stamps off the {dt_ns} ns sample grid "
+                            "(rounded)")
+    return _Placed(arrays, covered, info, k_first, length)
+
+
+class _Span(NamedTuple):
+    """The rows of the placed arrays that the run keeps."""
+
+    start: int                        #: first row kept
+    stop: int                         #: one past the last row kept
+    k_offset: int                     #: run index of the first row kept
+    n: int                            #: rows kept
+
+
+def _common_span(placed: _Placed, trim: bool, path: str | Path) -> _Span:
+    """All rows, or with ``trim`` the rows where every recorded block topic has started and not yet ended.
+
+    Parameters
+    ----------
+    placed : _Placed
+        The placed arrays and their bookkeeping.
+    trim : bool
+        Keep only the common span.
+    path : str or Path
+        The recording (named in the error).
+
+    Returns
+    -------
+    _Span
+
+    Raises
+    ------
+    ValueError
+        With ``trim``: the block topics do not overlap in time.
+    """
+    start, stop = 0, placed.length
+    if trim:
+        present = [i for i in placed.info.values() if i["count"] > 0]
+        start = max(i["first_k"] for i in present) - placed.k_first
+        stop = min(i["end_k"] for i in present) - placed.k_first
+        if stop <= start:
+            raise ValueError(f"{path}: the block topics do not overlap in time "
+                             f"({ {r: (i['first_k'], i['end_k']) for r, i in placed.info.items()} })")
+    return _Span(start, stop, int(start + placed.k_first), int(stop - start))
+
+
+def _role_rows(placed: _Placed, role: str, span: _Span, n_axes: int, warnings: list[str]) -> np.ndarray:
+    """The kept rows of a role's array, or NaN (with a warning) when the recording has no such topic.
+
+    Parameters
+    ----------
+    placed : _Placed
+        The placed arrays.
+    role : {'voltage', 'displacement'}
+        The role.
+    span : _Span
+        The rows kept.
+    n_axes : int
+        Columns of the NaN stand-in.
+    warnings : list of str
+        Appended to when the topic is absent.
+
+    Returns
+    -------
+    ndarray
+        ``(span.n, n_axes)``.
+    """
+    if role in placed.arrays:
+        return placed.arrays[role][span.start:span.stop]
+    warnings.append(f"no {role} topic: {'u' if role == 'voltage' else 'y'} is NaN")
+    return np.full((span.n, n_axes), np.nan)
+
+
+def _experiment_segments(contents: McapContents, namespace: str | None, tl: _Timeline, span: _Span,
+                         covered: dict[str, np.ndarray], warnings: list[str]) -> list[dict[str, Any]]:
+    """The experiment segments of the recording's marker topic (none without one).
+
+    Parameters
+    ----------
+    contents : McapContents
+        The scan.
+    namespace : str or None
+        The namespace of the topics.
+    tl : _Timeline
+        The sample grid.
+    span : _Span
+        The rows kept.
+    covered : dict
+        Per role, the samples a block covers.
+    warnings : list of str
+        Appended to: markers skipped.
+
+    Returns
+    -------
+    list of dict
+        ``meta['segments']``.
+    """
+    exp_topic = _pick_topic(contents, "experiment", EXPERIMENT_TYPE, namespace)
+    markers = _experiment_markers(contents.messages.get(exp_topic, []), tl.t0_ns, tl.dt_ns, warnings) \
+        if exp_topic else []
+    return _segments(markers, span.k_offset, span.n, span.start, covered)
+
+
+def _run_meta(path: str | Path, sel: _Selected, tl: _Timeline, placed: _Placed, span: _Span,
+              segments: list[dict[str, Any]], warnings: list[str]) -> dict[str, Any]:
+    """``RunData.meta`` of :func:`read_run` (the diagnostics summary is read here).
+
+    Parameters
+    ----------
+    path : str or Path
+        The recording.
+    sel, tl, placed, span
+        The steps' results.
+    segments : list of dict
+        The experiment segments.
+    warnings : list of str
+        Every warning of the read (the list itself is stored).
+
+    Returns
+    -------
+    dict
+    """
+    contents = sel.contents
+    diag_topic = next((t for t, tn in contents.topics.items() if tn == DIAGNOSTICS_TYPE
+                       and t.rstrip("/").split("/")[-1] == "diagnostics"), None)
+    diagnostics = _diagnostics_summary(contents.messages.get(diag_topic, [])) if diag_topic else {"messages": 0}
+    return {
+        "source": str(path), "format": "rosbag2" if Path(path).is_dir() else "mcap", "profile": contents.profile,
+        "library": contents.library, "truncated": contents.truncated, "truncation_error": contents.error,
+        "topics": {t: {"type": tn, "count": sel.topic_counts.get(t, 0)} for t, tn in contents.topics.items()},
+        "sample_rate": 1e9 / tl.dt_ns, "dt_ns": int(tl.dt_ns), "t0_ns": int(tl.t0_ns), "k_offset": span.k_offset,
+        "axes": tuple(tl.axes), "blocks": placed.info, "segments": segments, "metadata": sel.md,
+        "diagnostics": diagnostics, "warnings": warnings,
+        "trimmed": {"head": int(span.start), "tail": int(placed.length - span.stop)}, "loss": contents.loss_summary(),
+    }
+
+
 def read_run(path: str | Path, *, namespace: str | None = None, sample_rate: float | None = None,
              trim: bool = True) -> RunData:
     """Reassemble a ROS 2 recording of the topic contract into a sample-aligned :class:`RunData`.
@@ -351,92 +627,15 @@ def read_run(path: str | Path, *, namespace: str | None = None, sample_rate: flo
     ValueError
         Not MCAP, nothing readable, no block topic, inconsistent axes, no overlapping data.
     """
-    contents = scan_mcap(path)
     warnings: list[str] = []
-    if contents.truncated and contents.error:   # (scan_mcap sets both together)
-        warnings.append(contents.error)
-    non_cdr = {t: e for t, e in contents.encodings.items() if e != "cdr"}
-    if non_cdr:
-        warnings.append(f"topics with a non-CDR encoding ignored: {non_cdr}")
-    md = contents.metadata_record()
-
-    picked = {r: _pick_topic(contents, r, BLOCK_TYPE, namespace) for r in BLOCK_ROLES}
-    roles = {r: t for r, t in picked.items() if t is not None and contents.encodings.get(t) == "cdr"}
-    if not roles:
-        raise ValueError(f"{path}: no block topic (reference/voltage/displacement of type {BLOCK_TYPE}); "
-                         f"topics found: {contents.topics or 'none'}")
-
-    topic_counts = {t: len(contents.messages.get(t, [])) for t in contents.topics}
-    decoded, axes, malformed = _decode_blocks(contents, roles, _metadata_axes(md, warnings), warnings)
-    if axes is None or not any(decoded.values()):
-        raise ValueError(f"{path}: the block topics {sorted(roles.values())} hold no decodable block")
-
-    dt_ns = _sample_period(path, md, decoded, sample_rate, warnings)
-    fs = 1e9 / dt_ns
-    # stamps far outside the span of the data (a clock glitch, a corrupt stamp) are set aside and reported: the
-    # arrays are sized from the data, never from the stamp span
-    decoded, outliers = _split_outliers(decoded, dt_ns)
-    for role, outs in outliers.items():
-        if outs:
-            warnings.append(f"{roles[role]}: {len(outs)} block(s) stamped outside the recording's span ignored "
-                            f"(stamps {[s for s, _ in outs[:5]]} ns{' …' if len(outs) > 5 else ''})")
-    all_stamps = [s for blks in decoded.values() for s, _ in blks]
-    t0_ns = _run_origin(md, all_stamps, dt_ns, warnings)
-
-    # place blocks by sample index
-    k_first = min(_index_of(s, t0_ns, dt_ns) for s in all_stamps)
-    k_end = max(_index_of(s, t0_ns, dt_ns) + len(b) for blks in decoded.values() for s, b in blks)
-    length = int(k_end - k_first)
-    arrays, covered, info = {}, {}, {}
-    for role in list(decoded):
-        blks = decoded.pop(role)  # placed below: each role's decoded blocks are released once in its array
-        arrays[role], covered[role], placed = _place_role(blks, len(axes), length, k_first, t0_ns, dt_ns)
-        info[role] = {
-            "topic": roles[role], **placed, "malformed": malformed[role],
-            "outliers": len(outliers.get(role, [])),
-            "outlier_stamps_ns": [int(st) for st, _ in outliers.get(role, [])[:_MAX_RANGES]],
-        }
-        if placed["off_grid"]:
-            warnings.append(f"{roles[role]}: {placed['off_grid']} block stamps off the {dt_ns} ns sample grid "
-                            "(rounded)")
-
-    # common span
-    start, stop = 0, length
-    if trim:
-        present = [i for i in info.values() if i["count"] > 0]
-        start = max(i["first_k"] for i in present) - k_first
-        stop = min(i["end_k"] for i in present) - k_first
-        if stop <= start:
-            raise ValueError(f"{path}: the block topics do not overlap in time "
-                             f"({ {r: (i['first_k'], i['end_k']) for r, i in info.items()} })")
-    k_offset = int(start + k_first)
-    n = int(stop - start)
-    t = (np.arange(n, dtype=np.int64) + k_offset) * (dt_ns / 1e9)
-
-    def take(role: str) -> np.ndarray:
-        if role in arrays:
-            return arrays[role][start:stop]
-        warnings.append(f"no {role} topic: {'u' if role == 'voltage' else 'y'} is NaN")
-        return np.full((n, len(axes)), np.nan)
-
-    u, y = take("voltage"), take("displacement")
-    ref = arrays["reference"][start:stop] if "reference" in arrays else None
-
-    exp_topic = _pick_topic(contents, "experiment", EXPERIMENT_TYPE, namespace)
-    markers = _experiment_markers(contents.messages.get(exp_topic, []), t0_ns, dt_ns, warnings) \
-        if exp_topic else []
-    segments = _segments(markers, k_offset, n, start, covered)
-
-    diag_topic = next((t for t, tn in contents.topics.items() if tn == DIAGNOSTICS_TYPE
-                       and t.rstrip("/").split("/")[-1] == "diagnostics"), None)
-    diagnostics = _diagnostics_summary(contents.messages.get(diag_topic, [])) if diag_topic else {"messages": 0}
-
-    meta = {
-        "source": str(path), "format": "rosbag2" if Path(path).is_dir() else "mcap", "profile": contents.profile,
-        "library": contents.library, "truncated": contents.truncated, "truncation_error": contents.error,
-        "topics": {t: {"type": tn, "count": topic_counts.get(t, 0)} for t, tn in contents.topics.items()},
-        "sample_rate": fs, "dt_ns": int(dt_ns), "t0_ns": int(t0_ns), "k_offset": k_offset, "axes": tuple(axes),
-        "blocks": info, "segments": segments, "metadata": md, "diagnostics": diagnostics, "warnings": warnings,
-        "trimmed": {"head": int(start), "tail": int(length - stop)}, "loss": contents.loss_summary(),
-    }
-    return RunData(t=t, u=u, y=y, axes=tuple(axes), reference=ref, meta=meta)
+    sel = _select_topics(path, namespace, warnings)
+    tl = _decode_on_grid(path, sel, sample_rate, warnings)
+    placed = _place_blocks(tl, sel.roles, warnings)
+    span = _common_span(placed, trim, path)
+    t = (np.arange(span.n, dtype=np.int64) + span.k_offset) * (tl.dt_ns / 1e9)
+    u = _role_rows(placed, "voltage", span, len(tl.axes), warnings)
+    y = _role_rows(placed, "displacement", span, len(tl.axes), warnings)
+    ref = placed.arrays["reference"][span.start:span.stop] if "reference" in placed.arrays else None
+    segments = _experiment_segments(sel.contents, namespace, tl, span, placed.covered, warnings)
+    meta = _run_meta(path, sel, tl, placed, span, segments, warnings)
+    return RunData(t=t, u=u, y=y, axes=tuple(tl.axes), reference=ref, meta=meta)

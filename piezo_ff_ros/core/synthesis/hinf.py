@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -300,6 +300,309 @@ GAMMA_FIRST_RELAX = 1e-4
 GAMMA_BISECT_RTOL = 1e-3
 
 
+def _checked_axes(G_L: TFMatrix, cfg: HinfConfig) -> int:
+    """Check the synthesis inputs and return the number of axes.
+
+    Parameters
+    ----------
+    G_L : TFMatrix
+        The plant; must be square with every non-zero entry stable (after cancelling duplicated factors).
+    cfg : HinfConfig
+        The weights; validated for that many axes.
+
+    Returns
+    -------
+    int
+        Number of axes (rows = columns of ``G_L``).
+
+    Raises
+    ------
+    HinfSynthesisError
+        ``G_L`` is not square, or an entry is unstable.
+    ConfigError
+        A weight is out of range (from ``cfg.validate``).
+    """
+    n = _square_axes(G_L)
+    cfg.validate(tuple(range(n)))
+    for i in range(n):
+        for j in range(n):
+            if not G_L[i, j].is_zero() and not G_L[i, j].cancelled().is_stable():
+                raise HinfSynthesisError(f"G_L[{i},{j}] is not stable: a feedforward cannot compensate an unstable plant")
+    return n
+
+
+def _duplicated_factor_notes(G_L: TFMatrix, n: int) -> list[str]:
+    """The design note naming the factors printed in both numerator and denominator of an entry (none: empty).
+
+    Parameters
+    ----------
+    G_L : TFMatrix
+        The plant, ``n × n``.
+    n : int
+        Number of axes.
+
+    Returns
+    -------
+    list of str
+        Zero or one note.
+    """
+    dups = {f"G_L[{i},{j}]": G_L[i, j].duplicated_factors() for i in range(n) for j in range(n)}
+    dups = {k: v for k, v in dups.items() if v}
+    if not dups:
+        return []
+    return ["cancelled factors printed in both numerator and denominator: "
+            + "; ".join(f"{k}: {v}" for k, v in dups.items())]
+
+
+def _feasible_dc_bound(G_L: TFMatrix, cfg: HinfConfig) -> float:
+    """The DC lower bound of the optimum (:func:`lower_bound_dc` with ``cfg``), checked against ``cfg.gamma_max``.
+
+    Parameters
+    ----------
+    G_L : TFMatrix
+        The plant.
+    cfg : HinfConfig
+        The weights and γ_max.
+
+    Returns
+    -------
+    float
+        The bound.
+
+    Raises
+    ------
+    HinfSynthesisError
+        The bound is above ``cfg.gamma_max``: no controller can meet it.
+    """
+    bound = lower_bound_dc(G_L, cfg)
+    if bound > cfg.gamma_max:
+        raise HinfSynthesisError(
+            f"H∞ synthesis infeasible: no controller can reach vibration.gamma_max = {cfg.gamma_max:g}; the norm at "
+            f"ω = 0 alone is at least {bound:.6g} (≈ ‖G_L(0)⁻¹‖ = {lower_bound_dc(G_L):.6g}) with weights "
+            f"{_describe_weights(cfg)}. Relax gamma_max, raise W2 bounds or eps_s, or check G_L's DC gains.")
+    return bound
+
+
+@dataclass
+class _GammaTrials:
+    """The candidates of the γ iteration: each one synthesised, checked, and its time and rejection recorded.
+
+    Mutable on purpose: every :meth:`attempt` adds its SB10AD time to ``synthesis_s``, its frequency-grid time to
+    ``verify_s`` and, when the candidate is rejected, the reason to ``rejected``.
+    """
+
+    G_L: TFMatrix
+    cfg: HinfConfig
+    P: StateSpace                                 #: the generalized plant (:func:`generalized_plant`)
+    n: int                                        #: number of axes (measurements = controls)
+    synthesis_s: float = 0.0
+    verify_s: float = 0.0
+    rejected: list[str] = field(default_factory=list)
+
+    def attempt(self, gamma: float) -> tuple[StateSpace | None, float]:
+        """Central controller at γ, accepted only if it exists, is stable and achieves γ on the grid.
+
+        Parameters
+        ----------
+        gamma : float
+            The γ to synthesise for.
+
+        Returns
+        -------
+        controller : control.StateSpace or None
+            The controller, or None when rejected.
+        achieved : float
+            Its norm on the frequency grid (NaN when it was not measured).
+        """
+        t = time.perf_counter()
+        K, why = _central_controller(self.P, self.n, gamma)
+        self.synthesis_s += time.perf_counter() - t
+        if K is None:
+            self.rejected.append(f"γ={gamma:.6g}: SB10AD found no controller ({why.strip().splitlines()[0][:120]})")
+            return None, math.nan
+        if not _max_real_pole(K) < 0.0:
+            self.rejected.append(f"γ={gamma:.6g}: unstable controller (pole real part {_max_real_pole(K):.4g})")
+            return None, math.nan
+        t = time.perf_counter()
+        ach, w_at = achieved_norm(self.G_L, K, self.cfg)
+        self.verify_s += time.perf_counter() - t
+        if not ach <= gamma * (1.0 + GAMMA_TOL):
+            self.rejected.append(f"γ={gamma:.6g}: controller misses its own γ (achieved {ach:.6g} at "
+                                 f"ω={w_at:.4g} rad/s)")
+            return None, ach
+        return K, ach
+
+
+class _Accepted(NamedTuple):
+    """The outcome of the γ iteration: the full controller, its γ and verified norm, and what to note about it."""
+
+    K: StateSpace                 #: the full (unreduced) controller
+    gamma: float                  #: the γ it was synthesised for
+    achieved: float               #: its norm on the frequency grid
+    notes: tuple[str, ...]        #: bisection and rejected candidates, if any
+
+
+def _search_gamma(trials: _GammaTrials, bound: float) -> _Accepted:
+    """The smallest γ with an accepted controller: the DC bound ·(1 + GAMMA_FIRST_RELAX), else bisected.
+
+    Parameters
+    ----------
+    trials : _GammaTrials
+        Where the candidates are tried (and their times and rejections recorded).
+    bound : float
+        The DC lower bound (:func:`_feasible_dc_bound`).
+
+    Returns
+    -------
+    _Accepted
+
+    Raises
+    ------
+    HinfSynthesisError
+        No candidate up to ``cfg.gamma_max`` is accepted.
+    """
+    gam = bound * (1.0 + GAMMA_FIRST_RELAX)
+    K, achieved = trials.attempt(gam) if gam <= trials.cfg.gamma_max else (None, math.nan)
+    if K is None:
+        accepted = _bisect_gamma(trials, bound, min(gam, trials.cfg.gamma_max))
+    else:
+        accepted = _Accepted(K, gam, achieved, ())
+    if trials.rejected:
+        accepted = accepted._replace(notes=accepted.notes + ("rejected candidates: " + "; ".join(trials.rejected),))
+    return accepted
+
+
+def _bisect_gamma(trials: _GammaTrials, bound: float, lo: float) -> _Accepted:
+    """γ bisected between ``lo`` (no controller accepted) and ``cfg.gamma_max`` to a relative width of
+    ``GAMMA_BISECT_RTOL``.
+
+    Parameters
+    ----------
+    trials : _GammaTrials
+        Where the candidates are tried.
+    bound : float
+        The DC lower bound (quoted in the note and the error).
+    lo : float
+        The largest γ known to have no accepted controller.
+
+    Returns
+    -------
+    _Accepted
+        The controller at the upper end of the final interval, with the note saying the interval.
+
+    Raises
+    ------
+    HinfSynthesisError
+        No controller is accepted at ``cfg.gamma_max`` itself.
+    """
+    cfg = trials.cfg
+    gam = cfg.gamma_max
+    K, achieved = trials.attempt(gam)
+    if K is None:
+        raise HinfSynthesisError(
+            f"H∞ synthesis found no stable controller achieving γ ≤ vibration.gamma_max = {cfg.gamma_max:g} "
+            f"(DC lower bound {bound:.6g}, weights {_describe_weights(cfg)}): " + "; ".join(trials.rejected)
+            + ". Relax the weights or raise gamma_max.")
+    while (gam - lo) > GAMMA_BISECT_RTOL * gam:
+        mid = 0.5 * (lo + gam)
+        K_mid, ach_mid = trials.attempt(mid)
+        if K_mid is None:
+            lo = mid
+        else:
+            K, gam, achieved = K_mid, mid, ach_mid
+    return _Accepted(K, gam, achieved, (f"γ bisected in [{lo:.6g}, {gam:.6g}] (DC bound {bound:.6g} not reachable)",))
+
+
+class _Reduced(NamedTuple):
+    """The controller after balanced truncation (or the full one), with its Hankel singular values."""
+
+    Kr: StateSpace                #: the reduced controller (``K`` itself when not reduced)
+    hsv: np.ndarray               #: Hankel singular values of the full controller, largest first
+    seconds: float                #: wall time of the reduction
+    notes: tuple[str, ...]        #: a note when truncation kept fewer states than asked
+
+
+def _reduce_controller(K: StateSpace, cfg: HinfConfig, reduce: bool) -> _Reduced:
+    """Balanced truncation of ``K`` to ``cfg.order`` states (``reduce``), else ``K`` with its Hankel values.
+
+    Parameters
+    ----------
+    K : control.StateSpace
+        The full controller.
+    cfg : HinfConfig
+        ``cfg.order``: the reduced order.
+    reduce : bool
+        Whether to truncate.
+
+    Returns
+    -------
+    _Reduced
+
+    Raises
+    ------
+    HinfSynthesisError
+        The truncation failed (:class:`~.reduction.ReductionError`).
+    """
+    t1 = time.perf_counter()
+    try:
+        if reduce:
+            Kr, hsv = balanced_truncation(K, cfg.order)
+        else:
+            Kr, hsv = K, hankel_singular_values(K)
+    except ReductionError as exc:
+        raise HinfSynthesisError(f"controller reduction failed: {exc}") from exc
+    seconds = time.perf_counter() - t1
+    notes: tuple[str, ...] = ()
+    if reduce and Kr.nstates < min(cfg.order, K.nstates):
+        notes = (f"balanced truncation returned {Kr.nstates} states (< vibration.order = {cfg.order}): the "
+                 "controller has no more controllable and observable states",)
+    return _Reduced(Kr, hsv, seconds, notes)
+
+
+def _verify_reduced(G_L: TFMatrix, cfg: HinfConfig, full: _Accepted, red: _Reduced,
+                    verify: bool) -> tuple[float, float]:
+    """The reduced controller's achieved norm, checked against ``cfg.gamma_max``.
+
+    Parameters
+    ----------
+    G_L : TFMatrix
+        The plant the weighted norm is taken with.
+    cfg : HinfConfig
+        The norm's weights, and γ_max the reduced controller must stay under.
+    full : _Accepted
+        The full controller (its norm is reused when the reduction returned it unchanged).
+    red : _Reduced
+        The reduced controller.
+    verify : bool
+        Measure the reduced controller's norm (otherwise NaN, unless it is the full controller).
+
+    Returns
+    -------
+    achieved : float
+        The reduced controller's norm (NaN if not verified).
+    seconds : float
+        Wall time of the verification (0 when none ran).
+
+    Raises
+    ------
+    HinfSynthesisError
+        The reduced controller's norm is above ``cfg.gamma_max``.
+    """
+    if red.Kr is full.K:
+        return full.achieved, 0.0
+    if not verify:
+        return math.nan, 0.0
+    tv = time.perf_counter()
+    achieved_red, w_at = achieved_norm(G_L, red.Kr, cfg)
+    seconds = time.perf_counter() - tv
+    if not achieved_red <= cfg.gamma_max:
+        raise HinfSynthesisError(
+            f"reduced controller ({red.Kr.nstates} states) achieves {achieved_red:.6g} at ω = {w_at:.4g} rad/s > "
+            f"vibration.gamma_max = {cfg.gamma_max:g} (full: {full.achieved:.6g}; truncation error bound "
+            f"{truncation_error_bound(red.hsv, red.Kr.nstates):.3g}); raise vibration.order")
+    return achieved_red, seconds
+
+
 def synthesize_hinf(G_L: TFMatrix, cfg: HinfConfig, *, reduce: bool = True, verify: bool = True) -> HinfDesign:
     """Synthesise the H∞ model-matching feedforward C(s) for ``G_L`` with the weights of ``cfg``, then reduce it.
 
@@ -332,101 +635,19 @@ def synthesize_hinf(G_L: TFMatrix, cfg: HinfConfig, *, reduce: bool = True, veri
         No stable controller achieving γ ≤ ``cfg.gamma_max``, unstable reduced controller, reduced achieved norm above
         ``cfg.gamma_max``.
     """
-    n = _square_axes(G_L)
-    cfg.validate(tuple(range(n)))
-    for i in range(n):
-        for j in range(n):
-            if not G_L[i, j].is_zero() and not G_L[i, j].cancelled().is_stable():
-                raise HinfSynthesisError(f"G_L[{i},{j}] is not stable: a feedforward cannot compensate an unstable plant")
-    notes = []
-    dups = {f"G_L[{i},{j}]": G_L[i, j].duplicated_factors() for i in range(n) for j in range(n)}
-    dups = {k: v for k, v in dups.items() if v}
-    if dups:
-        notes.append("cancelled factors printed in both numerator and denominator: "
-                     + "; ".join(f"{k}: {v}" for k, v in dups.items()))
-    bound = lower_bound_dc(G_L, cfg)
-    if bound > cfg.gamma_max:
-        raise HinfSynthesisError(
-            f"H∞ synthesis infeasible: no controller can reach vibration.gamma_max = {cfg.gamma_max:g}; the norm at "
-            f"ω = 0 alone is at least {bound:.6g} (≈ ‖G_L(0)⁻¹‖ = {lower_bound_dc(G_L):.6g}) with weights "
-            f"{_describe_weights(cfg)}. Relax gamma_max, raise W2 bounds or eps_s, or check G_L's DC gains.")
-
+    n = _checked_axes(G_L, cfg)
+    notes = _duplicated_factor_notes(G_L, n)
+    bound = _feasible_dc_bound(G_L, cfg)
     P = generalized_plant(G_L, cfg)
-    synthesis_s = 0.0
-    verify_s = 0.0
-    attempts = []
-
-    def attempt(gamma: float) -> tuple[StateSpace | None, float]:
-        """Central controller at γ, accepted only if it exists, is stable and achieves γ on the grid."""
-        nonlocal synthesis_s, verify_s
-        t = time.perf_counter()
-        K, why = _central_controller(P, n, gamma)
-        synthesis_s += time.perf_counter() - t
-        if K is None:
-            attempts.append(f"γ={gamma:.6g}: SB10AD found no controller ({why.strip().splitlines()[0][:120]})")
-            return None, math.nan
-        if not _max_real_pole(K) < 0.0:
-            attempts.append(f"γ={gamma:.6g}: unstable controller (pole real part {_max_real_pole(K):.4g})")
-            return None, math.nan
-        t = time.perf_counter()
-        ach, w_at = achieved_norm(G_L, K, cfg)
-        verify_s += time.perf_counter() - t
-        if not ach <= gamma * (1.0 + GAMMA_TOL):
-            attempts.append(f"γ={gamma:.6g}: controller misses its own γ (achieved {ach:.6g} at ω={w_at:.4g} rad/s)")
-            return None, ach
-        return K, ach
-
-    lo = bound
-    gam = bound * (1.0 + GAMMA_FIRST_RELAX)
-    K, achieved_full = attempt(gam) if gam <= cfg.gamma_max else (None, math.nan)
-    if K is None:
-        lo = min(gam, cfg.gamma_max)
-        gam = cfg.gamma_max
-        K, achieved_full = attempt(gam)
-        if K is None:
-            raise HinfSynthesisError(
-                f"H∞ synthesis found no stable controller achieving γ ≤ vibration.gamma_max = {cfg.gamma_max:g} "
-                f"(DC lower bound {bound:.6g}, weights {_describe_weights(cfg)}): " + "; ".join(attempts)
-                + ". Relax the weights or raise gamma_max.")
-        while (gam - lo) > GAMMA_BISECT_RTOL * gam:
-            mid = 0.5 * (lo + gam)
-            K_mid, ach_mid = attempt(mid)
-            if K_mid is None:
-                lo = mid
-            else:
-                K, gam, achieved_full = K_mid, mid, ach_mid
-        notes.append(f"γ bisected in [{lo:.6g}, {gam:.6g}] (DC bound {bound:.6g} not reachable)")
-    if attempts:
-        notes.append("rejected candidates: " + "; ".join(attempts))
-
-    t1 = time.perf_counter()
-    try:
-        if reduce:
-            Kr, hsv = balanced_truncation(K, cfg.order)
-        else:
-            Kr, hsv = K, hankel_singular_values(K)
-    except ReductionError as exc:
-        raise HinfSynthesisError(f"controller reduction failed: {exc}") from exc
-    synthesis_s += time.perf_counter() - t1
-    if reduce and Kr.nstates < min(cfg.order, K.nstates):
-        notes.append(f"balanced truncation returned {Kr.nstates} states (< vibration.order = {cfg.order}): the "
-                     "controller has no more controllable and observable states")
-
-    achieved_red = math.nan
-    if Kr is K:
-        achieved_red = achieved_full
-    elif verify:
-        tv = time.perf_counter()
-        achieved_red, w_at = achieved_norm(G_L, Kr, cfg)
-        verify_s += time.perf_counter() - tv
-        if not achieved_red <= cfg.gamma_max:
-            raise HinfSynthesisError(
-                f"reduced controller ({Kr.nstates} states) achieves {achieved_red:.6g} at ω = {w_at:.4g} rad/s > "
-                f"vibration.gamma_max = {cfg.gamma_max:g} (full: {achieved_full:.6g}; truncation error bound "
-                f"{truncation_error_bound(hsv, Kr.nstates):.3g}); raise vibration.order")
-
-    return HinfDesign(controller=Kr, controller_full=K, gamma=float(gam), gamma_full_achieved=float(achieved_full),
-                      gamma_reduced_achieved=float(achieved_red), order_full=int(K.nstates),
-                      order_reduced=int(Kr.nstates), generalized_plant_order=int(P.nstates),
-                      hankel_singular_values=np.asarray(hsv, float), synthesis_s=float(synthesis_s),
-                      gamma_lower_bound=float(bound), verify_s=float(verify_s), notes=tuple(notes))
+    trials = _GammaTrials(G_L, cfg, P, n)
+    full = _search_gamma(trials, bound)
+    red = _reduce_controller(full.K, cfg, reduce)
+    achieved_red, verify_red_s = _verify_reduced(G_L, cfg, full, red, verify)
+    K, Kr = full.K, red.Kr
+    return HinfDesign(controller=Kr, controller_full=K, gamma=float(full.gamma),
+                      gamma_full_achieved=float(full.achieved), gamma_reduced_achieved=float(achieved_red),
+                      order_full=int(K.nstates), order_reduced=int(Kr.nstates), generalized_plant_order=int(P.nstates),
+                      hankel_singular_values=np.asarray(red.hsv, float),
+                      synthesis_s=float(trials.synthesis_s + red.seconds),
+                      gamma_lower_bound=float(bound), verify_s=float(trials.verify_s + verify_red_s),
+                      notes=(*notes, *full.notes, *red.notes))
