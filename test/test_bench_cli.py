@@ -37,3 +37,20 @@ def test_bench_json_and_baselines_agree(tmp_path, capsys):
 def test_bench_bad_options_are_clean_errors(argv, msg, capsys):
     assert main(["bench", *argv]) == 2
     assert msg in capsys.readouterr().err
+
+
+def test_baselines_longer_than_the_signal_buffer_report_what_ran(tmp_path):
+    """The baselines run on a slice of the 10 s signal buffer; asked for more, they ran on the whole buffer and the
+    figures must say so (they claimed the asked duration, overstating samples and rate)."""
+    from piezo_ff_ros.core.config import load_config
+    from piezo_ff_ros.core.throughput import run_benchmark
+
+    cfg_path = tmp_path / "slow.yaml"
+    load_config().with_sample_rate(500.0).to_yaml(cfg_path)   # a 10 s buffer of 5000 samples
+    res = run_benchmark(duration=0.5, repeats=1, small_block=0, baseline_duration=11.0, config=str(cfg_path),
+                        hinf=False)
+    assert res["baseline_duration_s"] == 10.0
+    for st in res["stages"].values():
+        for kind in ("naive", "forced_response"):
+            if st[kind] is not None:
+                assert st[kind]["samples"] == 5000 and st[kind]["extrapolated_from_s"] == 10.0

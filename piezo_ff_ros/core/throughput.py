@@ -688,7 +688,9 @@ def run_benchmark(duration: float = 600.0, repeats: int = 3, block: int = 20000,
     stages = _stages(cfg, ctrl, ctrl_info["controller_order"], _baselines(cfg, ctrl))
 
     sig = _signals(cfg, fs)
-    sizes = _Sizes(fs, block, repeats, int(round(duration * fs)), max(2, int(round(baseline_duration * fs))))
+    # the baselines run on a slice of the signal buffer: at most all of it
+    n_base = min(max(2, int(round(baseline_duration * fs))), len(sig["length"]))
+    sizes = _Sizes(fs, block, repeats, int(round(duration * fs)), n_base)
     jit_before = _jit_stats()
     first_call = _first_calls(stages, sig)
     jit_after = _jit_stats()
