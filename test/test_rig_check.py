@@ -81,3 +81,30 @@ def test_rig_check_bad_options_one_line(args, msg, capsys):
     cap = capsys.readouterr()
     assert msg in cap.err or msg in cap.out, cap
     assert "Traceback" not in cap.err
+
+
+class _FailsToStart(ClockedSim):
+    """A device that opens, then refuses to start (wrong trigger line, a busy task …); it counts its closes."""
+
+    closed = 0
+
+    def start(self, *a, **kw):
+        raise RuntimeError("start refused")
+
+    def close(self):
+        type(self).closed += 1
+        super().close()
+
+
+FAILS_TO_START = BackendSpec("fails_to_start", "test device", {},
+                             lambda cfg, p: _FailsToStart(cfg.sample_rate, cfg.n_axes, None))
+
+
+def test_rig_check_closes_a_device_that_opened_but_did_not_start(tmp_path, monkeypatch, capsys):
+    """A failed link check must not leave the device open (a DAQ task or a controller connection held)."""
+    monkeypatch.setitem(backends.BUILTIN, "fails_to_start", "test_rig_check:FAILS_TO_START")
+    out = tmp_path / "r.json"
+    assert main(["rig-check", "--backend", "fails_to_start", "--duration", "0.2", "--json", str(out)]) == 1
+    rep = json.loads(out.read_text())
+    assert "start refused" in rep["checks"]["link"]["error"]
+    assert _FailsToStart.closed == 1

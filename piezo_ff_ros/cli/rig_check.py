@@ -205,6 +205,7 @@ def _open_link(plan: _Plan, backend_name: str, params: dict[str, Any], report: _
         return None
     if backend_name == "sim":
         params = {"mode": "clocked", **params}
+    backend = None
     try:
         bparams = spec.validate(params)
         backend = spec.create(cfg, bparams)
@@ -216,6 +217,11 @@ def _open_link(plan: _Plan, backend_name: str, params: dict[str, Any], report: _
         run.take(core.start())
     except Exception as exc:  # noqa: BLE001 - the link check reports what failed, in one line
         report.check("link", False, error=str(exc))
+        if backend is not None:   # opened but not started: do not leave the device (task, connection) held
+            try:
+                backend.close()
+            except Exception as close_exc:  # noqa: BLE001 - the link error is the one to report
+                report.checks["link"]["close_error"] = str(close_exc)
         return None
     info = backend.info
     report.check("link", True, device=info.name, axes=info.n_axes, clocked=info.clocked, sensor=info.has_sensor,
