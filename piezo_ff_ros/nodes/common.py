@@ -18,8 +18,11 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2, PointField
 
+from ..core.hardware.driver_core import ERROR, WARN
+
 __all__ = ["BLOCK_QOS", "RECORD_QOS", "LATCHED_QOS", "CONFIG_QOS", "FRAME_ID", "dt_ns", "pack_block", "unpack_block",
-           "stamp_to_ns", "ns_to_stamp", "k0_of", "spin_node", "BlockFormatError", "writer_matches"]
+           "stamp_to_ns", "ns_to_stamp", "k0_of", "spin_node", "BlockFormatError", "log_lines",
+           "writer_matches"]
 
 FRAME_ID = "piezo"
 
@@ -197,3 +200,15 @@ def diag_values(d: Mapping[str, Any]) -> list[Any]:
     from diagnostic_msgs.msg import KeyValue
 
     return [KeyValue(key=str(k), value=str(v)) for k, v in d.items()]
+
+
+def log_lines(logger: Any, lines: Sequence[tuple[int, str]]) -> None:
+    """Log a core's ``(level, text)`` lines (``OK``/``WARN``/``ERROR`` of
+    :mod:`piezo_ff_ros.core.hardware.driver_core`: info, warning, error) on an rclpy logger."""
+    for level, text in lines:  # one call site per severity (rclpy refuses a severity change per site)
+        if level >= ERROR:
+            logger.error(text)
+        elif level >= WARN:
+            logger.warning(text)
+        else:
+            logger.info(text)

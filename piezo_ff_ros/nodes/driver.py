@@ -35,11 +35,11 @@ from std_srvs.srv import Trigger
 
 from ..core.config import ConfigError, load_config
 from ..core.hardware import DriverCore, DriverSettings
-from ..core.hardware.driver_core import ERROR, WARN, Emit, lockstep_pacing
+from ..core.hardware.driver_core import ERROR, Emit, lockstep_pacing
 from ..core.safety import SafeRampConfig
 from .backends import get_spec
-from .common import (BLOCK_QOS, LATCHED_QOS, BlockFormatError, diag_values, pack_block, run_node, stamp_to_ns,
-                     unpack_block, writer_matches)
+from .common import (BLOCK_QOS, LATCHED_QOS, BlockFormatError, diag_values, log_lines, pack_block, run_node,
+                     stamp_to_ns, unpack_block, writer_matches)
 
 _LEVEL = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
 
@@ -170,14 +170,7 @@ class DriverNode(Node):
             if self.pub_y is not None:
                 self.pub_y.publish(pack_block(y, self.axes, stamp))
                 self._joint_states(y, stamp)
-        log = self.get_logger()
-        for level, text in em.log:  # one call site per severity (rclpy refuses a severity change per site)
-            if level >= ERROR:
-                log.error(text)
-            elif level >= WARN:
-                log.warning(text)
-            else:
-                log.info(text)
+        log_lines(self.get_logger(), em.log)
 
     def _joint_states(self, y: np.ndarray, stamp: int) -> None:
         n = y.shape[0]

@@ -1,0 +1,919 @@
+"""The compensator node without ROS: reference blocks in, voltage blocks out — and what to log, announce and set.
+
+:class:`CompensatorCore` owns the :class:`~.hot_swap.HotSwapCascade` (the cascade, its bumpless swaps and the
+re-synchronisation on the applied voltage), the tracking front (:class:`~.tracking.front.TrackingFront`), the
+held-point pacer (:class:`~.hold_pacer.HoldPacer`), the input-stream bookkeeping, the workspace clamp, the counters
+and the ``/diagnostics`` status; its :class:`ParameterBook` holds the stage parameters and runs the parameter
+transactions.  The compensator node only declares and types the ROS parameters, converts messages, and publishes,
+logs and sets what each call returns in an :class:`Emit`:
+
+- ``on_reference(stamp, block, now)`` — a reference block from the topic: NaN/Inf rejected; after a pause of
+  ``max(hold_timeout, 0.5 s)`` a jump in the stamps starts a new stream, otherwise a jump forward is a gap (lost
+  blocks, counted with their samples) and a jump back a late block; then the workspace clamp (counted, a WARN at
+  most once a second), the tracking front and the cascade (``bypass``: the block is forwarded unchanged);
+- ``process(block, None, now)`` — a block of the held point: its stamp continues the stream (or starts it on the
+  wall clock's sample grid);
+- ``on_applied(stamp, u, now)`` — the driver's applied voltage, for the re-synchronisation of the inverse models;
+- ``propose(params)`` then ``commit(params)`` — a parameter change: validated as a whole
+  (:meth:`ParameterBook.propose`, the on-set check; a rejection's reason starts with the field's name) and applied
+  after (node settings, the tracking front, a new configuration — built in the background when it needs an H∞
+  synthesis —, or no version at all when the values are those that run);
+- ``poll()`` — a finished build made active, a failed one reported with the parameters reverted to the running
+  configuration (without a new version);
+- ``status()`` and ``diagnostics()`` — the ``/diagnostics`` key/values, level and message.
+
+Not thread-safe: the node serialises the calls (one lock, held while it publishes what a data-path call returned,
+so that the stamps leave in order).
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Literal, Mapping, Sequence
+
+import numpy as np
+import yaml
+
+from .config import ConfigError, PiezoConfig
+from .hardware.driver_core import ERROR, OK, WARN
+from .hold_pacer import HoldPacer
+from .hot_swap import CascadeFactory, HotSwapCascade
+from .param_map import config_to_params, is_config_param, needs_synthesis, params_to_config
+from .recording.blocks import sample_period_ns
+from .tracking.front import FRONT_DEFAULTS, TrackingFront, front_settings, is_front_param
+from .tracking.linear import controller_matrices
+
+__all__ = ["CompensatorCore", "CompensatorSettings", "Emit", "ParameterBook", "SETTING_NAMES", "Verdict",
+           "VoltageBlock", "build_notice", "check_workspace", "parse_config_yaml", "same_value", "OK", "WARN",
+           "ERROR"]
+
+#: the node parameters that are not stage parameters and change the running core (:class:`CompensatorSettings`)
+SETTING_NAMES = ("crossfade", "block_size", "hold_timeout", "bypass", "resync", "workspace")
+
+#: the ``input_*`` counters of ``/diagnostics`` (without the prefix), in their order
+_INPUT_KEYS = ("gaps", "gap_samples", "late_blocks", "workspace_clamped_samples")
+
+#: the status keys whose non-zero value makes ``/diagnostics`` WARN
+_WARN_KEYS = ("failed_builds", "rejected_blocks", "input_gaps", "input_late_blocks", "input_workspace_clamped_samples")
+
+
+def same_value(a: Any, b: Any) -> bool:
+    """Whether two parameter values are equal (an ``array('d')``, a tuple and a list compare by content).
+
+    Parameters
+    ----------
+    a, b : Any
+        Parameter values (scalars, strings, sequences).
+
+    Returns
+    -------
+    bool
+        Sequences: equal content; scalars: equal and of the same type (``1`` is not ``1.0``).
+    """
+    if isinstance(a, (list, tuple)) or hasattr(a, "typecode") or isinstance(b, (list, tuple)) or hasattr(b, "typecode"):
+        try:
+            return list(a) == list(b)
+        except TypeError:
+            return False
+    return bool(a == b) and type(a) is type(b)
+
+
+def check_workspace(flat: Sequence[float], n_axes: int) -> None:
+    """Check a ``workspace`` parameter: empty, or ``[min, max]`` per axis, finite, ``min < max``.
+
+    Parameters
+    ----------
+    flat : sequence of float
+        ``[min_x, max_x, min_y, max_y, …]`` [m].
+    n_axes : int
+        Number of axes of the configuration.
+
+    Raises
+    ------
+    ConfigError
+        Starting with ``workspace:``, saying what is expected and what was given.
+    """
+    if flat and (len(flat) != 2 * n_axes or not all(np.isfinite(flat))
+                 or any(flat[2 * i] >= flat[2 * i + 1] for i in range(n_axes))):
+        raise ConfigError("workspace", f"expected [min, max] per axis ({2 * n_axes} finite values, min < max), "
+                                       f"got {list(flat)}")
+
+
+def parse_config_yaml(text: str) -> dict[str, Any]:
+    """Stage parameters from the ``config_yaml`` parameter: a YAML mapping of flat dotted names, nested sections,
+    or a params file (``<node>: ros__parameters: …``).
+
+    Parameters
+    ----------
+    text : str
+        The YAML text; empty (or only blanks/comments) is no parameter.
+
+    Returns
+    -------
+    dict
+        ``{dotted stage-parameter name: value}``.
+
+    Raises
+    ------
+    ConfigError
+        One line starting with ``config_yaml:``: not YAML, not a mapping, or a name that is not a stage parameter.
+    """
+    try:
+        d = yaml.safe_load(text) if text.strip() else {}
+    except yaml.YAMLError as exc:
+        raise ConfigError("config_yaml", f"not YAML ({str(exc).splitlines()[0]})") from None
+    if d is None:
+        return {}
+    if not isinstance(d, dict):
+        raise ConfigError("config_yaml", "expected a mapping of stage parameters")
+    if len(d) == 1:   # a params file: {node or /**: {ros__parameters: {...}}}
+        (only,) = d.values()
+        if isinstance(only, dict) and "ros__parameters" in only:
+            d = only["ros__parameters"]
+
+    def flatten(prefix: str, m: dict[str, Any], out: dict[str, Any]) -> dict[str, Any]:
+        for k, v in m.items():
+            key = f"{prefix}{k}"
+            if isinstance(v, dict):
+                flatten(key + ".", v, out)
+            else:
+                out[key] = v
+        return out
+
+    flat = flatten("", d, {})
+    bad = [k for k in flat if not is_config_param(k)]
+    if bad:
+        raise ConfigError("config_yaml", f"not a stage parameter: {bad[0]}")
+    return flat
+
+
+def build_notice(cfg: PiezoConfig) -> str:
+    """The log line before the first cascade is built (it says when an H∞ synthesis makes that slow).
+
+    Parameters
+    ----------
+    cfg : PiezoConfig
+        The configuration about to be built.
+
+    Returns
+    -------
+    str
+        ``building the compensator cascade`` (``… (H∞ synthesis)`` when C(s) is synthesised).
+    """
+    return "building the compensator cascade" + (" (H∞ synthesis)" if cfg.cascade.vibration
+                                                 and cfg.vibration.controller is None else "")
+
+
+def _short(d: Mapping[str, Any]) -> str:
+    parts = []
+    for k, v in d.items():
+        s = repr(v)
+        parts.append(f"{k}={s if len(s) < 80 else s[:77] + '...'}")
+    return ", ".join(parts)
+
+
+@dataclass(frozen=True)
+class CompensatorSettings:
+    """The node parameters of the running compensator that are not stage parameters (:data:`SETTING_NAMES`).
+
+    Attributes
+    ----------
+    crossfade : float
+        Output crossfade at a configuration swap [s].
+    block_size : int
+        Samples per block played from a held point.
+    hold_timeout : float
+        The held point plays once no reference block came for this long [s]; a pause of ``max(hold_timeout,
+        0.5 s)`` between reference blocks starts a new stream.
+    bypass : bool
+        Reference blocks are voltages [V], forwarded unchanged (the cascade is not run).
+    resync : bool
+        Follow the applied voltage and re-synchronise the hysteresis/creep states on it.
+    workspace : tuple of float
+        ``[min_x, max_x, min_y, …]`` [m] the reference is clamped to; empty = none.
+    """
+
+    crossfade: float = 0.01
+    block_size: int = 200
+    hold_timeout: float = 0.2
+    bypass: bool = False
+    resync: bool = True
+    workspace: tuple[float, ...] = ()
+
+    def validate(self, n_axes: int) -> "CompensatorSettings":
+        """Check the workspace against the number of axes (:func:`check_workspace`); returns self.
+
+        Parameters
+        ----------
+        n_axes : int
+            Number of axes of the configuration.
+
+        Returns
+        -------
+        CompensatorSettings
+            self.
+        """
+        check_workspace(self.workspace, n_axes)
+        return self
+
+    def with_value(self, name: str, value: Any) -> "CompensatorSettings":
+        """A copy with the setting ``name`` (one of :data:`SETTING_NAMES`) set to ``value``, converted to its type.
+
+        Parameters
+        ----------
+        name : str
+            Setting name.
+        value : Any
+            New value as the node parameter holds it.
+
+        Returns
+        -------
+        CompensatorSettings
+            The new settings.
+        """
+        conv: dict[str, Callable[[Any], Any]] = {"crossfade": float, "block_size": int, "hold_timeout": float,
+                                                 "bypass": bool, "resync": bool,
+                                                 "workspace": lambda v: tuple(float(x) for x in v)}
+        return replace(self, **{name: conv[name](value)})
+
+    def crossfade_samples(self, sample_rate: float) -> int:
+        """The crossfade as a whole number of samples at ``sample_rate`` [Hz].
+
+        Parameters
+        ----------
+        sample_rate : float
+            Samples per second [Hz].
+
+        Returns
+        -------
+        int
+            ``round(crossfade · sample_rate)``.
+        """
+        return int(round(self.crossfade * sample_rate))
+
+
+@dataclass(frozen=True, eq=False)
+class VoltageBlock:
+    """One voltage block to publish.
+
+    Attributes
+    ----------
+    stamp : int
+        Stamp of the first sample [ns] (the reference block's).
+    u : numpy.ndarray
+        Voltages ``[N, axes]`` [V].
+    config : dict or None
+        A configuration that takes effect with this block, to announce before it on ``~/config``: ``{"version",
+        "stamp_ns", "config_yaml"}`` (the node adds ``"parameters"``); None when the version is unchanged.
+    """
+
+    stamp: int
+    u: np.ndarray
+    config: dict[str, Any] | None = None
+
+
+@dataclass
+class Emit:
+    """What a call produced, for the node to publish, log and set.
+
+    Attributes
+    ----------
+    voltage : list of VoltageBlock
+        Voltage blocks to publish, in order.
+    log : list of (int, str)
+        Log lines ``(level, text)``, level :data:`OK` (info), :data:`WARN` or :data:`ERROR`.
+    readback : dict
+        After a ``config_yaml`` change: the parameters to set on the node so that it reads back what now runs (the
+        stage parameters — those whose value differs — and ``config_yaml`` cleared), without a validation round.
+    revert : dict
+        After a failed build: the stage parameters to set back to the running configuration's values (only those
+        that differ), without a validation round.
+    diagnostics : bool
+        Publish ``/diagnostics`` now.
+    hold_timer : {"start", "retime"} or None
+        The held point's timer: start it (a point is held) or re-create it for a new block period.
+    """
+
+    voltage: list[VoltageBlock] = field(default_factory=list)
+    log: list[tuple[int, str]] = field(default_factory=list)
+    readback: dict[str, Any] = field(default_factory=dict)
+    revert: dict[str, Any] = field(default_factory=dict)
+    diagnostics: bool = False
+    hold_timer: Literal["start", "retime"] | None = None
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The answer to a proposed parameter change (the node's on-set callback result).
+
+    Attributes
+    ----------
+    successful : bool
+        Accepted.
+    reason : str
+        Why not (one line starting with the field's name); empty when accepted.
+    log : tuple of (int, str)
+        Log lines ``(level, text)``.
+    """
+
+    successful: bool
+    reason: str = ""
+    log: tuple[tuple[int, str], ...] = ()
+
+
+@dataclass(frozen=True)
+class _Candidate:
+    updates: dict[str, Any]   # the stage parameters changed
+    cfg: PiezoConfig          # the whole configuration they give
+    from_yaml: bool           # they came in config_yaml (the stage parameters then read back the new values)
+
+
+class ParameterBook:
+    """The stage parameters as the node holds them, and the transaction of a change: :meth:`propose` (validate,
+    keep the candidate) then :meth:`CompensatorCore.commit` (apply it).
+
+    Parameters
+    ----------
+    base : PiezoConfig
+        The base configuration (``config_file``/``variant``): every stage parameter missing from the values comes
+        from it.
+
+    Attributes
+    ----------
+    values : dict
+        ``{stage parameter: value}`` as the node's parameters hold them (filled while they are declared).
+    front_values : dict
+        The tracking front's parameters in use (``preview.*``, ``learning.file``).
+    declaring : bool
+        True until :meth:`end_declarations`: a change is then only checked (against the base and the parameters
+        declared so far), nothing is kept.
+    """
+
+    def __init__(self, base: PiezoConfig) -> None:
+        self.base = base
+        self.values: dict[str, Any] = {}
+        self.front_values: dict[str, Any] = dict(FRONT_DEFAULTS)
+        self.declaring = True
+        self._candidate: _Candidate | None = None
+        self._front_candidate: tuple[dict[str, Any], TrackingFront] | None = None
+
+    def end_declarations(self) -> PiezoConfig:
+        """Every parameter is declared: the cross-field check of all of them; later changes are transactions.
+
+        Returns
+        -------
+        PiezoConfig
+            The configuration the declared values give.
+
+        Raises
+        ------
+        ConfigError
+            Naming the first field that is wrong.
+        """
+        self.declaring = False
+        return params_to_config(self.values, self.base)
+
+    def propose(self, params: Sequence[tuple[str, Any]],
+                build_front: Callable[[Mapping[str, Any]], TrackingFront] | None = None) -> Verdict:
+        """Validate a change of parameters (the node's on-set check), all of them together.
+
+        Stage parameters (and those in ``config_yaml``) are merged into :attr:`values` and the whole configuration
+        is built (:func:`~.param_map.params_to_config`); ``workspace`` and the tracking front's parameters are
+        checked; the front is built here (``build_front``) so that an unreadable learning file is refused now.  An
+        accepted change is kept for :meth:`CompensatorCore.commit`.
+
+        Parameters
+        ----------
+        params : sequence of (str, Any)
+            ``(name, value)`` in the order given, arrays as lists; names of other node parameters are passed over.
+        build_front : callable, optional
+            Builds the tracking front for the merged front parameters (None while declaring: not built).
+
+        Returns
+        -------
+        Verdict
+            Accepted, or refused with a one-line reason starting with the field's name (a stage-parameter refusal
+            adds ``(kept: …)`` with the values that stay) and the error to log.
+        """
+        updates: dict[str, Any] = {}
+        from_yaml = False
+        for name, value in params:
+            if name == "config_yaml":
+                try:
+                    from_text = parse_config_yaml(value)
+                    for k in from_text:
+                        if k not in self.values and not self.declaring:
+                            raise ConfigError(k, "unknown parameter")
+                except ConfigError as exc:
+                    return Verdict(False, str(exc), ((ERROR, f"config_yaml rejected: {exc}"),))
+                updates.update(from_text)
+                from_yaml = True
+            elif name == "workspace":
+                try:
+                    check_workspace(list(value or []), len(self.base.axes))
+                except ConfigError as exc:
+                    return Verdict(False, str(exc))
+            elif is_front_param(name):
+                merged_front = {**self.front_values, **{q: v for q, v in params if is_front_param(q)}}
+                try:
+                    front_settings(merged_front)
+                    if not self.declaring and build_front is not None:   # ≈ 0.3 s: a bad learning file refused now
+                        self._front_candidate = (merged_front, build_front(merged_front))
+                except ConfigError as exc:
+                    return Verdict(False, str(exc))
+            elif is_config_param(name):
+                updates[name] = value
+        if not updates:
+            return Verdict(True)
+        try:
+            # while declaring: a partial set, checked against the base for the names declared so far
+            cand = params_to_config({**self.values, **updates}, self.base)
+        except ConfigError as exc:
+            old = {k: self.values.get(k) for k in updates}
+            return Verdict(False, f"{exc} (kept: {_short(old)})", ((ERROR, f"parameter change rejected: {exc}"),))
+        if not self.declaring:
+            self._candidate = _Candidate(updates, cand, from_yaml)
+        return Verdict(True)
+
+    def take_candidate(self) -> tuple[dict[str, Any], PiezoConfig, bool] | None:
+        """The accepted stage-parameter change, once: ``(updates, configuration, from config_yaml)`` or None.
+
+        Returns
+        -------
+        tuple or None
+            The change kept by :meth:`propose`, forgotten here.
+        """
+        c, self._candidate = self._candidate, None
+        return None if c is None else (c.updates, c.cfg, c.from_yaml)
+
+    def take_front(self) -> tuple[dict[str, Any], TrackingFront] | None:
+        """The tracking front built by :meth:`propose`, once: ``(its parameters, the front)`` or None.
+
+        Returns
+        -------
+        tuple or None
+            The front kept by :meth:`propose`, forgotten here.
+        """
+        f, self._front_candidate = self._front_candidate, None
+        return f
+
+    def record_own(self, params: Sequence[tuple[str, Any]]) -> None:
+        """The node set parameters itself (a read-back or a revert): its stage parameters hold these values now.
+
+        Parameters
+        ----------
+        params : sequence of (str, Any)
+            ``(name, value)`` as set; names that are not stage parameters are passed over.
+        """
+        for name, value in params:
+            if is_config_param(name):
+                self.values[name] = value
+
+    def revert_to(self, cfg: PiezoConfig) -> dict[str, Any]:
+        """The stage parameters back to ``cfg``'s values.
+
+        Parameters
+        ----------
+        cfg : PiezoConfig
+            The running configuration.
+
+        Returns
+        -------
+        dict
+            The parameters whose value differed (for the node to set back); empty when none did.
+        """
+        running = config_to_params(cfg)
+        changed = {k: v for k, v in running.items() if not same_value(self.values.get(k), v)}
+        if changed:
+            self.values.update(running)
+        return changed
+
+
+class _Throttle:
+    """True at most once per ``period`` seconds."""
+
+    def __init__(self, period: float) -> None:
+        self.period = period
+        self._last = -math.inf
+
+    def due(self, now: float) -> bool:
+        if now - self._last > self.period:
+            self._last = now
+            return True
+        return False
+
+
+class CompensatorCore:
+    """The compensator's logic (see the module docstring).
+
+    Parameters
+    ----------
+    book : ParameterBook
+        The declared parameters (:meth:`ParameterBook.end_declarations` called).
+    cfg : PiezoConfig
+        The configuration they give (built here, synchronously: an H∞ synthesis takes seconds).
+    settings : CompensatorSettings
+        The node settings.
+    factory : callable, optional
+        Builds a cascade (:class:`~.hot_swap.HotSwapCascade`'s ``factory``; tests inject failing ones).
+    wall_ns : callable, optional
+        Wall clock [ns] where a held point starts a stream (default ``time.time_ns``).
+    applied_feedback : callable, optional
+        Whether a driver reports the voltage it applied (a ``voltage_applied`` publisher exists): the blocks are
+        kept in flight for the re-synchronisation only then (default: never).
+
+    Attributes
+    ----------
+    hs : HotSwapCascade
+        The running cascade.
+    front : TrackingFront
+        The tracking stages in front of it.
+    pacer : HoldPacer
+        When the held point plays.
+    cfg : PiezoConfig
+        The active configuration.
+    axes : tuple of str
+        The axes (the block fields).
+    period_ns : int
+        Sample period [ns].
+    blocks : int
+        Blocks processed.
+    rejected_blocks : int
+        Reference blocks rejected (malformed, NaN/Inf).
+    applied_rejected : int
+        ``voltage_applied`` blocks rejected.
+    input : dict
+        ``gaps``, ``gap_samples``, ``late_blocks``, ``workspace_clamped_samples``.
+    last_error : str
+        The last error (a rejected block, a failed build).
+    """
+
+    def __init__(self, book: ParameterBook, cfg: PiezoConfig, settings: CompensatorSettings, *,
+                 factory: CascadeFactory | None = None, wall_ns: Callable[[], int] = time.time_ns,
+                 applied_feedback: Callable[[], bool] = lambda: False) -> None:
+        self.book = book
+        self.settings = settings.validate(len(book.base.axes))
+        self.cfg = cfg
+        self.axes = cfg.axes
+        self.period_ns = sample_period_ns(cfg.sample_rate)
+        self.wall_ns = wall_ns
+        self.applied_feedback = applied_feedback
+        self.hs = HotSwapCascade(cfg, crossfade_samples=settings.crossfade_samples(cfg.sample_rate), factory=factory)
+        self.front = TrackingFront(cfg, controller_matrices(self.hs.active), book.front_values)
+        self.pacer = HoldPacer(cfg.sample_rate, settings.block_size, settings.hold_timeout)
+        self.blocks = 0
+        self.rejected_blocks = 0
+        self.applied_rejected = 0
+        self.input = dict.fromkeys(_INPUT_KEYS, 0)
+        self.last_error = ""
+        self._expected_k: int | None = None       # first sample of the next reference block, if the stream goes on
+        self._next_stamp: int | None = None       # stamp of the next sample produced (a held block continues there)
+        self._last_block_wall = -math.inf         # when the last reference block came [s, monotonic]
+        self._announced_version: int | None = None
+        self._seen_failed = 0
+        self._ws_warn = _Throttle(1.0)
+        self._resync_warn = _Throttle(1.0)
+
+    # -- data path -------------------------------------------------------------------------------------------------
+    def on_reference(self, stamp: int, block: np.ndarray, now: float) -> Emit:
+        """A reference block from the topic.
+
+        Parameters
+        ----------
+        stamp : int
+            Stamp of its first sample [ns].
+        block : numpy.ndarray
+            ``[N, axes]`` [m] (``bypass``: [V]).
+        now : float
+            Monotonic clock [s]: a block after a pause of ``max(hold_timeout, 0.5 s)`` starts a new stream (a jump
+            in the stamps is then no gap); the held point waits for the stream to go quiet again.
+
+        Returns
+        -------
+        Emit
+            The voltage block (and a configuration announcement), or the rejection of a block with NaN/Inf.
+        """
+        if not np.all(np.isfinite(block)):
+            return self.reject("reference", "NaN/Inf in the reference")
+        restart = now - self._last_block_wall > max(self.settings.hold_timeout, 0.5)
+        self._last_block_wall = now
+        self.pacer.note_block(now)
+        return self.process(block, stamp, now, from_topic=True, restart=restart)
+
+    def reject(self, topic: Literal["reference", "voltage_applied"], reason: str) -> Emit:
+        """A block of ``topic`` that cannot be used (malformed, NaN/Inf): counted and logged; a reference block's
+        error is kept as the last error too.
+
+        Parameters
+        ----------
+        topic : {"reference", "voltage_applied"}
+            Where it came from (``rejected_blocks`` or ``applied_rejected`` counts it).
+        reason : str
+            What is wrong with it.
+
+        Returns
+        -------
+        Emit
+            The error line.
+        """
+        text = f"{topic} block rejected: {reason}"
+        if topic == "reference":
+            self.rejected_blocks += 1
+            self.last_error = text
+        else:
+            self.applied_rejected += 1
+        return Emit(log=[(ERROR, text)])
+
+    def process(self, block: np.ndarray, stamp: int | None, now: float, *, from_topic: bool = False,
+                restart: bool = False) -> Emit:
+        """One block through the input bookkeeping, the workspace clamp, the front and the cascade.
+
+        Parameters
+        ----------
+        block : numpy.ndarray
+            ``[N, axes]`` reference [m] (``bypass``: voltages [V], forwarded unchanged).
+        stamp : int or None
+            Stamp of its first sample [ns]; None (a held point): the stamp after the last block produced, or the
+            current wall-clock sample when nothing was produced yet.
+        now : float
+            Monotonic clock [s] (the workspace WARN comes at most once a second).
+        from_topic : bool
+            A block of the reference stream: checked against the expected sample (gaps, late blocks).
+        restart : bool
+            The stream restarts here (after a pause): a jump in the stamps is not counted.
+
+        Returns
+        -------
+        Emit
+            The voltage block, with the configuration to announce before it when a new version produced it first;
+            WARN lines for a gap or a clamped reference.
+        """
+        em = Emit()
+        if stamp is None:   # held point: continue the sample stream (or start it on the wall clock)
+            stamp = self._next_stamp if self._next_stamp is not None else \
+                self.wall_ns() // self.period_ns * self.period_ns
+        n = block.shape[0]
+        k0 = stamp // self.period_ns
+        if from_topic:
+            self._book_input(k0, n, stamp, restart, em)
+        if self.settings.bypass:
+            u = block
+        else:
+            # in flight only while a driver reports what it applied (else nothing would ever confirm them)
+            track = self.settings.resync and self.applied_feedback()
+            x = self._clamp_to_workspace(block, now, em)
+            u = self.hs.process(self.front.process(x) if self.front.active else x, k0=k0 if track else None)
+        self.blocks += 1
+        self._next_stamp = stamp + n * self.period_ns
+        config = None
+        if self.hs.version != self._announced_version:
+            self._announced_version = self.hs.version
+            config = {"version": self.hs.version, "stamp_ns": int(stamp), "config_yaml": self.hs.cfg.to_yaml()}
+        em.voltage.append(VoltageBlock(stamp, u, config))
+        return em
+
+    def _book_input(self, k0: int, n: int, stamp: int, restart: bool, em: Emit) -> None:
+        expected = self._expected_k
+        if not restart and expected is not None and k0 != expected:
+            if k0 > expected:
+                self.input["gaps"] += 1
+                self.input["gap_samples"] += int(k0 - expected)
+                em.log.append((WARN, f"reference gap: {k0 - expected} samples missing before stamp {stamp}"))
+            else:
+                self.input["late_blocks"] += 1
+        self._expected_k = k0 + n
+
+    def _clamp_to_workspace(self, block: np.ndarray, now: float, em: Emit) -> np.ndarray:
+        ws = self.settings.workspace
+        if not ws:
+            return block
+        lo, hi = np.asarray(ws[0::2]), np.asarray(ws[1::2])
+        out: np.ndarray = np.clip(block, lo, hi)
+        n = int(np.count_nonzero(np.any(out != block, axis=1)))
+        if n:
+            self.input["workspace_clamped_samples"] += n
+            if self._ws_warn.due(now):
+                em.log.append((WARN, f"reference outside the workspace {list(ws)} [m]: {n} samples clamped "
+                                     f"(total {self.input['workspace_clamped_samples']})"))
+        return out
+
+    @property
+    def wants_applied(self) -> bool:
+        """Whether ``voltage_applied`` blocks are used (``resync``): otherwise they are ignored unread."""
+        return self.settings.resync
+
+    def on_applied(self, stamp: int, u: np.ndarray, now: float) -> Emit:
+        """The voltage the driver applied (same stamps as the voltage blocks): re-synchronise where it differs.
+
+        Parameters
+        ----------
+        stamp : int
+            Stamp of its first sample [ns].
+        u : numpy.ndarray
+            ``[N, axes]`` [V].
+        now : float
+            Monotonic clock [s] (the re-synchronisation WARN comes at most once a second).
+
+        Returns
+        -------
+        Emit
+            A WARN line when the states were re-synchronised.
+        """
+        em = Emit()
+        if self.hs.applied(stamp // self.period_ns, u) == "resync" and self._resync_warn.due(now):
+            em.log.append((WARN, "applied voltage differs from the command: hysteresis/creep states "
+                                 f"re-synchronised ({self.hs.resyncs} so far)"))
+        return em
+
+    def set_point(self, point: Sequence[float]) -> Emit:
+        """Hold ``point`` (one value per axis, [m]): played as blocks while no reference block comes.
+
+        Parameters
+        ----------
+        point : sequence of float
+            The set-point.
+
+        Returns
+        -------
+        Emit
+            Start the hold timer, or an error line (NaN/Inf: refused, the previous point stays).
+        """
+        if not np.all(np.isfinite(point)):
+            return Emit(log=[(ERROR, "reference_point rejected: NaN/Inf")])
+        self.pacer.set_point(point)
+        return Emit(hold_timer="start")
+
+    def reset(self) -> str:
+        """All compensator states back to rest (a finished pending configuration is applied first), the held point
+        forgotten, the next reference block starts a new stream.
+
+        Returns
+        -------
+        str
+            What was done, for the service's answer.
+        """
+        self.hs.reset()
+        self.front.reset()
+        self.pacer.clear()
+        self._next_stamp = None
+        self._expected_k = None
+        return f"compensator states reset (config v{self.hs.version})"
+
+    # -- parameters ------------------------------------------------------------------------------------------------
+    def _front_for(self, values: Mapping[str, Any]) -> TrackingFront:
+        return TrackingFront(self.hs.cfg, controller_matrices(self.hs.active), values)
+
+    def propose(self, params: Sequence[tuple[str, Any]]) -> Verdict:
+        """Validate a parameter change (:meth:`ParameterBook.propose`, the tracking front built for the running
+        cascade).
+
+        Parameters
+        ----------
+        params : sequence of (str, Any)
+            ``(name, value)`` of the parameters being set, together.
+
+        Returns
+        -------
+        Verdict
+            Accepted (kept for :meth:`commit`) or refused with the reason.
+        """
+        return self.book.propose(params, self._front_for)
+
+    def commit(self, params: Sequence[tuple[str, Any]]) -> Emit:
+        """Apply an accepted change (the node's post-set): node settings, the new tracking front, the new
+        configuration.
+
+        Setting stage parameters to the configuration that runs (or is being built) creates no version; a change
+        that needs an H∞ synthesis (or a design not cached) is built in the background while the old cascade runs,
+        any other synchronously; either takes over at a block boundary.
+
+        Parameters
+        ----------
+        params : sequence of (str, Any)
+            ``(name, value)`` of the parameters set.
+
+        Returns
+        -------
+        Emit
+            Info lines, the read-back after ``config_yaml``, ``/diagnostics`` when a version was requested, the hold
+            timer re-timed for a new block size.
+        """
+        em = Emit()
+        for name, value in params:
+            if name not in SETTING_NAMES:
+                continue
+            self.settings = self.settings.with_value(name, value)
+            if name == "crossfade":
+                self.hs.crossfade_samples = self.settings.crossfade_samples(self.cfg.sample_rate)
+            elif name == "block_size":
+                self.pacer.set_block_size(self.settings.block_size)
+                em.hold_timer = "retime"
+            elif name == "hold_timeout":
+                self.pacer.hold_timeout = self.settings.hold_timeout
+        front = self.book.take_front()
+        if front is not None:
+            self.book.front_values, self.front = front
+            f = self.front
+            em.log.append((OK, f"tracking front: preview {'on' if f.preview else 'off'} (reference needed "
+                               f"{f.preview_s:g} s ahead), learning {f.learning_file or 'off'}"))
+        cand = self.book.take_candidate()
+        if cand is None:
+            return em
+        updates, cfg, from_yaml = cand
+        self.book.values.update(updates)
+        if from_yaml:   # the stage parameters read back what now runs; config_yaml is a one-shot input
+            em.readback = {**updates, "config_yaml": ""}
+        names = ", ".join(sorted(updates))
+        if cfg == (self.hs.pending_cfg or self.hs.cfg):
+            em.log.append((OK, f"parameters set to the values that run ({names}): no new configuration"))
+            return em
+        bg = any(needs_synthesis(n) for n in updates) or self.hs.needs_background(cfg)
+        v = self.hs.request(cfg, background=bg)
+        em.log.append((OK, f"configuration v{v} requested ({names})" + ("; building in the background" if bg else "")))
+        em.diagnostics = True
+        return em
+
+    def poll(self) -> Emit:
+        """Make a finished build active even when no block flows; report swaps and failed builds (including those
+        the data path found first: :meth:`HotSwapCascade.process` polls too).
+
+        A failed build is logged at ERROR, kept as the last error, and the stage parameters are reverted to the
+        running configuration (no new version).  A new active configuration rebuilds an active tracking front for
+        it (the preview inverts the running cascade), keeping the learned correction's position.
+
+        Returns
+        -------
+        Emit
+            Log lines, the parameters to revert, ``/diagnostics`` when something changed.
+        """
+        em = Emit()
+        hs = self.hs
+        hs.poll()
+        if hs.failed_builds != self._seen_failed:
+            self._seen_failed = hs.failed_builds
+            self.last_error = hs.last_error
+            em.log.append((ERROR, hs.last_error + f"; parameters reverted to the running configuration v{hs.version}"))
+            em.revert = self.book.revert_to(hs.cfg)
+            em.diagnostics = True
+        if self.cfg is not hs.cfg:
+            self.cfg = hs.cfg
+            if self.front.active:   # the preview inverts the running cascade: rebuild it for the new one
+                old = self.front
+                self.front = TrackingFront(hs.cfg, controller_matrices(hs.active), self.book.front_values)
+                self.front.continue_from(old)
+            em.log.append((OK, f"configuration v{hs.version} active"))
+            em.diagnostics = True
+        return em
+
+    # -- diagnostics -----------------------------------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        """The ``/diagnostics`` key/values (a contract: docs/nodes.md).
+
+        Returns
+        -------
+        dict
+            :meth:`HotSwapCascade.status`, ``bypass``, ``blocks``, ``rejected_blocks``, ``input_*``,
+            ``applied_rejected``, ``stages``, ``order``, ``resync_active``, ``preview_s``, ``learning_file``;
+            ``last_error``, ``hysteresis_fallbacks`` and ``hinf`` (JSON of the H∞ design) where they apply.
+        """
+        hs = self.hs
+        st = {**hs.status(), "bypass": self.settings.bypass, "blocks": self.blocks,
+              "rejected_blocks": self.rejected_blocks, **{f"input_{k}": v for k, v in self.input.items()},
+              "applied_rejected": self.applied_rejected,
+              "stages": ",".join(k for k in ("vibration", "creep", "hysteresis") if getattr(hs.cfg.cascade, k)),
+              "order": hs.cfg.cascade.order,
+              # re-synchronisation needs the paper order (commuted: the voltage leaves C(s), not the hysteresis⁻¹)
+              "resync_active": bool(self.settings.resync and hs.active.can_follow),
+              "preview_s": self.front.preview_s, "learning_file": self.front.learning_file}
+        if self.last_error:
+            st["last_error"] = self.last_error
+        h = hs.active.hysteresis
+        if h is not None:
+            st["hysteresis_fallbacks"] = h.fallbacks
+        design = getattr(hs.active, "design", None)
+        if design is not None and hasattr(design, "as_dict"):
+            d = design.as_dict()  # γ and orders of the H∞ design in use (recorded with /diagnostics)
+            st["hinf"] = json.dumps({k: d.get(k) for k in ("gamma", "order_full", "order_reduced",
+                                                             "gamma_reduced_achieved", "synthesis_s")})
+        return st
+
+    def diagnostics(self) -> tuple[int, str, dict[str, Any]]:
+        """Level, message and key/values of the ``/diagnostics`` status.
+
+        Returns
+        -------
+        (int, str, dict)
+            :data:`WARN` when a build failed or input was rejected, lost, late or clamped, else :data:`OK`; the
+            message ``config v<n>`` (then the last error after a failed build, and the counts that warn); the
+            :meth:`status`.
+        """
+        st = self.status()
+        warn = [k for k in _WARN_KEYS if st.get(k)]
+        msg = f"config v{st['config_version']}"
+        if st["failed_builds"] and self.last_error:
+            msg += f"; {self.last_error}"
+        if warn:
+            msg += "; " + ", ".join(f"{k} {st[k]}" for k in warn)
+        return (WARN if warn else OK), msg, st
