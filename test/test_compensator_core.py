@@ -261,3 +261,16 @@ def test_status_keys(base):
                                                                                   0.0)
     level, message, _ = make_core(base).diagnostics()
     assert (level, message) == (OK, "config v1")
+
+
+def test_a_front_change_refused_with_the_rest_of_its_set_never_takes_effect(base):
+    """One atomic set: a valid tracking-front parameter and an invalid stage parameter (or workspace). The set is
+    refused, so the front must stay as it runs — it was kept and applied at the next successful set."""
+    core = make_core(base)
+    for bad in (("hysteresis.Dp", [1e-7, 2e-7]), ("workspace", [1.0, -1.0, 0.0, 1.0])):
+        v = core.propose([("preview.enabled", True), bad])
+        assert not v.successful
+        assert core.book.take_front() is None
+        assert core.propose([("crossfade", 0.02)]).successful     # a later, unrelated change …
+        core.commit([("crossfade", 0.02)])
+        assert core.front.preview is None and core.book.front_values["preview.enabled"] is False   # … leaves it off
