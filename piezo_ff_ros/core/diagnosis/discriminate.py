@@ -22,9 +22,9 @@ from ..trajectories import Sequence, from_dict
 from . import stats
 from .replay import residual, simulate
 
-if TYPE_CHECKING:   # annotations only (engine imports this module)
+if TYPE_CHECKING:   # annotations only (decision imports this module)
     from .candidates import FitResult
-    from .engine import _Scored
+    from .decision import _Scored
 
 __all__ = ["designs", "propose", "decide_on_run", "TARGET_Z", "MAX_SECONDS"]
 

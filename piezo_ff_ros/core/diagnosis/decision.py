@@ -1,0 +1,388 @@
+"""Which effect: every model fitted on TRAIN scored on TEST, judged against the residual's own noise and ranked;
+the verdict's near ties and how they are resolved (a discrimination run, or a proposed experiment).
+
+Decision rule (:mod:`.stats` states the test):
+
+* every model fitted on TRAIN — each candidate effect and the flexible reference model (:mod:`.flexible`) — gets a
+  held-out z: its drop in TEST residual energy over the standard deviation that drop would have if the residual
+  were noise of the measured spectrum (white, coloured or quantised alike); significant above the one-sided
+  Bonferroni threshold at family-wise α = 1 %;
+* a candidate is **accepted** when it is significant and removes at least :data:`MIN_SHARE` of the explainable
+  held-out gap (the largest drop any model achieves, the flexible one included); the verdict is the best accepted
+  candidate (ranked by held-out residual energy plus a small complexity penalty);
+* nothing accepted but something significant → ``unexplained`` (the gap is reproducible, no candidate names it);
+  nothing significant → ``none``;
+* a runner-up whose held-out residual is not significantly worse than the verdict's (paired z < :data:`TIE_Z`)
+  makes the verdict ambiguous: confidence ``low`` and a proposed discrimination experiment (:mod:`.discriminate`).
+
+The phase hands on two frozen records: :class:`_Judged` (the first round of fits, scored and ranked) and
+:class:`_Choice` (the verdict candidate, its runner-up and ties, the discrimination).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..config import PiezoConfig
+from ..recording.run import RunData
+from . import discriminate as disc
+from . import stats
+from .baseline import _Effects, _Replay, _Setup
+from .candidates import FitContext, FitResult, fit_candidate, n_eff_ratio
+from .flexible import fit_flexible
+from .replay import Windows, residual, simulate
+from .results import DiagnosisOptions
+
+__all__ = ["MIN_SHARE", "RICHER_MIN_GAIN", "MIN_EXCESS_SHRINK", "HIGH_EXCESS_SHRINK", "MIN_DROP", "TIE_Z",
+           "HIGH_Z_MARGIN", "HIGH_SHARE", "HIGH_PAIRED_Z", "GENERIC", "GENERIC_MIN_EXTRA", "RICHER", "NESTED"]
+
+#: an accepted candidate removes at least this share of the explainable held-out gap
+MIN_SHARE = 0.5
+#: a richer candidate ranks above the simpler one it contains only with a paired z >= TIE_Z and this much less
+#: held-out residual energy
+RICHER_MIN_GAIN = 0.05
+#: an accepted candidate removes at least this share of the held-out gap above the white-noise floor ("explains"
+#: it, not merely nibbles at it); "high" confidence needs HIGH_EXCESS_SHRINK
+MIN_EXCESS_SHRINK = 0.25
+HIGH_EXCESS_SHRINK = 0.6
+#: a significant model also removes at least this share of the held-out residual energy
+MIN_DROP = 0.01
+#: a runner-up within this paired z of the verdict explains the held-out run about as well: ambiguous
+TIE_Z = 2.0
+#: "high" confidence: z above the threshold by this margin, this share of the explainable gap, this paired z
+HIGH_Z_MARGIN = 3.0
+HIGH_SHARE = 0.7
+HIGH_PAIRED_Z = 4.0
+#: candidates flexible enough to absorb other dynamics (several free resonances): their verdict is at most medium
+GENERIC = ("unmodelled_mode", "amplitude_dependent_dynamics")
+#: a generic candidate ranks above an accepted physical (few-parameter) candidate only when it removes at least
+#: this much more of the held-out gap above the white-noise floor.  Reason: 10–56 free filter coefficients mimic a
+#: delay, a roll-off or a lagged loop almost exactly; when the physical candidate already leaves less than 5 % of
+#: the gap above the floor, what the generic family takes beyond it is the physical form's approximation error
+#: (e.g. a DAC latency, a modified-ZOH delay, against the interpolated ``input_delay``), not another effect.
+#: Set from the tuning split (seeds 11/12: DAC latency, margin 0.01 %) before any run on the fresh held-out seeds.
+GENERIC_MIN_EXTRA = 0.05
+
+#: (richer, simpler): the simpler candidate is a special case of the richer one
+RICHER = {("amplitude_dependent_dynamics", "unmodelled_mode")}
+NESTED = {frozenset(p) for p in RICHER}
+
+
+@dataclass
+class _Scored:
+    """One model fitted on TRAIN and scored on TEST (mutable: judging fills ``penalty``, ``accepted`` and ``extra``).
+
+    Attributes
+    ----------
+    fit : FitResult
+        The fit on TRAIN.
+    sse_before, sse_after : float
+        Held-out residual energy under the base model, and with the fitted effect added [m²].
+    penalty : float
+        Complexity penalty added to ``sse_after`` for the ranking.
+    before_nrmse, after_nrmse : float
+        The same as NRMSE [%].
+    accepted : bool
+        Significant, and takes enough of the explainable gap and of the gap above the white-noise floor.
+    seconds : float
+        Wall-clock time of the fit and its scoring [s].
+    extra : dict
+        ``r_after`` (the held-out residual), then ``delta``, ``sd``, ``z``, ``share``, ``excess_shrink``,
+        ``paired_z``, ``absorbs`` as judging sets them.
+    """
+
+    fit: FitResult
+    sse_before: float
+    sse_after: float
+    penalty: float
+    before_nrmse: float
+    after_nrmse: float
+    accepted: bool
+    seconds: float
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class _Held:
+    """The held-out run on its scoring windows, with the base model's output."""
+
+    def __init__(self, cfg: PiezoConfig, run: RunData, base: _Effects, windows: Windows,
+                 y_base_full: np.ndarray | None = None) -> None:
+        self.cfg, self.run, self.base, self.windows = cfg, run, list(base), windows
+        self.y_base_full: np.ndarray | None
+        if windows.is_whole:
+            self.y_base_full = simulate(cfg, run.u, base) if y_base_full is None else y_base_full
+            self.target = run.y
+            self.y_base: np.ndarray = self.y_base_full
+        else:
+            self.y_base_full = y_base_full
+            y_win = simulate(cfg, run.u, base, windows)
+            if y_base_full is not None:
+                self.target = windows.take(run.y) - windows.take(y_base_full) + y_win
+            else:
+                self.target = windows.take(run.y)
+            self.y_base = y_win
+        self.r_before = residual(self.target, self.y_base)
+        yt = self.target - self.target.mean(axis=0)
+        self.den = float(np.sqrt(np.sum(yt ** 2)))
+
+    def nrmse(self, r: np.ndarray) -> float:
+        return float(100 * np.sqrt(np.sum(r ** 2)) / max(self.den, 1e-300))
+
+    def score(self, effects: _Effects) -> np.ndarray:
+        return residual(self.target, simulate(self.cfg, self.run.u, self.base + list(effects), self.windows))
+
+
+def _evaluate(fit: FitResult, held: _Held, t0: float) -> _Scored:
+    r_after = held.score(fit.effects)
+    sse_b = float(np.sum(held.r_before ** 2))
+    sse_a = float(np.sum(r_after ** 2))
+    return _Scored(fit, sse_b, sse_a, 0.0, held.nrmse(held.r_before), held.nrmse(r_after), False,
+                   time.perf_counter() - t0, {"r_after": r_after})
+
+
+def _judge(scored: list[_Scored], flex: "_Scored | None", held: _Held, sigma2: float, zc: float) -> "stats.NoisePSD":
+    """z of every held-out improvement (noise spectrum from the best residual), share of the explainable gap,
+    acceptance; sorts ``scored`` best first.  Returns the noise spectrum used."""
+    pool = list(scored) + ([flex] if flex is not None else [])
+    r_best = min((s.extra["r_after"] for s in pool), key=lambda r: float(np.sum(r ** 2)), default=held.r_before)
+    if float(np.sum(r_best ** 2)) > float(np.sum(held.r_before ** 2)):
+        r_best = held.r_before
+    psd = stats.noise_psd(r_best)
+    for s in pool:
+        s.extra["delta"], s.extra["sd"], s.extra["z"] = stats.improvement_z(held.r_before, s.extra["r_after"], psd)
+    explainable = max([s.extra["delta"] for s in pool] + [0.0])
+    N = held.r_before.size
+    ratio = n_eff_ratio(r_best)
+    excess = max(float(np.sum(held.r_before ** 2)) - N * sigma2, 1e-300)
+    for s in pool:
+        s.extra["excess_shrink"] = s.extra["delta"] / excess
+    for s in scored:
+        s.extra["share"] = s.extra["delta"] / explainable if explainable > 0 else 0.0
+        s.penalty = s.fit.n_params * math.log(max(N / ratio, 2.0)) * sigma2 * ratio
+        s.accepted = bool(_significant(s, zc) and s.extra["share"] >= MIN_SHARE
+                          and s.extra["excess_shrink"] >= MIN_EXCESS_SHRINK)
+    scored.sort(key=lambda s: s.sse_after + s.penalty)
+    # a richer candidate that nests a simpler one must beat it clearly on held-out data to rank above it
+    for i in range(len(scored)):
+        for j in range(i + 1, len(scored)):
+            rich, simple = scored[i], scored[j]
+            if (rich.fit.effect, simple.fit.effect) in RICHER and simple.accepted and \
+                    (stats.paired_z(rich.extra["r_after"], simple.extra["r_after"], psd) < TIE_Z
+                     or rich.sse_after > (1 - RICHER_MIN_GAIN) * simple.sse_after):
+                scored[i], scored[j] = simple, rich
+    # parsimony: a generic filter family above an accepted physical candidate that leaves it < GENERIC_MIN_EXTRA
+    # of the gap above the floor absorbs that candidate; it does not name a different effect
+    top = next((s for s in scored if s.accepted), None)
+    if top is not None and top.fit.effect in GENERIC:
+        for s in scored:
+            if s.accepted and s.fit.effect not in GENERIC and \
+                    top.extra["excess_shrink"] - s.extra["excess_shrink"] < GENERIC_MIN_EXTRA:
+                scored.remove(s)
+                scored.insert(scored.index(top), s)
+                for g in scored:
+                    if g.fit.effect in GENERIC and g.accepted:
+                        g.extra["absorbs"] = s.fit.effect
+                break
+    return psd
+
+
+def _significant(s: _Scored, zc: float) -> bool:
+    """Statistically (z above the threshold) *and* practically (removes ≥ MIN_DROP of the held-out residual
+    energy) significant: a tiny but 'significant' drop is what structured noise — coarse quantisation is a
+    deterministic function of the signal — gives a model correlated with the signal."""
+    return bool(s.extra["z"] > zc and s.extra["delta"] >= MIN_DROP * s.sse_before)
+
+
+def _fit_all(cfg: PiezoConfig, train: RunData, y_base_train: np.ndarray, base: _Effects, names: Sequence[str],
+             held: _Held, opts: DiagnosisOptions, log: Callable[[str], None]) -> list[_Scored]:
+    fs = train.sample_rate
+    win = Windows.spread(len(train), opts.fit_samples, opts.n_windows, int(opts.warmup_s * fs))
+    ctx = FitContext(cfg, list(base), train.u, train.y, y_base_train, win)
+    scored = []
+    for name in names:
+        t0 = time.perf_counter()
+        try:
+            fit = fit_candidate(name, ctx)
+            s = _evaluate(fit, held, t0)
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
+            log(f"  {name}: fit failed ({exc})")
+            continue
+        log(f"  {name:28s} held-out {s.before_nrmse:7.3f} % -> {s.after_nrmse:7.3f} %  ({s.seconds:.1f} s)")
+        scored.append(s)
+    return scored
+
+
+def _fit_flexible(cfg: PiezoConfig, train: RunData, y_train_nom: np.ndarray, held: _Held, test_ext: RunData,
+                  y_ext_nom: np.ndarray, opts: DiagnosisOptions, log: Callable[[str], None]) -> _Scored | None:
+    """The flexible reference model on TRAIN, scored on TEST like a candidate (``None`` if it cannot be fitted)."""
+    t0 = time.perf_counter()
+    fs = cfg.sample_rate
+    win = Windows.spread(len(train), opts.fit_samples, opts.n_windows, int(opts.warmup_s * fs))
+    try:
+        fm = fit_flexible(train.u, train.y, y_train_nom, win, fs)
+        d = fm.predict(test_ext.u, y_ext_nom, held.windows)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        log(f"  flexible model failed ({exc})")
+        return None
+    r_after = residual(held.r_before, d)
+    fit = FitResult("flexible", {}, {}, [], fm.n_features * cfg.n_axes, float("nan"))
+    s = _Scored(fit, float(np.sum(held.r_before ** 2)), float(np.sum(r_after ** 2)), 0.0,
+                held.nrmse(held.r_before), held.nrmse(r_after), False, time.perf_counter() - t0,
+                {"r_after": r_after, "ridge": fm.ridge})
+    log(f"  {'(flexible reference model)':28s} held-out {s.before_nrmse:7.3f} % -> {s.after_nrmse:7.3f} %  "
+        f"({s.seconds:.1f} s, {fm.n_features} features per output)")
+    return s
+
+
+def _confidence(best: _Scored, runner: "_Scored | None", tie_z: float | None, zc: float) -> tuple[str, str]:
+    """high / medium / low from how clearly the verdict beats noise, how much of the explainable gap it takes and
+    how clearly it beats the runner-up on the held-out run (paired z)."""
+    z, share = best.extra["z"], best.extra["share"]
+    why = (f"held-out improvement z = {z:.3g} (threshold {zc:.2f}); it takes {100 * min(share, 9.99):.0f} % of "
+           f"the explainable held-out gap")
+    if runner is None or tie_z is None:
+        tie_z = math.inf
+    else:
+        why += f"; it beats the runner-up ({runner.fit.effect}) by z = {tie_z:.3g}"
+    why += f"; it removes {100 * best.extra['excess_shrink']:.0f} % of the gap above the white-noise floor"
+    if z > zc + HIGH_Z_MARGIN and share >= HIGH_SHARE and tie_z >= HIGH_PAIRED_Z and \
+            best.extra["excess_shrink"] >= HIGH_EXCESS_SHRINK:
+        if best.fit.effect in GENERIC:
+            return "medium", why + (f"; capped at medium: {best.fit.effect} is a generic filter family that can "
+                                    "absorb other dynamics")
+        return "high", why
+    if share >= MIN_SHARE and tie_z >= TIE_Z:
+        return "medium", why
+    return "low", why
+
+
+def _nested(a: str, b: str) -> bool:
+    """Whether one of two candidates contains the other as a special case (then they are not rival explanations
+    to discriminate: the simpler one stands unless the richer one is better on held-out data)."""
+    return frozenset((a, b)) in NESTED
+
+# ----------------------------------------------------------------------------------------------------------------
+# The phase: first round, then the verdict candidate's ties
+# ----------------------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Judged:
+    """The first round: every candidate (and the flexible reference model) fitted on TRAIN, scored on TEST, judged.
+
+    Attributes
+    ----------
+    held : _Held
+        The held-out run on its scoring windows, under the nominal model.
+    scored : list of _Scored
+        The candidates that could be fitted, best first (:func:`_judge`).
+    flex : _Scored or None
+        The flexible reference model (``None``: not asked for, or its fit failed).
+    n_tests : int
+        How many models were tested: the Bonferroni family.
+    zc : float
+        The critical z of that family.
+    psd : stats.NoisePSD
+        The noise spectrum the z-tests used.
+    """
+
+    held: _Held
+    scored: list[_Scored]
+    flex: _Scored | None
+    n_tests: int
+    zc: float
+    psd: stats.NoisePSD
+
+
+def _first_round(s: _Setup, rep: _Replay, log: Callable[[str], None]) -> _Judged:
+    """Fit every candidate and the flexible model on TRAIN, score them on TEST, judge and rank them."""
+    opts = s.opts
+    fs = s.cfg.sample_rate
+    score_win = Windows.spread(len(s.test), opts.score_samples, opts.n_windows, int(opts.warmup_s * fs),
+                               offset=s.history)
+    held = _Held(s.cfg, s.test_ext, [], score_win, rep.y_ext_nom)
+    log("candidates (fitted on train, scored on test):")
+    scored = _fit_all(s.cfg, s.train, rep.y_train_nom, [], list(opts.candidates), held, opts, log)
+    flex = _fit_flexible(s.cfg, s.train, rep.y_train_nom, held, s.test_ext, rep.y_ext_nom, opts, log) \
+        if opts.flexible else None
+    n_tests = len(scored) + (flex is not None)
+    zc = stats.z_critical(n_tests)
+    psd = _judge(scored, flex, held, rep.sigma2, zc)
+    return _Judged(held, scored, flex, n_tests, zc, psd)
+
+
+@dataclass(frozen=True)
+class _Choice:
+    """The verdict candidate and what stands beside it.
+
+    Attributes
+    ----------
+    verdict : _Scored or None
+        The best accepted candidate (after a discrimination run, the one it named); ``None``: nothing accepted.
+    runner : _Scored or None
+        The runner-up on the held-out run (``None`` after a discrimination run).
+    tie_z : float or None
+        The paired z by which the verdict beats the runner-up (or, after a discrimination run, its winner the
+        next best there).
+    ties : list of _Scored
+        Significant rivals within :data:`TIE_Z` of the verdict, neither nesting the other.
+    any_significant : bool
+        Whether any model (a candidate or the flexible one) is significant.
+    discrimination : dict or None
+        The report's ``discrimination`` (``None``: no ties).
+    """
+
+    verdict: _Scored | None
+    runner: _Scored | None
+    tie_z: float | None
+    ties: list[_Scored]
+    any_significant: bool
+    discrimination: dict[str, Any] | None
+
+
+def _choose(s: _Setup, rep: _Replay, j: _Judged, log: Callable[[str], None]) -> _Choice:
+    """The best accepted candidate, its runner-up and near ties; ties decided on the discrimination run, or an
+    experiment proposed to decide them."""
+    accepted = [x for x in j.scored if x.accepted]
+    significant = [x for x in j.scored + ([j.flex] if j.flex is not None else []) if _significant(x, j.zc)]
+    verdict = accepted[0] if accepted else None
+    if verdict is None:
+        return _Choice(None, None, None, [], bool(significant), None)
+    runner, tie_z, ties = _ties(verdict, j)
+    if not ties:
+        return _Choice(verdict, runner, tie_z, ties, bool(significant), None)
+    discrimination: dict[str, Any] = {"ambiguous_between": [verdict.fit.effect] + [x.fit.effect for x in ties],
+                                      "paired_z": {x.fit.effect: x.extra["paired_z"] for x in ties}}
+    if s.discriminate is not None:
+        pick = disc.decide_on_run(s.cfg, [verdict] + ties, s.discriminate)
+        discrimination["decided_on_run"] = pick
+        winner = next(x for x in [verdict] + ties if x.fit.effect == pick["winner"])
+        log(f"discrimination run: {pick['summary']}")
+        tie_z = pick["paired_z"] if pick["paired_z"] is not None else None
+        return _Choice(winner, None, tie_z, ties, bool(significant), discrimination)
+    try:
+        discrimination["experiment"] = disc.propose(s.cfg, verdict.fit, [x.fit for x in ties], j.psd, rep.sigma,
+                                                    s.test.u)
+    except (ValueError, np.linalg.LinAlgError) as exc:  # the proposal is advice: never fail the diagnosis
+        discrimination["experiment"] = {"error": str(exc)}
+    return _Choice(verdict, runner, tie_z, ties, bool(significant), discrimination)
+
+
+def _ties(verdict: _Scored, j: _Judged) -> tuple[_Scored | None, float | None, list[_Scored]]:
+    """Near ties: other effects that explain the held-out run about as well (paired test).  Returns the runner-up,
+    the paired z by which the verdict beats it, and the ties; sets every rival's ``paired_z``."""
+    runner, tie_z = None, None
+    # a generic family that absorbs the verdict (see GENERIC_MIN_EXTRA) is not a rival explanation
+    others = [x for x in j.scored if x is not verdict and x.extra["delta"] > 0
+              and x.extra.get("absorbs") != verdict.fit.effect]
+    for x in others:
+        x.extra["paired_z"] = stats.paired_z(verdict.extra["r_after"], x.extra["r_after"], j.psd)
+    if others:
+        runner = min(others, key=lambda x: x.extra["paired_z"])
+        tie_z = runner.extra["paired_z"]
+    ties = [x for x in others if x.extra["paired_z"] < TIE_Z and _significant(x, j.zc)
+            and not _nested(verdict.fit.effect, x.fit.effect)]
+    return runner, tie_z, ties

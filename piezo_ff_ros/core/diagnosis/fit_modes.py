@@ -1,0 +1,343 @@
+"""Resonance candidates: a greedy search of modes in the training residual (band-pass and high-pass regressors of
+the base output, compiled filters, cached normal equations), cross-coupled (``unmodelled_mode``) or with level- and
+cube-modulated terms (``amplitude_dependent_dynamics``).
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from typing import Callable
+
+import numpy as np
+from scipy import optimize
+
+from .._jit import njit
+from ..models import effects as fx
+from .fit_common import FitContext, FitResult, _rms
+from .replay import Windows, residual
+
+__all__ = ["fit_unmodelled_mode", "fit_amplitude_dependent_dynamics", "MAX_MODES", "MODE_MIN_GAIN", "MODE_FMIN",
+           "MODE_ZMAX", "Mode"]
+
+
+#: at most this many modes per fit, and the share of the current training residual a new mode must remove
+MAX_MODES = 4
+MODE_MIN_GAIN = 0.02
+#: a structural mode lies above MODE_FMIN [Hz] and is lightly damped (ζ ≤ MODE_ZMAX): a broad band-pass at the
+#: excitation's own frequencies would otherwise pass for a "mode" while only patching the gain and phase there
+MODE_FMIN = 20.0
+MODE_ZMAX = 0.5
+
+
+def _level_design(y_base: np.ndarray, dt: float, windows: Windows | None) -> np.ndarray:
+    n = y_base.shape[1]
+    st = fx.AmplitudeDependentDynamics(10.0, 0.1, np.zeros(n), np.zeros(n), dt, n)
+    if windows is None or windows.is_whole:
+        return st.level(y_base)
+    return windows.apply(st.reset, st.level, y_base)
+
+
+@njit
+def _bp_hp_run(y: np.ndarray, spans: np.ndarray, k: int, cb: np.ndarray, ch: np.ndarray, B: np.ndarray,
+               H: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Band-pass and high-pass biquads (coefficients ``cb``, ``ch``: b0, b1, b2, a1, a2) of every column of ``y``
+    on each window ``(warm, start, stop)`` (state reset at ``warm``), every k-th scored sample kept."""
+    n = y.shape[1]
+    g = 0
+    row = 0
+    for w in range(spans.shape[0]):
+        w0, s0, e0 = spans[w, 0], spans[w, 1], spans[w, 2]
+        for j in range(n):
+            zb0 = 0.0
+            zb1 = 0.0
+            zh0 = 0.0
+            zh1 = 0.0
+            gj = g
+            rj = row
+            for t in range(w0, e0):
+                x = y[t, j]
+                yb = cb[0] * x + zb0
+                zb0 = cb[1] * x - cb[3] * yb + zb1
+                zb1 = cb[2] * x - cb[4] * yb
+                yh = ch[0] * x + zh0
+                zh0 = ch[1] * x - ch[3] * yh + zh1
+                zh1 = ch[2] * x - ch[4] * yh
+                if t >= s0:
+                    if gj % k == 0:
+                        B[rj, j] = yb
+                        H[rj, j] = yh
+                        rj += 1
+                    gj += 1
+        # every column advanced the counters alike
+        for t in range(s0, e0):
+            if g % k == 0:
+                row += 1
+            g += 1
+
+
+def _bp_hp_design(y: np.ndarray, spans: np.ndarray, k: int, freq: float, damping: float,
+                  dt: float) -> np.ndarray:
+    """``[BP | HP]`` (columns) of the mode (freq, damping) on the windows ``spans``, every k-th row: the same filters as
+    :class:`~piezo_ff_ros.core.models.effects.UnmodelledMode` in one compiled pass."""
+    total = int(np.sum(spans[:, 2] - spans[:, 1]))
+    rows = -(-total // k)
+    n = y.shape[1]
+    BH = np.empty((rows, 2 * n))
+    cb = np.array(fx._bandpass_coeffs(freq, damping, dt))
+    ch = np.array(fx._highpass_coeffs(freq, damping, dt))
+    _bp_hp_run(y, spans, int(k), cb, ch, BH[:, :n], BH[:, n:])
+    return BH
+
+
+def _solve_normal(A: np.ndarray, B: np.ndarray, X_of: Callable[[], np.ndarray], T: np.ndarray) -> np.ndarray:
+    """Solution of the normal equations ``A C = B`` (``A = XᵀX``, ``B = XᵀT``), column-scaled; when they are
+    ill-conditioned, the minimum-norm least-squares solution of ``X C ≈ T`` (``X_of()`` builds X)."""
+    d = np.sqrt(np.maximum(np.diag(A), 1e-300))
+    As = A / np.outer(d, d)
+    try:
+        C = np.linalg.solve(As, B / d[:, None])
+        if not np.all(np.isfinite(C)) or np.linalg.cond(As) > 1e10:
+            raise np.linalg.LinAlgError
+    except np.linalg.LinAlgError:
+        X = X_of()
+        dx = np.sqrt(np.einsum("ij,ij->j", X, X))
+        dx[dx == 0] = 1.0
+        C_ls: np.ndarray = np.linalg.lstsq(X / dx, T, rcond=None)[0] / dx[:, None]
+        return C_ls
+    out: np.ndarray = C / d[:, None]
+    return out
+
+
+def _explained(X: np.ndarray, T: np.ndarray) -> float:
+    """Energy of the least-squares projection of every column of ``T`` on the columns of ``X``
+    (``Σ_i ‖X c_i‖²`` with ``c_i`` the solution of ``X c ≈ T[:, i]``), by the normal equations."""
+    A = X.T @ X
+    B = X.T @ T
+    d = np.sqrt(np.maximum(np.diag(A), 1e-300))
+    As = A / np.outer(d, d)
+    Bs = B / d[:, None]
+    try:
+        C = np.linalg.solve(As, Bs)
+        if not np.all(np.isfinite(C)) or np.linalg.cond(As) > 1e10:
+            raise np.linalg.LinAlgError
+    except np.linalg.LinAlgError:
+        C = np.linalg.lstsq(As, Bs, rcond=1e-10)[0]
+    return float(np.sum(Bs * C))
+
+
+#: a resonance ``(frequency [Hz], damping ratio)``
+Mode = tuple[float, float]
+
+
+class _ModeSearch:
+    """Greedy search of resonances in the training residual: each mode adds band-pass regressors of the base
+    output; ``kind='cross'``: output i regresses on BP(Ŷ_j) of every axis j (cross-coupled gains);
+    ``kind='level'``: on BP(Ŷ_i) and A_i(t)·BP(Ŷ_i) (amplitude-dependent)."""
+
+    def __init__(self, ctx: FitContext, kind: str):
+        self.ctx, self.kind = ctx, kind
+        win = ctx.windows
+        r0 = residual(ctx.y, ctx.y_base) if win.is_whole else residual(win.take(ctx.y), win.take(ctx.y_base))
+        self.k = max(1, -(-len(r0) // 60_000))  # rows kept in the regressions (the filters run on every sample)
+        self.r0 = r0[::self.k] - r0[::self.k].mean(axis=0)
+        self.n = ctx.cfg.n_axes
+        self.lev: np.ndarray | None = _level_design(ctx.y_base, ctx.dt, win)[::self.k] if kind == "level" else None
+        self.unit = max(_rms(self.r0), 1e-15)
+        self._regs_cache: dict[tuple[float, float], list[np.ndarray]] = {}
+        self.y_base_c = np.ascontiguousarray(ctx.y_base, dtype=float)
+        self.spans = np.array([(0, 0, len(ctx.y_base))] if win.is_whole else win.spans, dtype=np.int64)
+        self.cube: np.ndarray | None = (np.ascontiguousarray(self.y_base_c * (self.y_base_c / fx.LEVEL_REF) ** 2)
+                     if kind == "level" else None)
+        self._gram_cache: dict[tuple[Mode, Mode, int], np.ndarray] = {}
+        self._xtr_cache: dict[tuple[Mode, int], np.ndarray] = {}
+
+    def _grid_regs(self, f: float, z: float) -> list[np.ndarray]:
+        """:meth:`regs` without filling the cache (the coarse grid visits each pole pair once per mode)."""
+        hit = self._regs_cache.get((float(f), float(z)))
+        return hit if hit is not None else self._design(f, z)
+
+    def regs(self, f: float, z: float) -> list[np.ndarray]:
+        """Per output i, the regressors [rows, p] this mode adds (cached per pole pair: the greedy search
+        refits every earlier mode's gains each time it tries a new one)."""
+        key = (float(f), float(z))
+        hit = self._regs_cache.get(key)
+        if hit is not None:
+            return hit
+        out = self._design(f, z)
+        if len(self._regs_cache) >= 64:  # keep the memory bounded (only the modes being refitted recur)
+            self._regs_cache.pop(next(iter(self._regs_cache)))
+        self._regs_cache[key] = out
+        return out
+
+    def _design(self, f: float, z: float) -> list[np.ndarray]:
+        BH = _bp_hp_design(self.y_base_c, self.spans, self.k, f, z, self.ctx.dt)
+        BH -= np.full(len(BH), 1.0 / len(BH)) @ BH  # column means (a product: faster than an axis-0 mean)
+        B, Hp = BH[:, :self.n], BH[:, self.n:]
+        if self.kind == "cross":
+            out = [BH] * self.n
+        else:
+            assert self.cube is not None and self.lev is not None   # kind "level"
+            out = []
+            CH = _bp_hp_design(self.cube, self.spans, self.k, f, z, self.ctx.dt)
+            CH -= np.full(len(CH), 1.0 / len(CH)) @ CH
+            for i in range(self.n):  # the cross-coupled mode, its level-modulated and its cubic direct terms
+                LB = self.lev[:, i] * B[:, i]
+                LH = self.lev[:, i] * Hp[:, i]
+                out.append(np.column_stack([B, Hp, LB - LB.mean(), LH - LH.mean(), CH[:, i], CH[:, self.n + i]]))
+        return out
+
+    def _gram(self, a: Mode, b: Mode, i: int) -> np.ndarray:
+        """``X_aᵀ X_b`` of output i's designs of pole pairs a and b (cached: the earlier modes recur)."""
+        key = (a, b, i if self.kind != "cross" else 0)
+        G = self._gram_cache.get(key)
+        if G is None:
+            G = self.regs(*a)[i].T @ self.regs(*b)[i]
+            if len(self._gram_cache) >= 256:
+                self._gram_cache.pop(next(iter(self._gram_cache)))
+            self._gram_cache[key] = G
+        return G
+
+    def solve(self, modes: list[Mode]) -> tuple[list[np.ndarray], np.ndarray]:
+        """Joint least squares of all modes' gains per output: (coefficients per output, residual).
+
+        Normal equations assembled from cached blocks ``X_aᵀX_b`` and ``X_aᵀr`` (column-scaled, with a
+        minimum-norm fallback when they are ill-conditioned): the greedy search refits the earlier modes' gains
+        for every trial of a new one, and only the new mode's blocks are new."""
+        keys = [(float(f), float(z)) for f, z in modes]
+        R = [self.regs(*k) for k in keys]
+        res = np.empty_like(self.r0)
+        coefs: list[np.ndarray] = []
+        outs = [0] if self.kind == "cross" else range(self.n)
+        for i in outs:
+            A = np.block([[self._gram(a, b, i) for b in keys] for a in keys])
+            cols = slice(None) if self.kind == "cross" else slice(i, i + 1)
+            Bv = np.vstack([self._xtr(k, i) for k in keys])[:, cols]
+            C = _solve_normal(A, Bv, lambda: np.hstack([Ri[i] for Ri in R]), self.r0[:, cols])
+            fit = np.zeros((len(self.r0), C.shape[1]))
+            o = 0
+            for Ri in R:
+                p = Ri[i].shape[1]
+                fit += Ri[i] @ C[o:o + p]
+                o += p
+            if self.kind == "cross":
+                res[:] = self.r0 - fit
+                coefs = [C[:, j] for j in range(self.n)]
+            else:
+                res[:, i] = self.r0[:, i] - fit[:, 0]
+                coefs.append(C[:, 0])
+        return coefs, res
+
+    def _xtr(self, key: Mode, i: int) -> np.ndarray:
+        """``X_keyᵀ r0`` (all outputs' columns) of output i's design (cached)."""
+        ck = (key, i if self.kind != "cross" else 0)
+        v = self._xtr_cache.get(ck)
+        if v is None:
+            v = self.regs(*key)[i].T @ self.r0
+            if len(self._xtr_cache) >= 256:
+                self._xtr_cache.pop(next(iter(self._xtr_cache)))
+            self._xtr_cache[ck] = v
+        return v
+
+    def run(self, fmin: float, fmax: float) -> tuple[list[Mode], list[np.ndarray], np.ndarray]:
+        """Add modes greedily between ``fmin`` and ``fmax`` [Hz]: ``(modes (f, ζ), coefficients per output,
+        residual)``."""
+        modes: list[Mode] = []
+        coefs: list[np.ndarray] = []
+        res = self.r0.copy()
+        sse = float(np.sum(res ** 2))
+        freqs = np.geomspace(fmin, fmax, 40)
+        g = max(1, len(res) // 40_000)  # the coarse grid scores on fewer rows
+        for _ in range(MAX_MODES):
+            best: tuple[float, Mode | None] = (0.0, None)
+            for f in freqs:
+                for z in (0.01, 0.05, 0.2):
+                    R = self._grid_regs(f, z)
+                    gain = 0.0
+                    if self.kind == "cross":  # one design shared by every output: one Gram matrix
+                        gain = _explained(R[0][::g], res[::g]) * g
+                    else:
+                        for i in range(self.n):
+                            gain += _explained(R[i][::g], res[::g, i:i + 1]) * g
+                    if gain > best[0]:
+                        best = (gain, (f, z))
+            if best[1] is None or best[0] < MODE_MIN_GAIN * sse:
+                break
+            f0, z0 = best[1]
+
+            def resid(theta: np.ndarray, modes: list[Mode] = modes) -> np.ndarray:
+                _, rr = self.solve(modes + [(math.exp(theta[0]), math.exp(theta[1]))])
+                return rr.reshape(-1) / self.unit
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                sol = optimize.least_squares(resid, [math.log(f0), math.log(z0)], diff_step=1e-3, max_nfev=12,
+                                             bounds=([math.log(fmin), math.log(1e-3)],
+                                                     [math.log(0.49 / self.ctx.dt), math.log(MODE_ZMAX)]))
+            cand = modes + [(math.exp(sol.x[0]), math.exp(sol.x[1]))]
+            c_new, r_new = self.solve(cand)
+            sse_new = float(np.sum(r_new ** 2))
+            if sse - sse_new < MODE_MIN_GAIN * sse:
+                break
+            modes, coefs, res, sse = cand, c_new, r_new, sse_new
+        return modes, coefs, res
+
+
+def fit_unmodelled_mode(ctx: FitContext) -> FitResult:
+    """Up to :data:`MAX_MODES` lightly damped resonances above :data:`MODE_FMIN`, each output regressed on the
+    band-pass and high-pass of every axis' base output (cross-coupled gains)."""
+    n = ctx.cfg.n_axes
+    fs = 1.0 / ctx.dt
+    T = len(ctx.y) * ctx.dt
+    fmin = min(max(MODE_FMIN, 20.0 / T), 0.2 * fs)
+    ms = _ModeSearch(ctx, "cross")
+    modes, coefs, res = ms.run(fmin, 0.45 * fs)
+    ctx.cache["modes"] = list(modes)
+    if not modes:
+        raise ValueError("no resonance found in the training residual")
+    K = len(modes)
+    G = np.zeros((K, n, n))
+    Hg = np.zeros((K, n, n))
+    for i in range(n):
+        c = np.asarray(coefs[i]).reshape(K, 2, n)  # per mode: band-pass gains of every axis, then high-pass
+        G[:, i, :] = c[:, 0, :]
+        Hg[:, i, :] = c[:, 1, :]
+    params = {"freq": [m[0] for m in modes] if K > 1 else modes[0][0],
+              "damping": [m[1] for m in modes] if K > 1 else modes[0][1], "gains": G.tolist(),
+              "hp_gains": Hg.tolist()}
+    return FitResult("unmodelled_mode", params, {"freq": None, "damping": None, "gains": None, "hp_gains": None},
+                     [("unmodelled_mode", params)], K * (2 + 2 * n * n), _rms(res),
+                     note=f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}")
+
+
+def fit_amplitude_dependent_dynamics(ctx: FitContext) -> FitResult:
+    """The resonances :func:`fit_unmodelled_mode` found on this context (else a search of its own), with gains that
+    grow with the output's level and a cubic (instantaneous-stiffness) term: linear in the gains."""
+    n = ctx.cfg.n_axes
+    fs = 1.0 / ctx.dt
+    T = len(ctx.y) * ctx.dt
+    fmin = min(max(MODE_FMIN, 20.0 / T), 0.2 * fs)
+    ms = _ModeSearch(ctx, "level")
+    if ctx.cache.get("modes"):
+        # the resonances the mode search found on this context; the level terms are then linear
+        modes = ctx.cache["modes"]
+        coefs, res = ms.solve(modes)
+    else:
+        modes, coefs, res = ms.run(fmin, 0.45 * fs)
+    if not modes:
+        raise ValueError("no amplitude-dependent resonance found in the training residual")
+    K = len(modes)
+    G, Hg = np.zeros((K, n, n)), np.zeros((K, n, n))
+    Kl, Kh = np.zeros((K, n)), np.zeros((K, n))
+    Kc, Hc = np.zeros((K, n)), np.zeros((K, n))
+    for i in range(n):
+        c = np.asarray(coefs[i]).reshape(K, 2 * n + 4)
+        G[:, i, :], Hg[:, i, :] = c[:, :n], c[:, n:2 * n]
+        Kl[:, i], Kh[:, i] = c[:, 2 * n], c[:, 2 * n + 1]
+        Kc[:, i], Hc[:, i] = c[:, 2 * n + 2], c[:, 2 * n + 3]
+    params = {"freq": [m[0] for m in modes], "damping": [m[1] for m in modes], "gains": G.tolist(),
+              "hp_gains": Hg.tolist(), "level_gains": Kl.tolist(), "level_hp_gains": Kh.tolist(),
+              "cubic_gains": Kc.tolist(), "cubic_hp_gains": Hc.tolist()}
+    return FitResult("amplitude_dependent_dynamics", params,
+                     {k: None for k in params},
+                     [("amplitude_dependent_dynamics", params)], K * (2 + 2 * n * n + 4 * n), _rms(res),
+                     note=f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}")

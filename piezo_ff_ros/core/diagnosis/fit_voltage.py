@@ -1,0 +1,145 @@
+"""Voltage-side candidates (input delay, slew limit, saturation rails, amplifier roll-off): the model re-run for
+every trial value on :class:`~.replay.Windows` of the training run, a coarse grid then a bounded refinement
+(:func:`~.fit_common._fit_scalar`) or ``scipy.optimize.least_squares``.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from typing import Callable
+
+import numpy as np
+from scipy import optimize
+
+from .fit_common import FitContext, FitResult, _fit_scalar, _rms, _stderr
+from .replay import residual
+
+__all__ = ["fit_input_delay", "fit_amplifier_slew_limit", "fit_amplifier_saturation", "fit_amplifier_bandwidth",
+           "RAIL_MIN_GAIN"]
+
+
+def fit_input_delay(ctx: FitContext) -> FitResult:
+    """A pure input delay (interpolated): first guess from r ≈ −d·dŶ/dt, a log grid, quarter-sample steps around
+    the best point, then a bounded refinement."""
+    # first guess from the delay signature: r ≈ −d·dŶ/dt
+    r0 = residual(ctx.target, ctx.y_base_win)
+    dy = np.gradient(ctx.y_base_win, ctx.dt, axis=0)
+    dy -= dy.mean(axis=0)
+    d0 = float(-np.sum(r0 * dy) / max(np.sum(dy * dy), 1e-300))
+    dmax = max(50 * ctx.dt, 4 * abs(d0))
+    grid = np.unique(np.r_[0.0, np.geomspace(0.25 * ctx.dt, dmax, 11), max(d0, 0.0)])
+    dt = ctx.dt
+
+    def fine(best: float) -> np.ndarray:
+        # linear interpolation makes the cost wiggle between whole samples: quarter-sample steps around the best
+        return np.clip(best + dt * np.arange(-3.0, 3.01, 0.25), 0.0, None)
+
+    return _fit_scalar(ctx, "input_delay", "delay", lambda z: {"delay": max(z, 0.0)}, grid,
+                       lambda z: max(z, 0.0), lambda z: 1.0, fine=fine)
+
+
+def fit_amplifier_slew_limit(ctx: FitContext) -> FitResult:
+    """The amplifier's slew-rate limit [V/s] on a log grid between the median and the largest voltage rate."""
+    rates = np.abs(np.diff(ctx.u, axis=0)) / ctx.dt
+    rmax = float(rates.max()) if rates.size else 1.0
+    lo = max(float(np.quantile(rates, 0.5)), 1e-3 * rmax, 1e-6)
+    grid = np.linspace(math.log(lo), math.log(rmax * 1.05), 12)
+    return _fit_scalar(ctx, "amplifier_slew_limit", "rate", lambda z: {"rate": math.exp(z)}, grid, math.exp,
+                       math.exp)
+
+
+#: the rails are fitted apart when that lowers the training residual energy by at least this share
+RAIL_MIN_GAIN = 0.02
+
+
+def fit_amplifier_saturation(ctx: FitContext) -> FitResult:
+    """One symmetric limit first (grid + refinement); then each rail refined with the other held (amplifier
+    rails often differ by sign), kept when it lowers the training residual energy by ``RAIL_MIN_GAIN``."""
+    a = np.abs(ctx.u)
+    amax = float(a.max())
+    lo = float(np.quantile(a, 0.5))
+    grid = np.linspace(max(lo, 1e-3 * amax), amax * 1.01, 12)
+    sym = _fit_scalar(ctx, "amplifier_saturation", "limit", lambda z: {"limit": z}, grid, lambda z: z,
+                      lambda z: 1.0)
+    L = float(sym.params["limit"])
+    top, bot = float(np.max(ctx.u)), float(-np.min(ctx.u))
+    if L >= min(top, bot):  # one rail is never reached: nothing to tell the rails apart
+        return sym
+    cache: dict[tuple[float, float], tuple[float, np.ndarray]] = {}
+
+    def sse(up: float, down: float) -> float:
+        key = (round(up, 9), round(down, 9))
+        if key not in cache:
+            r = ctx.sim_residual([("amplifier_saturation", {"limit": up, "lower_limit": down})])
+            cache[key] = (float(np.sum(r ** 2)), r)
+        return cache[key][0]
+
+    up, down = L, L
+    for _ in range(2):  # coordinate descent, each rail between lo and just above the largest voltage of its sign
+        for which in ("up", "down"):
+            hi = (top if which == "up" else bot) * 1.01
+            f: Callable[[float], float] = (lambda z: sse(z, down)) if which == "up" else (lambda z: sse(up, z))
+            sol = optimize.minimize_scalar(f, bounds=(max(lo, 1e-3 * amax), hi), method="bounded",
+                                           options={"xatol": 1e-3 * hi, "maxiter": 16})
+            cur = up if which == "up" else down
+            if sol.fun < f(cur):
+                if which == "up":
+                    up = float(sol.x)
+                else:
+                    down = float(sol.x)
+    s_sym = float(sym.train_rms ** 2 * ctx.target.size)
+    s_asym = sse(up, down)
+    if s_asym > (1 - RAIL_MIN_GAIN) * s_sym:
+        return sym
+    r = cache[(round(up, 9), round(down, 9))][1]
+    cols = []
+    for k, (du, dd) in enumerate(((1e-3 * up, 0.0), (0.0, 1e-3 * down))):
+        rp = ctx.sim_residual([("amplifier_saturation", {"limit": up + du, "lower_limit": down + dd})])
+        rm = ctx.sim_residual([("amplifier_saturation", {"limit": up - du, "lower_limit": down - dd})])
+        cols.append(((rp - rm) / (2 * max(du, dd))).reshape(-1))
+    se = _stderr(np.column_stack(cols), r)
+    p = {"limit": up, "lower_limit": down}
+    return FitResult("amplifier_saturation", p, {"limit": float(se[0]), "lower_limit": float(se[1])},
+                     [("amplifier_saturation", p)], 2, _rms(r), note="rails differ by sign")
+
+
+def fit_amplifier_bandwidth(ctx: FitContext) -> FitResult:
+    """Shared cutoff for a 1st- and a 2nd-order (ζ = 0.707) roll-off, the better order kept, then one cutoff per
+    axis refined from there (amplifier channels differ)."""
+    fs = 1.0 / ctx.dt
+    n = ctx.cfg.n_axes
+    # up to 10·fs, where the pole-matched filter is the identity to 1e-27: "no bandwidth limit" is on the grid
+    grid = np.linspace(math.log(fs / 2000.0), math.log(10.0 * fs), 14)
+    f1 = _fit_scalar(ctx, "amplifier_bandwidth", "cutoff", lambda z: {"cutoff": math.exp(z), "order": 1}, grid,
+                     math.exp, math.exp)
+    fits = [(f1.train_rms, 1, f1)]
+    c1 = math.log(f1.params["cutoff"])
+    if c1 < math.log(fs):  # a finite roll-off was found: try the 2nd order around it (a 2nd-order corner lies
+        # above the 1st-order one that mimics it), on a short grid
+        grid2 = np.linspace(c1 - 0.5, c1 + 2.0, 6)
+        f2 = _fit_scalar(ctx, "amplifier_bandwidth", "cutoff", lambda z: {"cutoff": math.exp(z), "order": 2},
+                         grid2, math.exp, math.exp)
+        fits.append((f2.train_rms, 2, f2))
+    _, order, best = min(fits, key=lambda t: t[0])
+    c0 = math.log(best.params["cutoff"])
+    if n > 1 and c0 < math.log(fs):
+        unit = max(_rms(residual(ctx.target, ctx.y_base_win)), 1e-15)
+
+        def resid(theta: np.ndarray) -> np.ndarray:
+            p = {"cutoff": np.exp(theta).tolist(), "order": order}
+            return ctx.sim_residual([("amplifier_bandwidth", p)]).reshape(-1) / unit
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            sol = optimize.least_squares(resid, np.full(n, c0), diff_step=1e-3, max_nfev=4,
+                                         bounds=(np.full(n, math.log(fs / 4000.0)), np.full(n, math.log(20 * fs))))
+        r = sol.fun.reshape(-1, n) * unit
+        if _rms(r) < best.train_rms:
+            cut = np.exp(sol.x)
+            se = _stderr(sol.jac, r / unit) * cut
+            p = {"cutoff": cut.tolist(), "order": order}
+            return FitResult("amplifier_bandwidth", p, {"cutoff": se.tolist(), "order": None},
+                             [("amplifier_bandwidth", p)], n + 1, _rms(r), note=f"order {order}")
+    p = {"cutoff": [best.params["cutoff"]] * n, "order": order}
+    return FitResult("amplifier_bandwidth", p, {"cutoff": [best.stderr["cutoff"]] * n, "order": None},
+                     [("amplifier_bandwidth", p)], 2, best.train_rms, note=f"order {order}", extra=best.extra)

@@ -1,0 +1,96 @@
+"""The verdict: its name (an effect, ``unexplained`` or ``none``), its confidence and the reason given for it."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .decision import (GENERIC_MIN_EXTRA, HIGH_Z_MARGIN, MIN_DROP, MIN_EXCESS_SHRINK, MIN_SHARE, _Choice, _confidence,
+                       _Judged, _Scored)
+
+__all__ = ["NOISE_MARGIN"]
+
+#: informational: the held-out gap is "at the white-noise floor" within this factor (RMS)
+NOISE_MARGIN = 1.05
+
+
+@dataclass(frozen=True)
+class _Verdict:
+    """The verdict of a diagnosis.
+
+    Attributes
+    ----------
+    name : str
+        The effect named, ``unexplained`` (a reproducible gap no candidate names) or ``none``.
+    confidence : str
+        ``high``, ``medium`` or ``low``.
+    reason : str
+        Why, in one paragraph (the report's ``confidence_reason``).
+    """
+
+    name: str
+    confidence: str
+    reason: str
+
+
+def _verdict(j: _Judged, c: _Choice, sigma2: float) -> _Verdict:
+    """Name the verdict, rate its confidence and say why."""
+    if c.verdict is not None:
+        return _named(j, c, c.verdict)
+    if c.any_significant:
+        return _unexplained(j)
+    return _none(j, sigma2)
+
+
+def _named(j: _Judged, c: _Choice, verdict: _Scored) -> _Verdict:
+    """An accepted candidate: confidence from :func:`~.decision._confidence`, at most medium when a generic family
+    absorbs it, low while a tie is undecided."""
+    name = verdict.fit.effect
+    conf, why = _confidence(verdict, c.runner, c.tie_z, j.zc)
+    absorbing = [s for s in j.scored if s.extra.get("absorbs") == name]
+    if absorbing:
+        g = absorbing[0]
+        why += (f"; {g.fit.effect} ({g.fit.n_params} parameters) fits the held-out run slightly better "
+                f"({g.after_nrmse:.3g} % vs {verdict.after_nrmse:.3g} %) but takes only "
+                f"{100 * (g.extra['excess_shrink'] - verdict.extra['excess_shrink']):.1f} % more of the gap "
+                f"above the white-noise floor (< {100 * GENERIC_MIN_EXTRA:.0f} %): the generic family absorbs "
+                f"{name}, whose form is approximate")
+        if conf == "high":
+            conf = "medium"
+    if c.discrimination is not None and "decided_on_run" not in c.discrimination:
+        conf = "low"
+        why += (f"; ambiguous with {', '.join(s.fit.effect for s in c.ties)} on this held-out run — run the "
+                "proposed discrimination experiment")
+    return _Verdict(name, conf, why)
+
+
+def _unexplained(j: _Judged) -> _Verdict:
+    """Nothing accepted but something significant: a reproducible gap that no candidate names."""
+    scored, flex, zc = j.scored, j.flex, j.zc
+    best_c = max(scored, key=lambda s: s.extra["delta"]) if scored else None
+    fz = flex.extra["z"] if flex is not None else 0.0
+    why = (f"the held-out gap is reproducible (flexible model z = {fz:.3g}, threshold {zc:.2f}) but no "
+           f"candidate explains at least {100 * MIN_SHARE:.0f} % of what can be explained and "
+           f"{100 * MIN_EXCESS_SHRINK:.0f} % of the gap above the white-noise floor")
+    if best_c is not None:
+        why += f" (best: {best_c.fit.effect}, {100 * max(best_c.extra['share'], 0):.0f} %)"
+    # never high: "no candidate takes half" also happens when a candidate's fit on TRAIN went astray
+    conf = "medium" if (fz > zc + HIGH_Z_MARGIN and (best_c is None or best_c.extra["share"] < 0.25)) \
+        else "low"
+    return _Verdict("unexplained", conf, why)
+
+
+def _none(j: _Judged, sigma2: float) -> _Verdict:
+    """Nothing significant: the held-out gap is not reproducible from the training run."""
+    scored, flex, zc, held = j.scored, j.flex, j.zc, j.held
+    zmax = max([s.extra["z"] for s in scored] + ([flex.extra["z"]] if flex is not None else []) + [-math.inf])
+    why = (f"no model fitted on TRAIN reproduces the held-out gap beyond noise (largest z = {zmax:.3g}, "
+           f"threshold {zc:.2f}, or less than {100 * MIN_DROP:g} % of the residual energy; the noise spectrum "
+           "is measured, so coloured noise is allowed for)")
+    at_floor = math.sqrt(float(np.mean(held.r_before ** 2))) <= NOISE_MARGIN * math.sqrt(sigma2)
+    conf = "high" if (zmax < zc - 1.0 and at_floor) else "medium"
+    if not at_floor:
+        why += (f"; the gap is {math.sqrt(float(np.mean(held.r_before ** 2)) / max(sigma2, 1e-300)):.3g}× the "
+                "white-noise floor: coloured or drifting noise, not reproducible from the training run")
+    return _Verdict("none", conf, why)
