@@ -18,7 +18,7 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 
 from .kernels.fused import FusedPass, FusedPart, plan_fusion
-from .stage import Processor, StageState
+from .stage import Processor, StageState, as_block
 
 __all__ = ["Chain", "leaves", "FusedPass", "FusedPart"]
 
@@ -93,9 +93,7 @@ class Chain:
 
     # -- running -----------------------------------------------------------------------------------------------
     def _check(self, block: np.ndarray) -> np.ndarray:
-        x = np.ascontiguousarray(block, dtype=float)
-        if self._n_in is not None and (x.ndim != 2 or x.shape[1] != self._n_in):
-            raise ValueError(f"expected a block of shape [N, {self._n_in}], got {x.shape}")
+        x = as_block(block, self._n_in)
         return x
 
     def plan(self) -> list[Any]:

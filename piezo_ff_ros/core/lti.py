@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike
 from .kernels.fused import BANK, FusedPart
 from .kernels.modal import bank_run, bank_run_2x2, pad_to_2x2
 from .kernels.specialise import specialised_bank_run
-from .stage import StageState
+from .stage import StageState, as_block
 
 __all__ = [
     "FactoredTF",
@@ -524,10 +524,8 @@ class LTIFilter:
 
     def process(self, u: np.ndarray) -> np.ndarray:
         """Filter the block ``u`` [N, n_in] → [N, n_out] (state carried between blocks)."""
-        u = np.ascontiguousarray(u, dtype=float)
+        u = as_block(u, self.ss.n_in)
         y = np.empty((u.shape[0], self.ss.n_out))
-        if u.ndim != 2 or u.shape[1] != self.ss.n_in:
-            raise ValueError(f"expected a block of shape [N, {self.ss.n_in}], got {u.shape}")
         if self.two_axis:
             if self._run is None:
                 self._run = specialised_bank_run(self.W, self.ss.sizes, self.ss.D) or bank_run_2x2

@@ -24,11 +24,41 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Mapping, Protocol, runtime_checkable
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 if TYPE_CHECKING:
     from .lti import DiscreteModalSS
 
-__all__ = ["Stage", "StageState", "Processor", "transfer_linear_state", "free_response_match"]
+__all__ = ["Stage", "StageState", "Processor", "as_block", "transfer_linear_state", "free_response_match"]
+
+
+def as_block(x: ArrayLike, n: int | None = None, what: str = "") -> np.ndarray:
+    """``x`` as a C-contiguous float64 block ``[N, n]`` — what every stage's ``process`` takes.
+
+    Parameters
+    ----------
+    x : array_like
+        The block.
+    n : int or None
+        Columns expected (None: any).
+    what : str
+        Its kind for the error (``"reference"``, ``"voltage"``; empty: none).
+
+    Returns
+    -------
+    ndarray
+        ``x`` itself when it already is one, else a converted copy.
+
+    Raises
+    ------
+    ValueError
+        ``expected a [what ]block of shape [N, n], got (…)``.
+    """
+    b = np.ascontiguousarray(x, dtype=float)
+    if b.ndim != 2 or (n is not None and b.shape[1] != n):
+        kind = f"{what} " if what else ""
+        raise ValueError(f"expected a {kind}block of shape [N, {n if n is not None else 'axes'}], got {b.shape}")
+    return b
 
 #: a stage's state: named arrays (copies)
 StageState = Mapping[str, np.ndarray]

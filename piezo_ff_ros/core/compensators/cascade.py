@@ -20,7 +20,7 @@ from ..config import PiezoConfig
 from .creep import CreepCompensator
 from .hysteresis import HysteresisCompensator
 from .vibration import VibrationCompensator
-from ..stage import Stage, StageState
+from ..stage import Stage, StageState, as_block
 
 if TYPE_CHECKING:
     from ..synthesis.hinf import HinfDesign
@@ -206,9 +206,7 @@ class CompensatorCascade(Chain):
         return h.bw_state.u_prev.copy()
 
     def _check(self, block: np.ndarray) -> np.ndarray:
-        x = np.ascontiguousarray(block, dtype=float)
-        if x.ndim != 2 or x.shape[1] != self.n_axes:
-            raise ValueError(f"expected a reference block of shape [N, {self.n_axes}], got {x.shape}")
+        x = as_block(block, self.n_axes, "reference")
         return x
 
     def process_front(self, yr: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:

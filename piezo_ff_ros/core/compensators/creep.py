@@ -16,7 +16,7 @@ from ..kernels.modal import inverse_affine_run, inverse_affine_run_2x2, pad_to_2
 from ..kernels.specialise import specialised_inverse_run
 from ..lti import DiscreteModalSS, LTIFilter
 from ..models.creep import discretise_creep
-from ..stage import StageState, transfer_linear_state
+from ..stage import StageState, as_block, transfer_linear_state
 
 __all__ = ["CreepCompensator", "creep_inverse_poles"]
 
@@ -80,10 +80,8 @@ class CreepCompensator:
 
     def process(self, yl: np.ndarray) -> np.ndarray:
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
-        yl = np.ascontiguousarray(yl, dtype=float)
+        yl = as_block(yl, self.n_in)
         yh = np.empty_like(yl)
-        if yl.ndim != 2 or yl.shape[1] != self.n_in:
-            raise ValueError(f"expected a block of shape [N, {self.n_in}], got {yl.shape}")
         if self.two_axis:
             if self._run is None:
                 self._run = specialised_inverse_run(self.Kinv, self.W, self.ss.sizes) or inverse_affine_run_2x2

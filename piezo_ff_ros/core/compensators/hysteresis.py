@@ -20,7 +20,7 @@ from ..kernels.bouc_wen import (N_COUNTERS, FALLBACKS, SATURATED, CompOptions, C
                                 bw_comp_run_2x2, bw_model_run, bw_model_run_2x2, comp_coeffs_2x2, coeffs_2x2,
                                 params_of)
 from ..models.bouc_wen import BoucWenState
-from ..stage import StageState
+from ..stage import StageState, as_block
 
 __all__ = ["HysteresisCompensator"]
 
@@ -81,9 +81,7 @@ class HysteresisCompensator:
 
     def process(self, yh: np.ndarray) -> np.ndarray:
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
-        yh = np.ascontiguousarray(yh, dtype=float)
-        if yh.ndim != 2 or yh.shape[1] != self.n_in:
-            raise ValueError(f"expected a block of shape [N, {self.n_in}], got {yh.shape}")
+        yh = as_block(yh, self.n_in)
         u = np.empty((yh.shape[0], self.n_out))
         counters = np.zeros(N_COUNTERS, np.int64)
         if self.two_axis:

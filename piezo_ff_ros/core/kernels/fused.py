@@ -26,6 +26,7 @@ from typing import Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 
+from ..stage import as_block
 from .._jit import njit
 from .bouc_wen import N_COUNTERS
 from .modal import gather_2x2, scatter_2x2
@@ -142,9 +143,7 @@ class FusedPass:
 
     def process(self, block: np.ndarray) -> np.ndarray:
         """Run one block ``[N, 2] → [N, 2]`` through every stage of the pass; the states move on by N samples."""
-        u = np.ascontiguousarray(block, dtype=float)
-        if u.ndim != 2 or u.shape[1] != 2:
-            raise ValueError(f"expected a block of shape [N, 2], got {u.shape}")
+        u = as_block(block, 2)
         y = np.empty_like(u)
         counters = self._counters
         x = self._x

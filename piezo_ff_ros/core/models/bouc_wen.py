@@ -14,7 +14,7 @@ import numpy as np
 from ..config import BoucWenConfig
 from ..kernels.fused import MODEL, FusedPart
 from ..kernels.bouc_wen import bw_model_run, bw_model_run_2x2, coeffs_2x2, params_of
-from ..stage import StageState
+from ..stage import StageState, as_block
 
 __all__ = ["BoucWenModel", "BoucWenState"]
 
@@ -106,9 +106,7 @@ class BoucWenModel:
         taps : dict
             ``h`` [N, n_out] metres.
         """
-        u = np.ascontiguousarray(u, dtype=float)
-        if u.ndim != 2 or u.shape[1] != self.n_in:
-            raise ValueError(f"expected a block of shape [N, {self.n_in}], got {u.shape}")
+        u = as_block(u, self.n_in)
         y = np.empty((u.shape[0], self.n_out))
         hs = np.empty((u.shape[0], self.n_out))
         s = self.bw_state

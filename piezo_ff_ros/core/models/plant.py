@@ -14,7 +14,7 @@ import numpy as np
 
 from ..chain import Chain
 from ..config import PiezoConfig
-from ..stage import Processor
+from ..stage import Processor, as_block
 from .bouc_wen import BoucWenModel
 from .creep import CreepModel
 from .dynamics import DynamicsModel
@@ -89,9 +89,7 @@ class Plant(Chain):
         return self.cfg.n_axes
 
     def _check(self, block: np.ndarray) -> np.ndarray:
-        x = np.ascontiguousarray(block, dtype=float)
-        if x.ndim != 2 or x.shape[1] != self.n_axes:
-            raise ValueError(f"expected a voltage block of shape [N, {self.n_axes}], got {x.shape}")
+        x = as_block(block, self.n_axes, "voltage")
         return x
 
     def process_with_taps(self, block: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:

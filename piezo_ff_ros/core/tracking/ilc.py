@@ -31,6 +31,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from ..stage import as_block
 from ..config import ConfigError, dataclass_from_mapping
 from .linear import CompensatedModel
 
@@ -212,9 +213,7 @@ class LearnedCorrection:
 
     def process(self, block: np.ndarray) -> np.ndarray:
         """``block + Δ[k … k + N)`` (Δ held at its last row past its end)."""
-        x = np.ascontiguousarray(block, float)
-        if x.ndim != 2 or x.shape[1] != self.n_axes:
-            raise ValueError(f"expected a block of shape [N, {self.n_axes}], got {x.shape}")
+        x = as_block(block, self.n_axes)
         idx = np.minimum(np.arange(self.k, self.k + len(x)), len(self.table) - 1)
         self.k += len(x)
         out: np.ndarray = x + self.table[idx]

@@ -31,6 +31,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from ..stage import as_block
 from .._jit import njit
 from ..config import ConfigError, PiezoConfig, dataclass_from_mapping
 from .linear import CascadeReplica, CompensatedModel, ControllerABCD
@@ -257,9 +258,7 @@ class PreviewStage:
     # -- streaming -------------------------------------------------------------------------------------------------
     def process(self, block: np.ndarray) -> np.ndarray:
         """One reference block ``[N, axes]`` received ``preview_samples`` ahead; returns N shaped samples."""
-        x = np.ascontiguousarray(block, dtype=float)
-        if x.ndim != 2 or x.shape[1] != self.n_axes:
-            raise ValueError(f"expected a reference block of shape [N, {self.n_axes}], got {x.shape}")
+        x = as_block(block, self.n_axes, "reference")
         n = x.shape[0]
         if n == 0:
             return np.zeros((0, self.n_axes))

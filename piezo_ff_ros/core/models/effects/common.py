@@ -13,6 +13,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ...stage import as_block
+
 __all__ = ["RATE_REF", "RATE_SMOOTHING", "CREEP_TAUS", "CREEP_YREF", "LEVEL_TAU", "LEVEL_REF", "DIRECTION_TAU"]
 
 
@@ -32,10 +34,7 @@ DIRECTION_TAU = 2e-3
 
 
 def _block(x: ArrayLike, n: int | None = None) -> np.ndarray:
-    x = np.ascontiguousarray(x, dtype=float)
-    if x.ndim != 2 or (n is not None and x.shape[1] != n):
-        raise ValueError(f"expected a block of shape [N, {n if n is not None else 'axes'}], got {x.shape}")
-    return x
+    return as_block(x, n)
 
 
 def _per_axis(value: Any, n: int, name: str) -> np.ndarray:
