@@ -2,7 +2,7 @@
 reproducible but unnamed — ``unexplained`` — or not reproducible at all — ``none``), how far it shrinks, and which
 experiment separates two explanations that fit equally well.
 
-``diagnose(cfg, train, test)`` → :class:`~.engine.DiagnosisResult` (a read-only mapping of its JSON report, the
+``diagnose(cfg, train, test)`` → :class:`~.results.DiagnosisResult` (a read-only mapping of its JSON report, the
 arrays in ``.arrays``, ``to_json()``); :mod:`.stats` is the held-out test every verdict rests on,
 :mod:`.flexible` the reference model behind the explainable share, :mod:`.discriminate` the experiment proposals,
 :mod:`.report` the Markdown/PNG report and the corrected config (``--apply``).  The candidate effects are the stages

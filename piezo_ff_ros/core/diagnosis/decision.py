@@ -197,11 +197,14 @@ def _significant(s: _Scored, zc: float) -> bool:
     return bool(s.extra["z"] > zc and s.extra["delta"] >= MIN_DROP * s.sse_before)
 
 
+def _fit_windows(train: RunData, opts: DiagnosisOptions) -> Windows:
+    """The stretches of TRAIN every fit uses (the whole run, or ``n_windows`` spread over a long one)."""
+    return Windows.spread(len(train), opts.fit_samples, opts.n_windows, int(opts.warmup_s * train.sample_rate))
+
+
 def _fit_all(cfg: PiezoConfig, train: RunData, y_base_train: np.ndarray, base: _Effects, names: Sequence[str],
              held: _Held, opts: DiagnosisOptions, log: Callable[[str], None]) -> list[_Scored]:
-    fs = train.sample_rate
-    win = Windows.spread(len(train), opts.fit_samples, opts.n_windows, int(opts.warmup_s * fs))
-    ctx = FitContext(cfg, list(base), train.u, train.y, y_base_train, win)
+    ctx = FitContext(cfg, list(base), train.u, train.y, y_base_train, _fit_windows(train, opts))
     scored = []
     for name in names:
         t0 = time.perf_counter()
@@ -220,10 +223,8 @@ def _fit_flexible(cfg: PiezoConfig, train: RunData, y_train_nom: np.ndarray, hel
                   y_ext_nom: np.ndarray, opts: DiagnosisOptions, log: Callable[[str], None]) -> _Scored | None:
     """The flexible reference model on TRAIN, scored on TEST like a candidate (``None`` if it cannot be fitted)."""
     t0 = time.perf_counter()
-    fs = cfg.sample_rate
-    win = Windows.spread(len(train), opts.fit_samples, opts.n_windows, int(opts.warmup_s * fs))
     try:
-        fm = fit_flexible(train.u, train.y, y_train_nom, win, fs)
+        fm = fit_flexible(train.u, train.y, y_train_nom, _fit_windows(train, opts), cfg.sample_rate)
         d = fm.predict(test_ext.u, y_ext_nom, held.windows)
     except (ValueError, np.linalg.LinAlgError) as exc:
         log(f"  flexible model failed ({exc})")

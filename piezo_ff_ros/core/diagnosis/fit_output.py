@@ -58,7 +58,7 @@ def _creep_bank2(y: np.ndarray, a: np.ndarray, yref: float, S1: np.ndarray,
             S2[t, j] = acc2
 
 
-def _creep_regs(y_base: np.ndarray, dt: float, beta: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _creep_regs(y_base: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """The creep candidate's two regressors: the log-time relaxation bank of :class:`~..models.effects.
     CreepNonlinearity` applied to Ŷ and to Ŷ|Ŷ|/Y_ref (what ``CreepNonlinearity(γ=1, β=0)`` adds to its input)."""
     y = np.ascontiguousarray(y_base, dtype=float)

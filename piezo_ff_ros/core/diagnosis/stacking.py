@@ -13,8 +13,8 @@ import numpy as np
 from . import stats
 from .baseline import _Effects, _Replay, _Setup
 from .candidates import FitContext, FitResult, fit_candidate
-from .decision import _fit_all, _Held, _Judged, _nested, _Scored
-from .replay import Windows, simulate
+from .decision import _fit_all, _fit_windows, _Held, _Judged, _nested, _Scored
+from .replay import simulate
 from .results import _fmt_params
 
 __all__ = ["STACK_STOP", "STACK_MIN_SHARE"]
@@ -103,7 +103,7 @@ def _backfit(s: _Setup, fits: list[FitResult], log: Callable[[str], None]) -> li
     biased, etc.); a refit that fails keeps the earlier fit."""
     cfg, train, opts = s.cfg, s.train, s.opts
     fits = list(fits)
-    win = Windows.spread(len(train), opts.fit_samples, opts.n_windows, int(opts.warmup_s * cfg.sample_rate))
+    win = _fit_windows(train, opts)
     for i in range(len(fits) - 1):
         others_fx = [e for j, f in enumerate(fits) if j != i for e in f.effects]
         try:
