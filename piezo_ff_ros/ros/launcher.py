@@ -3,7 +3,9 @@
 Starts driver, compensator, trajectory and recorder as subprocesses (``python -m piezo_ff_ros.nodes.<name>``) with
 the safe ROS environment (:func:`piezo_ff_ros.ros.env.apply_ros_env_defaults`: localhost discovery, own domain,
 logs in a temp dir), waits until each node has logged that it is ready, and stops them with SIGINT (trajectory
-first, recorder last, so that the recording holds everything).  No ROS import here.
+first, recorder last, so that the recording holds everything).  No ROS import in :class:`GraphLauncher`; the
+command (:func:`main`) starts the trajectory once the recorder and every block writer have matched
+(:class:`~piezo_ff_ros.ros.graph_session.GraphClient`), so that ``run.mcap`` holds the first blocks.
 
 Command line::
 
@@ -19,7 +21,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 from .env import apply_ros_env_defaults
 
@@ -152,7 +154,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    traj = ["-p", f"mode:={args.mode}", "-p", "autostart:=true", "-p", "min_subscribers:=2"]  # + the recorder
+    # started by this launcher once every block writer has matched the recorder (see below), not on its own
+    traj = ["-p", f"mode:={args.mode}", "-p", "autostart:=false", "-p", "min_subscribers:=2"]  # + the recorder
     if args.trajectory:
         traj += ["-p", f"trajectory:='{args.trajectory}'"]  # quoted: a YAML string, not a mapping
     comp = ["--params-file", args.params_file] if args.params_file else []
@@ -160,17 +163,32 @@ def main(argv: Sequence[str] | None = None) -> int:
                        "trajectory": traj}, log_dir=out / "logs")
     g.start()
     print(f"graph running (ROS_DOMAIN_ID={g.env['ROS_DOMAIN_ID']}), logs in {g.log_dir}; Ctrl-C to stop")
+    client = None
+    end: dict[str, Any] | None = None
     try:
+        from .graph_session import GraphClient
+
+        # the trajectory plays once the recorder and every block writer have matched: a writer sends nothing to a
+        # reader it has not matched yet, and the first blocks would be missing from run.mcap
+        client = GraphClient("piezo_ff_launcher", domain_id=int(g.env["ROS_DOMAIN_ID"]))
+        client.wait_recorder_connected(check=g.check_alive)
+        n_before = len(client.states)
+        client.trigger(client.start)
         t_end = time.monotonic() + args.duration if args.duration > 0 else float("inf")
-        while time.monotonic() < t_end:
+        while time.monotonic() < t_end and end is None:   # a finite trajectory ends the run when it has played
             g.check_alive()
-            time.sleep(0.2)
+            client.spin_for(0.2)
+            end = next((st for st in client.states[n_before:] if st["state"] in ("finished", "failed", "stopped")),
+                       None)
     except KeyboardInterrupt:
         pass
     finally:
+        if client is not None:
+            client.close()
         codes = g.stop()
-    print(f"stopped: {codes}; recording {out / 'run.mcap'}")
-    return 0 if all(c == 0 for c in codes.values()) else 1
+    played = f"trajectory {end['state']}{': ' + end['error'] if end.get('error') else ''}; " if end else ""
+    print(f"stopped: {codes}; {played}recording {out / 'run.mcap'}")
+    return 0 if all(c == 0 for c in codes.values()) and (end is None or end["state"] == "finished") else 1
 
 
 if __name__ == "__main__":
