@@ -30,7 +30,7 @@ setup(
         "console_scripts": [f"{e} = {package_name}.entry_points:{e}" for e in executables]
         + [f"piezo-ff = {package_name}.entry_points:piezo_ff"],
         # driver backends as plug-ins: a lab adds its own in this group from its own package
-        "piezo_ff_ros.backends": [f"{b} = {package_name}.nodes.backends.{m}:SPEC"
+        "piezo_ff_ros.backends": [f"{b} = {package_name}.backends.{m}:SPEC"
                                   for b, m in (("sim", "sim"), ("nidaqmx", "nidaqmx_backend"), ("pi_gcs", "pi_gcs"))],
     },
 )

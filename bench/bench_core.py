@@ -2,7 +2,7 @@
 
     PYTHONPATH=. .venv/bin/python bench/bench_core.py [--json FILE] [--duration 600] [--repeats 3]
 
-Same as ``piezo-ff bench``; what is measured and how, and the naive baselines: :mod:`piezo_ff_ros.core.throughput`
+Same as ``piezo-ff bench``; what is measured and how, and the naive baselines: :mod:`piezo_ff_ros.bench.throughput`
 (the command line and the report: :mod:`piezo_ff_ros.cli.bench`).
 """
 from __future__ import annotations

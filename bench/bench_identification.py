@@ -36,7 +36,7 @@ FSM_ANCHORS_UM = {"same_level": {100: 0.114, 200: 0.216, 300: 0.228}, "trained_1
 
 def bench_dbo(say) -> dict:
     from piezo_ff_ros.core.compensators.hysteresis import HysteresisCompensator
-    from piezo_ff_ros.core.datasets import load_dbo
+    from piezo_ff_ros.bench.datasets import load_dbo
     from piezo_ff_ros.core.identification.bouc_wen import identify_bouc_wen, simulate_bouc_wen
     from piezo_ff_ros.core.identification.metrics import fit_percent, rmse
 
@@ -95,7 +95,7 @@ def bench_dbo(say) -> dict:
 
 
 def bench_fsm(say) -> dict:
-    from piezo_ff_ros.core.datasets import load_fsm
+    from piezo_ff_ros.bench.datasets import load_fsm
 
     levels = {lv: load_fsm(lv) for lv in (100, 200, 300)}
     out = {"attribution": levels[100].attribution, "anchors_um": FSM_ANCHORS_UM}

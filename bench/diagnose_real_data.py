@@ -85,7 +85,7 @@ def _print(s: dict, name: str) -> None:
 def fsm_frf(level: int):
     """MIMO FRF per excited bin from the training realizations' last (steady-state) period, G_k = Y_k·U_k⁺ —
     the BLA of ``bench/bench_identification.py``."""
-    from piezo_ff_ros.core.datasets import load_fsm
+    from piezo_ff_ros.bench.datasets import load_fsm
 
     L = load_fsm(level)
     U = np.fft.rfft(L.u_train[:, :, :, -1], axis=0)
@@ -227,7 +227,7 @@ def linear_config(G: TFMatrix, axes, fs: float, name: str) -> PiezoConfig:
 
 
 def fsm_nominal(n_pairs: int):
-    from piezo_ff_ros.core.datasets import load_fsm
+    from piezo_ff_ros.bench.datasets import load_fsm
 
     t0 = time.perf_counter()
     f, G = fsm_frf(100)
@@ -244,7 +244,7 @@ def fsm_nominal(n_pairs: int):
 
 
 def fsm_cases(n_pairs: int, report: Path | None) -> dict:
-    from piezo_ff_ros.core.datasets import load_fsm
+    from piezo_ff_ros.bench.datasets import load_fsm
     from piezo_ff_ros.core.models.plant import Plant
 
     cfg, info = fsm_nominal(n_pairs)
@@ -313,7 +313,7 @@ def _slow_fit(t, r, law: str, fixed=None):
 
 
 def dbo_case(report: Path | None) -> dict:
-    from piezo_ff_ros.core.datasets import load_dbo
+    from piezo_ff_ros.bench.datasets import load_dbo
     from piezo_ff_ros.core.identification.bouc_wen import identify_bouc_wen
     from piezo_ff_ros.core.models.plant import Plant
 

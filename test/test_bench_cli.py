@@ -43,7 +43,7 @@ def test_baselines_longer_than_the_signal_buffer_report_what_ran(tmp_path):
     """The baselines run on a slice of the 10 s signal buffer; asked for more, they ran on the whole buffer and the
     figures must say so (they claimed the asked duration, overstating samples and rate)."""
     from piezo_ff_ros.core.config import load_config
-    from piezo_ff_ros.core.throughput import run_benchmark
+    from piezo_ff_ros.bench.throughput import run_benchmark
 
     cfg_path = tmp_path / "slow.yaml"
     load_config().with_sample_rate(500.0).to_yaml(cfg_path)   # a 10 s buffer of 5000 samples

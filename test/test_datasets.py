@@ -8,7 +8,7 @@ from piezo_ff_ros.core.units import UM
 
 
 def test_dbo_loader_units_and_attribution(shared_data):
-    from piezo_ff_ros.core.datasets import load_dbo
+    from piezo_ff_ros.bench.datasets import load_dbo
 
     d = load_dbo(shared_data)
     assert d.model.sample_rate == pytest.approx(200.0)
@@ -20,7 +20,7 @@ def test_dbo_loader_units_and_attribution(shared_data):
 
 
 def test_dbo_bouc_wen_predicts_held_out_run(shared_data):
-    from piezo_ff_ros.core.datasets import load_dbo
+    from piezo_ff_ros.bench.datasets import load_dbo
     from piezo_ff_ros.core.identification.bouc_wen import identify_bouc_wen
     from piezo_ff_ros.core.identification.metrics import fit_percent
 
@@ -43,7 +43,7 @@ def test_dbo_bouc_wen_predicts_held_out_run(shared_data):
 
 
 def test_fsm_bla_on_test_split(shared_data):
-    from piezo_ff_ros.core.datasets import load_fsm
+    from piezo_ff_ros.bench.datasets import load_fsm
 
     L = load_fsm(100, shared_data)
     assert L.u_train.shape[1:] == (3, 6, 2) and L.u_test.shape[1:] == (3, 3, 2)

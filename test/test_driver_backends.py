@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 
 from piezo_ff_ros.core.config import ConfigError
-from piezo_ff_ros.nodes import backends
-from piezo_ff_ros.nodes.backends import BackendError, get_spec
+from piezo_ff_ros import backends
+from piezo_ff_ros.backends import BackendError, get_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -18,7 +18,7 @@ def test_a_lab_backend_is_found_through_its_entry_point(tmp_path, monkeypatch):
     pkg.mkdir()
     (pkg / "__init__.py").write_text(textwrap.dedent("""
         from piezo_ff_ros.core.hardware import LockstepSim
-        from piezo_ff_ros.nodes.backends.base import BackendSpec, Param, int_range
+        from piezo_ff_ros.backends.base import BackendSpec, Param, int_range
         SPEC = BackendSpec("labrig", "a lab's own amplifier", {"channels": Param(2, "AO channels", int_range(1, 8))},
                            lambda cfg, p: LockstepSim(cfg.sample_rate, cfg.n_axes, None, name="labrig"))
         """))
@@ -53,4 +53,4 @@ def test_setup_declares_the_extras_and_the_entry_point_group(tmp_path):
     eps = (info / "entry_points.txt").read_text()
     assert "[piezo_ff_ros.backends]" in eps
     for name in ("sim", "nidaqmx", "pi_gcs"):
-        assert f"{name} = piezo_ff_ros.nodes.backends." in eps
+        assert f"{name} = piezo_ff_ros.backends." in eps

@@ -17,8 +17,8 @@ from nidaqmx.errors import DaqError  # noqa: E402
 
 from piezo_ff_ros.core.config import load_config  # noqa: E402
 from piezo_ff_ros.core.hardware import DriverCore, DriverSettings, Underrun  # noqa: E402
-from piezo_ff_ros.nodes.backends import get_spec  # noqa: E402
-from piezo_ff_ros.nodes.backends.nidaqmx_backend import NidaqmxBackend  # noqa: E402
+from piezo_ff_ros.backends import get_spec  # noqa: E402
+from piezo_ff_ros.backends.nidaqmx_backend import NidaqmxBackend  # noqa: E402
 
 
 class FakeDevice:
@@ -214,7 +214,7 @@ def test_underflow_is_an_underrun_fault_and_the_task_restarts(fake):
     (dict(sensor_gain=[1.0, 2.0, 3.0]), "sensor_gain"),
 ])
 def test_bad_wiring_parameters_refused(fake, kw, msg):
-    from piezo_ff_ros.nodes.backends import BackendError
+    from piezo_ff_ros.backends import BackendError
 
     with pytest.raises(BackendError, match=msg):
         NidaqmxBackend(load_config(), params(**kw), nidaqmx=fake[1])
@@ -223,7 +223,7 @@ def test_bad_wiring_parameters_refused(fake, kw, msg):
 def test_without_the_ni_library_start_fails_with_one_line():
     """The real package here has no NI-DAQmx driver: starting must be a clear BackendError, not a traceback."""
     be = NidaqmxBackend(load_config(), params())
-    from piezo_ff_ros.nodes.backends import BackendError
+    from piezo_ff_ros.backends import BackendError
 
     with pytest.raises(BackendError, match="nidaqmx: cannot start on Dev1"):
         be.start(np.zeros(2), prefill=10)

@@ -9,8 +9,8 @@ from gcs_emulator import GCSEmulator  # noqa: E402
 
 from piezo_ff_ros.core.config import load_config  # noqa: E402
 from piezo_ff_ros.core.hardware import DriverCore, DriverSettings  # noqa: E402
-from piezo_ff_ros.nodes.backends import BackendError, get_spec  # noqa: E402
-from piezo_ff_ros.nodes.backends.pi_gcs import PISetpointBackend, PITablePlayer, connect  # noqa: E402
+from piezo_ff_ros.backends import BackendError, get_spec  # noqa: E402
+from piezo_ff_ros.backends.pi_gcs import PISetpointBackend, PITablePlayer, connect  # noqa: E402
 
 
 def params(**kw):

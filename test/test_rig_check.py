@@ -6,8 +6,8 @@ import pytest
 
 from piezo_ff_ros.cli import main
 from piezo_ff_ros.core.hardware import ClockedSim
-from piezo_ff_ros.nodes import backends
-from piezo_ff_ros.nodes.backends.base import BackendSpec, Param, int_range
+from piezo_ff_ros import backends
+from piezo_ff_ros.backends.base import BackendSpec, Param, int_range
 
 
 def test_rig_check_sim_clocked_writes_the_contract_keys(tmp_path, capsys):

@@ -45,7 +45,6 @@ STRICT_FLOOR = {
     "piezo_ff_ros.core.lti",
     "piezo_ff_ros.core.config",
     "piezo_ff_ros.core.checks",
-    "piezo_ff_ros.core.datasets",
     "piezo_ff_ros.core.param_map",
     "piezo_ff_ros.core.commissioning",
     "piezo_ff_ros.core.characterisation",

@@ -14,7 +14,7 @@ config's sample rate (20 kHz).  The first call of each compiled kernel (numba ca
 separately from the steady-state throughput.
 
 Run as ``piezo-ff bench [--json FILE] [--duration S]`` or ``python bench/bench_core.py``.  The measurement and the
-naive baselines live in :mod:`piezo_ff_ros.core.throughput`; this module is the command line and the report.
+naive baselines live in :mod:`piezo_ff_ros.bench.throughput`; this module is the command line and the report.
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..core.throughput import run_benchmark
+from ..bench.throughput import run_benchmark
 
 __all__ = ["add_parser", "run", "run_benchmark", "main", "format_report"]
 

@@ -195,7 +195,7 @@ def _open_link(plan: _Plan, backend_name: str, params: dict[str, Any], report: _
         None when the link check failed (the report says why).
     """
     from ..core.hardware import DriverCore, DriverSettings
-    from ..nodes.backends import get_spec
+    from ..backends import get_spec
 
     cfg, block_size, write_ahead = plan.cfg, plan.block_size, plan.write_ahead
     try:

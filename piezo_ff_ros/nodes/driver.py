@@ -37,7 +37,7 @@ from ..core.config import ConfigError, load_config
 from ..core.hardware import DriverCore, DriverSettings
 from ..core.hardware.driver_core import ERROR, Emit, lockstep_pacing
 from ..core.safety import SafeRampConfig
-from .backends import get_spec
+from ..backends import get_spec
 from .common import (BLOCK_QOS, LATCHED_QOS, BlockFormatError, diag_values, log_lines, pack_block, run_node,
                      stamp_to_ns, unpack_block, writer_matches)
 

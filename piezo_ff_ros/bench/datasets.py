@@ -21,8 +21,8 @@ from typing import Any, Union
 
 import numpy as np
 
-from .recording.run import RunData
-from .units import UM
+from ..core.recording.run import RunData
+from ..core.units import UM
 
 #: a dataset root: a path, or None for :func:`shared_data_dir`
 PathLike = Union[str, "os.PathLike[str]"]

@@ -24,12 +24,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ...core.hardware.contract import (ContractError, DeviceInfo, Disconnect, Overrun, StreamingBackend,
+from ..core.hardware.contract import (ContractError, DeviceInfo, Disconnect, Overrun, StreamingBackend,
                                        Underrun)
 from .base import BackendError, BackendSpec, Param, float_range, int_range, non_empty
 
 if TYPE_CHECKING:
-    from ...core.config import PiezoConfig
+    from ..core.config import PiezoConfig
 
 UNDERRUN_CODES = {-200290, -200621, -200016, -200018}
 OVERRUN_CODES = {-200279}

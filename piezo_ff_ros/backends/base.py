@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
-from ...core.config import ConfigError
+from ..core.config import ConfigError
 
 
 class BackendError(RuntimeError):

@@ -7,12 +7,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ...core.hardware.sim import ClockedSim, LockstepSim
-from ...core.models.plant import Plant
+from ..core.hardware.sim import ClockedSim, LockstepSim
+from ..core.models.plant import Plant
 from .base import BackendSpec, Param, float_range, int_range, one_of
 
 if TYPE_CHECKING:
-    from ...core.config import PiezoConfig
+    from ..core.config import PiezoConfig
 
 
 def create(cfg: PiezoConfig, p: dict[str, Any]) -> LockstepSim | ClockedSim:

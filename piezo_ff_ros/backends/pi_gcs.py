@@ -23,11 +23,11 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from ...core.hardware.contract import ContractError, DeviceInfo, Disconnect, StreamingBackend, WriteCursorClock
+from ..core.hardware.contract import ContractError, DeviceInfo, Disconnect, StreamingBackend, WriteCursorClock
 from .base import BackendError, BackendSpec, Param, float_range, int_range, one_of
 
 if TYPE_CHECKING:
-    from ...core.config import PiezoConfig
+    from ..core.config import PiezoConfig
 
 
 def _axes(text: str) -> list[str]:

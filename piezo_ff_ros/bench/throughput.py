@@ -23,8 +23,8 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol
 import numpy as np
 
 if TYPE_CHECKING:   # annotations only: run_benchmark times the imports of the core itself
-    from .compensators.cascade import CompensatorCascade
-    from .config import PiezoConfig
+    from ..core.compensators.cascade import CompensatorCascade
+    from ..core.config import PiezoConfig
 
 __all__ = ["run_benchmark"]
 
@@ -279,7 +279,7 @@ def _machine() -> dict[str, Any]:
 
 def _kernels() -> dict[str, Any]:
     """The compiled kernels of the core chain (numba dispatchers, or plain functions without numba)."""
-    from .kernels import bouc_wen, modal, specialise
+    from ..core.kernels import bouc_wen, modal, specialise
 
     mods = {"modal": modal, "bouc_wen": bouc_wen}
     names = ["modal.bank_run", "modal.bank_run_2x2", "modal.inverse_affine_run", "modal.inverse_affine_run_2x2",
@@ -310,7 +310,7 @@ def _controller(cfg: PiezoConfig, hinf: bool, echo: bool) -> tuple[Any, dict[str
     design = None
     if hinf:
         try:
-            from .synthesis.hinf import synthesize_hinf
+            from ..core.synthesis.hinf import synthesize_hinf
         except ImportError as exc:
             info["note"] = f"H∞ synthesis unavailable ({exc})"
         else:
@@ -347,17 +347,17 @@ def _time_core_imports() -> float:
     t_import = time.perf_counter()
     import control  # noqa: F401
 
-    from .compensators.cascade import CompensatorCascade  # noqa: F401
-    from .compensators.creep import CreepCompensator  # noqa: F401
-    from .compensators.hysteresis import HysteresisCompensator  # noqa: F401
-    from .compensators.vibration import VibrationCompensator  # noqa: F401
-    from .config import load_config  # noqa: F401
-    from .models.bouc_wen import BoucWenModel  # noqa: F401
-    from .models.creep import CreepModel  # noqa: F401
-    from .models.dynamics import DynamicsModel  # noqa: F401
-    from .models.plant import Plant  # noqa: F401
-    from .chain import Chain  # noqa: F401
-    from ._jit import HAVE_NUMBA  # noqa: F401
+    from ..core.compensators.cascade import CompensatorCascade  # noqa: F401
+    from ..core.compensators.creep import CreepCompensator  # noqa: F401
+    from ..core.compensators.hysteresis import HysteresisCompensator  # noqa: F401
+    from ..core.compensators.vibration import VibrationCompensator  # noqa: F401
+    from ..core.config import load_config  # noqa: F401
+    from ..core.models.bouc_wen import BoucWenModel  # noqa: F401
+    from ..core.models.creep import CreepModel  # noqa: F401
+    from ..core.models.dynamics import DynamicsModel  # noqa: F401
+    from ..core.models.plant import Plant  # noqa: F401
+    from ..core.chain import Chain  # noqa: F401
+    from ..core._jit import HAVE_NUMBA  # noqa: F401
     return time.perf_counter() - t_import
 
 
@@ -439,15 +439,15 @@ def _stages(cfg: PiezoConfig, ctrl: Any, ctrl_order: Any, b: _Baselines) -> list
     -------
     list of _Stage
     """
-    from .compensators.cascade import CompensatorCascade
-    from .compensators.creep import CreepCompensator
-    from .compensators.hysteresis import HysteresisCompensator
-    from .compensators.vibration import VibrationCompensator
-    from .models.bouc_wen import BoucWenModel
-    from .models.creep import CreepModel
-    from .models.dynamics import DynamicsModel
-    from .models.plant import Plant
-    from .chain import Chain
+    from ..core.compensators.cascade import CompensatorCascade
+    from ..core.compensators.creep import CreepCompensator
+    from ..core.compensators.hysteresis import HysteresisCompensator
+    from ..core.compensators.vibration import VibrationCompensator
+    from ..core.models.bouc_wen import BoucWenModel
+    from ..core.models.creep import CreepModel
+    from ..core.models.dynamics import DynamicsModel
+    from ..core.models.plant import Plant
+    from ..core.chain import Chain
 
     dt, loop, hp, K = cfg.dt, cfg.cascade.hysteresis_loop, b.hp, b.K
     ck = (ctrl.A, ctrl.B, ctrl.C, ctrl.D)
@@ -644,7 +644,7 @@ def _figures(sizes: _Sizes, ctrl_info: dict[str, Any], import_s: float, jit: dic
     -------
     dict
     """
-    from ._jit import HAVE_NUMBA
+    from ..core._jit import HAVE_NUMBA
 
     fc = results["full_chain"]
     return {
@@ -679,7 +679,7 @@ def run_benchmark(duration: float = 600.0, repeats: int = 3, block: int = 20000,
                   hinf: bool = True, echo: bool = False) -> dict[str, Any]:
     """Run every stage; return the figures (the JSON written by ``piezo-ff bench --json``)."""
     import_s = _time_core_imports()
-    from .config import load_config
+    from ..core.config import load_config
 
     cfg = load_config(config, variant=variant)
     fs = cfg.sample_rate

@@ -12,9 +12,9 @@ from .base import BackendError, BackendSpec, Param
 ENTRY_POINT_GROUP = "piezo_ff_ros.backends"
 
 #: built-in backends (also registered as entry points by setup.py; listed here so that a source checkout works)
-BUILTIN = {"sim": "piezo_ff_ros.nodes.backends.sim:SPEC",
-           "nidaqmx": "piezo_ff_ros.nodes.backends.nidaqmx_backend:SPEC",
-           "pi_gcs": "piezo_ff_ros.nodes.backends.pi_gcs:SPEC"}
+BUILTIN = {"sim": "piezo_ff_ros.backends.sim:SPEC",
+           "nidaqmx": "piezo_ff_ros.backends.nidaqmx_backend:SPEC",
+           "pi_gcs": "piezo_ff_ros.backends.pi_gcs:SPEC"}
 
 
 def _load(ref: str) -> BackendSpec:
