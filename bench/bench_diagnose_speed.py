@@ -82,7 +82,7 @@ def main(argv=None) -> int:
             import cProfile
 
             from piezo_ff_ros.core.diagnosis import diagnose
-            from piezo_ff_ros.core.recording.run import load_run
+            from piezo_ff_ros.core.recording import load_run
 
             run = load_run(rec)
             cfg = load_config().with_sample_rate(a.fs)

@@ -9,10 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from piezo_ff_ros.core.chain import Chain
+from piezo_ff_ros.core.chain import Chain, FusedPass
 from piezo_ff_ros.core.compensators.cascade import CompensatorCascade
 from piezo_ff_ros.core.config import load_config
-from piezo_ff_ros.core.kernels.fused import FusedPass
 from piezo_ff_ros.core.models import effects as fx
 from piezo_ff_ros.core.models.plant import Plant
 

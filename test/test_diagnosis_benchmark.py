@@ -60,7 +60,7 @@ def test_null_truth_is_the_nominal_plant(fs):
 
 def test_null_case_records_are_nominal_plus_the_stated_noise(tmp_path):
     from piezo_ff_ros.core.models.plant import Plant
-    from piezo_ff_ros.core.recording.run import load_run
+    from piezo_ff_ros.core.recording import load_run
 
     case = next(c for c in C.make_cases([S.TUNING_SEEDS[0]], quick=True, only=["null/fast_white"]))
     R.generate(case, tmp_path)

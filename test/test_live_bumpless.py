@@ -168,7 +168,7 @@ def test_stage_change_jump_at_most_1nm(cfg, label, kind):
 
 
 def test_equal_model_creep_refactoring_keeps_the_input_history_state(cfg):
-    from piezo_ff_ros.core.stage import transfer_linear_state
+    from piezo_ff_ros.core.lti import transfer_linear_state
 
     new = params_to_config(changes(cfg)["creep.Cr.xx.den expanded (same model)"][2], cfg)
     old_c = CompensatorCascade(cfg).creep

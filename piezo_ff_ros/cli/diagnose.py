@@ -50,7 +50,7 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
 
 
 def _load_inputs(args: argparse.Namespace) -> tuple[RunData, RunData]:
-    from ..core.recording.run import load_run
+    from ..core.recording import load_run
 
     if args.data and (args.train or args.test):
         raise ValueError("give either --data FILE or --train TRAIN --test TEST, not both")
@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.diagnosis import DiagnosisOptions, diagnose, json_ready
     from ..core.diagnosis.report import tracking_comparison, write_apply, write_report
     from ..core.models.effects import EFFECT_NAMES
-    from ..core.recording.run import load_run
+    from ..core.recording import load_run
 
     cfg = load_config(args.model, args.variant)
     train, test = _load_inputs(args)

@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.config import load_config
     from ..core.identification.pipeline import identify_all
     from ..core.jsonable import parse_order
-    from ..core.recording.run import load_run
+    from ..core.recording import load_run
 
     from . import output_file
 

@@ -8,7 +8,7 @@ preview and the learned correction as runtime parameters ``preview.enabled`` / `
 (:class:`~piezo_ff_ros.ros.launcher.GraphLauncher`).  The reference is the benchmark's own (0.1 s smoothstep
 lead-in, then 4 revolutions; :func:`~piezo_ff_ros.core.tracking.benchmark.reference_with_lead_in`), played from a
 table file sample-exactly as one experiment segment.  The MCAP is read back with
-:func:`~piezo_ff_ros.core.recording.run.load_run` and cut by the existing analysis
+:func:`~piezo_ff_ros.core.recording.load_run` and cut by the existing analysis
 (:func:`~piezo_ff_ros.core.analysis.segment_signals`); the recorded reference is the one fed ahead, which is checked
 sample by sample against the table shifted by the preview (so the alignment the learning relies on is verified on
 every trial).  Errors are read on the benchmark's window (the last revolution).
@@ -217,7 +217,7 @@ def _recorded_segment(mcap: Path, n: int, strict: bool = False,
     """The recorded segment ``(t, reference, u, y)`` when the MCAP holds all its ``n`` samples, else None (or, with
     ``strict``, a RuntimeError saying what is missing); ``progress["samples"]`` gets the samples recorded so far."""
     from ..core.analysis import segment_signals
-    from ..core.recording.run import load_run
+    from ..core.recording import load_run
 
     try:
         recorded, warnings = segment_signals(load_run(mcap))

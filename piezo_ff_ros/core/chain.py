@@ -7,9 +7,10 @@ return type of ``process`` never changes.
 
 Fusion: runs of consecutive two-axis stages that offer :meth:`fused_part` (modal banks, the creep compensator,
 the Bouc-Wen model and compensator — see :mod:`piezo_ff_ros.core.kernels.fused`) are run by one compiled pass per
-block, nested chains included.  The fused pass computes every sample with the stages' own per-sample step
-functions in the same order, on the stages' own state arrays: its output and the states it leaves are the numbers
-the stages give one by one, whatever the block split (``test/test_chain.py``).
+block (:class:`FusedPass`, planned by :func:`plan_fusion`), nested chains included.  The fused pass computes every
+sample with the stages' own per-sample step functions in the same order, on the stages' own state arrays: its output
+and the states it leaves are the numbers the stages give one by one, whatever the block split
+(``test/test_chain.py``).
 """
 from __future__ import annotations
 
@@ -17,10 +18,11 @@ from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from .kernels.fused import FusedPass, FusedPart, plan_fusion
+from .kernels.bouc_wen import N_COUNTERS
+from .kernels.fused import FusedPart, fused_kernel, fused_layout, slots_of
 from .stage import Processor, StageState, as_block
 
-__all__ = ["Chain", "leaves", "FusedPass", "FusedPart"]
+__all__ = ["Chain", "leaves", "FusedPass", "FusedPart", "plan_fusion"]
 
 
 def leaves(stage: Any) -> Iterator[Any]:
@@ -31,6 +33,82 @@ def leaves(stage: Any) -> Iterator[Any]:
                 yield from leaves(st)
     else:
         yield stage
+
+
+class FusedPass:
+    """Consecutive fusable stages run by one compiled kernel (:func:`~.kernels.fused.fused_kernel`; built by
+    :func:`plan_fusion`)."""
+
+    def __init__(self, stages: Sequence[Any], parts: Sequence[FusedPart]) -> None:
+        slots = slots_of(parts)
+        if slots is None or len(parts) < 1:
+            raise ValueError("fused pass: the stages do not fit the slot order VIB, CINV, COMP, MODEL, CREEP, DYN")
+        self.stages = list(stages)
+        self.n_in = 2
+        self.n_out = 2
+        layout = fused_layout(parts, slots)
+        self.P, self.L = layout.P, layout.L
+        self._x, self._comp, self._model, self._count = layout.x, layout.comp, layout.model, layout.counter
+        self.slots = slots
+        self._counters = np.zeros(N_COUNTERS, np.int64)
+        self._kernel = fused_kernel(slots, parts)
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        for st in self.stages:
+            st.reset()
+
+    def process(self, block: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, 2] → [N, 2]`` through every stage of the pass; the states move on by N samples."""
+        u = as_block(block, 2)
+        y = np.empty_like(u)
+        counters = self._counters
+        x = self._x
+        ch, cu, cs, cg = self._comp
+        mh, mu, ms = self._model
+        self._kernel(self.P, self.L, x[0], x[1], x[2], x[3], ch, cu, cs, cg, mh, mu, ms, counters, u, y)
+        if self._count is not None:
+            self._count(counters)
+        return y
+
+
+def plan_fusion(stages: Sequence[Any]) -> list[Any]:
+    """``stages`` with every run of two or more consecutive fusable stages replaced by one :class:`FusedPass`.
+
+    Parameters
+    ----------
+    stages : sequence
+        Stages in processing order (not chains).
+
+    Returns
+    -------
+    list
+        Stages and fused passes, in processing order.
+    """
+    out: list[Any] = []
+    run: list[Any] = []
+    parts: list[FusedPart] = []
+
+    def flush() -> None:
+        if len(run) >= 2:
+            out.append(FusedPass(run, parts))
+        else:
+            out.extend(run)
+        run.clear()
+        parts.clear()
+    for st in stages:
+        fp = getattr(st, "fused_part", None)
+        part = fp() if fp is not None else None
+        if part is None:
+            flush()
+            out.append(st)
+            continue
+        if slots_of([*parts, part]) is None:
+            flush()
+        run.append(st)
+        parts.append(part)
+    flush()
+    return out
 
 
 class Chain:
@@ -97,7 +175,7 @@ class Chain:
         return x
 
     def plan(self) -> list[Any]:
-        """How :meth:`process` runs: stages and :class:`~.kernels.fused.FusedPass` objects, in order."""
+        """How :meth:`process` runs: stages and :class:`FusedPass` objects, in order."""
         if self._plan is None:
             flat = list(leaves(self))
             self._plan = plan_fusion(flat) if self.fuse else flat

@@ -36,12 +36,12 @@ from typing import Any, Callable, Literal, Mapping, Sequence
 import numpy as np
 
 from .config import PiezoConfig
-from .hardware.driver_core import ERROR, OK, WARN
 from .hold_pacer import HoldPacer
 from .hot_swap import CascadeFactory, HotSwapCascade
 from .param_map import needs_synthesis
 from .parameter_book import ParameterBook, Verdict, check_workspace, parse_config_yaml, same_value
 from .recording.blocks import sample_period_ns
+from .status import ERROR, OK, WARN
 from .tracking.front import TrackingFront
 from .tracking.linear import controller_matrices
 

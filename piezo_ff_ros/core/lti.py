@@ -1,9 +1,10 @@
-"""Linear time-invariant building blocks: factored transfer functions and exact ZOH streaming filters.
+"""Linear time-invariant building blocks: exact ZOH streaming filters of factored transfer functions, and the
+state transfer that makes a swap of linear stages bumpless.
 
 Why not ``scipy.signal.cont2discrete`` + ``tf2sos``: the paper's transfer functions are order 9 with coefficients
 spanning 1e-7 … 1e9; expanded polynomials lose most of their digits.  Instead every transfer function is kept in
-factored form, split into its modes (partial fractions at distinct poles), and each mode is discretised exactly by
-zero-order hold (``a = exp(pT)``, ``b = expm1(pT)/p``).  The result is a block-diagonal real state space (1×1 and
+factored form (:mod:`piezo_ff_ros.core.transfer`: :class:`FactoredTF`, :class:`TFMatrix`, re-exported here), split
+into its modes (partial fractions at distinct poles), and each mode is discretised exactly by zero-order hold (``a = exp(pT)``, ``b = expm1(pT)/p``).  The result is a block-diagonal real state space (1×1 and
 2×2 blocks) run by one compiled loop with carried state: bit-identical whatever the block split.
 
 Continuous MIMO state spaces (the H∞ controller) go through the same modal route when their eigenvectors are
@@ -11,8 +12,8 @@ well conditioned, otherwise through a dense ZOH (``scipy.linalg.expm``) in a sin
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Callable, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -22,6 +23,7 @@ from .kernels.fused import BANK, FusedPart
 from .kernels.modal import bank_run, bank_run_2x2, pad_to_2x2
 from .kernels.specialise import specialised_bank_run
 from .stage import StageState, as_block
+from .transfer import Block, FactoredTF, TFMatrix, continuous_modal_realisation, real_modal_blocks
 
 __all__ = [
     "FactoredTF",
@@ -30,9 +32,10 @@ __all__ = [
     "LTIFilter",
     "FilterStage",
     "static_gain",
+    "transfer_linear_state",
+    "free_response_match",
+    "continuous_modal_realisation",
 ]
-
-_PAIR_TOL = 1e-9
 
 
 def static_gain(x: ArrayLike, M: ArrayLike) -> np.ndarray:
@@ -66,274 +69,6 @@ def static_gain(x: ArrayLike, M: ArrayLike) -> np.ndarray:
     for j in range(1, Ma.shape[1]):
         y += xa[:, j:j + 1] * Ma[:, j]
     return y
-
-#: one polynomial factor in s, highest power first
-Factor = tuple[float, ...]
-#: a real modal block (A_blk, B_blk, C_blk)
-_Block = tuple[np.ndarray, np.ndarray, np.ndarray]
-
-
-@dataclass(frozen=True)
-class FactoredTF:
-    """A SISO transfer function ``k · Π num_factors(s) / Π den_factors(s)``.
-
-    Each factor is a polynomial in s, highest power first (``[1, a]`` is ``s + a``, ``[1, b, c]`` is
-    ``s² + b s + c``), exactly as papers print them.
-    """
-
-    gain: float
-    num: tuple[Factor, ...] = ()
-    den: tuple[Factor, ...] = ()
-
-    @staticmethod
-    def from_dict(d: Mapping[str, Any]) -> "FactoredTF":
-        """From ``{k (or gain): float, num: [[…], …], den: [[…], …]}`` (the YAML form).
-
-        Parameters
-        ----------
-        d : mapping
-            The entry; missing keys mean gain 0 and no factors.
-
-        Returns
-        -------
-        FactoredTF
-        """
-        return FactoredTF(float(d.get("k", d.get("gain", 0.0))),
-                          tuple(tuple(float(c) for c in f) for f in d.get("num", [])),
-                          tuple(tuple(float(c) for c in f) for f in d.get("den", [])))
-
-    def to_dict(self) -> dict[str, Any]:
-        """The YAML form (see :meth:`from_dict`)."""
-        return {"k": float(self.gain), "num": [list(f) for f in self.num], "den": [list(f) for f in self.den]}
-
-    # -- algebra -------------------------------------------------------------------------------------------------
-    def zeros(self) -> np.ndarray:
-        """Roots of the numerator factors (complex)."""
-        return _roots_of_factors(self.num)
-
-    def poles(self) -> np.ndarray:
-        """Roots of the denominator factors (complex)."""
-        return _roots_of_factors(self.den)
-
-    @property
-    def order(self) -> int:
-        """Degree of the denominator."""
-        return sum(len(f) - 1 for f in self.den)
-
-    @property
-    def relative_degree(self) -> int:
-        """Degree of the denominator minus degree of the numerator."""
-        return self.order - sum(len(f) - 1 for f in self.num)
-
-    def is_zero(self) -> bool:
-        """True for the zero transfer function (gain 0)."""
-        return self.gain == 0.0
-
-    def eval(self, s: ArrayLike) -> np.ndarray:
-        """Frequency response at complex points ``s`` (array)."""
-        sv = np.asarray(s, dtype=complex)
-        out: np.ndarray = np.full(sv.shape, self.gain, dtype=complex)
-        for f in self.num:
-            out = out * np.polyval(f, sv)
-        for f in self.den:
-            out = out / np.polyval(f, sv)
-        return out
-
-    def dc_gain(self) -> float:
-        """``H(0)``."""
-        return float(np.real(self.eval(np.array([0.0]))[0]))
-
-    def leading_gain(self) -> float:
-        """The overall gain once every factor is made monic (``k · Π lead(num) / Π lead(den)``)."""
-        g = self.gain
-        for f in self.num:
-            g *= f[0]
-        for f in self.den:
-            g /= f[0]
-        return g
-
-    def duplicated_factors(self) -> list[Factor]:
-        """Factors printed both in the numerator and the denominator (they cancel)."""
-        den = list(self.den)
-        dup = []
-        for f in self.num:
-            if f in den:
-                dup.append(f)
-                den.remove(f)
-        return dup
-
-    def cancelled(self) -> "FactoredTF":
-        """Same transfer function with factors that appear verbatim in num and den removed."""
-        num, den = list(self.num), list(self.den)
-        for f in self.duplicated_factors():
-            num.remove(f)
-            den.remove(f)
-        return FactoredTF(self.gain, tuple(num), tuple(den))
-
-    def scaled(self, factor: float) -> "FactoredTF":
-        """The same transfer function with its gain multiplied by ``factor``."""
-        return FactoredTF(self.gain * factor, self.num, self.den)
-
-    def is_stable(self) -> bool:
-        """True when every pole is in the open left half-plane."""
-        p = self.poles()
-        return bool(np.all(p.real < 0.0))
-
-    # -- modes -------------------------------------------------------------------------------------------------
-    def modes(self) -> tuple[np.ndarray, np.ndarray, float]:
-        """Poles ``p``, residues ``c`` and direct term ``d`` with ``H(s) = d + Σ c_i/(s − p_i)``.
-
-        Requires distinct poles (after cancelling verbatim duplicates).
-        """
-        tf = self.cancelled()
-        p = tf.poles()
-        z = tf.zeros()
-        k = tf.leading_gain()
-        if len(z) > len(p):
-            raise ValueError("improper transfer function (more zeros than poles)")
-        d = k if len(z) == len(p) else 0.0
-        if self.gain == 0.0:
-            return np.zeros(0, complex), np.zeros(0, complex), 0.0
-        if len(p) == 0:
-            return np.zeros(0, complex), np.zeros(0, complex), float(k)
-        sep = np.abs(p[:, None] - p[None, :])
-        np.fill_diagonal(sep, np.inf)
-        if np.any(sep < 1e-9 * np.maximum(1.0, np.abs(p))[:, None]):
-            raise ValueError("repeated poles: modal discretisation needs distinct poles")
-        c = np.empty(len(p), complex)
-        for i, pi in enumerate(p):
-            c[i] = k * np.prod(pi - z) / np.prod(np.delete(pi - p, i))
-        return p, c, float(d)
-
-
-def _roots_of_factors(factors: Sequence[Factor]) -> np.ndarray:
-    roots = [np.roots(np.asarray(f, float)) for f in factors if len(f) > 1]
-    return np.concatenate(roots).astype(complex) if roots else np.zeros(0, complex)
-
-
-@dataclass(frozen=True)
-class TFMatrix:
-    """A matrix of SISO :class:`FactoredTF` entries, ``entries[i][j]`` from input j to output i."""
-
-    entries: tuple[tuple[FactoredTF, ...], ...]
-
-    @staticmethod
-    def from_nested(rows: Sequence[Sequence[FactoredTF]]) -> "TFMatrix":
-        """From rows of entries (``rows[i][j]``: input j to output i)."""
-        return TFMatrix(tuple(tuple(r) for r in rows))
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        """``(n_out, n_in)``."""
-        return len(self.entries), len(self.entries[0])
-
-    def __getitem__(self, ij: tuple[int, int]) -> FactoredTF:
-        i, j = ij
-        return self.entries[i][j]
-
-    def eval(self, s: ArrayLike) -> np.ndarray:
-        """Frequency response, shape ``[len(s), n_out, n_in]``."""
-        sv = np.atleast_1d(np.asarray(s, complex))
-        n, m = self.shape
-        out = np.empty((len(sv), n, m), complex)
-        for i in range(n):
-            for j in range(m):
-                out[:, i, j] = self.entries[i][j].eval(sv)
-        return out
-
-    def dc_gain(self) -> np.ndarray:
-        """``H(0)``, shape ``[n_out, n_in]``."""
-        g: np.ndarray = np.real(self.eval(np.array([0.0]))[0])
-        return g
-
-    def to_control(self) -> Any:
-        """A ``control.StateSpace`` realisation: the per-entry modal realisations stacked (not minimal)."""
-        import control
-
-        A, B, C, D = continuous_modal_realisation(self)
-        return control.ss(A, B, C, D)
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# Continuous modal realisation (real block-diagonal) of a TF matrix
-# ----------------------------------------------------------------------------------------------------------------
-
-def _real_blocks_from_modes(p: ArrayLike, b_rows: np.ndarray, c_cols: np.ndarray,
-                            pair_on: ArrayLike | None = None) -> list[_Block]:
-    """Group complex modes into real 1×1 / 2×2 blocks.
-
-    ``p[i]`` is the (continuous or discrete) eigenvalue of mode i, ``b_rows[i]`` (n_in,) and ``c_cols[i]`` (n_out,)
-    its complex input and output vectors.  Which modes are real and which form conjugate pairs is decided on
-    ``pair_on`` (default ``p``): for a discretised bank pass the *continuous* poles, because a mode that decays
-    within one sample has ``a = e^{pT} ≈ 0`` — it looks real although its b and c are complex, and treating it as
-    real would drop their imaginary parts (the ZOH defect below ~500 Hz).
-    Returns lists of (A_blk, B_blk, C_blk).
-    """
-    p = np.asarray(p, complex)
-    q = p if pair_on is None else np.asarray(pair_on, complex)
-    blocks: list[_Block] = []
-    used = np.zeros(len(p), bool)
-    for i in range(len(p)):
-        if used[i]:
-            continue
-        if abs(q[i].imag) <= _PAIR_TOL * max(1.0, abs(q[i])):
-            used[i] = True
-            blocks.append((np.array([[p[i].real]]), np.real(b_rows[i])[None, :], np.real(c_cols[i])[:, None]))
-            continue
-        # find its conjugate partner
-        cand = [j for j in range(len(p)) if not used[j] and j != i]
-        j = min(cand, key=lambda j: abs(q[j] - np.conj(q[i])))
-        used[i] = used[j] = True
-        if q[i].imag < 0:
-            i, j = j, i
-        pi = p[i]
-        bi, ci = b_rows[i], c_cols[i]
-        # complex mode x' = p x + b u, y = 2 Re(c x): real state [Re x, Im x]
-        A = np.array([[pi.real, -pi.imag], [pi.imag, pi.real]])
-        B = np.vstack([bi.real, bi.imag])
-        C = np.column_stack([2 * ci.real, -2 * ci.imag])
-        blocks.append((A, B, C))
-    return blocks
-
-
-def continuous_modal_realisation(tfm: TFMatrix) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Real block-diagonal continuous (A, B, C, D) stacking every entry's modes.
-
-    Parameters
-    ----------
-    tfm : TFMatrix
-        The transfer-function matrix (distinct poles per entry).
-
-    Returns
-    -------
-    A, B, C, D : numpy.ndarray
-        The (not minimal) realisation.
-    """
-    n_out, n_in = tfm.shape
-    As: list[np.ndarray] = []
-    Bs: list[np.ndarray] = []
-    Cs: list[np.ndarray] = []
-    D = np.zeros((n_out, n_in))
-    for i in range(n_out):
-        for j in range(n_in):
-            tf = tfm[i, j]
-            if tf.is_zero():
-                continue
-            p, c, d = tf.modes()
-            D[i, j] += d
-            brow = np.zeros((len(p), n_in), complex)
-            brow[:, j] = 1.0
-            ccol = np.zeros((len(p), n_out), complex)
-            ccol[:, i] = c
-            for A, B, C in _real_blocks_from_modes(p, brow, ccol):
-                As.append(A)
-                Bs.append(B)
-                Cs.append(C)
-    A = scipy.linalg.block_diag(*As) if As else np.zeros((0, 0))
-    B = np.vstack(Bs) if Bs else np.zeros((0, n_in))
-    C = np.hstack(Cs) if Cs else np.zeros((n_out, 0))
-    return A, B, C, D
-
 
 # ----------------------------------------------------------------------------------------------------------------
 # Discrete block-diagonal state space and its streaming filter
@@ -375,7 +110,7 @@ class DiscreteModalSS:
     def zoh_from_tf_matrix(tfm: TFMatrix, dt: float) -> "DiscreteModalSS":
         """Each SISO entry discretised on its own by exact zero-order hold, stacked."""
         n_out, n_in = tfm.shape
-        blocks: list[_Block] = []
+        blocks: list[Block] = []
         D = np.zeros((n_out, n_in))
         for i in range(n_out):
             for j in range(n_in):
@@ -389,7 +124,7 @@ class DiscreteModalSS:
                 brow[:, j] = beta
                 ccol = np.zeros((len(p), n_out), complex)
                 ccol[:, i] = c
-                blocks += _real_blocks_from_modes(a, brow, ccol, pair_on=p)
+                blocks += real_modal_blocks(a, brow, ccol, pair_on=p)
         return DiscreteModalSS._assemble(blocks, D, n_in, n_out, dt)
 
     @staticmethod
@@ -428,7 +163,7 @@ class DiscreteModalSS:
             Bm = np.linalg.solve(V, B.astype(complex))
             Cm = C @ V
             a, beta = _zoh_scalar(lam, dt)
-            blocks = _real_blocks_from_modes(a, Bm * beta[:, None], Cm.T.copy(), pair_on=lam)
+            blocks = real_modal_blocks(a, Bm * beta[:, None], Cm.T.copy(), pair_on=lam)
             return DiscreteModalSS._assemble(blocks, D, n_in, n_out, dt)
         # dense fallback: expm of the augmented matrix
         M = np.zeros((n + n_in, n + n_in))
@@ -438,7 +173,7 @@ class DiscreteModalSS:
         return DiscreteModalSS._assemble([(E[:n, :n], E[:n, n:], C)], D, n_in, n_out, dt)
 
     @staticmethod
-    def _assemble(blocks: Sequence[_Block], D: ArrayLike, n_in: int, n_out: int, dt: float) -> "DiscreteModalSS":
+    def _assemble(blocks: Sequence[Block], D: ArrayLike, n_in: int, n_out: int, dt: float) -> "DiscreteModalSS":
         if not blocks:
             return DiscreteModalSS(np.zeros((0, 0)), np.zeros((0, n_in)), np.zeros((n_out, 0)),
                                    np.asarray(D, float), np.zeros(0, np.int64), dt)
@@ -588,3 +323,147 @@ class FilterStage:
     def fused_part(self) -> FusedPart | None:
         """This stage's share of a fused pass (:mod:`~piezo_ff_ros.core.kernels.fused`), None if not fusable."""
         return self.filter.fused_part()
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Bumpless state transfer between two modal realisations
+# ----------------------------------------------------------------------------------------------------------------
+
+def _blocks(ss: DiscreteModalSS) -> list[tuple[int, int]]:
+    """(offset, size) of every diagonal block of a DiscreteModalSS."""
+    out, off = [], 0
+    for s in ss.sizes:
+        out.append((off, int(s)))
+        off += int(s)
+    return out
+
+
+def _same_block(ss_a: DiscreteModalSS, oa: int, ss_b: DiscreteModalSS, ob: int, s: int, rtol: float) -> bool:
+    Aa = ss_a.A[oa:oa + s, oa:oa + s]
+    Ab = ss_b.A[ob:ob + s, ob:ob + s]
+    Ba = ss_a.B[oa:oa + s]
+    Bb = ss_b.B[ob:ob + s]
+    scale_a = max(np.max(np.abs(Aa)), 1e-300)
+    scale_b = max(np.max(np.abs(Ba)), 1e-300)
+    return bool(np.max(np.abs(Aa - Ab)) <= rtol * scale_a and Ba.shape == Bb.shape
+                and np.max(np.abs(Ba - Bb), initial=0.0) <= rtol * scale_b)
+
+
+def _stein_cross(A2: np.ndarray, A1: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """``X = Σ_k (A2ᵀ)^k Q A1^k`` (the solution of ``X − A2ᵀ X A1 = Q``), for stable, diagonalisable A1, A2."""
+    if A2.shape[0] == 0 or A1.shape[0] == 0:
+        return np.zeros((A2.shape[0], A1.shape[0]))
+    l2, V2 = np.linalg.eig(A2.T)
+    l1, V1 = np.linalg.eig(A1)
+    Qm = np.linalg.solve(V2, Q.astype(complex)) @ V1
+    Y = Qm / (1.0 - l2[:, None] * l1[None, :])
+    return np.real(V2 @ Y @ np.linalg.inv(V1))
+
+
+def free_response_match(A_new: np.ndarray, C_new: np.ndarray, A_old: np.ndarray, C_old: np.ndarray,
+                        x_old: np.ndarray) -> np.ndarray:
+    """The state of ``(A_new, C_new)`` whose free response ``C_new A_new^k x`` best matches ``C_old A_old^k x_old``
+    (least squares over k = 0…∞, minimum-norm where modes are unobservable).
+
+    Parameters
+    ----------
+    A_new, C_new : ndarray
+        The new realisation's state and output matrices (discrete, stable).
+    A_old, C_old : ndarray
+        The old realisation's state and output matrices.
+    x_old : ndarray
+        The old state.
+
+    Returns
+    -------
+    ndarray
+        The new state (minimum norm where the new modes are unobservable).
+    """
+    n = A_new.shape[0]
+    if n == 0:
+        return np.zeros(0)
+    W = _stein_cross(A_new, A_new, C_new.T @ C_new)
+    X = _stein_cross(A_new, A_old, C_new.T @ C_old) if A_old.shape[0] else np.zeros((n, 0))
+    rhs = X @ x_old if A_old.shape[0] else np.zeros(n)
+    W = 0.5 * (W + W.T)
+    sol: np.ndarray = np.linalg.lstsq(W, rhs, rcond=1e-12)[0]
+    return sol
+
+
+def _steady_state(ss: DiscreteModalSS, u: np.ndarray | None) -> np.ndarray:
+    n = ss.n_states
+    if n == 0 or u is None:
+        return np.zeros(n)
+    return np.linalg.solve(np.eye(n) - ss.A, ss.B @ np.asarray(u, float))
+
+
+def transfer_linear_state(ss_old: DiscreteModalSS, x_old: np.ndarray, ss_new: DiscreteModalSS, u_last: np.ndarray | None = None,
+                          rtol: float = 1e-9) -> tuple[np.ndarray, int]:
+    """State for ``ss_new`` continuing ``ss_old`` in state ``x_old``: the transfer that makes a swap of linear stages
+    bumpless.
+
+    ``u_last`` (the stage's last input), when given, makes the fit of the new modes work on deviations from each
+    realisation's own steady state for that input: a held input then gives the new stage's steady state (its
+    output moves only by the change of DC gain), and a model-equal realisation still gets the transformed state.
+
+    Parameters
+    ----------
+    ss_old, ss_new : DiscreteModalSS
+        The replaced and the replacing stage's discrete modal realisations.
+    x_old : ndarray
+        The replaced stage's state.
+    u_last : ndarray, optional
+        The stage's last input (see above).
+    rtol : float
+        Relative tolerance for two modal blocks to count as equal.
+
+    Returns
+    -------
+    x_new : ndarray
+        The new state.
+    matched : int
+        How many of the new blocks inherited an old block's state exactly (the others were fitted).
+
+    Notes
+    -----
+    Two steps:
+
+    1. **Same input history** — a modal block's state is determined by its ``(A_blk, B_blk)`` and the input history
+       alone (the residues live in C).  Every new block whose ``(A_blk, B_blk)`` equals an old block's takes that
+       block's state: it is then exactly the state the new stage would have, had it been fed the same input since the
+       start — a gain change (``creep.Cr.xx.k``) or an equivalent factorisation of a denominator keeps every mode.
+    2. **Same future output** — the new blocks left (modes that did not exist before) get the state that best
+       reproduces the old stage's free response ``C·A^k·(x − x_ss)`` over an infinite horizon (deviations from each
+       realisation's steady state for the last input, when it is given), minus what the matched blocks already give:
+       a least-squares problem weighted by the discrete observability Gramians (Stein equations, solved in the
+       complex modal basis).  For a different realisation of the same model (a similarity transform of C(s)), this
+       recovers the exact transformed state; for a held input, the new model's steady state.
+    """
+    x_new = np.zeros(ss_new.n_states)
+    old_blocks = _blocks(ss_old)
+    used = [False] * len(old_blocks)
+    unmatched: list[tuple[int, int]] = []
+    matched_states = np.zeros(ss_old.n_states, bool)
+    n_matched = 0
+    for ob, s in _blocks(ss_new):
+        for i, (oa, sa) in enumerate(old_blocks):
+            if not used[i] and sa == s and _same_block(ss_old, oa, ss_new, ob, s, rtol):
+                used[i] = True
+                x_new[ob:ob + s] = x_old[oa:oa + s]
+                matched_states[oa:oa + s] = True
+                n_matched += 1
+                break
+        else:
+            unmatched.append((ob, s))
+    if unmatched and ss_old.n_states:
+        idx = np.concatenate([np.arange(ob, ob + s) for ob, s in unmatched])
+        keep = np.flatnonzero(~np.isin(np.arange(ss_new.n_states), idx))
+        # target: the old free response minus what the matched new blocks already produce
+        xs_old, xs_new = _steady_state(ss_old, u_last), _steady_state(ss_new, u_last)
+        A_old = np.block([[ss_old.A, np.zeros((ss_old.n_states, len(keep)))],
+                          [np.zeros((len(keep), ss_old.n_states)), ss_new.A[np.ix_(keep, keep)]]])
+        C_old = np.hstack([ss_old.C, -ss_new.C[:, keep]])
+        x_target = np.concatenate([x_old - xs_old, x_new[keep] - xs_new[keep]])
+        x_new[idx] = xs_new[idx] + free_response_match(ss_new.A[np.ix_(idx, idx)], ss_new.C[:, idx], A_old, C_old,
+                                                       x_target)
+    return x_new, n_matched

@@ -16,8 +16,8 @@ import numpy as np
 import yaml
 
 from .config import ConfigError, PiezoConfig
-from .hardware.driver_core import ERROR
 from .param_map import config_to_params, is_config_param, params_to_config
+from .status import ERROR
 from .tracking.front import FRONT_DEFAULTS, TrackingFront, front_settings, is_front_param
 
 __all__ = ["ParameterBook", "Verdict", "check_workspace", "parse_config_yaml", "same_value"]

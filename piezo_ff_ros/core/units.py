@@ -1,4 +1,4 @@
-"""Unit conversions, in one place.
+"""Unit conversions, in one place (and the sample period on the topics' whole-nanosecond grid).
 
 Topics and the core API are SI (metres, volts, seconds — REP 103).  The paper prints its Bouc-Wen matrices in µm/V
 and its displacements in µm; µm appear only in YAML files that say so (``units: {length: um}``) and in printed
@@ -9,6 +9,8 @@ from __future__ import annotations
 from typing import TypeVar
 
 import numpy as np
+
+__all__ = ["LENGTH_SCALE", "UM", "length_scale", "to_um", "sample_period_ns"]
 
 LENGTH_SCALE = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "nm": 1e-9}
 
@@ -40,3 +42,19 @@ def to_um(x: _X) -> _X:
         The same length(s) in micrometres.
     """
     return x / UM
+
+
+def sample_period_ns(sample_rate: float) -> int:
+    """Sample period in integer nanoseconds, ``round(1e9 / fs)`` (50 000 at 20 kHz).
+
+    Raises ``ValueError`` when ``fs`` is not positive and finite, or when the period is not a whole number of
+    nanoseconds to within 1e-6 ns relative error (stamps would then drift from ``k / fs``).
+    """
+    fs = float(sample_rate)
+    if not np.isfinite(fs) or fs <= 0:
+        raise ValueError(f"sample_rate: must be positive and finite, got {sample_rate!r}")
+    dt_ns = round(1e9 / fs)
+    if dt_ns < 1 or abs(dt_ns - 1e9 / fs) > 1e-6 * dt_ns:
+        raise ValueError(f"sample_rate: {fs} Hz has no whole-nanosecond period (1e9/fs = {1e9 / fs!r} ns); "
+                         "choose a rate that divides 1e9")
+    return int(dt_ns)

@@ -14,9 +14,9 @@ from ..config import CreepConfig
 from ..kernels.fused import INVERSE, FusedPart
 from ..kernels.modal import inverse_affine_run, inverse_affine_run_2x2, pad_to_2x2
 from ..kernels.specialise import specialised_inverse_run
-from ..lti import DiscreteModalSS, LTIFilter
+from ..lti import DiscreteModalSS, LTIFilter, transfer_linear_state
 from ..models.creep import discretise_creep
-from ..stage import StageState, as_block, transfer_linear_state
+from ..stage import StageState, as_block
 
 __all__ = ["CreepCompensator", "creep_inverse_poles"]
 
@@ -111,5 +111,5 @@ class CreepCompensator:
 
     def continue_from(self, old: "CreepCompensator", u_last: np.ndarray | None = None) -> None:
         """Bumpless takeover from ``old``: Cr's modes keep their input history (see
-        :func:`~piezo_ff_ros.core.stage.transfer_linear_state`)."""
+        :func:`~piezo_ff_ros.core.lti.transfer_linear_state`)."""
         self.x[:] = transfer_linear_state(old.ss, old.x, self.ss, u_last)[0]

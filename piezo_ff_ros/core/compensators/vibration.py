@@ -7,8 +7,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..lti import DiscreteModalSS, FilterStage, LTIFilter
-from ..stage import transfer_linear_state
+from ..lti import DiscreteModalSS, FilterStage, LTIFilter, transfer_linear_state
 
 __all__ = ["VibrationCompensator"]
 
@@ -49,5 +48,5 @@ class VibrationCompensator(FilterStage):
         return self.ss.n_states
 
     def continue_from(self, old: "VibrationCompensator", u_last: np.ndarray | None = None) -> None:
-        """Bumpless takeover from ``old`` (see :func:`~piezo_ff_ros.core.stage.transfer_linear_state`)."""
+        """Bumpless takeover from ``old`` (see :func:`~piezo_ff_ros.core.lti.transfer_linear_state`)."""
         self.filter.x[:] = transfer_linear_state(old.ss, old.filter.x, self.ss, u_last)[0]

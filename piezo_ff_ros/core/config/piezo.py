@@ -16,7 +16,7 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from ..units import length_scale
+from ..units import length_scale, sample_period_ns
 from .stages import BoucWenConfig, CascadeConfig, CreepConfig, DynamicsConfig, HinfConfig, LimitsConfig
 from .tf_entries import _tf_matrix_from_dict, _tf_matrix_to_dict
 from .validation import (MAX_SAMPLE_RATE, MIN_SAMPLE_RATE, VOLTAGE_UNITS, ConfigError, _arr, _integer, _matrix,
@@ -61,8 +61,6 @@ class PiezoConfig:
         if not MIN_SAMPLE_RATE <= self.sample_rate <= MAX_SAMPLE_RATE:
             raise ConfigError("sample_rate", f"{self.sample_rate:g} Hz is outside {MIN_SAMPLE_RATE:g} Hz … "
                                              f"{MAX_SAMPLE_RATE:g} Hz (a unit mistake?)")
-        from ..recording.blocks import sample_period_ns
-
         try:  # the topic contract stamps samples on a whole-nanosecond grid (docs/topics.md)
             sample_period_ns(self.sample_rate)
         except ValueError as exc:

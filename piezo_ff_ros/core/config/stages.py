@@ -13,7 +13,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..lti import TFMatrix
+from ..transfer import TFMatrix
 from .tf_entries import _check_tf_matrix
 from .validation import (MAX_GAIN_M_PER_V, MAX_HYSTERESIS_RATE, MAX_LIMIT_SLEW, MAX_LIMIT_VOLTAGE, MAX_STALE_TIMEOUT,
                          ConfigError, Matrix, _arr, _bounded, _matrix, _unknown_keys)

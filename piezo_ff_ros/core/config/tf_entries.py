@@ -1,7 +1,7 @@
 """Transfer-function matrix entries of a config: YAML ``{xy: {k, num, den}, …}`` ↔ ``TFMatrix``, checked.
 
 ``creep.Cr`` and ``dynamics.G_L`` are n×n matrices of factored transfer functions
-(:class:`~piezo_ff_ros.core.lti.TFMatrix`).  In YAML an entry is named by its output and input axes (``xy``, ``x,y``
+(:class:`~piezo_ff_ros.core.transfer.TFMatrix`).  In YAML an entry is named by its output and input axes (``xy``, ``x,y``
 or ``x_y``) or given as a nested list; an absent or zero entry is zero.  ``_tf_matrix_from_dict`` parses and checks
 the factors (finite, non-zero leading coefficient), ``_tf_matrix_to_dict`` writes the non-zero entries back,
 ``_check_tf_matrix`` refuses an improper, unstable or (where required) not strictly proper entry, named by its dotted
@@ -14,7 +14,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..lti import FactoredTF, TFMatrix
+from ..transfer import FactoredTF, TFMatrix
 from .validation import ConfigError, _unknown_keys
 
 

@@ -29,12 +29,11 @@ import numpy as np
 
 from ..config import ConfigError, LimitsConfig
 from ..safety import BlockRejected, SafeRampConfig, VoltageGuard
+from ..status import ERROR, OK, WARN
 from .contract import DeviceFault, Disconnect, StreamingBackend
 from .stream import StreamBook
 
 __all__ = ["DriverSettings", "DriverCore", "Emit", "OK", "WARN", "ERROR", "lockstep_pacing"]
-
-OK, WARN, ERROR = 0, 1, 2
 
 
 def lockstep_pacing(state_json: str) -> tuple[bool, str]:

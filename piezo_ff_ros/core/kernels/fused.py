@@ -18,7 +18,8 @@ stage's own kernel (a per-sample loop through all six slots, tried, is slower: e
 chain).
 
 A stage joins a fused pass by offering ``fused_part() -> FusedPart | None`` (its slot kind, constants and state
-arrays); :func:`plan_fusion` groups a list of stages into stages and :class:`FusedPass` objects.
+arrays); :func:`fused_layout` packs the parts for the kernel.  Which stages run fused is decided beside the chain
+(:func:`piezo_ff_ros.core.chain.plan_fusion`, :class:`piezo_ff_ros.core.chain.FusedPass`).
 """
 from __future__ import annotations
 
@@ -26,13 +27,11 @@ from typing import Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 
-from ..stage import as_block
 from .._jit import njit
-from .bouc_wen import N_COUNTERS
 from .modal import gather_2x2, scatter_2x2
 from .specialise import bank_loop_module, enabled, inverse_loop_module, load_generated
 
-__all__ = ["BANK", "INVERSE", "COMP", "MODEL", "SLOT_KINDS", "FusedPart", "FusedPass", "plan_fusion",
+__all__ = ["BANK", "INVERSE", "COMP", "MODEL", "SLOT_KINDS", "FusedPart", "FusedLayout", "slots_of", "fused_layout",
            "fused_source", "fused_kernel"]
 
 #: kinds of fusable stage
@@ -62,8 +61,19 @@ class FusedPart(NamedTuple):
     counter: Callable[[np.ndarray], None] | None = None
 
 
-def _slots_of(parts: Sequence[FusedPart]) -> list[int] | None:
-    """The slot of each part (increasing), or None when the parts do not fit the slot order."""
+def slots_of(parts: Sequence[FusedPart]) -> list[int] | None:
+    """The slot of each part (increasing), or None when the parts do not fit the slot order.
+
+    Parameters
+    ----------
+    parts : sequence of FusedPart
+        The stages' parts, in processing order.
+
+    Returns
+    -------
+    list of int or None
+        The slot (0 VIB … 5 DYN) of each part.
+    """
     slots, s = [], 0
     for p in parts:
         while s < len(SLOT_KINDS) and SLOT_KINDS[s] != p.kind:
@@ -75,123 +85,85 @@ def _slots_of(parts: Sequence[FusedPart]) -> list[int] | None:
     return slots
 
 
-class FusedPass:
-    """Consecutive fusable stages run by one compiled kernel (:func:`fused_kernel`; built by :func:`plan_fusion`)."""
+class FusedLayout(NamedTuple):
+    """The arguments of the fused kernel for a set of parts (built by :func:`fused_layout`).
 
-    def __init__(self, stages: Sequence[Any], parts: Sequence[FusedPart]) -> None:
-        slots = _slots_of(parts)
-        if slots is None or len(parts) < 1:
-            raise ValueError("fused pass: the stages do not fit the slot order VIB, CINV, COMP, MODEL, CREEP, DYN")
-        self.stages = list(stages)
-        self.n_in = 2
-        self.n_out = 2
-        P: list[np.ndarray] = []
-        L = np.zeros(_L_MODEL + 1, np.int64)
-        extra: list[np.ndarray] = []
-        dummy_x = np.zeros(0)
-        self._x = [dummy_x, dummy_x, dummy_x, dummy_x]
-        self._comp = (np.zeros(2), np.zeros(2), np.zeros(1, np.bool_), np.ones(2))
-        self._model = (np.zeros(2), np.zeros(2), np.zeros(1, np.bool_))
-        self._count: Callable[[np.ndarray], None] | None = None
-        n_p = 0
+    ``P`` holds every constant (float64) and ``L`` their layout (offsets, sizes, flags; int64); ``x`` the four bank
+    slots' state arrays (VIB, CINV, CREEP, DYN; empty when absent); ``comp`` the compensator's
+    ``(h, u_prev, started, signs)``, ``model`` the Bouc-Wen model's ``(h, u_prev, started)`` (dummies when absent);
+    ``counter`` the compensator's counter callback (None without one).  The state arrays are the stages' own: the
+    kernel moves them in place.
+    """
 
-        def put(a: np.ndarray) -> int:
-            nonlocal n_p
-            off = n_p
-            P.append(np.ascontiguousarray(a, float).reshape(-1))
-            n_p += P[-1].size
-            return off
-        n_l = len(L)
-
-        def put_i(a: np.ndarray) -> int:
-            nonlocal n_l
-            off = n_l
-            extra.append(np.ascontiguousarray(a, np.int64).reshape(-1))
-            n_l += extra[-1].size
-            return off
-        for part, slot in zip(parts, slots):
-            L[slot] = 1
-            if slot in _BANK_SLOTS:
-                b = _BANK_SLOTS.index(slot)
-                W, feeds, D, offsets, sizes = part.consts
-                base = _L_BANK + 8 * b
-                L[base:base + 6] = (put(W), put(D), len(sizes), put_i(offsets), put_i(sizes), put_i(feeds))
-                self._x[b] = part.state[0]
-            elif slot == 2:
-                coeffs, exact, ulim, dulim = part.consts
-                L[_L_COMP] = put(np.concatenate([coeffs, [ulim, dulim]]))
-                L[_L_COMP + 1] = int(bool(exact))
-                self._comp = part.state  # type: ignore[assignment]  # (h, u_prev, started, signs)
-                self._count = part.counter
-            else:
-                L[_L_MODEL] = put(part.consts[0])
-                self._model = part.state  # type: ignore[assignment]  # (h, u_prev, started)
-        if not L[2]:  # absent: zeros, so that the kernel's reads stay inside P
-            L[_L_COMP] = put(np.zeros(38))
-        if not L[3]:
-            L[_L_MODEL] = put(np.zeros(28))
-        self.P = np.ascontiguousarray(np.concatenate(P))
-        self.L = np.ascontiguousarray(np.concatenate([L, *extra]))
-        self.slots = slots
-        self._counters = np.zeros(N_COUNTERS, np.int64)
-        self._kernel = fused_kernel(slots, parts)
-
-    def reset(self) -> None:
-        """All states back to rest."""
-        for st in self.stages:
-            st.reset()
-
-    def process(self, block: np.ndarray) -> np.ndarray:
-        """Run one block ``[N, 2] → [N, 2]`` through every stage of the pass; the states move on by N samples."""
-        u = as_block(block, 2)
-        y = np.empty_like(u)
-        counters = self._counters
-        x = self._x
-        ch, cu, cs, cg = self._comp
-        mh, mu, ms = self._model
-        self._kernel(self.P, self.L, x[0], x[1], x[2], x[3], ch, cu, cs, cg, mh, mu, ms, counters, u, y)
-        if self._count is not None:
-            self._count(counters)
-        return y
+    P: np.ndarray
+    L: np.ndarray
+    x: list[np.ndarray]
+    comp: tuple[np.ndarray, ...]
+    model: tuple[np.ndarray, ...]
+    counter: Callable[[np.ndarray], None] | None
 
 
-def plan_fusion(stages: Sequence[Any]) -> list[Any]:
-    """``stages`` with every run of two or more consecutive fusable stages replaced by one :class:`FusedPass`.
+def fused_layout(parts: Sequence[FusedPart], slots: Sequence[int]) -> FusedLayout:
+    """Pack the parts' constants and state arrays the way the fused kernel reads them.
 
     Parameters
     ----------
-    stages : sequence
-        Stages in processing order (not chains).
+    parts : sequence of FusedPart
+        The stages' parts, in processing order.
+    slots : sequence of int
+        Their slots (:func:`slots_of`).
 
     Returns
     -------
-    list
-        Stages and fused passes, in processing order.
+    FusedLayout
     """
-    out: list[Any] = []
-    run: list[Any] = []
-    parts: list[FusedPart] = []
+    P: list[np.ndarray] = []
+    L = np.zeros(_L_MODEL + 1, np.int64)
+    extra: list[np.ndarray] = []
+    dummy_x = np.zeros(0)
+    x = [dummy_x, dummy_x, dummy_x, dummy_x]
+    comp: tuple[np.ndarray, ...] = (np.zeros(2), np.zeros(2), np.zeros(1, np.bool_), np.ones(2))
+    model: tuple[np.ndarray, ...] = (np.zeros(2), np.zeros(2), np.zeros(1, np.bool_))
+    count: Callable[[np.ndarray], None] | None = None
+    n_p = 0
 
-    def flush() -> None:
-        if len(run) >= 2:
-            out.append(FusedPass(run, parts))
+    def put(a: np.ndarray) -> int:
+        nonlocal n_p
+        off = n_p
+        P.append(np.ascontiguousarray(a, float).reshape(-1))
+        n_p += P[-1].size
+        return off
+    n_l = len(L)
+
+    def put_i(a: np.ndarray) -> int:
+        nonlocal n_l
+        off = n_l
+        extra.append(np.ascontiguousarray(a, np.int64).reshape(-1))
+        n_l += extra[-1].size
+        return off
+    for part, slot in zip(parts, slots):
+        L[slot] = 1
+        if slot in _BANK_SLOTS:
+            b = _BANK_SLOTS.index(slot)
+            W, feeds, D, offsets, sizes = part.consts
+            base = _L_BANK + 8 * b
+            L[base:base + 6] = (put(W), put(D), len(sizes), put_i(offsets), put_i(sizes), put_i(feeds))
+            x[b] = part.state[0]
+        elif slot == 2:
+            coeffs, exact, ulim, dulim = part.consts
+            L[_L_COMP] = put(np.concatenate([coeffs, [ulim, dulim]]))
+            L[_L_COMP + 1] = int(bool(exact))
+            comp = part.state  # (h, u_prev, started, signs)
+            count = part.counter
         else:
-            out.extend(run)
-        run.clear()
-        parts.clear()
-    for st in stages:
-        fp = getattr(st, "fused_part", None)
-        part = fp() if fp is not None else None
-        if part is None:
-            flush()
-            out.append(st)
-            continue
-        if _slots_of([*parts, part]) is None:
-            flush()
-        run.append(st)
-        parts.append(part)
-    flush()
-    return out
+            L[_L_MODEL] = put(part.consts[0])
+            model = part.state  # (h, u_prev, started)
+    if not L[2]:  # absent: zeros, so that the kernel's reads stay inside P
+        L[_L_COMP] = put(np.zeros(38))
+    if not L[3]:
+        L[_L_MODEL] = put(np.zeros(28))
+    return FusedLayout(np.ascontiguousarray(np.concatenate(P)), np.ascontiguousarray(np.concatenate([L, *extra])),
+                       x, comp, model, count)
 
 
 @njit(inline="always")
@@ -280,7 +252,7 @@ def fused_source(slots: Sequence[int], loops: dict[int, tuple[str, str]]) -> str
     str
         Module source defining ``fused_run(P, L, x0, x1, x4, x5, ch, cu, cs, cg, mh, mu, ms, counters, u, y)``:
         the present slots of VIB → CINV → COMP → MODEL → CREEP → DYN over a block ``u [N, 2]`` → ``y [N, 2]``
-        (``P``/``L``: the constants and their layout, :class:`FusedPass`; ``x0, x1, x4, x5``: the banks' states in
+        (``P``/``L``: the constants and their layout, :class:`FusedLayout`; ``x0, x1, x4, x5``: the banks' states in
         their public layout; ``ch, cu, cs, cg``: the compensator's h, last voltage, started, signs; ``mh, mu, ms``:
         the model's h, last voltage, started; ``counters`` ← this block's counts).  Chunk by chunk (``_CHUNK``
         samples in a cache-resident buffer) each slot runs its own loop kernel over the chunk: the processor

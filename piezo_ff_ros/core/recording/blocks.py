@@ -26,6 +26,8 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..units import sample_period_ns
+
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
@@ -43,22 +45,6 @@ _NS = 1_000_000_000
 
 # ----------------------------------------------------------------------------------------------------------------
 # stamps ↔ sample indices (integer nanoseconds, exact)
-
-def sample_period_ns(sample_rate: float) -> int:
-    """Sample period in integer nanoseconds, ``round(1e9 / fs)`` (50 000 at 20 kHz).
-
-    Raises ``ValueError`` when ``fs`` is not positive and finite, or when the period is not a whole number of
-    nanoseconds to within 1e-6 ns relative error (stamps would then drift from ``k / fs``).
-    """
-    fs = float(sample_rate)
-    if not np.isfinite(fs) or fs <= 0:
-        raise ValueError(f"sample_rate: must be positive and finite, got {sample_rate!r}")
-    dt_ns = round(1e9 / fs)
-    if dt_ns < 1 or abs(dt_ns - 1e9 / fs) > 1e-6 * dt_ns:
-        raise ValueError(f"sample_rate: {fs} Hz has no whole-nanosecond period (1e9/fs = {1e9 / fs!r} ns); "
-                         "choose a rate that divides 1e9")
-    return int(dt_ns)
-
 
 def stamp_for_index(k: int, t0_ns: int, dt_ns: int) -> int:
     """Stamp [ns] of sample ``k``: ``t0_ns + k·dt_ns`` (exact integer arithmetic)."""

@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import csv
 from pathlib import Path
-from typing import Any, Iterable, NoReturn, Sequence
+from typing import Any, NoReturn, Sequence
 
 import numpy as np
 
-from .run import RunData
+from .run import RunData, canonical_axes
 
-__all__ = ["load_csv", "load_mat", "check_run_arrays", "canonical_axes", "MAX_DISPLACEMENT", "MAX_VOLTAGE",
+__all__ = ["load_csv", "load_mat", "check_run_arrays", "MAX_DISPLACEMENT", "MAX_VOLTAGE",
            "MIN_DRIVE_VOLTAGE", "MIN_SAMPLE_RATE", "MAX_SAMPLE_RATE", "UNIFORM_TOL"]
 
 #: largest plausible |displacement| of a piezo positioner [m]; above it the column is almost surely µm or mm
@@ -34,21 +34,12 @@ MIN_DRIVE_VOLTAGE = 1.0
 #: plausible sample rates of a piezo record [Hz]: outside, the time column is almost surely in ms/µs (or ns)
 MIN_SAMPLE_RATE = 100.0
 MAX_SAMPLE_RATE = 10.0e6
-#: axis names put first, in this order, whatever the column order of the file (x, y, z as in REP 103)
-AXIS_ORDER = ("x", "y", "z")
 #: relative tolerance on the sample period (recorders write t with ~6–9 significant digits)
 UNIFORM_TOL = 1e-3
 
 
 def _fail(path: Any, msg: str) -> NoReturn:
     raise ValueError(f"{path}: {msg}")
-
-
-def canonical_axes(names: Iterable[str]) -> tuple[str, ...]:
-    """Axis names in a fixed order — x, y, z first, then the others as given — so that the column order of a
-    file never changes which column is which axis."""
-    names = list(names)
-    return tuple([a for a in AXIS_ORDER if a in names] + [a for a in names if a not in AXIS_ORDER])
 
 
 def _time_unit_hint(dt: float) -> str:

@@ -14,9 +14,8 @@ from typing import Any, Iterable, NamedTuple
 import numpy as np
 
 from .blocks import BLOCK_TYPE, deserialize_block, deserialize_message, sample_period_ns
-from .importers import canonical_axes
 from .mcap_scan import _MAX_RANGES, McapContents, scan_mcap
-from .run import RunData
+from .run import RunData, canonical_axes
 from .schemas import BLOCK_ROLES, DIAGNOSTICS_TYPE, EXPERIMENT_TYPE
 
 __all__ = ["read_run"]

@@ -6,12 +6,21 @@ Uniformly sampled, SI units: ``t`` [s] shape [N], ``u`` [V] shape [N, axes], ``y
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
-__all__ = ["RunData", "load_run"]
+__all__ = ["RunData", "AXIS_ORDER", "canonical_axes"]
+
+#: axis names put first, in this order, whatever the column order of the file (x, y, z as in REP 103)
+AXIS_ORDER = ("x", "y", "z")
+
+
+def canonical_axes(names: Iterable[str]) -> tuple[str, ...]:
+    """Axis names in a fixed order — x, y, z first, then the others as given — so that the column order of a
+    file never changes which column is which axis."""
+    names = list(names)
+    return tuple([a for a in AXIS_ORDER if a in names] + [a for a in names if a not in AXIS_ORDER])
 
 
 @dataclass
@@ -31,7 +40,7 @@ class RunData:
     reference : array [N, axes] or None
         The reference [m] (volts for voltage-driven runs), when recorded.
     meta : dict
-        Where the run came from and what happened to it (see :func:`~.mcap_reader.read_run`).
+        Where the run came from and what happened to it (see :func:`~piezo_ff_ros.core.recording.mcap_reader.read_run`).
     """
 
     t: np.ndarray
@@ -83,27 +92,3 @@ class RunData:
         """
         k = int(len(self) * fraction)
         return self.slice(0, k), self.slice(k, len(self))
-
-
-def load_run(path: str | Path, **kwargs: Any) -> RunData:
-    """Load a run from ``.mcap`` (our topic contract), ``.csv`` (``t,u_x,u_y,x,y``) or ``.mat`` (``t``, ``u``, ``y``).
-
-    Raises ``ValueError`` with a message that says what is wrong and where for malformed files.
-    """
-    p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"{p}: no such file")
-    suffix = p.suffix.lower()
-    if suffix == ".mcap" or p.is_dir():
-        from .mcap_io import read_run
-
-        return read_run(p, **kwargs)
-    if suffix == ".csv":
-        from .importers import load_csv
-
-        return load_csv(p, **kwargs)
-    if suffix == ".mat":
-        from .importers import load_mat
-
-        return load_mat(p, **kwargs)
-    raise ValueError(f"{p}: unknown format {suffix!r} (expected .mcap, .csv or .mat)")
