@@ -14,7 +14,7 @@ def test_a_trajectory_beyond_the_amplifier_is_refused_with_one_line(tmp_path, ca
     assert main(["feedforward", "--trajectory", MM_CIRCLE, "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1, err
-    assert "cannot follow" in err and "limits." in err and "samples" in err and "--clip" in err, err
+    assert "cannot follow" in err and "limits." in err and "sample" in err and "--clip" in err, err
     assert not out.exists()
 
 
@@ -22,7 +22,7 @@ def test_clip_writes_the_clipped_voltages_and_counts_them_loudly(tmp_path, capsy
     out, js = tmp_path / "u.npy", tmp_path / "s.json"
     assert main(["feedforward", "--trajectory", MM_CIRCLE, "--out", str(out), "--clip", "--json", str(js)]) == 0
     err = capsys.readouterr().err
-    assert "CLIPPED" in err and "samples" in err
+    assert "CLIPPED" in err and "sample" in err
     s = json.loads(js.read_text())
     assert s["clipped"] is True
     assert s["beyond_voltage_samples"] + s["beyond_slew_samples"] + s["compensator_limited_samples"] > 1000
