@@ -20,11 +20,12 @@ def write_table(path, n=4000, amp=(40.0, 20.0), offset=(40.0, 0.0)):
     return u
 
 
-@pytest.mark.parametrize("ext", [".csv", ".mcap"])
-def test_play_on_the_simulator_records_applied_and_sensor_on_one_grid(tmp_path, capsys, ext):
+@pytest.mark.parametrize("ext, mode", [(".csv", "lockstep"), (".mcap", "lockstep"), (".csv", "clocked")])
+def test_play_on_the_simulator_records_applied_and_sensor_on_one_grid(tmp_path, capsys, ext, mode):
     u = write_table(tmp_path / "u.csv")
     out, js = tmp_path / f"run{ext}", tmp_path / "s.json"
-    assert main(["play", str(tmp_path / "u.csv"), "--backend", "sim", "--out", str(out), "--json", str(js)]) == 0
+    assert main(["play", str(tmp_path / "u.csv"), "--backend", "sim", "--param", f"mode={mode}", "--out", str(out),
+                 "--json", str(js)]) == 0
     run = load_run(out)
     assert run.axes == ("x", "y") and len(run) == u.shape[0]
     np.testing.assert_allclose(run.sample_rate, FS)

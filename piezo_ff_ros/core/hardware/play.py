@@ -184,7 +184,9 @@ def play_streaming(backend: StreamingBackend, settings: DriverSettings, u: np.nd
                 break
         want_sensor = backend.info.has_sensor
         deadline = time.monotonic() + timeout + (seq.shape[0] / fs if clocked else 0.0)
-        while (np.isnan(applied[n_in:n_in + n]).any() or (want_sensor and np.isnan(measured[n_in:n_in + n]).any())) \
+        # wait until the device has output everything, the ramp out included (closing earlier would cut the ramp),
+        # and the sensor samples of the table have arrived
+        while (np.isnan(applied).any() or (want_sensor and np.isnan(measured[n_in:n_in + n]).any())) \
                 and core.state != "fault" and not errors and time.monotonic() < deadline:
             take(core.tick())
             if clocked:
