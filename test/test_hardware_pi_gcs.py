@@ -258,3 +258,27 @@ def test_an_unanswered_drr_query_times_out_without_spinning_a_core_and_ramps_to_
         np.testing.assert_allclose(v[-1], [0.0, 0.0])
         player.close()
         wait_until(lambda: srv.open_connections == 0)
+
+
+def test_a_late_host_stretches_nothing_it_can_skip_and_never_hurries_a_set_point():
+    """With every sleep overshooting by 3 ms (a loaded machine), the staircase keeps about real time by skipping
+    scheduled set points, and two set points are never closer in time than the samples between them."""
+    from piezo_ff_ros.backends.pi_gcs import Staircase
+
+    sends = []
+    st = Staircase(lambda v: sends.append((time.monotonic(), np.array(v))), 20000.0, 1.0, 20, np.zeros(2),
+                   sleep=lambda d: time.sleep(d + 0.003))
+    t = np.arange(4000) / 20000.0                                   # 0.2 s of a 50 V/s ramp: 10 V
+    u = np.column_stack([50.0 * t, -25.0 * t])
+    t0 = time.monotonic()
+    for i in range(0, 4000, 1000):
+        st.play(u[i:i + 1000])
+    took = time.monotonic() - t0
+    ts = np.array([s[0] for s in sends])
+    vs = np.vstack([np.zeros(2)] + [s[1] for s in sends])
+    dv = np.abs(np.diff(vs, axis=0)).max(axis=1)
+    assert dv.max() <= 1.0 + 1e-9
+    assert np.all(dv[1:] <= 50.0 * np.diff(ts) + 1e-9)              # never faster than the stream's own slope
+    np.testing.assert_allclose(vs[-1], u[-1])
+    assert took < 0.3, f"0.2 s took {took:.2f} s"                  # ~real time: it skipped rather than lagged
+    assert st.skipped > 0

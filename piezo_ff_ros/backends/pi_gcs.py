@@ -272,11 +272,18 @@ def connect(p: dict[str, Any]) -> GCSLink:
 class Staircase:
     """Plays voltage samples on a set-and-hold controller as a paced staircase of ``SVA`` set points.
 
-    A set point is sent when the next sample would be more than ``step_max`` volts from the last one sent, at the end
-    of each block, and otherwise at most every ``decimation`` samples; a single sample step larger than ``step_max``
-    is split into equal set points spread over its sample period.  Each set point goes out no earlier than its
-    sample's instant: the instants are anchored on the wall clock and only ever shift later (a late host), so the
-    time between two set points is never shorter than the samples between them.
+    The schedule: a set point where the next sample would be more than ``step_max`` volts from the previous set
+    point, at the end of each block, and otherwise every ``decimation`` samples; a single sample step larger than
+    ``step_max`` is split into equal set points spread over its sample period.  Pacing, on the wall clock, with the
+    block's samples anchored at their real-time instants:
+
+    - a set point goes out no earlier than its sample's instant, and no earlier than the previous set point's
+      acknowledgement plus the samples between them — so that on the wire two set points are never closer in time
+      than their samples are (the voltage moves no faster than the stream it plays);
+    - when the host is late (a long sleep, a loaded machine), the staircase catches up by skipping scheduled set
+      points, never by hurrying: it sends the latest scheduled value whose instant has come, provided it is within
+      ``step_max`` of the previous set point and no further ahead of it than the time elapsed since.  A block thus
+      lasts its real time on the wire; only a lag the rules do not let it absorb is kept (:attr:`late_s`).
 
     Parameters
     ----------
@@ -296,60 +303,99 @@ class Staircase:
                  start: np.ndarray, sleep: Callable[[float], None] = time.sleep) -> None:
         self.send, self.fs, self.step_max, self.decimation = send, float(fs), float(step_max), max(1, int(decimation))
         self.sent = np.asarray(start, dtype=float).copy()   #: last value accepted by the controller
-        self.anchor: float | None = None                     #: wall time of the next sample's instant
-        self.since = 0                                       #: samples since the last set point
+        self.anchor: float | None = None                     #: wall time of the next block's first sample
+        self.t_done = -math.inf                              #: when the last set point was acknowledged
+        self.pos_sent = -math.inf                            #: its position [samples] relative to ``anchor``
         self.setpoints = 0
+        self.skipped = 0                                      #: scheduled set points skipped to stay in real time
         self.rows_done = 0
-        self.late_s = 0.0                                     #: how much the staircase was stretched by a late host
+        self.late_s = 0.0                                     #: lag kept at the end of blocks [s]
         self._sleep = sleep
 
-    def _at(self, t_due: float, value: np.ndarray) -> None:
-        now = time.monotonic()
-        if t_due > now:
-            self._sleep(t_due - now)
-        self.send(value)
-        done = time.monotonic()
-        if done > t_due and self.anchor is not None:
-            # the set point landed late (host or link): every later instant moves as much — measured after the
-            # controller's acknowledgement, so that two set points are never closer on the wire than their samples
-            self.anchor += done - t_due
-            self.late_s += done - t_due
-        self.sent = np.array(value, dtype=float)
-        self.setpoints += 1
-        self.since = 0
+    def schedule(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(positions [samples, block-relative; sample j at j + 1], values [m, axes])`` of the planned set
+        points."""
+        pos: list[float] = []
+        val: list[np.ndarray] = []
+        prev = self.sent
+        since = 0
+        n = u.shape[0]
+        for j in range(n):
+            since += 1
+            d = float(np.max(np.abs(u[j] - prev))) if u.shape[1] else 0.0
+            if d > self.step_max:
+                nsub = int(math.ceil(d / self.step_max - 1e-12))
+                for q in range(1, nsub + 1):
+                    pos.append(j + q / nsub)
+                    val.append(prev + (u[j] - prev) * (q / nsub))
+                prev, since = u[j], 0
+            elif d > 0:
+                nxt = float(np.max(np.abs(u[j + 1] - prev))) if j + 1 < n else 0.0
+                if j == n - 1 or nxt > self.step_max or since >= self.decimation:
+                    pos.append(j + 1.0)
+                    val.append(u[j])
+                    prev, since = u[j], 0
+        return np.array(pos, dtype=float), np.array(val, dtype=float).reshape(len(val), u.shape[1])
 
     def play(self, u: np.ndarray, applied: np.ndarray | None = None) -> np.ndarray:
         """Play ``u [N, axes]`` in time; return what the output held at each sample ``[N, axes]``.
 
-        On an exception from ``send`` the rows of ``applied`` (if given) up to the failing sample are filled; the
-        exception propagates with :attr:`sent` the last accepted value.
+        On an exception from ``send`` the rows of ``applied`` (if given) up to the failing set point are filled
+        (:attr:`rows_done` of them); the exception propagates with :attr:`sent` the last accepted value.
         """
         u = np.asarray(u, dtype=float)
         n = u.shape[0]
         out = np.empty_like(u) if applied is None else applied
+        dt = 1.0 / self.fs
         now = time.monotonic()
         if self.anchor is None or self.anchor < now:
-            self.anchor = now                                # the output held meanwhile: restart the clock here
-        dt = 1.0 / self.fs
+            self.pos_sent -= ((now - self.anchor) / dt) if self.anchor is not None else 0.0
+            self.anchor = now                                # the output held meanwhile: the block starts now
+        anchor = self.anchor
+        if self.setpoints == 0 and math.isinf(self.t_done):
+            self.t_done, self.pos_sent = now, 0.0           # the held voltage counts as acknowledged now
+        pos, val = self.schedule(u)
+        sent_pos: list[float] = []
+        sent_vals: list[np.ndarray] = [self.sent.copy()]
         self.rows_done = 0
-        for j in range(n):
-            self.since += 1
-            d = float(np.max(np.abs(u[j] - self.sent))) if u.shape[1] else 0.0
-            if d > self.step_max:
-                nsub = int(math.ceil(d / self.step_max - 1e-12))
-                base = self.sent.copy()
-                for q in range(1, nsub + 1):
-                    self._at(self.anchor + (j + q / nsub) * dt, base + (u[j] - base) * (q / nsub))
-            elif d > 0:
-                nxt = float(np.max(np.abs(u[j + 1] - self.sent))) if j + 1 < n else 0.0
-                if j == n - 1 or nxt > self.step_max or self.since >= self.decimation:
-                    self._at(self.anchor + (j + 1) * dt, u[j])
-            out[j] = self.sent
-            self.rows_done = j + 1
-        self.anchor += n * dt
+        i, m = 0, len(pos)
+        try:
+            while i < m:
+                earliest = max(anchor + pos[i] * dt, self.t_done + (pos[i] - self.pos_sent) * dt)
+                now = time.monotonic()
+                if earliest > now:
+                    self._sleep(earliest - now)
+                    now = time.monotonic()
+                # catch up: the latest scheduled value whose instant has come, within step_max of the last set
+                # point and no further ahead of it than the time since its acknowledgement
+                reach = min((now - anchor) / dt, self.pos_sent + (now - self.t_done) / dt)
+                k = i
+                while k + 1 < m and pos[k + 1] <= reach and \
+                        float(np.max(np.abs(val[k + 1] - self.sent))) <= self.step_max + 1e-12:
+                    k += 1
+                self.skipped += k - i
+                self.rows_done = min(n, int(math.ceil(pos[k])) - 1)
+                self.send(val[k])
+                self.t_done = time.monotonic()
+                self.sent = val[k].copy()
+                self.pos_sent = pos[k]
+                sent_pos.append(pos[k])
+                sent_vals.append(self.sent.copy())
+                self.setpoints += 1
+                i = k + 1
+            self.rows_done = n
+        finally:
+            # sample j holds the last set point at a position ≤ j + 1 (sample j's own is at j + 1)
+            rows = np.arange(1, self.rows_done + 1, dtype=float)
+            out[:self.rows_done] = np.asarray(sent_vals)[np.searchsorted(np.asarray(sent_pos), rows, side="right")]
+        end = anchor + n * dt
         now = time.monotonic()
-        if self.anchor > now:
-            self._sleep(self.anchor - now)                   # the block lasts its time on the wire too
+        if end > now:
+            self._sleep(end - now)                           # the block lasts its time on the wire too
+        elif now - end > 0:
+            self.late_s += now - end
+        self.anchor = end
+        self.pos_sent -= n
         return out
 
 
