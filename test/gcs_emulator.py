@@ -441,31 +441,80 @@ class GCSServer:
                 conn.close()
 
     def _serve_one(self, conn: socket.socket, deadline: float) -> None:
-        buf = ""
-        while not self._stop.is_set() and time.monotonic() < deadline:
-            r, _, _ = select.select([conn], [], [], 0.05)
-            if not r:
-                continue
-            try:
-                data = conn.recv(65536)
-            except OSError:
+        def drop() -> None:
+            conn.shutdown(socket.SHUT_RDWR)
+        serve_stream(self.emu, conn.fileno(), conn.recv, conn.sendall, drop, deadline, self._stop)
+
+
+def serve_stream(emu: GCSEmulator, fd: int, recv, send, drop, deadline: float, stop: threading.Event) -> None:
+    """Answer the GCS commands arriving on ``fd`` (``recv``/``send``) until EOF, ``stop`` or ``deadline``."""
+    buf = ""
+    while not stop.is_set() and time.monotonic() < deadline:
+        r, _, _ = select.select([fd], [], [], 0.05)
+        if not r:
+            continue
+        try:
+            data = recv(65536)
+        except OSError:
+            return
+        if not data:
+            return                                   # the client closed the connection
+        buf += data.decode("cp1252")
+        while buf:
+            if ord(buf[0]) < 32 and buf[0] not in "\n\r":
+                line, buf = buf[0], buf[1:]
+            else:
+                cut = buf.find("\n")
+                if cut < 0:
+                    break
+                line, buf = buf[:cut].strip(), buf[cut + 1:]
+                if not line:
+                    continue
+            reply, dropped = emu.handle(line)
+            if reply:
+                send(reply.encode("cp1252"))
+            if dropped:
+                drop()
                 return
-            if not data:
-                return                                   # the client closed the connection
-            buf += data.decode("cp1252")
-            while buf:
-                if ord(buf[0]) < 32 and buf[0] not in "\n\r":
-                    line, buf = buf[0], buf[1:]
-                else:
-                    cut = buf.find("\n")
-                    if cut < 0:
-                        break
-                    line, buf = buf[:cut].strip(), buf[cut + 1:]
-                    if not line:
-                        continue
-                reply, drop = self.emu.handle(line)
-                if reply:
-                    conn.sendall(reply.encode("cp1252"))
-                if drop:
-                    conn.shutdown(socket.SHUT_RDWR)
-                    return
+
+
+class GCSSerialServer:
+    """Serve a :class:`GCSEmulator` on a pseudo-terminal: :attr:`port` is a serial port path that pyserial (and so
+    pipython's ``PISerial``) opens like a controller's RS-232 or USB serial port."""
+
+    def __init__(self, emulator: GCSEmulator | None = None, lifetime: float = 60.0):
+        import os
+        import tty
+
+        self.emu = emulator or GCSEmulator()
+        self._master, slave = os.openpty()
+        tty.setraw(slave)
+        self.port = os.ttyname(slave)
+        self._slave = slave
+        self._stop = threading.Event()
+
+        def send(b):
+            os.write(self._master, b)
+
+        self._thread = threading.Thread(
+            target=serve_stream, name="gcs-emulator-serial", daemon=True,
+            args=(self.emu, self._master, lambda n: os.read(self._master, n), send, self._stop.set,
+                  time.monotonic() + lifetime, self._stop))
+        self._thread.start()
+
+    def __enter__(self) -> "GCSSerialServer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        import os
+
+        self._stop.set()
+        self._thread.join(timeout=5)
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass

@@ -142,6 +142,22 @@ def test_driver_blocks_are_paced_to_their_sample_period_and_close_ramps_to_safe(
         wait_until(lambda: srv.open_connections == 0)                 # close() closed the socket
 
 
+def test_the_drivers_stale_input_ramp_reaches_the_controller_as_a_paced_staircase():
+    cfg = config(slew=1000.0)
+    with GCSServer() as srv:
+        be = PISetpointBackend(cfg, params(srv))
+        core = DriverCore(DriverSettings(sample_rate=cfg.sample_rate, n_axes=2, limits=cfg.limits), be)
+        core.start()
+        core.on_block(0, np.tile([[20.0, -10.0]], (1000, 1)))         # slewed to 20 V at 1000 V/s, held
+        assert srv.emu.output == [20.0, -10.0]
+        t_hold = time.monotonic()
+        wait_until(lambda: core.tick() is not None and core.state == "safe", timeout=5)
+        v = assert_paced(srv.emu, 20.0 / 0.05 * 1.01, since=t_hold, start=np.array([20.0, -10.0]))
+        np.testing.assert_allclose(v[-1], [0.0, 0.0])
+        assert len(v) >= 20                                            # a staircase, not one 20 V step
+        core.close()
+
+
 def test_a_controller_error_is_a_named_fault_and_the_output_ramps_to_safe_from_the_last_accepted_value():
     cfg = config(slew=1000.0)
     emu = GCSEmulator()
@@ -282,3 +298,23 @@ def test_a_late_host_stretches_nothing_it_can_skip_and_never_hurries_a_set_point
     np.testing.assert_allclose(vs[-1], u[-1])
     assert took < 0.3, f"0.2 s took {took:.2f} s"                  # ~real time: it skipped rather than lagged
     assert st.skipped > 0
+
+
+def test_connects_through_pipythons_own_piserial_on_a_serial_port():
+    """RS-232 / the controllers' USB serial ports: pipython's PISerial (pyserial) on a pseudo-terminal served by the
+    emulator; the same start ramp as over TCP."""
+    pytest.importorskip("serial")
+    from gcs_emulator import GCSSerialServer
+
+    with GCSSerialServer(GCSEmulator(output=[5.0, 0.0])) as srv:
+        cfg = config()
+        p = get_spec("pi_gcs").validate({"interface": "serial", "address": srv.port, "baudrate": 115200,
+                                         "timeout_ms": 500})
+        be = PISetpointBackend(cfg, p)
+        be.start(np.zeros(2))
+        from pipython.pidevice.interfaces.piserial import PISerial
+        assert isinstance(be.link.gateway, PISerial)
+        assert "E-727 emulator" in be.link.info.idn
+        assert_paced(srv.emu, 5.0 / 0.05 * 1.01, start=np.array([5.0, 0.0]))
+        be.close()
+        assert srv.emu.output == [0.0, 0.0]
