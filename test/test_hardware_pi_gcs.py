@@ -176,7 +176,7 @@ def test_a_controller_error_is_a_named_fault_and_the_output_ramps_to_safe_from_t
         assert "controller error 302 (Voltage out of limits)" in text, text
         assert "lost" not in text
         assert core.faults.get("limit") == 1
-        v = assert_paced(emu, 15.0 / 0.05 * 1.01 + 300, since=before - 1.0)
+        v = assert_paced(emu, 300.0 * 1.02, since=before - 1.0)       # the stream's and the ramp's pace
         np.testing.assert_allclose(v[-1], [0.0, 0.0])                # ramped to safe …
         assert held is not None
         with pytest.raises(Disconnect, match="held at the safe voltage"):     # … and held there
@@ -220,10 +220,20 @@ def test_table_mode_waits_on_the_generator_running_and_ends_at_safe_by_a_ramp():
         assert cmds.count("WAV") == 2 * 40
         assert emu.wtr == {1: (1, 0), 2: (1, 0)} and emu.wgc == {1: 1, 2: 1}
         assert not emu.err
-        # ramp in from the held 3 V, the table at its own rate, ramp out: never more than 1 V or the allowed rate
-        rate = max(cfg.limits.slew, 100.0 / 0.05)
-        v = assert_paced(emu, rate, start=np.array([3.0, 0.0]), slack_s=1e-3)
+        # ramp in from the held 3 V to u[0] = (50, 20) V, the table at its own rate, ramp out from u[-1]: never
+        # more than 1 V between two values, the ramps at the safe ramp's pace (≥ 50 ms), the table at the slew limit
+        v = assert_paced(emu, cfg.limits.slew, start=np.array([3.0, 0.0]))
         np.testing.assert_allclose(v[-1], [0.0, 0.0])
+        src = [e[2] for e in sorted(emu.events, key=lambda e: e[0])]
+        first, last = src.index("WAV"), len(src) - 1 - src[::-1].index("WAV")
+        t, v = emu.output_events()
+        assert set(src[first:last + 1]) == {"WAV"} and last - first + 1 == u.shape[0]
+        for seg, v0, dist in ((slice(0, first), [3.0, 0.0], 47.0), (slice(last + 1, None), v[last], np.abs(u[-1]).max())):
+            tt, vv = t[seg], v[seg]
+            dv = np.abs(np.diff(np.vstack([v0, vv]), axis=0)).max(axis=1)
+            assert dv.max() <= 1.0 + 1e-9
+            assert np.all(dv[1:] <= dist / 0.05 * 1.01 * (np.diff(tt) + 2e-4))
+            assert tt[-1] - tt[0] >= 0.045                              # the ramp took its 50 ms
         player.close()
         wait_until(lambda: srv.open_connections == 0)
 
