@@ -54,7 +54,7 @@ def test_the_nominal_plant_driven_by_the_file_tracks_the_reference(files):
 def test_limits_hold_on_an_impossible_trajectory(tmp_path):
     out = tmp_path / "u.npy"
     assert main(["feedforward", "--trajectory", "{type: circle, radius: 1.0e-3, frequency: 200, revolutions: 1}",
-                 "--stages", "hysteresis", "--out", str(out), "--json", str(tmp_path / "s.json")]) == 0
+                 "--stages", "hysteresis", "--out", str(out), "--json", str(tmp_path / "s.json"), "--clip"]) == 0
     u = np.load(out)
     cfg = load_config()
     assert np.abs(u).max() <= cfg.limits.voltage

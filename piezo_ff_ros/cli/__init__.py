@@ -25,6 +25,7 @@ SUBCOMMANDS = ["reproduce", "demo", "analyze", "identify", "commission", "diagno
 #: later subcommands, one statement each, so that parallel additions merge without conflicts
 SUBCOMMANDS += ["recover"]
 SUBCOMMANDS += ["track"]
+SUBCOMMANDS += ["play"]
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERNAL = 1

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
@@ -39,6 +40,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--duration", type=float, default=None, help="seconds to compute (required for endless "
                                                                  "trajectories; default: the trajectory's)")
     p.add_argument("--json", default=None, help="also write a summary (samples, limits hit) as JSON")
+    p.add_argument("--clip", action="store_true",
+                   help="write a trajectory the amplifier cannot follow anyway, clipped to limits.voltage/limits.slew "
+                        "(counted and reported); without it such a trajectory is refused")
     p.set_defaults(func=run)
 
 
@@ -83,6 +87,11 @@ def compute(cfg: PiezoConfig, traj: Trajectory, duration: float | None = None,
     u_cmd = cascade.process(ref)
     u = guard.apply(u_cmd)
     c = guard.counters
+    lim = cfg.limits
+    # what the compensator asked for, against the amplifier's limits (from the safe voltage, as the driver starts)
+    over_v = np.max(np.abs(u_cmd), axis=1) - lim.voltage
+    rate = np.max(np.abs(np.diff(np.vstack([np.full((1, cfg.n_axes), lim.safe_voltage), u_cmd]), axis=0)),
+                  axis=1) * fs - lim.slew
     summary = {"samples": int(n), "sample_rate_hz": fs, "duration_s": n / fs, "axes": list(cfg.axes),
                "stages": [k for k in ("vibration", "creep", "hysteresis") if getattr(cfg.cascade, k)],
                "voltage_limit_v": cfg.limits.voltage, "slew_limit_v_per_s": cfg.limits.slew,
@@ -92,7 +101,11 @@ def compute(cfg: PiezoConfig, traj: Trajectory, duration: float | None = None,
                "saturated_samples": c.saturated_samples, "slew_limited_samples": c.slew_limited_samples,
                "changed_by_limits": int(np.count_nonzero(np.any(u != u_cmd, axis=1))),
                # the hysteresis inverse clamps/slews like the driver (cascade.respect_limits): counted there
-               "compensator_limited_samples": int(getattr(cascade.hysteresis, "saturated", 0) or 0)}
+               "compensator_limited_samples": int(getattr(cascade.hysteresis, "saturated", 0) or 0),
+               "beyond_voltage_samples": int(np.count_nonzero(over_v > 1e-9)),
+               "beyond_voltage_by_v": float(max(over_v.max(), 0.0)),
+               "beyond_slew_samples": int(np.count_nonzero(rate > 1e-6 * lim.slew)),
+               "beyond_slew_by_v_per_s": float(max(rate.max(), 0.0))}
     return np.arange(n) / fs, u, summary
 
 
@@ -118,6 +131,24 @@ def write(path: Path, t: np.ndarray, u: np.ndarray, axes: Sequence[str], fs: flo
                                      "sample_rate": fs}, do_compression=True)
 
 
+def limits_problem(summary: dict[str, Any], cfg: PiezoConfig) -> str:
+    """One line saying how the trajectory exceeds the amplifier's limits (which setting, how many samples, by how
+    much), or "" if the compensated voltages need no limiting."""
+    parts = []
+    n = summary["samples"]
+    if summary["beyond_voltage_samples"]:
+        parts.append(f"{summary['beyond_voltage_samples']} of {n} samples exceed limits.voltage "
+                     f"±{cfg.limits.voltage:g} V by up to {summary['beyond_voltage_by_v']:.3g} V")
+    if summary["beyond_slew_samples"]:
+        parts.append(f"{summary['beyond_slew_samples']} of {n} samples exceed limits.slew {cfg.limits.slew:g} V/s by "
+                     f"up to {summary['beyond_slew_by_v_per_s']:.3g} V/s")
+    if summary["compensator_limited_samples"]:
+        parts.append(f"{summary['compensator_limited_samples']} sample value(s) were held to limits.voltage "
+                     f"±{cfg.limits.voltage:g} V / limits.slew {cfg.limits.slew:g} V/s inside the hysteresis compensator "
+                     "(cascade.respect_limits)")
+    return ("the amplifier cannot follow this trajectory: " + "; ".join(parts)) if parts else ""
+
+
 def run(args: argparse.Namespace) -> int:
     from ..core.config import load_config
 
@@ -132,6 +163,14 @@ def run(args: argparse.Namespace) -> int:
     traj = parse_spec(args.trajectory)
     out = Path(args.out)
     t, u, summary = compute(cfg, traj, args.duration)
+    problem = limits_problem(summary, cfg)
+    if problem and not args.clip:
+        raise ValueError(f"{problem}; nothing written (lower the trajectory's amplitude or frequency, raise the "
+                         "config's limits if the amplifier allows, or pass --clip to write it clipped)")
+    if problem:
+        print(f"piezo-ff feedforward: warning: CLIPPED: {problem}; the file holds the clipped voltages",
+              file=sys.stderr)
+    summary["clipped"] = bool(problem)
     write(out, t, u, cfg.axes, cfg.sample_rate)
     summary["out"] = str(out)
     print(f"feedforward: {summary['samples']} samples ({summary['duration_s']:g} s at {cfg.sample_rate:g} Hz), "
