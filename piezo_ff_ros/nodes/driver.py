@@ -77,6 +77,10 @@ class DriverNode(LifecycleNode):
                 raise RuntimeError(self.configure_error or "configure failed")
             if self.trigger_activate() != TransitionCallbackReturn.SUCCESS:
                 raise RuntimeError("activate failed")
+            self.get_logger().info("driver ready: active (autostart)")
+        else:
+            self.get_logger().info("driver ready: unconfigured (`ros2 lifecycle set /driver configure`, then "
+                                   "`activate`)")
 
     @property
     def lifecycle_state(self) -> str:
