@@ -21,14 +21,16 @@ from __future__ import annotations
 import math
 import os
 import sys
+import time
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.node import Node
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.duration import Duration
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -49,17 +51,161 @@ def _check(name: str, value: Any, lo: float, hi: float, unit: str = "") -> None:
         raise ConfigError(name, f"must be in [{lo:g}, {hi:g}]{unit}, got {value!r}")
 
 
-class DriverNode(Node):
+class DriverNode(LifecycleNode):
     """See the module docstring."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("driver", **kwargs)
+        self.core: DriverCore | None = None
+        self.configure_error = ""
+        self.ignored_blocks = 0
+        self._configured_entities: list[tuple[str, Any]] = []
+        self.pub_y = self.pub_u = self.pub_js = self.pub_diag = self.sub_traj = None
+        # registered before any declare_parameter so that it sees the command line's overrides too
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.autostart = bool(self.declare_parameter("autostart", True, ParameterDescriptor(
+            description="configure and activate at start (false: wait for `ros2 lifecycle set /driver configure`, "
+                        "then `activate`)", read_only=True)).value)
+        self.create_service(Trigger, "~/reset", self.on_reset)
+        try:
+            self._declare_all()   # every parameter visible (`ros2 param list`) before configure
+        except Exception:  # noqa: BLE001 - a bad value: configure says so (and fails)
+            pass
+        if self.autostart:
+            # `ros2 run` as before the driver was managed: a bad parameter is one line and exit code 2
+            if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+                raise RuntimeError(self.configure_error or "configure failed")
+            if self.trigger_activate() != TransitionCallbackReturn.SUCCESS:
+                raise RuntimeError("activate failed")
+            self.get_logger().info("driver ready: active (autostart)")
+        else:
+            self.get_logger().info("driver ready: unconfigured (`ros2 lifecycle set /driver configure`, then "
+                                   "`activate`)")
+
+    @property
+    def lifecycle_state(self) -> str:
+        """The managed node's state label (``unconfigured``, ``inactive``, ``active``, ``finalized`` or a
+        transition state)."""
+        return str(self._state_machine.current_state[1])
+
+    # -- lifecycle transitions ----------------------------------------------------------------------------------
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Validate the parameters, open the backend (its output at the safe voltage), warm the kernels."""
+        try:
+            self._configure()
+        except Exception as exc:  # noqa: BLE001 - any bad parameter or backend error: one line, stay unconfigured
+            self._teardown()
+            self.configure_error = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            if not self.autostart:   # with autostart, main() prints it (one line, exit code 2)
+                self.get_logger().error(f"configure failed: {self.configure_error} (still unconfigured: fix the "
+                                        "parameter and configure again)")
+            return TransitionCallbackReturn.FAILURE
+        self.configure_error = ""
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Accept voltage blocks (the first one restarts from the safe voltage the output holds)."""
+        self.get_logger().info("active: voltage blocks are applied")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Safe ramp now, then hold the safe voltage; blocks are ignored until activated again."""
+        self._to_safe("deactivated")
+        self.get_logger().info("inactive: output held at the safe voltage, blocks ignored "
+                               "(`ros2 lifecycle set /driver activate` resumes)")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Close the backend (the output is at the safe voltage since deactivate)."""
+        self._close()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """From any state: the safe voltage by a ramp, then the backend closed."""
+        self._close()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """A transition raised: ramp to safe, close, back to unconfigured (a new configure may retry)."""
+        self.get_logger().error(f"error while leaving {state.label}: output ramped to the safe voltage, backend closed")
+        try:
+            self._close()
+        except Exception as exc:  # noqa: BLE001 - the error state must end somewhere
+            self.get_logger().error(f"closing after the error failed: {exc}")
+            return TransitionCallbackReturn.FAILURE
+        return TransitionCallbackReturn.SUCCESS
+
+    def finish(self) -> None:
+        """The process ends (SIGINT/SIGTERM or an error): from whatever state, ramp to safe and close."""
+        self._close()
+
+    def _to_safe(self, why: str) -> None:
+        """Ramp to the safe voltage and wait (ticking a clocked device) until the device has played the ramp."""
+        if self.core is None:
+            return
+        self._emit(self.core.ramp_to_safe(why))
+        if not self.core.started:
+            return
+        lim = self.core.s
+        budget = 2.0 + 2 * lim.write_ahead + lim.ramp.duration + lim.limits.voltage / lim.ramp.slew
+        deadline = time.monotonic() + budget
+        while not self.core.played_out():
+            if time.monotonic() > deadline:
+                self.get_logger().error(f"the safe ramp was not played out within {budget:.2f} s")
+                break
+            self._emit(self.core.tick())
+            time.sleep(min(lim.low_water / 2, 0.002))
+        self._emit(self.core.tick())   # what the device applied up to the end of the ramp
+        if self.context.ok():           # the ramp reaches voltage_applied's readers before anything is torn down
+            for pub in (self.pub_u, self.pub_y):
+                if pub is not None:
+                    pub.wait_for_all_acked(Duration(seconds=1.0))
+
+    def _close(self) -> None:
+        """Safe ramp (if anything is applied), then close the backend and drop the configured entities."""
+        if self.core is not None:
+            try:
+                self._to_safe("shutting down")
+            finally:
+                core, self.core = self.core, None
+                core.close()
+        self._teardown()
+
+    def _teardown(self) -> None:
+        for kind, entity in reversed(self._configured_entities):
+            getattr(self, f"destroy_{kind}")(entity)
+        self._configured_entities = []
+        self.pub_y = self.pub_u = self.pub_js = self.pub_diag = self.sub_traj = None
+
+    def _configured(self, kind: str, entity: Any) -> Any:
+        self._configured_entities.append((kind, entity))
+        return entity
+
+    def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
+        """The driver's parameters describe its device: they change only while it is unconfigured."""
+        state = self.lifecycle_state if hasattr(self, "_state_machine") else "unconfigured"
+        if state not in ("unconfigured", "configuring"):
+            names = ", ".join(p.name for p in params)
+            return SetParametersResult(successful=False, reason=(
+                f"{names}: the driver's parameters change only while unconfigured (it is {state}): deactivate, "
+                "cleanup, set, configure"))
+        return SetParametersResult(successful=True)
+
+    def _configure(self) -> None:
         settings, backend_name, bparams, p = self._declare_all()
         self.axes = self.cfg.axes
         self.backend_name = backend_name
         backend = get_spec(backend_name).create(self.cfg, bparams)
-        self.core = DriverCore(settings, backend)
+        try:
+            self.core = DriverCore(settings, backend)
+            # compile before the first block: on a clocked device it must be written within the write-ahead
+            self.core.warm()
+        except Exception:
+            backend.close()
+            self.core = None
+            raise
         self.malformed_blocks = 0
+        self.ignored_blocks = 0
         self.conflict = ""
         self._js_every = max(1, int(round(self.cfg.sample_rate / p["joint_states_rate"])))
         self._js_count = 0
@@ -67,37 +213,42 @@ class DriverNode(Node):
         # no sensor, no displacement topic: a publisher that never publishes would pass for a sensor (commissioning
         # and lockstep trajectories look for one)
         self.has_sensor = bool(backend.info.has_sensor)
-        self.pub_y = self.create_publisher(PointCloud2, "displacement", BLOCK_QOS) if self.has_sensor else None
-        self.pub_u = self.create_publisher(PointCloud2, "voltage_applied", BLOCK_QOS)
-        self.pub_js = self.create_publisher(JointState, "joint_states", 10)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.sub_u = self.create_subscription(PointCloud2, "voltage", self.on_voltage, BLOCK_QOS)
-        self.create_service(Trigger, "~/reset", self.on_reset)
+        pub = lambda t, name, q: self._configured("publisher", self.create_publisher(t, name, q))  # noqa: E731
+        self.pub_y = pub(PointCloud2, "displacement", BLOCK_QOS) if self.has_sensor else None
+        self.pub_u = pub(PointCloud2, "voltage_applied", BLOCK_QOS)
+        self.pub_js = pub(JointState, "joint_states", 10)
+        self.pub_diag = pub(DiagnosticArray, "/diagnostics", 10)
+        self._configured("subscription", self.create_subscription(PointCloud2, "voltage", self.on_voltage,
+                                                                   BLOCK_QOS))
         # a lockstep trajectory paces a lockstep simulator: its time stands still between blocks (no stale ramp)
         self.sub_traj = None
         if p["trajectory_state"] and backend.info.time_follows_samples:
             try:
-                self.sub_traj = self.create_subscription(String, p["trajectory_state"], self.on_trajectory_state,
-                                                         LATCHED_QOS)
+                self.sub_traj = self._configured("subscription", self.create_subscription(
+                    String, p["trajectory_state"], self.on_trajectory_state, LATCHED_QOS))
             except Exception as exc:  # noqa: BLE001 - rclpy raises several types for an invalid topic name
                 raise ConfigError("trajectory_state", f"not a valid topic name: {p['trajectory_state']!r} "
                                                       f"({str(exc).splitlines()[0][:100]})") from None
         lim = settings.limits
         tick = min(settings.low_water / 2, 0.005) if backend.info.clocked else min(lim.stale_timeout / 4, 0.05)
         # the device's clock starts with the first tick (not here: spinning may begin much later)
-        self.create_timer(tick, self.on_tick)
-        self.create_timer(p["diagnostics_period"], self.publish_diagnostics)
-        self._conflict_timer = self.create_timer(2.0, self.check_conflict)
+        self._configured("timer", self.create_timer(tick, self.on_tick))
+        self._configured("timer", self.create_timer(p["diagnostics_period"], self.publish_diagnostics))
+        self._configured("timer", self.create_timer(2.0, self.check_conflict))
         mode = "clocked" if backend.info.clocked else "lockstep"
         if not self.has_sensor:
             self.get_logger().info("the device has no displacement sensor: no displacement topic")
-        self.get_logger().info(f"driver ready: backend {backend_name} ({mode}), ±{lim.voltage} V, {lim.slew} V/s, stale {lim.stale_timeout} s, safe ramp ≥ "
-                               f"{settings.ramp.duration} s at ≤ {settings.ramp.slew} V/s")
+        self.get_logger().info(f"driver configured: backend {backend_name} ({mode}), ±{lim.voltage} V, {lim.slew} V/s, "
+                               f"stale {lim.stale_timeout} s, safe ramp ≥ {settings.ramp.duration} s at ≤ "
+                               f"{settings.ramp.slew} V/s")
 
     # -- parameters ------------------------------------------------------------------------------------------------
     def _param(self, name: str, default: Any, description: str = "") -> Any:
-        return self.declare_parameter(name, default, ParameterDescriptor(
-            description=description or name, read_only=True)).value
+        """A parameter's value, declared on first use (a backend chosen later declares its own at configure)."""
+        if not self.has_parameter(name):
+            self.declare_parameter(name, default, ParameterDescriptor(
+                description=(description or name) + " (changes only while unconfigured)"))
+        return self.get_parameter(name).value
 
     def _declare_all(self) -> tuple[DriverSettings, str, dict[str, Any], dict[str, Any]]:
         cfg_file = self._param("config_file", "", "configuration YAML ('' = the paper's)")
@@ -145,6 +296,15 @@ class DriverNode(Node):
 
     # -- data path -------------------------------------------------------------------------------------------------
     def on_voltage(self, msg: PointCloud2) -> None:
+        if self.core is None:
+            return
+        if self.lifecycle_state != "active":
+            # inactive: the output holds the safe voltage whatever is sent (the compensator may keep streaming)
+            self.ignored_blocks += 1
+            if self.ignored_blocks == 1:
+                self.get_logger().warning("voltage blocks ignored: the driver is inactive (`ros2 lifecycle set "
+                                          "/driver activate` applies them)")
+            return
         if not self.core.started:
             self.on_tick()
         stamp = stamp_to_ns(msg.header.stamp)
@@ -157,15 +317,24 @@ class DriverNode(Node):
         self._emit(self.core.on_block(stamp, u))
 
     def on_trajectory_state(self, msg: String) -> None:
+        if self.core is None:
+            return
         on, why = lockstep_pacing(msg.data)
         self._emit(self.core.set_stream_paced(on, why))
 
     def on_tick(self) -> None:
+        if self.core is None:
+            return
         self._emit(self.core.tick() if self.core.started else self.core.start())
 
     def _emit(self, em: Emit) -> None:
+        if not self.context.ok():   # stopping after SIGINT: the device still ramps, nothing can be published
+            for _, text in em.log:
+                print(f"driver: {text}", file=sys.stderr)
+            return
         for stamp, u in em.applied:
-            self.pub_u.publish(pack_block(u, self.axes, stamp))
+            if self.pub_u is not None:
+                self.pub_u.publish(pack_block(u, self.axes, stamp))
         for stamp, y in em.displacement:
             if self.pub_y is not None:
                 self.pub_y.publish(pack_block(y, self.axes, stamp))
@@ -187,7 +356,9 @@ class DriverNode(Node):
         self.pub_js.publish(js)
 
     def on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        if self.core.reset():
+        if self.core is None:
+            response.success, response.message = False, f"the driver is {self.lifecycle_state}: configure it first"
+        elif self.core.reset():
             self.malformed_blocks, self._js_count = 0, 0
             self._emit(self.core.tick())
             response.success, response.message = True, "backend and safety state reset"
@@ -199,6 +370,8 @@ class DriverNode(Node):
     def check_conflict(self) -> None:
         """Two graphs on one ROS domain (or two drivers in one namespace) mix their blocks: say so plainly.  Also:
         a lockstep source that vanished (killed trajectory node) no longer paces the stream."""
+        if self.core is None:
+            return
         if self.sub_traj is not None and self.core.stream_paced and self.sub_traj.get_publisher_count() == 0:
             self._emit(self.core.set_stream_paced(False, "the trajectory node is gone"))
         others = {t: self.count_publishers(t) - (1 if t == "voltage_applied" or self.has_sensor else 0)
@@ -214,11 +387,16 @@ class DriverNode(Node):
             self.conflict = ""
 
     def publish_diagnostics(self) -> None:
+        if self.core is None or self.pub_diag is None:
+            return
         self.check_conflict()
-        st = {**self.core.status(), "malformed_blocks": self.malformed_blocks, "backend": self.backend_name,
+        st = {**self.core.status(), "lifecycle": self.lifecycle_state, "ignored_blocks": self.ignored_blocks,
+              "malformed_blocks": self.malformed_blocks, "backend": self.backend_name,
               "has_sensor": self.has_sensor,
               **writer_matches({"voltage_applied": self.pub_u, "displacement": self.pub_y})}
         level, message = self.core.health()
+        if self.lifecycle_state != "active":
+            message = f"{self.lifecycle_state} (output held at the safe voltage); {message}"
         if self.conflict:
             level, message = ERROR, self.conflict
         st["conflict"] = self.conflict
@@ -230,7 +408,8 @@ class DriverNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run_node("driver", DriverNode, lambda n: n.core.close(), argv)
+    # SIGINT/SIGTERM, from any state: the output ramps to the safe voltage before the backend closes
+    return run_node("driver", DriverNode, lambda n: n.finish(), argv)
 
 
 if __name__ == "__main__":

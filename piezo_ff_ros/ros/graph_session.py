@@ -301,6 +301,51 @@ class GraphClient:
         return time.perf_counter() - t0
 
 
+def step_lifecycle(node: str, transitions: Iterable[str], domain_id: int | None = None,
+                   timeout: float = 60.0) -> str:
+    """Step a managed node (``/driver``) through ``transitions`` (labels: ``configure``, ``activate``, …) through
+    its ``<node>/change_state`` service, as ``ros2 lifecycle set`` does; returns the state it ends in.
+
+    RuntimeError naming the transition and the state the node is left in when one fails (the node's log says why).
+    """
+    import rclpy
+    from lifecycle_msgs.srv import ChangeState, GetState
+    from rclpy.executors import SingleThreadedExecutor
+
+    from .env import apply_ros_env_defaults
+
+    apply_ros_env_defaults(domain_id=domain_id)   # localhost discovery in this process too
+    context = rclpy.Context()
+    rclpy.init(context=context, **({} if domain_id is None else {"domain_id": int(domain_id)}))
+    try:
+        client_node = rclpy.create_node("piezo_ff_lifecycle", context=context)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(client_node)
+
+        def call(srv: Any, request: Any) -> Any:
+            if not srv.wait_for_service(timeout_sec=timeout):
+                raise RuntimeError(f"service {srv.srv_name} not available after {timeout:g} s")
+            fut = srv.call_async(request)
+            deadline = time.monotonic() + timeout
+            while not fut.done():
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"no reply from {srv.srv_name} after {timeout:g} s")
+                executor.spin_once(timeout_sec=0.02)
+            return fut.result()
+
+        change = client_node.create_client(ChangeState, f"{node}/change_state")
+        get = client_node.create_client(GetState, f"{node}/get_state")
+        for label in transitions:
+            req = ChangeState.Request()
+            req.transition.label = label
+            if not call(change, req).success:
+                state = call(get, GetState.Request()).current_state.label
+                raise RuntimeError(f"{node}: transition {label} failed, the node is {state} (its log says why)")
+        return str(call(get, GetState.Request()).current_state.label)
+    finally:
+        context.try_shutdown()
+
+
 def _same_value(a: Any, b: Any) -> bool:
     """Parameter values equal as the compensator compares them (arrays element-wise, ints as floats)."""
     if isinstance(a, (list, tuple)) or isinstance(b, (list, tuple)) or hasattr(a, "tolist"):

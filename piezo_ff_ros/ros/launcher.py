@@ -29,6 +29,9 @@ NODES = ("driver", "compensator", "trajectory", "recorder")
 READY_MARKERS = {"driver": "driver ready", "compensator": "compensator ready", "trajectory": "trajectory ready",
                  "recorder": "recording "}
 STOP_ORDER = ("trajectory", "compensator", "driver", "recorder")
+#: managed (lifecycle) nodes: started unconfigured (``autostart:=false`` unless the caller sets it), then stepped
+#: through these transitions once every node is ready — what a launch file or a supervisor does
+MANAGED = {"driver": ("configure", "activate")}
 
 
 class NodeProcess:
@@ -101,7 +104,10 @@ class GraphLauncher:
         """Start every node and wait until all logged ready; RuntimeError (with the node's log tail) otherwise."""
         for name in NODES:
             if name in self.node_args:
-                self.procs[name] = NodeProcess(name, self.node_args[name], self.env, self.log_dir)
+                args = self.node_args[name]
+                if name in MANAGED and not any(str(a).startswith("autostart:=") for a in args):
+                    args = ["-p", "autostart:=false", *args]
+                self.procs[name] = NodeProcess(name, args, self.env, self.log_dir)
         deadline = time.monotonic() + timeout
         pending = set(self.procs)
         while pending:
@@ -116,6 +122,21 @@ class GraphLauncher:
                 self.stop()
                 raise RuntimeError(f"nodes not ready after {timeout} s: {sorted(pending)}")
             time.sleep(0.1)
+        self._step_managed(max(deadline - time.monotonic(), 10.0))
+
+    def _step_managed(self, timeout: float) -> None:
+        """Configure and activate the managed nodes started unconfigured (RuntimeError with the log tail)."""
+        for name, transitions in MANAGED.items():
+            p = self.procs.get(name)
+            if p is None or "ready: unconfigured" not in p.log():
+                continue   # not started here, or started with autostart
+            from .graph_session import step_lifecycle
+
+            try:
+                step_lifecycle(f"/{name}", transitions, domain_id=int(self.env["ROS_DOMAIN_ID"]), timeout=timeout)
+            except RuntimeError as exc:
+                self.stop()
+                raise RuntimeError(f"{exc}:\n{_tail(p.log())}") from None
 
     def check_alive(self) -> None:
         """RuntimeError (with the node's log tail) if a started node has exited."""

@@ -482,3 +482,40 @@ class DriverCore:
         if lost_now or faults or st["rejected_blocks"] or st["saturated_samples"] or c.out_of_sequence_blocks:
             return WARN, f"{self.state}; {losses}; {faults} device fault(s); {st['rejected_blocks']} rejected"
         return OK, self.state
+
+    # -- managed (lifecycle) transitions -------------------------------------------------------------------------
+    def ramp_to_safe(self, why: str) -> Emit:
+        """Commit the safe ramp now (a managed driver's deactivate/shutdown): the output goes from where it is to
+        ``limits.safe_voltage`` along ``safe_ramp`` and holds there; later blocks restart from it.  Nothing on a
+        device not started (it is at the safe voltage) or in fault (its output is stopped)."""
+        em = Emit()
+        if not self._started or self.state == "fault":
+            return em
+        self._poll(em)
+        if self.state == "fault":
+            return em
+        self._sync()
+        if self.book.drop_candidate():
+            em.log.append((WARN, "a held-back out-of-sequence block was never confirmed: dropped"))
+        if np.any(self.guard.u_last != self.safe) or self.state != "safe":
+            self._ramp(em, why)
+        self._safe_from = self._w
+        return em.extend(self._collect())
+
+    def played_out(self) -> bool:
+        """True once the device has output every committed sample (a clocked device's clock is past them; a
+        lockstep device outputs what it is written)."""
+        self._sync()
+        end = getattr(self, "_safe_from", self._w)
+        if self._w - self._queued < end:
+            return False
+        return not self.info.clocked or self.backend.clock() >= end
+
+    def warm(self) -> None:
+        """Compile (or load from numba's cache) every kernel the first block runs through, on a throw-away guard:
+        a clocked device's write-ahead is tens of ms, a first compile takes longer than that."""
+        guard = VoltageGuard(self.s.limits, self.s.n_axes, self.s.sample_rate, max_block=self.s.max_block)
+        guard.check(np.zeros((2, self.s.n_axes)))
+        guard.apply(np.zeros((2, self.s.n_axes)))
+        guard.hold(2)
+        guard.ramp_to_safe(self.s.ramp)
