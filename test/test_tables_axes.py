@@ -54,3 +54,26 @@ def test_two_axes_keep_one_pair_per_axis_and_no_pair_key():
     assert res.cross_coupling_pairs_percent is None and "cross_coupling_pairs_percent" not in res.to_json()
     assert set(res.before["cross_coupling_percent"]) == {"x", "y"}
     assert all(v is not None for v in res.before["cross_coupling_percent"].values())
+
+
+def test_analyze_reads_a_circle_error_after_its_lead_in(tmp_path):
+    """A circle played from rest starts a radius away from the stage: the replay's tracking error of the segment
+    is read after the lead-in its experiment names (the last revolution), not over the radius-sized start."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_analyze import FS, UM, _record
+
+    from piezo_ff_ros.core.analysis import analyze_run
+    from piezo_ff_ros.core.recording.mcap_io import read_run
+
+    n = 2 * FS   # two revolutions at 1 Hz; the stage lags 1 ms behind and starts at rest
+    t = np.arange(n) / FS
+    ref = 20 * UM * np.column_stack([np.sin(2 * np.pi * t), np.cos(2 * np.pi * t)])
+    y = np.vstack([np.zeros((20, 2)), ref[:-20]])
+    mark = {"name": "circle20_T", "metric": "tracking", "params": {"skip": 1.0, "radius": 20 * UM}}
+    path = _record(tmp_path / "c.mcap", ref, np.zeros_like(ref), y, markers={0: mark})
+    seg = analyze_run(read_run(path)).to_json()["replay"]["segments"][0]
+    lag = 2 * np.pi * 20 * UM * 20 / FS   # the 1 ms lag's error on a 20 µm circle at 1 Hz ≈ 0.126 µm
+    assert max(seg["tracking"]["max"]) == pytest.approx(lag, rel=0.01)   # was the radius, 20 µm
+    assert seg["tracking_from_s"] == 1.0
