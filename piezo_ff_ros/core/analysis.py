@@ -254,10 +254,19 @@ def analyze_run(run: RunData, evaluate: Evaluate | None = None) -> AnalysisResul
     tables: Any = None
     recorded, seg_warn = segment_signals(run)
     warnings += seg_warn
+    if recorded and evaluate is None:
+        found = find_evaluate()
+        if found is not None:   # the paper's experiments on the recording's axes; other segments (a
+            # commissioning's characterisation runs) are the replay's only
+            from .experiments import paper_experiments
+
+            names = {e.name for e in paper_experiments(axes=tuple(run.axes))}
+            others = [k for k in recorded if k not in names]
+            recorded = {k: v for k, v in recorded.items() if k in names}
+            if others and not recorded:
+                warnings.append(f"no paper experiment among the segments ({len(others)} others): tables skipped")
+            evaluate = lambda rec: found(rec, axes=tuple(run.axes))   # noqa: E731
     if recorded:
-        if evaluate is None:
-            found = find_evaluate()   # the paper's experiments on the recording's axes
-            evaluate = None if found is None else (lambda rec: found(rec, axes=tuple(run.axes)))
         if evaluate is None:
             warnings.append("paper evaluation (core.experiments.evaluate) not available: tables skipped")
         else:
