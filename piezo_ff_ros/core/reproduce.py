@@ -454,7 +454,8 @@ def _f(v: float | None, width: int = 8, digits: int = 2) -> str:
     return f"{'—':>{width}}" if v is None else f"{v:{width}.{digits}f}"
 
 
-def _pair_rows(result: Mapping[str, Any], P: Mapping[str, Any], label: str, axes: Sequence[str]) -> list[str]:
+def _pair_rows(result: Mapping[str, Any], P: Mapping[str, Any], label: str, axes: Sequence[str],
+               w: int = 22) -> list[str]:
     """Table II of one axis (none) or of three or more: a row per ordered pair ``a ← b`` (a read, b driven), with
     the paper's row for the pairs it has."""
     if len(axes) < 2:
@@ -473,11 +474,11 @@ def _pair_rows(result: Mapping[str, Any], P: Mapping[str, Any], label: str, axes
             lv = f"({num_b / UM:.2f}/{den_b / UM:.1f} µm)" if num_b is not None and den_b is not None else ""
             la = f"({abs(num_a) / UM:.3f}/{den_a / UM:.2f} µm)" if num_a is not None and den_a is not None else ""
             pair = f"{a}←{b}"
-            lines.append(f"  {pair:<5} {label:<20}{_f(pairs.get('before', {}).get(a + b), 9)} {lv:<22}"
+            lines.append(f"  {pair:<5} {label:<{w - 2}}{_f(pairs.get('before', {}).get(a + b), 9)} {lv:<22}"
                          f"{_f(pairs.get('after', {}).get(a + b), 9)} {la}")
             if {a, b} == {"x", "y"}:
                 pl = P["cross_coupling_levels_um"]
-                lines.append(f"  {pair:<5} {'paper':<20}{_f(P['before']['cross_coupling_percent'][a], 9)} "
+                lines.append(f"  {pair:<5} {'paper':<{w - 2}}{_f(P['before']['cross_coupling_percent'][a], 9)} "
                              f"{'(%g/%g µm)' % tuple(pl['before'][a]):<22}"
                              f"{_f(P['after']['cross_coupling_percent'][a], 9)} {'(%g/%g µm)' % tuple(pl['after'][a])}")
     return lines
@@ -508,8 +509,10 @@ def format_tables(result: ReproduceResult | Mapping[str, Any], label: str = "thi
     cond = result.get("conditions", {})
     if cond:
         lines.append("conditions: " + ", ".join(f"{k}={v}" for k, v in cond.items()))
-    lines.append("TABLE I — direct transfers [%]      before compensation           after compensation")
-    lines.append("                               hyster.   creep  overshoot   hyster.   creep  overshoot")
+    w = max(22, len(label))   # the row label's column: a long label shifts the figures, never misaligns them
+    pad = " " * (w - 22)
+    lines.append(f"TABLE I — direct transfers [%]      {pad}before compensation           after compensation")
+    lines.append(f"                               {pad}hyster.   creep  overshoot   hyster.   creep  overshoot")
     cols = ("hysteresis_percent", "creep_percent", "overshoot_percent")
     for a in axes:
         for tag, src in ((label, result), ("paper", P), ("independent", I)):
@@ -519,11 +522,11 @@ def format_tables(result: ReproduceResult | Mapping[str, Any], label: str = "thi
                 continue   # an axis the paper does not have
             b = [src.get("before", {}).get(k, {}).get(a) for k in cols]
             af = [src.get("after", {}).get(k, {}).get(a) for k in cols] if tag != "independent" else [None] * 3
-            lines.append(f"  {a}  {tag:<22}" + "".join(_f(v, 9) for v in b) + "  " + "".join(_f(v, 9) for v in af))
+            lines.append(f"  {a}  {tag:<{w}}" + "".join(_f(v, 9) for v in b) + "  " + "".join(_f(v, 9) for v in af))
     lines.append("")
-    lines.append("TABLE II — cross-couplings [%]      before: H^ab/H^aa (S0)       after: A_f^ab/A_f^aa (T)")
+    lines.append(f"TABLE II — cross-couplings [%]      {pad}before: H^ab/H^aa (S0)       after: A_f^ab/A_f^aa (T)")
     if len(axes) != 2:
-        lines.extend(_pair_rows(result, P, label, axes))
+        lines.extend(_pair_rows(result, P, label, axes, w))
     for a in (axes if len(axes) == 2 else ()):
         b_other = [o for o in axes if o != a][0] if len(axes) > 1 else a
         det_b = result.get("details", {})
@@ -534,9 +537,9 @@ def format_tables(result: ReproduceResult | Mapping[str, Any], label: str = "thi
         lv = (f"({num_b / UM:.2f}/{den_b / UM:.1f} µm)" if num_b is not None and den_b is not None else "")
         la = (f"({abs(num_a) / UM:.3f}/{den_a / UM:.2f} µm)" if num_a is not None and den_a is not None else "")
         pl = P["cross_coupling_levels_um"]
-        lines.append(f"  {a}  {label:<22}{_f(result['before']['cross_coupling_percent'][a], 9)} {lv:<22}"
+        lines.append(f"  {a}  {label:<{w}}{_f(result['before']['cross_coupling_percent'][a], 9)} {lv:<22}"
                      f"{_f(result['after']['cross_coupling_percent'][a], 9)} {la}")
-        lines.append(f"  {a}  {'paper':<22}{_f(P['before']['cross_coupling_percent'][a], 9)} "
+        lines.append(f"  {a}  {'paper':<{w}}{_f(P['before']['cross_coupling_percent'][a], 9)} "
                      f"{'(%g/%g µm)' % tuple(pl['before'][a]):<22}{_f(P['after']['cross_coupling_percent'][a], 9)} "
                      f"{'(%g/%g µm)' % tuple(pl['after'][a])}")
     lines.append("")
