@@ -68,7 +68,7 @@ def _format_tables(result: dict) -> str | None:
             fn = getattr(mod, fn_name, None)
             if callable(fn):
                 try:
-                    return fn(paper)
+                    return fn(paper, axes=result["replay"]["axes"])
                 except (KeyError, TypeError, ValueError):
                     return None
     return None

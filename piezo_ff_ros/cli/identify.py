@@ -3,6 +3,8 @@
 Runs come from MCAP (recorded by the node graph), CSV or MATLAB .mat.  Each file (or each run inside it) must be
 tagged with its stage (hysteresis / creep / dynamics) — from the recording's metadata, or from the file name
 (``*hyst*``, ``*creep*``, ``*dyn*``; ``*val*`` or ``*held*`` marks a held-out run), or with ``--stage``.
+Any number of axes, and hysteresis alone (a single-stage record) or hysteresis and creep are enough: the stages
+without runs keep the ``--base`` config's parameters (whose axes must be the runs') and are switched off.
 For creep and dynamics runs the input of the characterised system (Y_H / Y_L) must be recorded as the reference
 (CSV columns ``r_<axis>``, .mat variable ``r``).
 """
@@ -29,9 +31,19 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     p.add_argument("--creep-order", default="auto", help="creep order per entry (int) or 'auto'")
     p.add_argument("--dynamics-order", default="auto", help="G_L order per entry (int) or 'auto'")
     p.add_argument("--no-hinf", action="store_true", help="skip the H∞ synthesis")
+    p.add_argument("--fit-offset", action="store_true",
+                   help="hysteresis: identify a constant sensor offset (measured records)")
+    p.add_argument("--delay", type=int, default=0, metavar="N",
+                   help="hysteresis: samples by which the measured output lags the voltage (default 0)")
+    p.add_argument("--skip", type=float, default=0.0, metavar="S",
+                   help="hysteresis: seconds at the start of each run left out (initial transient; default 0)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=run)
     return p
+
+
+#: what ``--stage`` accepts (``plant``: a held-out voltage record the identified whole plant is scored on)
+STAGE_NAMES = ("hysteresis", "creep", "dynamics", "plant")
 
 
 def _tag_from_name(path: Path) -> tuple[str | None, str]:
@@ -58,6 +70,13 @@ def run(args: argparse.Namespace) -> int:
 
     if args.stage is not None and len(args.stage) != len(args.data):
         raise ValueError(f"--stage: {len(args.stage)} value(s) for {len(args.data)} file(s)")
+    for spec in args.stage or ():
+        st, _, role = spec.partition(":")
+        if st not in STAGE_NAMES or (role and role not in ("fit", "validation")):
+            raise ValueError(f"--stage {spec!r}: expected STAGE[:ROLE] with STAGE one of {list(STAGE_NAMES)} and "
+                             "ROLE fit or validation")
+    if args.delay < 0 or not (args.skip >= 0 and args.skip < float("inf")):
+        raise ValueError(f"--delay and --skip must be >= 0, got {args.delay} and {args.skip}")
     runs = []
     for i, f in enumerate(args.data):
         p = Path(f)
@@ -78,13 +97,16 @@ def run(args: argparse.Namespace) -> int:
     base = load_config(args.base) if args.base else load_config()
     cfg, report = identify_all(runs, base=base, generalized=args.generalized, creep_order=parse_order(args.creep_order),
                                dynamics_order=parse_order(args.dynamics_order), synthesize=not args.no_hinf,
-                               progress=say)
+                               progress=say, fit_offset=args.fit_offset, delay=args.delay, skip=args.skip)
     cfg.to_yaml(args.out)
     say(f"wrote {args.out}")
     fits = report.fit_percent
     print("held-out fit [%] (MATLAB compare):")
     for stage, d in fits.items():
         print(f"  {stage:10s} " + "  ".join(f"{k}: {v:.2f}" if v is not None else f"{k}: n/a" for k, v in d.items()))
+    if report.kept_from_base:
+        print(f"  not identified (no runs), kept from the base config and switched off: "
+              f"{', '.join(report.kept_from_base)}")
     if args.json:
         Path(args.json).write_text(json.dumps(report.to_json(), indent=2))
     return 0

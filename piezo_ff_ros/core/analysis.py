@@ -55,9 +55,11 @@ class ReplayReport(JsonResult):
     axes : list of str
         Column names.
     tracking : dict or None
-        Tracking errors over the whole run [m] (:func:`tracking_summary`; voltage-driven segments left out).
+        Tracking errors over the whole run [m] (:func:`tracking_summary`; voltage-driven segments and the lead-in
+        of tracking segments left out).
     segments : list of dict
-        Per experiment segment: ``name, k0, k1, samples, complete, stages, input, tracking``.
+        Per experiment segment: ``name, k0, k1, samples, complete, stages, input, tracking`` and, for a tracking
+        experiment, ``tracking_from_s``: its error is read from then on (after the lead-in its experiment names).
     blocks : dict
         Per block topic: count, gaps, missing samples/blocks, duplicates, … (from ``read_run``).
     saturation : dict
@@ -184,6 +186,19 @@ def tracking_summary(reference: ArrayLike | None, y: ArrayLike) -> dict[str, Any
     return out
 
 
+def _lead_in_s(seg: Mapping[str, Any]) -> float:
+    """Seconds at the start of a tracking segment left out of its error (its experiment's ``params.skip``; 0 for
+    other segments)."""
+    info = seg.get("info") or {}
+    if info.get("metric") != "tracking":
+        return 0.0
+    try:
+        skip = float((info.get("params") or {}).get("skip", 0.0))
+    except (TypeError, ValueError):
+        return 0.0
+    return skip if np.isfinite(skip) and skip > 0 else 0.0
+
+
 def _voltage_limit(run: RunData) -> float:
     md = run.meta.get("metadata", {})
     for key in ("voltage_limit", "limits.voltage"):
@@ -239,8 +254,19 @@ def analyze_run(run: RunData, evaluate: Evaluate | None = None) -> AnalysisResul
     tables: Any = None
     recorded, seg_warn = segment_signals(run)
     warnings += seg_warn
+    if recorded and evaluate is None:
+        found = find_evaluate()
+        if found is not None:   # the paper's experiments on the recording's axes; other segments (a
+            # commissioning's characterisation runs) are the replay's only
+            from .experiments import paper_experiments
+
+            names = {e.name for e in paper_experiments(axes=tuple(run.axes))}
+            others = [k for k in recorded if k not in names]
+            recorded = {k: v for k, v in recorded.items() if k in names}
+            if others and not recorded:
+                warnings.append(f"no paper experiment among the segments ({len(others)} others): tables skipped")
+            evaluate = lambda rec: found(rec, axes=tuple(run.axes))   # noqa: E731
     if recorded:
-        evaluate = evaluate or find_evaluate()
         if evaluate is None:
             warnings.append("paper evaluation (core.experiments.evaluate) not available: tables skipped")
         else:
@@ -260,11 +286,20 @@ def analyze_run(run: RunData, evaluate: Evaluate | None = None) -> AnalysisResul
         by_voltage = (seg.get("info") or {}).get("input") == "voltage"
         if by_voltage:
             length_ref[a:b] = False
-        ref = run.reference[a:b] if run.reference is not None else None
-        segments.append({"name": seg["name"], "k0": seg["k0"], "k1": seg["k1"], "samples": int(b - a),
-                         "complete": seg.get("complete", True), "stages": seg.get("stages"),
-                         "input": "voltage" if by_voltage else "displacement",
-                         "tracking": tracking_summary(ref, run.y[a:b]) if b > a and not by_voltage else None})
+        # a tracking experiment (a circle) starts a radius away from the stage at rest: its error is read after
+        # the lead-in the experiment names (``params.skip``: the paper reads the last revolution), as the circle tracking figures are
+        skip = _lead_in_s(seg)
+        lead = min(b - a, int(round(skip * run.sample_rate))) if skip else 0
+        if lead and not by_voltage:
+            length_ref[a:a + lead] = False
+        ref = run.reference[a + lead:b] if run.reference is not None else None
+        entry = {"name": seg["name"], "k0": seg["k0"], "k1": seg["k1"], "samples": int(b - a),
+                 "complete": seg.get("complete", True), "stages": seg.get("stages"),
+                 "input": "voltage" if by_voltage else "displacement",
+                 "tracking": tracking_summary(ref, run.y[a + lead:b]) if b > a + lead and not by_voltage else None}
+        if skip:
+            entry["tracking_from_s"] = skip
+        segments.append(entry)
     whole_ref = None
     if run.reference is not None:
         whole_ref = np.where(length_ref[:, None], run.reference, np.nan)
@@ -375,6 +410,8 @@ def format_report(result: AnalysisResult | Mapping[str, Any]) -> str:
         lines.append("  segments:")
         for s in rp["segments"]:
             flag = "" if s["complete"] else "  (incomplete)"
+            if s.get("tracking_from_s"):
+                flag = f"  (from t = {s['tracking_from_s']:g} s){flag}"
             lines.append(f"    {s['name']:<28} k0={s['k0']:<9} {s['samples']:>8} samples  {fmt(s['tracking'])}{flag}")
     for w in rp["warnings"]:
         lines.append(f"  warning: {w}")

@@ -3,8 +3,9 @@
 Each stage is characterised on the system the previous identified compensators leave (Fig. 3):
 
 - **hysteresis** on S0: a 0.1 Hz, 200 V sine on one axis at a time (paper), plus one run moving both axes at once
-  (90° apart) — one-axis-at-a-time sines only determine ``Dp_ij − A_ij`` off the diagonal; held out: both axes at
-  ``validation_fraction`` of the amplitude with another phase;
+  (90° apart; with three axes or more one such run per pair of axes) — one-axis-at-a-time sines only determine
+  ``Dp_ij − A_ij`` off the diagonal; held out: every axis at ``validation_fraction`` of the amplitude with another
+  phase;
 - **creep** on S_H (hysteresis compensator in front): a 20 µm step per axis held ``creep_duration`` (paper 600 s),
   then back to 0 for as long — fitted on the step up, scored on the step down;
 - **dynamics** on S_L (hysteresis + creep compensators): a 20 µm step per axis held ``dynamics_duration`` (paper:
@@ -20,8 +21,8 @@ compensator that is 1 % off lands microns away; a real amplifier cannot do it an
 
 Every setting is a field of :class:`CharacterisationSettings` with the paper's value as default.  The signals are
 :mod:`~piezo_ff_ros.core.trajectories` objects (``Sine``, ``Hold``, ``Sequence``) plus two small ones defined here
-(:class:`Sum` of trajectories, :class:`Ramp`); they are not in ``trajectories.TRAJECTORY_TYPES``, so the node graph
-cannot build them from a parameter dict yet (they play through any code that calls ``block``/``sample``).
+(:class:`Sum` of trajectories, here; :class:`~piezo_ff_ros.core.trajectories.Ramp`).  ``Sum`` is not in
+``trajectories.TRAJECTORY_TYPES``: the node graph plays it through :mod:`.characterisation_graph`.
 """
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ import numpy as np
 from .config import ConfigError
 from .recording.run import RunData
 from .stage import Processor
-from .trajectories import Hold, Sine, Trajectory
+from .trajectories import Hold, Ramp, Sine, Trajectory
 from .trajectories import Sequence as TrajSequence
 
 __all__ = ["CharacterisationSettings", "Ramp", "Sum", "hysteresis_trajectories", "creep_trajectories", "dynamics_trajectories",
@@ -87,13 +88,20 @@ def hysteresis_trajectories(s: CharacterisationSettings,
     fit: list[tuple[str, Trajectory]] = [
         (f"sine_{a}", Sine(amplitude=s.sine_amplitude, frequency=s.sine_frequency, axis=a, duration=T, axes=axes_t))
         for a in axes]
-    both = _sum(axes, [Sine(amplitude=s.sine_amplitude, frequency=s.sine_frequency, axis=a, phase=i * np.pi / 2,
-                            duration=T, axes=axes_t) for i, a in enumerate(axes)])
-    fit.append(("sine_all", both))
+    def together(moving: Sequence[str]) -> Sum:   # the axes of `moving` at once, a quarter period apart
+        return _sum(axes, [Sine(amplitude=s.sine_amplitude, frequency=s.sine_frequency, axis=a, phase=i * np.pi / 2,
+                                duration=T, axes=axes_t) for i, a in enumerate(moving)])
+
+    if len(axes_t) <= 2:
+        fit.append(("sine_all", together(axes_t)))
+    else:
+        # three sines of one frequency span a plane only: one run per pair of axes, so every cross term is seen
+        fit += [(f"sine_{a}{b}", together((a, b))) for i, a in enumerate(axes_t) for b in axes_t[i + 1:]]
     va = s.validation_fraction * s.sine_amplitude
-    # held out: both axes at once at another amplitude and phase, a quarter period apart (a circle, which the
-    # trajectory node plays sample-exactly: the same run on every rig)
-    val = _sum(axes, [Sine(amplitude=va, frequency=s.sine_frequency, axis=a, phase=0.4 + np.pi / 2 * i,
+    # held out: every axis at once at another amplitude and phase, a quarter period apart with two axes (a circle,
+    # which the trajectory node plays sample-exactly: the same run on every rig), a 1/n period with n > 2
+    spread = np.pi / 2 if len(axes_t) <= 2 else 2 * np.pi / len(axes_t)
+    val = _sum(axes, [Sine(amplitude=va, frequency=s.sine_frequency, axis=a, phase=0.4 + spread * i,
                            duration=1.0 / s.sine_frequency, axes=axes_t) for i, a in enumerate(axes)])
     return {"fit": fit, "validation": [("sine_validation", val)]}
 
@@ -122,33 +130,6 @@ class Sum(Trajectory):
 
     def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
         return cast(np.ndarray, sum(p.at_index(k, fs) for p in self.parts))   # parts is never empty
-
-
-@dataclass(frozen=True)
-class Ramp(Trajectory):
-    """Linear move from ``start`` to ``end`` (per axis) over ``duration`` seconds (a slew-limited step edge)."""
-
-    start: Any = 0.0
-    end: Any = 0.0
-    duration: float = 1e-3
-
-    kind = "ramp"
-    length_fields = ("start", "end")
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        n = self.n_axes
-        object.__setattr__(self, "start", tuple(np.broadcast_to(np.asarray(self.start, float), (n,)).tolist()))
-        object.__setattr__(self, "end", tuple(np.broadcast_to(np.asarray(self.end, float), (n,)).tolist()))
-        if not (math.isfinite(self.duration) and self.duration > 0):
-            raise ConfigError("duration", f"must be a positive finite number, got {self.duration!r}")
-
-    def _values(self, k: np.ndarray, fs: float) -> np.ndarray:
-        n = self.n_samples(fs)
-        frac = np.clip((np.asarray(k, float) + 1.0) / n, 0.0, 1.0)[:, None]  # last sample reaches `end`
-        a, b = np.array(self.start), np.array(self.end)
-        out: np.ndarray = a[None, :] + frac * (b - a)[None, :]
-        return out
 
 
 def _sum(axes: Sequence[str], parts: Sequence[Trajectory]) -> Sum:

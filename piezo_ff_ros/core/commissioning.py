@@ -425,7 +425,8 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
     Raises
     ------
     CommissioningError
-        The rig has no sensor, a voltage run would leave its limits, or its compensator refused a configuration.
+        The rig has no sensor, ``base`` has other axes than the rig, a voltage run would leave its limits, or its
+        compensator refused a configuration.
     """
     say = progress or (lambda s: None)
     if not rig.has_sensor:
@@ -434,6 +435,9 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
     s = settings or CharacterisationSettings()
     base = base or load_config()
     fs, axes = rig.sample_rate, tuple(rig.axes)
+    if tuple(base.axes) != axes:   # the identified config would describe another stage than the one measured
+        raise CommissioningError(f"the starting config {base.name!r} has axes {list(base.axes)} but the rig has "
+                                 f"{list(axes)}: start from a config of the rig's axes (--config)")
     plan = characterisation_plan(s, axes)
     check_voltage_runs([r for runs in plan.values() for r in runs], rig.voltage_limit, rig.slew_limit, fs)
     timing: dict[str, float] = {}

@@ -41,7 +41,7 @@ import numpy as np
 from .compensators.cascade import CompensatorCascade
 from .config import PiezoConfig
 from .models.plant import Plant
-from .trajectories import Circle, Sequence, Sine, Step, Trajectory
+from .trajectories import Circle, PerAxis, Sequence, Sine, Step, Trajectory
 from .stage import Processor
 from .units import UM
 
@@ -153,13 +153,16 @@ def select_experiments(experiments: Seq[Experiment], only: str | None) -> list[E
 
 def paper_experiments(cfg: PiezoConfig | None = None, creep_duration: float = 600.0, hysteresis_periods: int = 2,
                       circle_radii: Seq[float] = (20 * UM, 30 * UM), circle_frequency: float = 1.0,
-                      circle_revolutions: float = 2.0, step_hold: float = STEP_HOLD) -> list[Experiment]:
+                      circle_revolutions: float = 2.0, step_hold: float = STEP_HOLD,
+                      axes: Seq[str] | None = None) -> list[Experiment]:
     """The paper's experiment list (Sections IV-A/C, V-A/C, VI-A/C, VII-B), in the paper's order.
 
     Parameters
     ----------
     cfg : PiezoConfig, optional
-        Gives the axis names (default ``('x', 'y')``).
+        Gives the axis names (default ``('x', 'y')``).  Every axis gets its hysteresis, creep and step
+        experiments; the circles (two axes or more) are drawn in the plane of the first two axes, the others held
+        at rest; a single axis has no circle.
     creep_duration : float
         Creep observation time after the step [s] (paper: 600 s).
     hysteresis_periods : int
@@ -169,8 +172,10 @@ def paper_experiments(cfg: PiezoConfig | None = None, creep_duration: float = 60
         revolution.
     step_hold : float
         Duration of the vibration step records after the step [s].
+    axes : sequence of str, optional
+        The axis names when no ``cfg`` gives them (e.g. a recording's).
     """
-    axes = tuple(cfg.axes) if cfg is not None else ("x", "y")
+    axes = tuple(cfg.axes) if cfg is not None else (tuple(axes) if axes is not None else ("x", "y"))
     if not creep_duration > 1.0:
         raise ValueError(f"creep_duration must be > 1 s (the creep A_f is read 0.2 s after the step), "
                          f"got {creep_duration}")
@@ -206,10 +211,13 @@ def paper_experiments(cfg: PiezoConfig | None = None, creep_duration: float = 60
         for a in axes:
             exps.append(Experiment(f"{prefix}_{a}", section, system, kind, trajectory(a), metric, a, dict(params),
                                    decimate, text.format(a=a)))
-    if len(axes) == 2:
+    if len(axes) >= 2:
         for r in circle_radii:
             tag = f"{r / UM:g}".replace(".", "p")
-            circle = Circle(radius=r, frequency=circle_frequency, revolutions=circle_revolutions, axes=axes)
+            circle: Trajectory = Circle(radius=r, frequency=circle_frequency, revolutions=circle_revolutions,
+                                        axes=axes[:2])
+            if len(axes) > 2:   # in the plane of the first two axes, the others at rest
+                circle = PerAxis([circle], axes=axes)
             skip = circle.duration - 1.0 / circle_frequency
             for system in ("T", "open"):
                 exps.append(Experiment(

@@ -117,6 +117,10 @@ class ReproduceResult(JsonResult):
         Whether the noise-robust readings were used.
     robustness : dict or None
         ``reproduce`` only: the same tables for other truths (key absent from the JSON when None).
+    cross_coupling_pairs_percent : dict or None
+        Three axes or more: Table II for every ordered pair, ``{before, after}: {"<output><input>": % or None}``
+        (``"xz"``: z driven, x read), and ``cross_coupling_percent`` per axis is the largest of its row.  With two
+        axes each axis has one pair (``cross_coupling_percent`` is it) and the key is absent from the JSON.
     """
 
     before: dict[str, PerAxis]
@@ -133,6 +137,8 @@ class ReproduceResult(JsonResult):
     conditions: dict[str, Any]
     robust_readings: bool
     robustness: dict[str, Any] | None = field(default=None, metadata={"omit_none": True})
+    cross_coupling_pairs_percent: dict[str, dict[str, float | None]] | None = field(
+        default=None, metadata={"omit_none": True})
 
 
 class _Signals(NamedTuple):
@@ -219,7 +225,7 @@ def _read_hysteresis(ctx: _Context, out: dict[str, Any]) -> None:
             cross = ranges[("S0", b)][:, i]
             dt = float(np.median(np.diff(np.asarray(ctx.recorded[f"hyst_S0_{a}"][0], float))))
             n_avg = max(1, int(round(0.1 / dt))) if ctx.robust else 1  # 0.1 s moving average (1 % of a period)
-            out["before"]["cross_coupling_percent"][a] = _pct(M.cross_coupling_range_ratio(cross, direct, n_avg))
+            out["_pairs"]["before"][a + b] = _pct(M.cross_coupling_range_ratio(cross, direct, n_avg))
 
 
 def _read_creep(ctx: _Context, out: dict[str, Any]) -> None:
@@ -261,8 +267,23 @@ def _read_steps(ctx: _Context, out: dict[str, Any]) -> None:
     for a in ctx.axes:
         for b in ctx.axes:
             if b != a and ("T", a, a) in finals and ("T", a, b) in finals:
-                out["after"]["cross_coupling_percent"][a] = _pct(
+                out["_pairs"]["after"][a + b] = _pct(
                     M.cross_coupling_final_ratio(finals[("T", a, b)], finals[("T", a, a)]))
+
+
+def _cross_coupling_rows(out: dict[str, Any], axes: Sequence[str]) -> None:
+    """Table II per axis from the ordered pairs read: the axis's one pair (two axes), the largest of its row
+    (three or more, every pair then under ``cross_coupling_pairs_percent``)."""
+    pairs = out.pop("_pairs")
+    for phase in ("before", "after"):
+        for a in axes:
+            row = [v for k, v in pairs[phase].items() if k[:len(a)] == a and k[len(a):] in axes and v is not None]
+            if row:
+                out[phase]["cross_coupling_percent"][a] = max(row, key=abs)
+    if len(axes) > 2:
+        out["cross_coupling_pairs_percent"] = {
+            phase: {a + b: pairs[phase].get(a + b) for a in axes for b in axes if b != a}
+            for phase in ("before", "after")}
 
 
 def _read_tracking(ctx: _Context, out: dict[str, Any], exps: Sequence[Experiment],
@@ -292,7 +313,7 @@ def _read_tracking(ctx: _Context, out: dict[str, Any], exps: Sequence[Experiment
 
 def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Experiment] | None = None,
              design: Any = None, robust: bool = False, conditions: Mapping[str, Any] | None = None,
-             reference_model_tau: float | None = None) -> ReproduceResult:
+             reference_model_tau: float | None = None, axes: Sequence[str] | None = None) -> ReproduceResult:
     """Compute the paper's tables from recorded signals.
 
     Parameters
@@ -312,13 +333,16 @@ def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Expe
         Time constant [s] of the designed response Wr = 1/(τs + 1) (τ = t_r/3).  When given, circle tracking
         also reports the error against the reference filtered by Wr (ZOH, from rest): the part of the error the
         compensator was not designed to remove is the lag of Wr itself.
+    axes : sequence of str, optional
+        The stage's axes when ``experiments`` is not given (default ``('x', 'y')``): the paper's experiments on
+        those axes (e.g. a recording's axes).
 
     Returns
     -------
     ReproduceResult
         See the module docstring; ``to_json()`` has its keys.
     """
-    exps = experiments if experiments is not None else paper_experiments()
+    exps = experiments if experiments is not None else paper_experiments(axes=axes)
     by_name = {e.name: e for e in exps}
     unknown = set(recorded) - set(by_name)
     if unknown:
@@ -330,12 +354,14 @@ def evaluate(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[Expe
            "settling_time_s": {"before": {a: None for a in axes}, "after": {a: None for a in axes}},
            "static_error_percent": {"S_L": {a: None for a in axes}, "T": {a: None for a in axes}},
            "creep_over_Am_percent": {"before": {a: None for a in axes}, "after": {a: None for a in axes}},
-           "details": {}, "errors": {}, "conditions": dict(conditions or {}), "robust_readings": bool(robust)}
+           "details": {}, "errors": {}, "conditions": dict(conditions or {}), "robust_readings": bool(robust),
+           "_pairs": {"before": {}, "after": {}}}
 
     ctx = _Context(recorded, by_name, axes, bool(robust))
     _read_hysteresis(ctx, out)
     _read_creep(ctx, out)
     _read_steps(ctx, out)
+    _cross_coupling_rows(out, axes)
     _read_tracking(ctx, out, exps, reference_model_tau)
     return ReproduceResult(**out)
 
@@ -428,6 +454,36 @@ def _f(v: float | None, width: int = 8, digits: int = 2) -> str:
     return f"{'—':>{width}}" if v is None else f"{v:{width}.{digits}f}"
 
 
+def _pair_rows(result: Mapping[str, Any], P: Mapping[str, Any], label: str, axes: Sequence[str],
+               w: int = 22) -> list[str]:
+    """Table II of one axis (none) or of three or more: a row per ordered pair ``a ← b`` (a read, b driven), with
+    the paper's row for the pairs it has."""
+    if len(axes) < 2:
+        return [f"  (one axis: no cross-coupling)"]
+    pairs = result.get("cross_coupling_pairs_percent") or {}
+    det = result.get("details", {})
+    lines = []
+    for a in axes:
+        for b in axes:
+            if b == a:
+                continue
+            num_b = det.get(f"hyst_S0_{b}", {}).get("output_range_m", {}).get(a)
+            den_b = det.get(f"hyst_S0_{a}", {}).get("output_range_m", {}).get(a)
+            num_a = det.get(f"step_T_{b}", {}).get("final_values_m", {}).get(a)
+            den_a = det.get(f"step_T_{a}", {}).get("final_values_m", {}).get(a)
+            lv = f"({num_b / UM:.2f}/{den_b / UM:.1f} µm)" if num_b is not None and den_b is not None else ""
+            la = f"({abs(num_a) / UM:.3f}/{den_a / UM:.2f} µm)" if num_a is not None and den_a is not None else ""
+            pair = f"{a}←{b}"
+            lines.append(f"  {pair:<5} {label:<{w - 2}}{_f(pairs.get('before', {}).get(a + b), 9)} {lv:<22}"
+                         f"{_f(pairs.get('after', {}).get(a + b), 9)} {la}")
+            if {a, b} == {"x", "y"}:
+                pl = P["cross_coupling_levels_um"]
+                lines.append(f"  {pair:<5} {'paper':<{w - 2}}{_f(P['before']['cross_coupling_percent'][a], 9)} "
+                             f"{'(%g/%g µm)' % tuple(pl['before'][a]):<22}"
+                             f"{_f(P['after']['cross_coupling_percent'][a], 9)} {'(%g/%g µm)' % tuple(pl['after'][a])}")
+    return lines
+
+
 def format_tables(result: ReproduceResult | Mapping[str, Any], label: str = "this run",
                   axes: Sequence[str] = ("x", "y")) -> str:
     """Table I and Table II side by side with the paper's (and the independent reading's) figures.
@@ -453,19 +509,25 @@ def format_tables(result: ReproduceResult | Mapping[str, Any], label: str = "thi
     cond = result.get("conditions", {})
     if cond:
         lines.append("conditions: " + ", ".join(f"{k}={v}" for k, v in cond.items()))
-    lines.append("TABLE I — direct transfers [%]      before compensation           after compensation")
-    lines.append("                               hyster.   creep  overshoot   hyster.   creep  overshoot")
+    w = max(22, len(label))   # the row label's column: a long label shifts the figures, never misaligns them
+    pad = " " * (w - 22)
+    lines.append(f"TABLE I — direct transfers [%]      {pad}before compensation           after compensation")
+    lines.append(f"                               {pad}hyster.   creep  overshoot   hyster.   creep  overshoot")
     cols = ("hysteresis_percent", "creep_percent", "overshoot_percent")
     for a in axes:
         for tag, src in ((label, result), ("paper", P), ("independent", I)):
             if tag == "independent" and "before" not in src:
                 continue
+            if tag != label and a not in src.get("before", {}).get("hysteresis_percent", {}):
+                continue   # an axis the paper does not have
             b = [src.get("before", {}).get(k, {}).get(a) for k in cols]
             af = [src.get("after", {}).get(k, {}).get(a) for k in cols] if tag != "independent" else [None] * 3
-            lines.append(f"  {a}  {tag:<22}" + "".join(_f(v, 9) for v in b) + "  " + "".join(_f(v, 9) for v in af))
+            lines.append(f"  {a}  {tag:<{w}}" + "".join(_f(v, 9) for v in b) + "  " + "".join(_f(v, 9) for v in af))
     lines.append("")
-    lines.append("TABLE II — cross-couplings [%]      before: H^ab/H^aa (S0)       after: A_f^ab/A_f^aa (T)")
-    for a in axes:
+    lines.append(f"TABLE II — cross-couplings [%]      {pad}before: H^ab/H^aa (S0)       after: A_f^ab/A_f^aa (T)")
+    if len(axes) != 2:
+        lines.extend(_pair_rows(result, P, label, axes, w))
+    for a in (axes if len(axes) == 2 else ()):
         b_other = [o for o in axes if o != a][0] if len(axes) > 1 else a
         det_b = result.get("details", {})
         num_b = det_b.get(f"hyst_S0_{b_other}", {}).get("output_range_m", {}).get(a)
@@ -475,9 +537,9 @@ def format_tables(result: ReproduceResult | Mapping[str, Any], label: str = "thi
         lv = (f"({num_b / UM:.2f}/{den_b / UM:.1f} µm)" if num_b is not None and den_b is not None else "")
         la = (f"({abs(num_a) / UM:.3f}/{den_a / UM:.2f} µm)" if num_a is not None and den_a is not None else "")
         pl = P["cross_coupling_levels_um"]
-        lines.append(f"  {a}  {label:<22}{_f(result['before']['cross_coupling_percent'][a], 9)} {lv:<22}"
+        lines.append(f"  {a}  {label:<{w}}{_f(result['before']['cross_coupling_percent'][a], 9)} {lv:<22}"
                      f"{_f(result['after']['cross_coupling_percent'][a], 9)} {la}")
-        lines.append(f"  {a}  {'paper':<22}{_f(P['before']['cross_coupling_percent'][a], 9)} "
+        lines.append(f"  {a}  {'paper':<{w}}{_f(P['before']['cross_coupling_percent'][a], 9)} "
                      f"{'(%g/%g µm)' % tuple(pl['before'][a]):<22}{_f(P['after']['cross_coupling_percent'][a], 9)} "
                      f"{'(%g/%g µm)' % tuple(pl['after'][a])}")
     lines.append("")

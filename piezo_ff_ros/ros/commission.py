@@ -4,7 +4,8 @@
 1. Finds a driver on the domain (a node named ``driver`` or a subscriber of ``voltage``): any backend, simulated or
    hardware; without one it starts the sim graph (driver, compensator, trajectory, recorder) on a private domain (or
    ``--domain-id``); with one it starts only the nodes that are missing (never a second recorder: the recording
-   must be ours).  A driver without a displacement sensor is refused.
+   must be ours).  A driver without a displacement sensor is refused, and so is one whose axes (its
+   ``joint_states`` names) differ from the starting config's.
 2. Characterises S0 (compensator bypassed), S_H and S_L stage by stage with live parameter pushes, identifies each
    stage from the recording, scores the identified whole plant on a held-out voltage record, synthesises H∞ and
    pushes the complete identified config (all in :func:`~piezo_ff_ros.core.commissioning.commission`).
@@ -19,7 +20,35 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
+
+
+def driver_axes(client: Any, timeout: float = 2.0) -> tuple[str, ...] | None:
+    """The axes a running driver drives: those of the config it loaded (its ``config_file`` and ``variant``
+    parameters), else the joint names of its ``/joint_states``; None when neither answers within ``timeout`` s."""
+    from rclpy.parameter import parameter_value_to_python
+    from sensor_msgs.msg import JointState
+
+    from ..core.config import load_config
+
+    get = client.node.create_client(client.GetParameters, "/driver/get_parameters")
+    try:
+        if get.wait_for_service(timeout_sec=timeout):
+            res = client.call(get, client.GetParameters.Request(names=["config_file", "variant"]), timeout=timeout)
+            values = [parameter_value_to_python(v) for v in res.values]
+            if len(values) == 2 and all(isinstance(v, str) for v in values):
+                return tuple(load_config(values[0] or None, variant=values[1] or None).axes)
+    finally:
+        client.node.destroy_client(get)
+    names: list[tuple[str, ...]] = []
+    sub = client.node.create_subscription(JointState, "/joint_states", lambda m: names.append(tuple(m.name)), 10)
+    try:
+        deadline = time.monotonic() + timeout
+        while not names and time.monotonic() < deadline:
+            client.spin_for(0.1)
+    finally:
+        client.node.destroy_subscription(sub)
+    return names[0] if names else None
 
 
 def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
@@ -67,6 +96,14 @@ def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
             raise ValueError(f"the driver on ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']} publishes no /displacement: "
                              "its device has no sensor, and commissioning identifies from measured displacement "
                              "(use a backend with a sensor, e.g. nidaqmx with ai_channels)")
+        found_axes = driver_axes(client, timeout=max(args.probe_timeout, 2.0))
+        if found_axes is not None and found_axes != tuple(axes):
+            client.close()
+            raise ValueError(f"the starting config {printed.name!r} has axes {list(axes)} but the driver on "
+                             f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']} drives {list(found_axes)}: start from a "
+                             "config of the driver's axes (--config)")
+        if found_axes is None:
+            say("the driver published no joint_states: its axes could not be checked against the config's")
         nodes = ("recorder",) + tuple(n for n in ("compensator", "trajectory") if n not in present)
         say(f"driver found on ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}; starting {', '.join(nodes)}")
     else:
@@ -118,6 +155,8 @@ def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
                 "orders": report.orders,
                 "before": res.before, "after": res.after, "hinf": res.hinf,
                 "tracking": res.tracking, "static_error_percent": res.static_error_percent,
+                **({"cross_coupling_pairs_percent": res.cross_coupling_pairs_percent}
+                   if res.cross_coupling_pairs_percent is not None else {}),
                 "conditions": {"graph": "started sim graph" if not found else "existing driver",
                                "ros_domain_id": int(os.environ["ROS_DOMAIN_ID"]),
                                "creep_duration_s": args.creep_duration,

@@ -39,6 +39,8 @@ __all__ = ["identify_all", "commission_sim", "split_runs", "build_config", "synt
            "IdentificationReport"]
 
 STAGES = ("hysteresis", "creep", "dynamics")
+#: a run is fitted on or only scored on
+ROLES = ("fit", "validation")
 #: ``meta['hysteresis_compensator']`` of S_L runs recorded through the Bouc-Wen refitted without creep
 REFIT_TAG = "refit_without_creep"
 
@@ -61,6 +63,8 @@ class IdentificationReport(JsonResult):
         The H∞ design's facts (γ, orders …; absent from the JSON when not synthesised).
     design : HinfDesign or None
         The H∞ design itself (not in the JSON).
+    kept_from_base : list of str or None
+        Stages without runs, kept from the base config and switched off in the cascade (absent when None).
     """
 
     fit_percent: dict[str, dict[str, float | None]]
@@ -69,6 +73,7 @@ class IdentificationReport(JsonResult):
     hinf_note: str | None = field(default=None, metadata={"omit_none": True})
     hinf: dict[str, Any] | None = field(default=None, metadata={"omit_none": True})
     design: Any = field(default=None, metadata={"json": False})
+    kept_from_base: list[str] | None = field(default=None, metadata={"omit_none": True})
 
 
 def split_runs(runs: Sequence[RunData]) -> dict[str, dict[str, list[RunData]]]:
@@ -87,7 +92,7 @@ def split_runs(runs: Sequence[RunData]) -> dict[str, dict[str, list[RunData]]]:
     Raises
     ------
     ValueError
-        A run's stage is not one of those.
+        A run's stage is not one of those, or its role is neither fit nor validation.
     """
     out: dict[str, dict[str, list[RunData]]] = {s: {"fit": [], "validation": []} for s in STAGES + ("plant",)}
     for r in runs:
@@ -96,32 +101,49 @@ def split_runs(runs: Sequence[RunData]) -> dict[str, dict[str, list[RunData]]]:
         if st not in out:
             raise ValueError(f"run {r.meta.get('experiment', '?')}: meta['stage'] must be hysteresis, creep, "
                              f"dynamics or plant, got {st!r}")
+        if role not in ROLES:   # a typo would silently fit on held-out data, or score on fitted data
+            raise ValueError(f"run {r.meta.get('experiment', '?')}: meta['role'] must be fit or validation, "
+                             f"got {role!r}")
         if st == "plant":   # whole-plant runs are only ever scored on
             role = "validation"
         out[st]["validation" if role == "validation" else "fit"].append(r)
     return out
 
 
-def build_config(base: PiezoConfig, hyst: BoucWenFit, creep: CreepFit, dyn: DynamicsFit, sample_rate: float,
-                 axes: Sequence[str]) -> PiezoConfig:
-    """A complete config from identified stages (weights, cascade and limits kept from ``base``)."""
+def build_config(base: PiezoConfig, hyst: BoucWenFit, creep: CreepFit | None, dyn: DynamicsFit | None,
+                 sample_rate: float, axes: Sequence[str]) -> PiezoConfig:
+    """A complete config from identified stages (weights, cascade and limits kept from ``base``); a stage given as
+    None keeps ``base``'s parameters and is switched off in the cascade (with the dynamics, the vibration stage)."""
+    cascade = base.cascade
+    if creep is None:
+        cascade = replace(cascade, creep=False)
+    if dyn is None:
+        cascade = replace(cascade, vibration=False)
+    kept = [n for n, f in (("creep", creep), ("dynamics", dyn)) if f is None]
     return replace(base, name=f"{base.name}_identified", axes=tuple(axes), sample_rate=float(sample_rate),
-                   hysteresis=hyst.config, creep=creep.config, dynamics=dyn.config,
+                   hysteresis=hyst.config, creep=creep.config if creep else base.creep,
+                   dynamics=dyn.config if dyn else base.dynamics, cascade=cascade,
                    vibration=replace(base.vibration, controller=None),
-                   source="identified by piezo-ff identify (Habineza et al. 2018 procedure)", variant="printed"
-                   ).validate()
+                   source="identified by piezo-ff identify (Habineza et al. 2018 procedure)"
+                          + (f"; {', '.join(kept)} kept from {base.name} (not identified, switched off)" if kept
+                             else ""), variant="printed").validate()
 
 
-def fits_report(hf: BoucWenFit, cf: CreepFit, df: DynamicsFit, axes: Sequence[str]) -> dict[str, Fits]:
-    """Held-out fit [%] per stage and axis/entry of identified stages (None where not finite)."""
+def fits_report(hf: BoucWenFit, cf: CreepFit | None, df: DynamicsFit | None, axes: Sequence[str]
+                ) -> dict[str, Fits]:
+    """Held-out fit [%] per stage and axis/entry of identified stages (None where not finite; a stage not
+    identified is absent)."""
 
     def clean(d: Mapping[str, float | None]) -> Fits:
         return {k: (None if v is None or not np.isfinite(v) else round(float(v), 3)) for k, v in d.items()}
 
     hv = hf.fit_validation if hf.fit_validation is not None else hf.fit_train
-    return {"hysteresis": clean({a: float(v) for a, v in zip(axes, hv)}),
-            "creep": clean(cf.fit_validation or cf.fit_train),
-            "dynamics": clean(df.fit_validation or df.fit_train)}
+    out = {"hysteresis": clean({a: float(v) for a, v in zip(axes, hv)})}
+    if cf is not None:
+        out["creep"] = clean(cf.fit_validation or cf.fit_train)
+    if df is not None:
+        out["dynamics"] = clean(df.fit_validation or df.fit_train)
+    return out
 
 
 def _simulate_plant(cfg: PiezoConfig, u: np.ndarray, fs: float) -> np.ndarray:
@@ -152,48 +174,76 @@ def plant_fit(cfg: PiezoConfig, runs: Sequence[RunData], reference_outputs: Sequ
 def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, generalized: bool = False,
                  creep_order: int | str = "auto", dynamics_order: int | str = "auto", synthesize: bool = True,
                  refine_hysteresis: bool | None = None, progress: Callable[[str], None] | None = None,
+                 fit_offset: bool = False, delay: int = 0, skip: float = 0.0,
                  ) -> tuple[PiezoConfig, IdentificationReport]:
-    """Identify every stage from tagged runs; returns the complete config and a report (held-out fits, timings).
+    """Identify every stage the runs characterise; returns the complete config and a report (held-out fits, timings).
 
+    The stages are identified in the paper's order from the runs tagged with them; hysteresis alone (a single-stage
+    record, e.g. a voltage/displacement loop) or hysteresis and creep are enough: a stage without runs keeps
+    ``base``'s parameters and is switched off in the cascade (the report lists it under ``kept_from_base``).
     The H∞ compensator is synthesised from the identified G_L (``core.synthesis.hinf``) and stored in the config
     (``vibration.controller``) so the compensator node loads it without re-synthesising.  With
     ``refine_hysteresis`` the Bouc-Wen is refitted once creep is known (:func:`refit_hysteresis_without_creep`),
-    as :func:`commission_sim` does before characterising S_L; the S_L runs must then have been recorded through
-    the refitted hysteresis compensator.  Default (None): refit iff the S_L fitting runs say so
-    (``meta['hysteresis_compensator'] == 'refit_without_creep'``, which ``commission_sim`` sets).
+    as :func:`~piezo_ff_ros.core.commissioning.commission` does before characterising S_L; the S_L runs must then
+    have been recorded through the refitted hysteresis compensator.  Default (None): refit iff the S_L fitting runs
+    say so (``meta['hysteresis_compensator'] == 'refit_without_creep'``, which commissioning sets).
+    ``fit_offset``, ``delay`` and ``skip`` go to :func:`~.bouc_wen.identify_bouc_wen` (measured records: a sensor
+    offset, a sample of lag, an initial transient).
+
+    Raises
+    ------
+    ValueError
+        No hysteresis fitting run, a later stage without the one before it, runs of several axis sets, or a
+        ``base`` whose axes differ from the runs' (one line naming both).
     """
     say = progress or (lambda s: None)
     base = base or load_config()
     groups = split_runs(runs)
-    for st, g in groups.items():
-        if st in STAGES and not g["fit"]:
-            raise ValueError(f"no '{st}' fitting run among the data (tag runs with meta stage/role)")
+    present = tuple(st for st in STAGES if groups[st]["fit"])
+    if not present or present != STAGES[:len(present)]:
+        missing = next(st for st in STAGES if not groups[st]["fit"])
+        raise ValueError(f"no '{missing}' fitting run among the data, and the stages are identified in order "
+                         f"({' → '.join(STAGES)}; tag runs with meta stage/role, or --stage)")
     axes = groups["hysteresis"]["fit"][0].axes
+    other = sorted({tuple(r.axes) for r in runs} - {tuple(axes)})
+    if other:
+        raise ValueError(f"the runs have different axes: {list(axes)} and {[list(a) for a in other]}")
+    if tuple(base.axes) != tuple(axes):
+        raise ValueError(f"the base config {base.name!r} has axes {list(base.axes)} but the runs have {list(axes)}: "
+                         "give a base config of the runs' axes (--base)")
     fs = groups["hysteresis"]["fit"][0].sample_rate
     timing = {}
+    bw = {"fit_offset": fit_offset, "delay": int(delay), "skip": float(skip)}
     t0 = time.perf_counter()
     hf = identify_bouc_wen(groups["hysteresis"]["fit"], groups["hysteresis"]["validation"], generalized=generalized,
-                           progress=say)
+                           progress=say, **bw)
     timing["hysteresis"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    cf = identify_creep(groups["creep"]["fit"], groups["creep"]["validation"], order=creep_order, axes=axes,
-                        progress=say)
-    timing["creep"] = time.perf_counter() - t0
-    if refine_hysteresis is None:   # as the S_L runs were recorded: through the refitted compensator or not
-        refine_hysteresis = any(r.meta.get("hysteresis_compensator") == REFIT_TAG for r in groups["dynamics"]["fit"])
-    if refine_hysteresis:
+    cf = df = None
+    if "creep" in present:
         t0 = time.perf_counter()
-        say("hysteresis: refit Bouc-Wen on S0 with the identified creep removed from the output")
-        hf = refit_hysteresis_without_creep(groups["hysteresis"]["fit"] + groups["hysteresis"]["validation"],
-                                            cf.config, generalized=generalized, init=hf, progress=say)
-        timing["hysteresis_refit"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    df = identify_dynamics(groups["dynamics"]["fit"], groups["dynamics"]["validation"], order=dynamics_order,
-                           axes=axes, progress=say)
-    timing["dynamics"] = time.perf_counter() - t0
+        cf = identify_creep(groups["creep"]["fit"], groups["creep"]["validation"], order=creep_order, axes=axes,
+                            progress=say)
+        timing["creep"] = time.perf_counter() - t0
+        if refine_hysteresis is None:   # as the S_L runs were recorded: through the refitted compensator or not
+            refine_hysteresis = any(r.meta.get("hysteresis_compensator") == REFIT_TAG
+                                    for r in groups["dynamics"]["fit"])
+        if refine_hysteresis:
+            t0 = time.perf_counter()
+            say("hysteresis: refit Bouc-Wen on S0 with the identified creep removed from the output")
+            hf = refit_hysteresis_without_creep(groups["hysteresis"]["fit"] + groups["hysteresis"]["validation"],
+                                                cf.config, generalized=generalized, init=hf, progress=say, **bw)
+            timing["hysteresis_refit"] = time.perf_counter() - t0
+    if "dynamics" in present:
+        t0 = time.perf_counter()
+        df = identify_dynamics(groups["dynamics"]["fit"], groups["dynamics"]["validation"], order=dynamics_order,
+                               axes=axes, progress=say)
+        timing["dynamics"] = time.perf_counter() - t0
+    kept = [st for st in STAGES if st not in present]
+    if kept:
+        say(f"{', '.join(kept)}: no runs; kept from the base config {base.name!r} and switched off in the cascade")
     cfg = build_config(base, hf, cf, df, fs, axes)
     fits = fits_report(hf, cf, df, axes)
-    if groups["plant"]["validation"]:
+    if groups["plant"]["validation"] and not kept:
         t0 = time.perf_counter()
         say("plant: held-out fit of the identified whole-plant model")
         fits["plant"] = plant_fit(cfg, groups["plant"]["validation"])
@@ -204,9 +254,11 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
         cfg, design, note = with_hinf_controller(cfg, say)
         timing["hinf"] = time.perf_counter() - t0
     timing["total"] = sum(v for k, v in timing.items() if k != "total")
-    return cfg, IdentificationReport(fit_percent=fits, orders={"creep": cf.orders, "dynamics": df.orders},
+    return cfg, IdentificationReport(fit_percent=fits,
+                                     orders={"creep": cf.orders if cf else None, "dynamics": df.orders if df else None},
                                      timing_s=timing, hinf_note=note or None,
-                                     hinf=design.as_dict() if design is not None else None, design=design)
+                                     hinf=design.as_dict() if design is not None else None, design=design,
+                                     kept_from_base=kept or None)
 
 
 def synthesize_for(cfg: PiezoConfig, say: Callable[[str], None] = lambda s: None) -> tuple[HinfDesign, str | None]:
@@ -278,7 +330,7 @@ def commission_sim(plant: Processor, fs: float, axes: Sequence[str] = ("x", "y")
 
 def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg: CreepConfig, generalized: bool = False,
                                    init: BoucWenFit | None = None,
-                                   progress: Callable[[str], None] | None = None) -> BoucWenFit:
+                                   progress: Callable[[str], None] | None = None, **bouc_wen: Any) -> BoucWenFit:
     """Bouc-Wen refitted on the S0 sines after removing the identified creep from their output.
 
     The first Bouc-Wen is fitted on S0, whose 0.1 Hz sines also carry creep (time constants of seconds to minutes):
@@ -293,7 +345,8 @@ def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg: Cree
     for r in hyst_runs:
         cc = CreepCompensator(creep_cfg, 1.0 / r.sample_rate)
         out["validation" if r.meta.get("role") == "validation" else "fit"].append(replace(r, y=cc.process(r.y)))
-    return identify_bouc_wen(out["fit"], out["validation"], generalized=generalized, init=init, progress=progress)
+    return identify_bouc_wen(out["fit"], out["validation"], generalized=generalized, init=init, progress=progress,
+                             **bouc_wen)
 
 
 def part_fits(cfg: PiezoConfig, run: RunData, y_ref: np.ndarray, traj: Trajectory,

@@ -14,8 +14,10 @@ are of the true displacement), ``identified`` (the compensators built from a con
 printed plant, :func:`~..identification.pipeline.commission_sim`; the truth is the printed plant).
 
 Every reference starts with a 0.1 s smooth lead-in from rest to its first sample.  Errors are the Euclidean
-distance ``|y − r|`` read on a window: the last revolution of a circle, the lines after the first outside the
-turnarounds of a raster, the whole of a spiral.
+distance ``|y − r|`` (over every axis) read on a window: the last revolution of a circle, a helix or a sine, the lines
+after the first outside the turnarounds of a raster, the whole of a spiral.  Any number of axes: the plane cases run
+in the plane of the first two axes (:func:`on_stage`), a third axis adds a helix and a raster over a ramp, a single
+axis tracks sines (:func:`benchmark_cases`).
 """
 from __future__ import annotations
 
@@ -23,19 +25,19 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from ..compensators.cascade import CompensatorCascade
 from ..config import PiezoConfig
 from ..models.plant import Plant
-from ..trajectories import Circle, Raster, Spiral, Trajectory
+from ..trajectories import Circle, Hold, PerAxis, Ramp, Raster, Sine, Spiral, Trajectory, helix
 from .ilc import ILCConfig, IterativeLearning, convergence_factor
 from .linear import CascadeReplica, CompensatedModel, controller_matrices
 from .preview import PreviewConfig, PreviewStage
 
-__all__ = ["Case", "benchmark_cases", "run_benchmark", "METHODS", "TRUTHS", "LEAD_IN_S"]
+__all__ = ["Case", "benchmark_cases", "on_stage", "run_benchmark", "METHODS", "TRUTHS", "LEAD_IN_S"]
 
 METHODS = ("open", "cascade", "preview", "learning")
 TRUTHS = ("nominal", "asymmetric", "noise_100nm", "identified")
@@ -58,17 +60,56 @@ class Case:
         return f"{self.trajectory} {self.size_um:g} µm {self.frequency_hz:g} Hz"
 
 
-def benchmark_cases(quick: bool = False) -> list[Case]:
-    """Circles 20/30 µm at 1, 10, 50 Hz; raster 20 µm at 10 and 50 Hz lines; a 20 µm spiral at 10 Hz."""
+def on_stage(traj: Trajectory, axes: Sequence[str]) -> Trajectory:
+    """A plane trajectory (circle, raster, spiral on two axes) on a stage of ``axes``: in the plane of the first two
+    axes, the others at rest (:class:`~..trajectories.PerAxis`); unchanged on a stage of those two axes."""
+    axes = tuple(axes)
+    if traj.axes == axes:
+        return traj
+    plane = dataclasses.replace(traj, axes=axes[:2], **({"fast_axis": axes[0]} if isinstance(traj, Raster) else {}))
+    return plane if len(axes) == 2 else PerAxis([plane], axes=axes)
+
+
+def benchmark_cases(quick: bool = False, axes: Sequence[str] = ("x", "y")) -> list[Case]:
+    """Circles 20/30 µm at 1, 10, 50 Hz; raster 20 µm at 10 and 50 Hz lines; a 20 µm spiral at 10 Hz.
+
+    On a stage of three axes or more they run in the plane of the first two, and two cases move the third: a helix
+    (the 20 µm circle at 10 Hz over a 10 µm ramp) and a raster over a 10 µm ramp (``raster_ramp``).  A single axis
+    tracks sines of the circles' amplitudes and frequencies instead."""
     um = 1e-6
+    axes = tuple(axes)
     cases = []
     for size in ((20,) if quick else (20, 30)):
         for f in ((1, 10) if quick else (1, 10, 50)):
-            cases.append(Case("circle", size, f, Circle(radius=size * um, frequency=f, revolutions=2 if f == 1 else 4)))
+            revs = 2 if f == 1 else 4
+            if len(axes) == 1:
+                cases.append(Case("sine", size, f, Sine(amplitude=size * um, frequency=f, axis=axes[0],
+                                                        duration=revs / f, axes=axes)))
+            else:
+                cases.append(Case("circle", size, f, on_stage(Circle(radius=size * um, frequency=f, revolutions=revs),
+                                                              axes)))
+    if len(axes) == 1:
+        return cases
     for f in ((10,) if quick else (10, 50)):
-        cases.append(Case("raster", 20, f, Raster(width=20 * um, lines=6 if f == 10 else 12, line_rate=f)))
-    cases.append(Case("spiral", 20, 10, Spiral(radius=20 * um, frequency=10, revolutions=5)))
+        cases.append(Case("raster", 20, f, on_stage(Raster(width=20 * um, lines=6 if f == 10 else 12, line_rate=f),
+                                                    axes)))
+    cases.append(Case("spiral", 20, 10, on_stage(Spiral(radius=20 * um, frequency=10, revolutions=5), axes)))
+    if len(axes) >= 3:
+        rest = [Hold(value=0.0, duration=0.1, axes=axes[3:])] if len(axes) > 3 else []
+        h = helix(20 * um, 10, 4, 10 * um, axes=axes[:3])
+        cases.append(Case("helix", 20, 10, PerAxis(list(h.parts) + rest, axes=axes)))
+        ras = Raster(width=20 * um, lines=6, line_rate=10, axes=axes[:2], fast_axis=axes[0])
+        ramp = Ramp(start=0.0, end=10 * um, duration=ras.duration, axes=axes[2:3])
+        cases.append(Case("raster_ramp", 20, 10, PerAxis([ras, ramp] + rest, axes=axes)))
     return cases
+
+
+def _raster(traj: Trajectory) -> Raster:
+    """The raster of a raster case (itself, or its part on a stage of more axes)."""
+    if isinstance(traj, Raster):
+        return traj
+    assert isinstance(traj, PerAxis)   # the raster cases carry a Raster, alone or as a part
+    return next(p for p in traj.parts if isinstance(p, Raster))
 
 
 def reference_with_lead_in(case: Case, fs: float) -> tuple[np.ndarray, int]:
@@ -84,11 +125,10 @@ def evaluation_window(case: Case, r: np.ndarray, n_lead: int, fs: float) -> np.n
     """Boolean mask of the samples the errors are read on (see the module docstring)."""
     n = len(r)
     mask = np.zeros(n, bool)
-    if case.trajectory == "circle":
+    if case.trajectory in ("circle", "sine", "helix"):
         mask[n - int(round(fs / case.frequency_hz)):] = True
-    elif case.trajectory == "raster":
-        assert isinstance(case.traj, Raster)   # the raster cases carry a Raster
-        fast = r[:, case.traj.axes.index(case.traj.fast_axis)]
+    elif case.trajectory in ("raster", "raster_ramp"):
+        fast = r[:, case.traj.axes.index(_raster(case.traj).fast_axis)]
         acc = np.abs(np.gradient(np.gradient(fast)))
         mask[n_lead + int(round(fs / case.frequency_hz)):] = True
         mask &= acc < 1e-6 * acc.max()
@@ -182,7 +222,7 @@ def run_benchmark(printed: PiezoConfig, identified: PiezoConfig | None = None, q
     learning_out: dict[str, Any] = {}
     constrained_cfg = dataclasses.replace(preview_cfg, constrained=True)
     constrained_stage: PreviewStage | None = None
-    for case in benchmark_cases(quick):
+    for case in benchmark_cases(quick, printed.axes):
         r, n_lead = reference_with_lead_in(case, fs)
         mask = evaluation_window(case, r, n_lead, fs)
         shaped: dict[int, np.ndarray] = {}
@@ -270,7 +310,7 @@ def physical_limits(models: dict[str, _Model], printed: PiezoConfig, preview_cfg
             rhp = z[z.real > 0]
             rhp_zeros[f"{a}{b}"] = [[float(v.real), float(v.imag)] for v in rhp]
     # horizon sweep on the 20 µm circle at 10 Hz (model = plant)
-    case = Case("circle", 20, 10, Circle(radius=20e-6, frequency=10, revolutions=4))
+    case = next(c for c in benchmark_cases(True, axes) if c.frequency_hz == 10)   # the 20 µm circle (sine) at 10 Hz
     r, n_lead = reference_with_lead_in(case, fs)
     mask = evaluation_window(case, r, n_lead, fs)
     sweep = []

@@ -11,18 +11,20 @@ plain dictionaries (ROS parameters, YAML); a ``unit`` key (``"um"``, ``"nm"`` â€
 spec written by hand.
 
 Generators: :class:`Sine`, :class:`Step`, :class:`Staircase`, :class:`Circle` (paper Fig. 15), :class:`Raster`,
-:class:`PRBS`, :class:`Multisine`, :class:`Chirp`, :class:`Hold`, :class:`Spiral`, :class:`Table` (samples from an
-array or a file, played sample-exactly at their own rate); :class:`Sequence` concatenates named segments and says
+:class:`PRBS`, :class:`Multisine`, :class:`Chirp`, :class:`Hold`, :class:`Spiral`, :class:`Ramp`, :class:`Table`
+(samples from an array or a file, played sample-exactly at their own rate); :class:`PerAxis` puts trajectories of
+some axes side by side on a stage of N axes (:func:`helix`: a circle over a z ramp); :class:`Sequence` concatenates named segments and says
 which segment a sample belongs to.  :func:`check_workspace` refuses a trajectory that leaves the workspace.
 
 Layout: :mod:`.base` (the :class:`Trajectory` base), :mod:`.shapes`, :mod:`.tables`, :mod:`.excitation`,
-:mod:`.sequence`, :mod:`.spec` (:func:`from_dict`), :mod:`.workspace` (:func:`check_workspace`, :func:`peak`); every
+:mod:`.per_axis`, :mod:`.sequence`, :mod:`.spec` (:func:`from_dict`), :mod:`.workspace` (:func:`check_workspace`, :func:`peak`); every
 public name is re-exported here.
 """
 from __future__ import annotations
 
 from .base import Trajectory
 from .excitation import PRBS, Chirp, Multisine
+from .per_axis import PerAxis, Ramp, helix
 from .sequence import Segment, Sequence
 from .shapes import Circle, Hold, Raster, Sine, Spiral, Staircase, Step
 from .spec import TRAJECTORY_TYPES, from_dict
@@ -32,4 +34,5 @@ from .workspace import check_workspace, peak
 __all__ = [
     "Trajectory", "Sine", "Step", "Staircase", "Circle", "Raster", "PRBS", "Multisine", "Chirp", "Hold",
     "Sequence", "Segment", "from_dict", "TRAJECTORY_TYPES", "Spiral", "Table", "check_workspace", "peak",
+    "PerAxis", "Ramp", "helix",
 ]

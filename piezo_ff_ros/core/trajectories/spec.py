@@ -9,6 +9,7 @@ from ..config import ConfigError
 from ..units import length_scale
 from .base import Trajectory
 from .excitation import Chirp, Multisine, PRBS
+from .per_axis import PerAxis, Ramp
 from .sequence import Sequence
 from .shapes import Circle, Hold, Raster, Sine, Spiral, Staircase, Step
 from .tables import Table
@@ -17,7 +18,7 @@ __all__ = ["TRAJECTORY_TYPES", "from_dict"]
 
 
 TRAJECTORY_TYPES = {cls.kind: cls for cls in (Hold, Sine, Step, Staircase, Circle, Raster, PRBS, Multisine, Chirp,
-                                              Spiral, Table)}
+                                              Spiral, Table, Ramp)}
 
 
 def _scale_lengths(value: Any, s: float) -> Any:
@@ -53,9 +54,20 @@ def from_dict(spec: Mapping[str, Any], prefix: str = "trajectory") -> Trajectory
             return Sequence(segs, axes=d.get("axes"))
         except ConfigError as exc:
             raise ConfigError(f"{prefix}.{exc.field}", exc.reason) from None
+    if kind == "per_axis":
+        unknown = set(d) - {"parts", "axes"}
+        if unknown:
+            raise ConfigError(f"{prefix}.{sorted(unknown)[0]}", "unknown key for a per_axis trajectory (parts, axes)")
+        parts = d.get("parts")
+        if not isinstance(parts, (list, tuple)):
+            raise ConfigError(f"{prefix}.parts", "expected a list of trajectories, each with its own axes")
+        try:
+            return PerAxis(parts, axes=d.get("axes"))
+        except ConfigError as exc:
+            raise ConfigError(f"{prefix}.{exc.field}", exc.reason) from None
     if kind not in TRAJECTORY_TYPES:
         raise ConfigError(f"{prefix}.type", f"unknown trajectory type {kind!r}; use one of "
-                                            f"{sorted(TRAJECTORY_TYPES) + ['sequence']}")
+                                            f"{sorted(TRAJECTORY_TYPES) + ['per_axis', 'sequence']}")
     cls = TRAJECTORY_TYPES[kind]
     unit = d.pop("unit", None)
     if unit is not None:
