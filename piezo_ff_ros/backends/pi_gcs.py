@@ -300,7 +300,8 @@ class Staircase:
     """
 
     def __init__(self, send: Callable[[np.ndarray], None], fs: float, step_max: float, decimation: int,
-                 start: np.ndarray, sleep: Callable[[float], None] = time.sleep) -> None:
+                 start: np.ndarray, sleep: Callable[[float], None] = time.sleep,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.send, self.fs, self.step_max, self.decimation = send, float(fs), float(step_max), max(1, int(decimation))
         self.sent = np.asarray(start, dtype=float).copy()   #: last value accepted by the controller
         self.anchor: float | None = None                     #: wall time of the next block's first sample
@@ -310,7 +311,7 @@ class Staircase:
         self.skipped = 0                                      #: scheduled set points skipped to stay in real time
         self.rows_done = 0
         self.late_s = 0.0                                     #: lag kept at the end of blocks [s]
-        self._sleep = sleep
+        self._sleep, self._clock = sleep, clock
 
     def schedule(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(positions [samples, block-relative; sample j at j + 1], values [m, axes])`` of the planned set
@@ -347,7 +348,7 @@ class Staircase:
         n = u.shape[0]
         out = np.empty_like(u) if applied is None else applied
         dt = 1.0 / self.fs
-        now = time.monotonic()
+        now = self._clock()
         if self.anchor is None or self.anchor < now:
             self.pos_sent -= ((now - self.anchor) / dt) if self.anchor is not None else 0.0
             self.anchor = now                                # the output held meanwhile: the block starts now
@@ -362,10 +363,10 @@ class Staircase:
         try:
             while i < m:
                 earliest = max(anchor + pos[i] * dt, self.t_done + (pos[i] - self.pos_sent) * dt)
-                now = time.monotonic()
+                now = self._clock()
                 if earliest > now:
                     self._sleep(earliest - now)
-                    now = time.monotonic()
+                    now = self._clock()
                 # catch up: the latest scheduled value whose instant has come, within step_max of the last set
                 # point and no further ahead of it than the time since its acknowledgement
                 reach = min((now - anchor) / dt, self.pos_sent + (now - self.t_done) / dt)
@@ -376,7 +377,7 @@ class Staircase:
                 self.skipped += k - i
                 self.rows_done = min(n, int(math.ceil(pos[k])) - 1)
                 self.send(val[k])
-                self.t_done = time.monotonic()
+                self.t_done = self._clock()
                 self.sent = val[k].copy()
                 self.pos_sent = pos[k]
                 sent_pos.append(pos[k])
@@ -389,7 +390,7 @@ class Staircase:
             rows = np.arange(1, self.rows_done + 1, dtype=float)
             out[:self.rows_done] = np.asarray(sent_vals)[np.searchsorted(np.asarray(sent_pos), rows, side="right")]
         end = anchor + n * dt
-        now = time.monotonic()
+        now = self._clock()
         if end > now:
             self._sleep(end - now)                           # the block lasts its time on the wire too
         elif now - end > 0:
@@ -706,8 +707,12 @@ class PITablePlayer:
         d, ax, n = self.link.dev, self.axes, u.shape[0]
         started = False
         try:
-            if any(d.IsGeneratorRunning(self.gens).values()):
-                raise TableError("pi_gcs: a wave generator is already running; stop it first (WGO 0)")
+            running = any(d.IsGeneratorRunning(self.gens).values())
+        except Exception as exc:  # noqa: BLE001 - nothing was sent yet
+            raise TableError(f"pi_gcs: cannot query the wave generators (#9): {_first_line(exc)}") from None
+        if running:       # someone else's: not ours to stop or to ramp
+            raise TableError("pi_gcs: a wave generator is already running; stop it first (WGO 0)")
+        try:
             d.SVO(ax, [False] * len(ax))
             held = self.link.held_voltage()
             self._ramp_to(u[0], held)
@@ -737,32 +742,36 @@ class PITablePlayer:
             y = np.array(d.bufdata, dtype=float).T * float(self.p["position_scale"])
             if y.shape != u.shape:
                 raise TableError(f"pi_gcs: DRR? returned {y.shape} values for a {u.shape} table")
-        except TableError:
-            self._to_safe(started)
-            raise
+        except TableError as exc:
+            raise TableError(f"{exc}; {self._to_safe(started)}", exc.code) from None
         except Exception as exc:  # noqa: BLE001 - named, after the clean-up
-            self._to_safe(started)
+            after = self._to_safe(started)
             err = _gcs_error(exc)
             if err is not None:
                 what = "no answer" if err[0] == -7 else f"controller error {err[0]} ({err[1]})"
-                raise TableError(f"pi_gcs: table mode stopped: {what}; generators stopped, output ramped to safe",
-                                 code=err[0]) from None
-            raise TableError(f"pi_gcs: table mode stopped: {_first_line(exc)}") from None
+                raise TableError(f"pi_gcs: table mode stopped: {what}; {after}", code=err[0]) from None
+            raise TableError(f"pi_gcs: table mode stopped: {_first_line(exc)}; {after}") from None
         self._to_safe(started)
+        if self.setpoint_faults:
+            raise TableError(f"pi_gcs: the table played but {self.setpoint_faults[-1]}")
         return u.copy(), y
 
-    def _to_safe(self, started: bool) -> None:
-        """Stop the generators (if they were started) and ramp from what the output holds to the safe voltage."""
+    def _to_safe(self, started: bool) -> str:
+        """Stop the generators (if they were started) and ramp from what the output holds to the safe voltage;
+        what happened, for the message."""
         d = self.link.dev
         if d is None:
-            return
+            return "the connection is closed: the controller holds its last value"
         try:
             if started:
                 d.WGO(self.gens, [0] * len(self.gens))
             held = self.link.held_voltage()
             self._ramp_to(np.full(len(self.axes), float(self.cfg.limits.safe_voltage)), held)
         except Exception as exc:  # noqa: BLE001 - reported, the connection is probably gone
-            self.setpoint_faults.append(f"clean-up failed: {_first_line(exc)}")
+            self.setpoint_faults.append(f"the clean-up failed ({_first_line(exc)}): the controller holds its last "
+                                        "value")
+            return self.setpoint_faults[-1]
+        return "generators stopped, output ramped to safe" if started else "output ramped to safe"
 
     def close(self) -> None:
         """Close the connection (socket included)."""
