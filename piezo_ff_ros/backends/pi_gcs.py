@@ -607,6 +607,13 @@ class PITablePlayer:
             self.link.close()
             raise
         self.info = self.link.info
+        self.timeout = 60.0
+        safe = float(cfg.limits.safe_voltage)
+        for a, lo, hi in zip(self.axes, self.info.vmin, self.info.vmax):
+            if not lo <= safe <= hi:
+                self.link.close()
+                raise BackendError(f"limits.safe_voltage: {safe:g} V is outside axis {a}'s range [{lo:g}, {hi:g}] V "
+                                   "on the controller (VMI?/VMA?)")
 
     def _capacities(self) -> tuple[int, int | None]:
         d = self.link.dev
@@ -697,13 +704,16 @@ class PITablePlayer:
             stairs.play(start[None, :] + (target - start)[None, :] * frac)
         return stairs
 
-    def play(self, u: np.ndarray, timeout: float = 60.0) -> tuple[np.ndarray, np.ndarray]:
+    def play(self, u: np.ndarray, timeout: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Play ``u`` once (checked first); return ``(applied [N, axes] V, recorded positions [N, axes] m)``.
+
+        ``timeout``: seconds to wait beyond the table's length (default :attr:`timeout`, 60 s).
 
         Before: the output is ramped, in time, from the voltage it holds to ``u[0]``.  After — and on every error —
         the generators are stopped and the output ramped to the safe voltage.  Errors are :class:`TableError`
         (one line: the GCS code and text, or the timeout)."""
         u = self.check(u)
+        timeout = self.timeout if timeout is None else float(timeout)
         d, ax, n = self.link.dev, self.axes, u.shape[0]
         started = False
         try:

@@ -31,7 +31,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--out", required=True, help="the run: .csv (t,u_<axis>…,<axis>…) or .mcap")
     p.add_argument("--ramp-duration", type=float, default=0.05, help="safe ramp: minimum duration [s]")
     p.add_argument("--ramp-slew", type=float, default=1.0e4, help="safe ramp: maximum slew [V/s]")
-    p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait beyond the table's length")
+    p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait beyond the table's length (default 30)")
     p.add_argument("--json", default=None, help="also write a summary as JSON")
     p.set_defaults(func=run)
 
@@ -62,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         if hasattr(module, "open_table_player"):
             player = module.open_table_player(cfg, params, ramp)
+            player.timeout = args.timeout
             try:
                 run_data = play_on_table(player, u, cfg.sample_rate, cfg.axes, meta)
             finally:
