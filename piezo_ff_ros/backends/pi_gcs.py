@@ -412,7 +412,7 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
                                f"{list(cfg.axes)}")
         self.cfg = cfg
         self.fs = float(cfg.sample_rate)
-        self.ramp = ramp or SafeRampConfig()
+        self.ramp = ramp or SafeRampConfig(float(p["safe_ramp_duration"]), float(p["safe_ramp_slew"]))
         self.link: GCSLink | None = None
         self.stairs: Staircase | None = None
         self.info = DeviceInfo(name="pi_gcs", sample_rate_hz=self.fs, n_axes=cfg.n_axes,
@@ -598,7 +598,7 @@ class PITablePlayer:
             raise BackendError(f"pi_gcs.servo_rate: {p['servo_rate']:g} Hz / {self.fs:g} Hz = {ratio:g}: the "
                                "wave table rate must be a whole number of servo cycles; choose the sample rate")
         self.table_rate = int(round(ratio))
-        self.ramp = ramp or SafeRampConfig()
+        self.ramp = ramp or SafeRampConfig(float(p["safe_ramp_duration"]), float(p["safe_ramp_slew"]))
         self.link = link or connect(p)
         self.setpoint_faults: list[str] = []
         try:
@@ -816,6 +816,10 @@ SPEC = BackendSpec(
                                float_range(1e-3, 10.0)),
         "setpoint_rate": Param(1000.0, "set-point mode: set points per second while the voltage moves slowly [Hz]",
                                float_range(1.0, 1e5)),
+        "safe_ramp_duration": Param(0.05, "the backend's own ramps (start from the held voltage, close, after a "
+                                          "controller error, into and out of a table): minimum duration [s]",
+                                    float_range(0.0, 60.0)),
+        "safe_ramp_slew": Param(1.0e4, "the backend's own ramps: maximum slew [V/s]", float_range(1e-3, 1e7)),
         "wave_generators": Param("1,2", "wave generator IDs (table mode)"),
         "wave_tables": Param("1,2", "wave table IDs (table mode)"),
         "record_tables": Param("1,2", "data recorder table IDs (table mode)"),
