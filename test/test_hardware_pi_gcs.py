@@ -96,6 +96,8 @@ def test_axis_missing_and_range_beyond_the_controllers_are_refused_with_one_line
     with GCSServer(GCSEmulator(vmin=-30.0, vmax=130.0)) as srv:
         with pytest.raises(BackendError, match=r"pi_gcs.axes: axis '7' is not on the controller"):
             connect(params(srv, axes="1,7"))
+        with pytest.raises(BackendError, match=r"voltage range of piezo channels \[1, 5\] .*pi_gcs.piezo_channels"):
+            connect(params(srv, piezo_channels="1,5"))
         be = PISetpointBackend(config(voltage=200.0), params(srv))
         with pytest.raises(BackendError, match=r"limits.voltage: ±200 V exceeds axis 1's range \[-30, 130\]"):
             be.start(np.zeros(2))

@@ -226,8 +226,12 @@ class GCSLink:
         if missing:
             raise BackendError(f"pi_gcs.axes: axis {missing[0]!r} is not on the controller ({idn}); it has "
                                f"{present} (SAI?)")
-        vmin = d.qVMI(self.channels)
-        vmax = d.qVMA(self.channels)
+        try:
+            vmin = d.qVMI(self.channels)
+            vmax = d.qVMA(self.channels)
+        except Exception as exc:  # noqa: BLE001 - without the range nothing can be checked: refuse
+            raise BackendError(f"pi_gcs: {idn} did not give the voltage range of piezo channels {self.channels} "
+                               f"(VMI?/VMA?: {_first_line(exc)}); check pi_gcs.piezo_channels") from None
         return ControllerInfo(idn=idn, axes=tuple(present),
                               vmin=tuple(float(vmin[c]) for c in self.channels),
                               vmax=tuple(float(vmax[c]) for c in self.channels))
