@@ -187,6 +187,31 @@ def test_a_controller_error_is_a_named_fault_and_the_output_ramps_to_safe_from_t
         assert emu.output == [0.0, 0.0]
 
 
+def test_after_a_controller_error_the_applied_voltage_covers_every_sample_once_ramp_included():
+    cfg = config(slew=1000.0)
+    emu = GCSEmulator()
+    with GCSServer(emu) as srv:
+        be = PISetpointBackend(cfg, params(srv))
+        be.start(np.zeros(2))
+        be.write(0, np.column_stack([np.linspace(0, 10, 1000), np.zeros(1000)]))
+        emu.inject_error("SVA", 302)
+        be.write(1000, np.full((100, 2), [10.0, 0.0]) + np.linspace(0, 0.05, 100)[:, None])   # shorter than the ramp
+        with pytest.raises(GCSFault, match=r"controller error 302 \(Voltage out of limits\)") as exc:
+            be.poll()
+        assert exc.value.kind == "limit" and exc.value.code == 302
+        blocks = be.take_applied()
+        k = 0
+        for k0, a in blocks:
+            assert k0 == k
+            k += a.shape[0]
+        assert k == be.write_index > 1100                             # the ramp ran on past the failed block
+        applied = np.vstack([a for _, a in blocks])
+        assert np.abs(np.diff(applied, axis=0)).max() <= 1.0 + 1e-9
+        np.testing.assert_allclose(applied[-1], [0.0, 0.0])
+        np.testing.assert_allclose(emu.output, [0.0, 0.0])
+        be.close()
+
+
 def test_a_dropped_connection_is_a_disconnect_not_a_hang():
     cfg = config(slew=1000.0)
     emu = GCSEmulator()

@@ -425,6 +425,7 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
         self._applied: list = []
         self._pending: DeviceFault | None = None
         self._latched = ""          # why the output is held at the safe voltage for good
+        self._extra: np.ndarray | None = None   # samples a fault ramp held beyond the block that failed
         self.ramps = 0
 
     # -- helpers -----------------------------------------------------------------------------------------------------
@@ -504,12 +505,9 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
         self.held_at_start = held.copy()
         self.stairs = Staircase(self._send, self.fs, float(self.p["setpoint_step"]),
                                 int(round(self.fs / float(self.p["setpoint_rate"]))), held)
-        self._extra = None
         r = safe_ramp(held, float(np.asarray(safe_voltage).flat[0]), self.fs, self.ramp, self.cfg.limits.slew)
         if r.shape[0]:
-            a = self._play(r, "the start ramp")
-            self._applied.append((self._k, a))
-            self._k += r.shape[0]
+            self._append(self._k, self._play(r, "the start ramp"))
         if prefill:
             self.write(self._k, np.tile(np.asarray(safe_voltage, dtype=float), (int(prefill), 1)))
         return self._k
@@ -524,9 +522,12 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
             return
         if self._latched:
             raise Disconnect(f"pi_gcs: output held at the safe voltage: {self._latched}", self._k)
-        a = self._play(u, f"SVA at sample {k0}")
-        self._applied.append((k0, a))
-        self._k += u.shape[0]
+        self._append(k0, self._play(u, f"SVA at sample {k0}"))
+
+    def _append(self, k0: int, applied: np.ndarray) -> None:
+        """Report ``applied`` from sample ``k0`` (and what a fault ramp held beyond it: the clock ran on)."""
+        self._applied.append((k0, applied))
+        self._k = k0 + applied.shape[0]
         if self._extra is not None:
             self._applied.append((self._k, self._extra))
             self._k += self._extra.shape[0]
