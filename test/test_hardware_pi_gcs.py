@@ -227,6 +227,23 @@ def test_a_dropped_connection_is_a_disconnect_not_a_hang():
         be.close()
 
 
+def test_an_unanswered_set_point_times_out_as_a_lost_link_without_spinning_a_core():
+    cfg = config(slew=1000.0)
+    emu = GCSEmulator()
+    with GCSServer(emu) as srv:
+        be = PISetpointBackend(cfg, params(srv, timeout_ms=300))
+        be.start(np.zeros(2))
+        emu.mute("ERR?")                                             # pipython checks every command with ERR?
+        cpu0, t0 = time.process_time(), time.monotonic()
+        be.write(be.write_index, np.column_stack([np.linspace(0, 5, 1000), np.zeros(1000)]))
+        wall, cpu = time.monotonic() - t0, time.process_time() - cpu0
+        with pytest.raises(Disconnect, match="link to the controller lost"):
+            be.poll()
+        assert 0.3 <= wall < 2.0
+        assert cpu < 0.05 * wall + 0.02, f"{cpu:.2f} s of CPU in {wall:.2f} s"   # pipython alone spins
+        be.close()
+
+
 # -- table mode ----------------------------------------------------------------------------------------------------------
 def table(n=2000, fs=20000.0, amp=(50.0, 20.0)):
     t = np.arange(n) / fs
@@ -323,12 +340,22 @@ def test_an_unanswered_drr_query_times_out_without_spinning_a_core_and_ramps_to_
     with GCSServer(emu) as srv:
         player = PITablePlayer(cfg, params(srv, timeout_ms=400))
         emu.mute("DRR?")
-        cpu0, t0 = time.process_time(), time.monotonic()
+        spent = {}
+        query = player.link.dev.qDRR
+
+        def timed_query(*args):                     # the CPU this process spends while the query stays unanswered
+            cpu0, t0 = time.process_time(), time.monotonic()
+            try:
+                return query(*args)
+            finally:
+                spent.update(wall=time.monotonic() - t0, cpu=time.process_time() - cpu0)
+
+        player.link.dev.qDRR = timed_query
         with pytest.raises(TableError, match="no answer"):
             player.play(table(1000), timeout=2)
-        wall, cpu = time.monotonic() - t0, time.process_time() - cpu0
+        wall, cpu = spent["wall"], spent["cpu"]
         assert wall >= 0.4
-        assert cpu < 0.5 * wall, f"{cpu:.2f} s of CPU in {wall:.2f} s"
+        assert cpu < 0.05 * wall + 0.01, f"{cpu:.2f} s of CPU in {wall:.2f} s"   # pipython alone spins
         t, v = emu.output_events()
         np.testing.assert_allclose(v[-1], [0.0, 0.0])
         player.close()
