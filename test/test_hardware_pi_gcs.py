@@ -318,6 +318,32 @@ def test_a_controller_error_in_table_mode_cleans_up_and_ramps_to_safe():
         player.close()
 
 
+def test_ctrl_c_during_a_table_play_stops_the_generator_and_ramps_to_safe():
+    cfg = config(slew=1.0e5)
+    emu = GCSEmulator()
+    with GCSServer(emu) as srv:
+        player = PITablePlayer(cfg, params(srv))
+        running = player.link.dev.IsGeneratorRunning
+        calls = []
+
+        def interrupted(gens):                       # SIGINT while waiting on the generator
+            calls.append(1)
+            if len(calls) == 3:
+                raise KeyboardInterrupt
+            return running(gens)
+
+        player.link.dev.IsGeneratorRunning = interrupted
+        with pytest.raises(KeyboardInterrupt):
+            player.play(table(20000), timeout=5)                      # 1 s of table
+        assert not emu.generator_running()
+        assert emu.log.count("WGO 1 0 2 0") == 1
+        src = [e[2] for e in sorted(emu.events, key=lambda e: e[0])]
+        assert src[-1] == "SVA"                                       # ramped after the generator stopped
+        assert_paced(emu, max(cfg.limits.slew, 100.0 / 0.05), start=np.zeros(2))
+        np.testing.assert_allclose(emu.output, [0.0, 0.0])
+        player.close()
+
+
 def test_a_connection_dropped_during_a_table_play_is_one_line_and_no_hang():
     cfg = config(slew=1.0e5)
     emu = GCSEmulator()

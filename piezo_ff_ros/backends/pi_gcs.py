@@ -759,6 +759,9 @@ class PITablePlayer:
                 raise TableError(f"pi_gcs: DRR? returned {y.shape} values for a {u.shape} table")
         except TableError as exc:
             raise TableError(f"{exc}; {self._to_safe(started)}", exc.code) from None
+        except (KeyboardInterrupt, SystemExit):    # Ctrl-C / SIGTERM: stop and ramp to safe, then go on stopping
+            self._to_safe(started)
+            raise
         except Exception as exc:  # noqa: BLE001 - named, after the clean-up
             after = self._to_safe(started)
             err = _gcs_error(exc)
