@@ -212,6 +212,31 @@ def test_after_a_controller_error_the_applied_voltage_covers_every_sample_once_r
         be.close()
 
 
+def test_ctrl_c_in_the_middle_of_a_block_then_close_ramps_from_the_last_accepted_set_point():
+    cfg = config(slew=1000.0)
+    emu = GCSEmulator()
+    with GCSServer(emu) as srv:
+        be = PISetpointBackend(cfg, params(srv))
+        be.start(np.zeros(2))
+        sleeps = []
+
+        def sleep(d):                                 # SIGINT arrives while the staircase waits
+            sleeps.append(d)
+            if len(sleeps) == 40:
+                raise KeyboardInterrupt
+            time.sleep(d)
+
+        be.stairs._sleep = sleep
+        with pytest.raises(KeyboardInterrupt):
+            be.write(0, np.column_stack([np.linspace(0, 40, 4000), np.linspace(0, -20, 4000)]))   # 200 V/s
+        held = np.array(emu.output)
+        assert held[0] > 1.0
+        t_close = time.monotonic()
+        be.close()                                    # what the driver does on SIGINT
+        v = assert_paced(emu, max(200.0, held[0] / 0.05) * 1.01, since=t_close, start=held)
+        np.testing.assert_allclose(v[-1], [0.0, 0.0])
+
+
 def test_a_dropped_connection_is_a_disconnect_not_a_hang():
     cfg = config(slew=1000.0)
     emu = GCSEmulator()
