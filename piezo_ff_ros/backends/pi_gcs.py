@@ -319,27 +319,32 @@ class Staircase:
 
     def schedule(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(positions [samples, block-relative; sample j at j + 1], values [m, axes])`` of the planned set
-        points."""
+        points (vectorised over the samples between two set points)."""
         pos: list[float] = []
         val: list[np.ndarray] = []
         prev = self.sent
-        since = 0
         n = u.shape[0]
-        for j in range(n):
-            since += 1
-            d = float(np.max(np.abs(u[j] - prev))) if u.shape[1] else 0.0
-            if d > self.step_max:
-                nsub = int(math.ceil(d / self.step_max - 1e-12))
+        j0 = 0
+        while j0 < n:
+            seg = u[j0:j0 + self.decimation]
+            dev = np.max(np.abs(seg - prev), axis=1) if u.shape[1] else np.zeros(seg.shape[0])
+            over = np.flatnonzero(dev > self.step_max)
+            if over.size and over[0] == 0:
+                # one sample moves more than step_max: equal set points spread over its sample period
+                nsub = int(math.ceil(float(dev[0]) / self.step_max - 1e-12))
                 for q in range(1, nsub + 1):
-                    pos.append(j + q / nsub)
-                    val.append(prev + (u[j] - prev) * (q / nsub))
-                prev, since = u[j], 0
-            elif d > 0:
-                nxt = float(np.max(np.abs(u[j + 1] - prev))) if j + 1 < n else 0.0
-                if j == n - 1 or nxt > self.step_max or since >= self.decimation:
-                    pos.append(j + 1.0)
-                    val.append(u[j])
-                    prev, since = u[j], 0
+                    pos.append(j0 + q / nsub)
+                    val.append(prev + (u[j0] - prev) * (q / nsub))
+                prev = u[j0]
+                j0 += 1
+                continue
+            # the last sample still within step_max of the previous set point, at most `decimation` ahead
+            j = j0 + int(over[0]) - 1 if over.size else min(j0 + self.decimation, n) - 1
+            if np.any(u[j] != prev):
+                pos.append(j + 1.0)
+                val.append(u[j])
+                prev = u[j]
+            j0 = j + 1
         return np.array(pos, dtype=float), np.array(val, dtype=float).reshape(len(val), u.shape[1])
 
     def play(self, u: np.ndarray, applied: np.ndarray | None = None) -> np.ndarray:
