@@ -14,7 +14,7 @@ def test_a_trajectory_beyond_the_amplifier_is_refused_with_one_line(tmp_path, ca
     assert main(["feedforward", "--trajectory", MM_CIRCLE, "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1, err
-    assert "cannot follow" in err and "limits." in err and "sample" in err and "--clip" in err, err
+    assert "cannot follow" in err and "exceed limits.voltage" in err and " by up to " in err and "--clip" in err, err
     assert not out.exists()
 
 

@@ -226,8 +226,12 @@ class GCSLink:
         if missing:
             raise BackendError(f"pi_gcs.axes: axis {missing[0]!r} is not on the controller ({idn}); it has "
                                f"{present} (SAI?)")
-        vmin = d.qVMI(self.channels)
-        vmax = d.qVMA(self.channels)
+        try:
+            vmin = d.qVMI(self.channels)
+            vmax = d.qVMA(self.channels)
+        except Exception as exc:  # noqa: BLE001 - without the range nothing can be checked: refuse
+            raise BackendError(f"pi_gcs: {idn} did not give the voltage range of piezo channels {self.channels} "
+                               f"(VMI?/VMA?: {_first_line(exc)}); check pi_gcs.piezo_channels") from None
         return ControllerInfo(idn=idn, axes=tuple(present),
                               vmin=tuple(float(vmin[c]) for c in self.channels),
                               vmax=tuple(float(vmax[c]) for c in self.channels))
@@ -300,7 +304,8 @@ class Staircase:
     """
 
     def __init__(self, send: Callable[[np.ndarray], None], fs: float, step_max: float, decimation: int,
-                 start: np.ndarray, sleep: Callable[[float], None] = time.sleep) -> None:
+                 start: np.ndarray, sleep: Callable[[float], None] = time.sleep,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.send, self.fs, self.step_max, self.decimation = send, float(fs), float(step_max), max(1, int(decimation))
         self.sent = np.asarray(start, dtype=float).copy()   #: last value accepted by the controller
         self.anchor: float | None = None                     #: wall time of the next block's first sample
@@ -310,31 +315,36 @@ class Staircase:
         self.skipped = 0                                      #: scheduled set points skipped to stay in real time
         self.rows_done = 0
         self.late_s = 0.0                                     #: lag kept at the end of blocks [s]
-        self._sleep = sleep
+        self._sleep, self._clock = sleep, clock
 
     def schedule(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(positions [samples, block-relative; sample j at j + 1], values [m, axes])`` of the planned set
-        points."""
+        points (vectorised over the samples between two set points)."""
         pos: list[float] = []
         val: list[np.ndarray] = []
         prev = self.sent
-        since = 0
         n = u.shape[0]
-        for j in range(n):
-            since += 1
-            d = float(np.max(np.abs(u[j] - prev))) if u.shape[1] else 0.0
-            if d > self.step_max:
-                nsub = int(math.ceil(d / self.step_max - 1e-12))
+        j0 = 0
+        while j0 < n:
+            seg = u[j0:j0 + self.decimation]
+            dev = np.max(np.abs(seg - prev), axis=1) if u.shape[1] else np.zeros(seg.shape[0])
+            over = np.flatnonzero(dev > self.step_max)
+            if over.size and over[0] == 0:
+                # one sample moves more than step_max: equal set points spread over its sample period
+                nsub = int(math.ceil(float(dev[0]) / self.step_max - 1e-12))
                 for q in range(1, nsub + 1):
-                    pos.append(j + q / nsub)
-                    val.append(prev + (u[j] - prev) * (q / nsub))
-                prev, since = u[j], 0
-            elif d > 0:
-                nxt = float(np.max(np.abs(u[j + 1] - prev))) if j + 1 < n else 0.0
-                if j == n - 1 or nxt > self.step_max or since >= self.decimation:
-                    pos.append(j + 1.0)
-                    val.append(u[j])
-                    prev, since = u[j], 0
+                    pos.append(j0 + q / nsub)
+                    val.append(prev + (u[j0] - prev) * (q / nsub))
+                prev = u[j0]
+                j0 += 1
+                continue
+            # the last sample still within step_max of the previous set point, at most `decimation` ahead
+            j = j0 + int(over[0]) - 1 if over.size else min(j0 + self.decimation, n) - 1
+            if np.any(u[j] != prev):
+                pos.append(j + 1.0)
+                val.append(u[j])
+                prev = u[j]
+            j0 = j + 1
         return np.array(pos, dtype=float), np.array(val, dtype=float).reshape(len(val), u.shape[1])
 
     def play(self, u: np.ndarray, applied: np.ndarray | None = None) -> np.ndarray:
@@ -347,7 +357,7 @@ class Staircase:
         n = u.shape[0]
         out = np.empty_like(u) if applied is None else applied
         dt = 1.0 / self.fs
-        now = time.monotonic()
+        now = self._clock()
         if self.anchor is None or self.anchor < now:
             self.pos_sent -= ((now - self.anchor) / dt) if self.anchor is not None else 0.0
             self.anchor = now                                # the output held meanwhile: the block starts now
@@ -362,10 +372,10 @@ class Staircase:
         try:
             while i < m:
                 earliest = max(anchor + pos[i] * dt, self.t_done + (pos[i] - self.pos_sent) * dt)
-                now = time.monotonic()
+                now = self._clock()
                 if earliest > now:
                     self._sleep(earliest - now)
-                    now = time.monotonic()
+                    now = self._clock()
                 # catch up: the latest scheduled value whose instant has come, within step_max of the last set
                 # point and no further ahead of it than the time since its acknowledgement
                 reach = min((now - anchor) / dt, self.pos_sent + (now - self.t_done) / dt)
@@ -376,7 +386,7 @@ class Staircase:
                 self.skipped += k - i
                 self.rows_done = min(n, int(math.ceil(pos[k])) - 1)
                 self.send(val[k])
-                self.t_done = time.monotonic()
+                self.t_done = self._clock()
                 self.sent = val[k].copy()
                 self.pos_sent = pos[k]
                 sent_pos.append(pos[k])
@@ -389,7 +399,7 @@ class Staircase:
             rows = np.arange(1, self.rows_done + 1, dtype=float)
             out[:self.rows_done] = np.asarray(sent_vals)[np.searchsorted(np.asarray(sent_pos), rows, side="right")]
         end = anchor + n * dt
-        now = time.monotonic()
+        now = self._clock()
         if end > now:
             self._sleep(end - now)                           # the block lasts its time on the wire too
         elif now - end > 0:
@@ -411,7 +421,7 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
                                f"{list(cfg.axes)}")
         self.cfg = cfg
         self.fs = float(cfg.sample_rate)
-        self.ramp = ramp or SafeRampConfig()
+        self.ramp = ramp or SafeRampConfig(float(p["safe_ramp_duration"]), float(p["safe_ramp_slew"]))
         self.link: GCSLink | None = None
         self.stairs: Staircase | None = None
         self.info = DeviceInfo(name="pi_gcs", sample_rate_hz=self.fs, n_axes=cfg.n_axes,
@@ -420,6 +430,7 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
         self._applied: list = []
         self._pending: DeviceFault | None = None
         self._latched = ""          # why the output is held at the safe voltage for good
+        self._extra: np.ndarray | None = None   # samples a fault ramp held beyond the block that failed
         self.ramps = 0
 
     # -- helpers -----------------------------------------------------------------------------------------------------
@@ -499,12 +510,9 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
         self.held_at_start = held.copy()
         self.stairs = Staircase(self._send, self.fs, float(self.p["setpoint_step"]),
                                 int(round(self.fs / float(self.p["setpoint_rate"]))), held)
-        self._extra = None
         r = safe_ramp(held, float(np.asarray(safe_voltage).flat[0]), self.fs, self.ramp, self.cfg.limits.slew)
         if r.shape[0]:
-            a = self._play(r, "the start ramp")
-            self._applied.append((self._k, a))
-            self._k += r.shape[0]
+            self._append(self._k, self._play(r, "the start ramp"))
         if prefill:
             self.write(self._k, np.tile(np.asarray(safe_voltage, dtype=float), (int(prefill), 1)))
         return self._k
@@ -519,9 +527,12 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
             return
         if self._latched:
             raise Disconnect(f"pi_gcs: output held at the safe voltage: {self._latched}", self._k)
-        a = self._play(u, f"SVA at sample {k0}")
-        self._applied.append((k0, a))
-        self._k += u.shape[0]
+        self._append(k0, self._play(u, f"SVA at sample {k0}"))
+
+    def _append(self, k0: int, applied: np.ndarray) -> None:
+        """Report ``applied`` from sample ``k0`` (and what a fault ramp held beyond it: the clock ran on)."""
+        self._applied.append((k0, applied))
+        self._k = k0 + applied.shape[0]
         if self._extra is not None:
             self._applied.append((self._k, self._extra))
             self._k += self._extra.shape[0]
@@ -597,7 +608,7 @@ class PITablePlayer:
             raise BackendError(f"pi_gcs.servo_rate: {p['servo_rate']:g} Hz / {self.fs:g} Hz = {ratio:g}: the "
                                "wave table rate must be a whole number of servo cycles; choose the sample rate")
         self.table_rate = int(round(ratio))
-        self.ramp = ramp or SafeRampConfig()
+        self.ramp = ramp or SafeRampConfig(float(p["safe_ramp_duration"]), float(p["safe_ramp_slew"]))
         self.link = link or connect(p)
         self.setpoint_faults: list[str] = []
         try:
@@ -606,6 +617,13 @@ class PITablePlayer:
             self.link.close()
             raise
         self.info = self.link.info
+        self.timeout = 60.0
+        safe = float(cfg.limits.safe_voltage)
+        for a, lo, hi in zip(self.axes, self.info.vmin, self.info.vmax):
+            if not lo <= safe <= hi:
+                self.link.close()
+                raise BackendError(f"limits.safe_voltage: {safe:g} V is outside axis {a}'s range [{lo:g}, {hi:g}] V "
+                                   "on the controller (VMI?/VMA?)")
 
     def _capacities(self) -> tuple[int, int | None]:
         d = self.link.dev
@@ -696,18 +714,25 @@ class PITablePlayer:
             stairs.play(start[None, :] + (target - start)[None, :] * frac)
         return stairs
 
-    def play(self, u: np.ndarray, timeout: float = 60.0) -> tuple[np.ndarray, np.ndarray]:
+    def play(self, u: np.ndarray, timeout: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Play ``u`` once (checked first); return ``(applied [N, axes] V, recorded positions [N, axes] m)``.
+
+        ``timeout``: seconds to wait beyond the table's length (default :attr:`timeout`, 60 s).
 
         Before: the output is ramped, in time, from the voltage it holds to ``u[0]``.  After — and on every error —
         the generators are stopped and the output ramped to the safe voltage.  Errors are :class:`TableError`
         (one line: the GCS code and text, or the timeout)."""
         u = self.check(u)
+        timeout = self.timeout if timeout is None else float(timeout)
         d, ax, n = self.link.dev, self.axes, u.shape[0]
         started = False
         try:
-            if any(d.IsGeneratorRunning(self.gens).values()):
-                raise TableError("pi_gcs: a wave generator is already running; stop it first (WGO 0)")
+            running = any(d.IsGeneratorRunning(self.gens).values())
+        except Exception as exc:  # noqa: BLE001 - nothing was sent yet
+            raise TableError(f"pi_gcs: cannot query the wave generators (#9): {_first_line(exc)}") from None
+        if running:       # someone else's: not ours to stop or to ramp
+            raise TableError("pi_gcs: a wave generator is already running; stop it first (WGO 0)")
+        try:
             d.SVO(ax, [False] * len(ax))
             held = self.link.held_voltage()
             self._ramp_to(u[0], held)
@@ -737,32 +762,39 @@ class PITablePlayer:
             y = np.array(d.bufdata, dtype=float).T * float(self.p["position_scale"])
             if y.shape != u.shape:
                 raise TableError(f"pi_gcs: DRR? returned {y.shape} values for a {u.shape} table")
-        except TableError:
+        except TableError as exc:
+            raise TableError(f"{exc}; {self._to_safe(started)}", exc.code) from None
+        except (KeyboardInterrupt, SystemExit):    # Ctrl-C / SIGTERM: stop and ramp to safe, then go on stopping
             self._to_safe(started)
             raise
         except Exception as exc:  # noqa: BLE001 - named, after the clean-up
-            self._to_safe(started)
+            after = self._to_safe(started)
             err = _gcs_error(exc)
             if err is not None:
                 what = "no answer" if err[0] == -7 else f"controller error {err[0]} ({err[1]})"
-                raise TableError(f"pi_gcs: table mode stopped: {what}; generators stopped, output ramped to safe",
-                                 code=err[0]) from None
-            raise TableError(f"pi_gcs: table mode stopped: {_first_line(exc)}") from None
+                raise TableError(f"pi_gcs: table mode stopped: {what}; {after}", code=err[0]) from None
+            raise TableError(f"pi_gcs: table mode stopped: {_first_line(exc)}; {after}") from None
         self._to_safe(started)
+        if self.setpoint_faults:
+            raise TableError(f"pi_gcs: the table played but {self.setpoint_faults[-1]}")
         return u.copy(), y
 
-    def _to_safe(self, started: bool) -> None:
-        """Stop the generators (if they were started) and ramp from what the output holds to the safe voltage."""
+    def _to_safe(self, started: bool) -> str:
+        """Stop the generators (if they were started) and ramp from what the output holds to the safe voltage;
+        what happened, for the message."""
         d = self.link.dev
         if d is None:
-            return
+            return "the connection is closed: the controller holds its last value"
         try:
             if started:
                 d.WGO(self.gens, [0] * len(self.gens))
             held = self.link.held_voltage()
             self._ramp_to(np.full(len(self.axes), float(self.cfg.limits.safe_voltage)), held)
         except Exception as exc:  # noqa: BLE001 - reported, the connection is probably gone
-            self.setpoint_faults.append(f"clean-up failed: {_first_line(exc)}")
+            self.setpoint_faults.append(f"the clean-up failed ({_first_line(exc)}): the controller holds its last "
+                                        "value")
+            return self.setpoint_faults[-1]
+        return "generators stopped, output ramped to safe" if started else "output ramped to safe"
 
     def close(self) -> None:
         """Close the connection (socket included)."""
@@ -797,6 +829,10 @@ SPEC = BackendSpec(
                                float_range(1e-3, 10.0)),
         "setpoint_rate": Param(1000.0, "set-point mode: set points per second while the voltage moves slowly [Hz]",
                                float_range(1.0, 1e5)),
+        "safe_ramp_duration": Param(0.05, "the backend's own ramps (start from the held voltage, close, after a "
+                                          "controller error, into and out of a table): minimum duration [s]",
+                                    float_range(0.0, 60.0)),
+        "safe_ramp_slew": Param(1.0e4, "the backend's own ramps: maximum slew [V/s]", float_range(1e-3, 1e7)),
         "wave_generators": Param("1,2", "wave generator IDs (table mode)"),
         "wave_tables": Param("1,2", "wave table IDs (table mode)"),
         "record_tables": Param("1,2", "data recorder table IDs (table mode)"),

@@ -88,9 +88,15 @@ def compute(cfg: PiezoConfig, traj: Trajectory, duration: float | None = None,
     u = guard.apply(u_cmd)
     c = guard.counters
     lim = cfg.limits
-    # what the compensator asked for, against the amplifier's limits (from the safe voltage, as the driver starts)
-    over_v = np.max(np.abs(u_cmd), axis=1) - lim.voltage
-    rate = np.max(np.abs(np.diff(np.vstack([np.full((1, cfg.n_axes), lim.safe_voltage), u_cmd]), axis=0)),
+    comp_limited = int(getattr(cascade.hysteresis, "saturated", 0) or 0)
+    u_free = u_cmd
+    if comp_limited and cfg.cascade.respect_limits:
+        # the hysteresis inverse held itself to the limits: what it would have asked for says by how much
+        free = replace(cfg, cascade=replace(cfg.cascade, respect_limits=False))
+        u_free = CompensatorCascade(free).process(ref)
+    # what the compensator asks for, against the amplifier's limits (from the safe voltage, as the driver starts)
+    over_v = np.max(np.abs(u_free), axis=1) - lim.voltage
+    rate = np.max(np.abs(np.diff(np.vstack([np.full((1, cfg.n_axes), lim.safe_voltage), u_free]), axis=0)),
                   axis=1) * fs - lim.slew
     summary = {"samples": int(n), "sample_rate_hz": fs, "duration_s": n / fs, "axes": list(cfg.axes),
                "stages": [k for k in ("vibration", "creep", "hysteresis") if getattr(cfg.cascade, k)],
@@ -101,7 +107,7 @@ def compute(cfg: PiezoConfig, traj: Trajectory, duration: float | None = None,
                "saturated_samples": c.saturated_samples, "slew_limited_samples": c.slew_limited_samples,
                "changed_by_limits": int(np.count_nonzero(np.any(u != u_cmd, axis=1))),
                # the hysteresis inverse clamps/slews like the driver (cascade.respect_limits): counted there
-               "compensator_limited_samples": int(getattr(cascade.hysteresis, "saturated", 0) or 0),
+               "compensator_limited_samples": comp_limited,
                "beyond_voltage_samples": int(np.count_nonzero(over_v > 1e-9)),
                "beyond_voltage_by_v": float(max(over_v.max(), 0.0)),
                "beyond_slew_samples": int(np.count_nonzero(rate > 1e-6 * lim.slew)),

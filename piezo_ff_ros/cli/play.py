@@ -31,7 +31,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--out", required=True, help="the run: .csv (t,u_<axis>…,<axis>…) or .mcap")
     p.add_argument("--ramp-duration", type=float, default=0.05, help="safe ramp: minimum duration [s]")
     p.add_argument("--ramp-slew", type=float, default=1.0e4, help="safe ramp: maximum slew [V/s]")
-    p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait beyond the table's length")
+    p.add_argument("--write-ahead", type=float, default=None,
+                   help="streaming backends: seconds queued ahead of the device's clock (default: 0.5 s or 80 %% "
+                        "of the device FIFO)")
+    p.add_argument("--timeout", type=float, default=30.0, help="seconds to wait beyond the table's length (default 30)")
     p.add_argument("--json", default=None, help="also write a summary as JSON")
     p.set_defaults(func=run)
 
@@ -62,14 +65,19 @@ def run(args: argparse.Namespace) -> int:
     try:
         if hasattr(module, "open_table_player"):
             player = module.open_table_player(cfg, params, ramp)
+            player.timeout = args.timeout
             try:
                 run_data = play_on_table(player, u, cfg.sample_rate, cfg.axes, meta)
             finally:
                 player.close()
         else:
             backend = spec.create(cfg, params)
+            # the whole table is known ahead: a deep write-ahead costs nothing and rides out a loaded host
+            ahead = args.write_ahead if args.write_ahead is not None else \
+                min(0.5, 0.8 * backend.info.fifo_depth / cfg.sample_rate)
             settings = DriverSettings(sample_rate=cfg.sample_rate, n_axes=cfg.n_axes, limits=cfg.limits, ramp=ramp,
-                                      max_block=max(1000, int(cfg.sample_rate)))
+                                      max_block=max(1000, int(cfg.sample_rate)), write_ahead=ahead,
+                                      low_water=ahead / 5)
             run_data = play_streaming(backend, settings, u, cfg.axes, meta, timeout=args.timeout)
     except ValueError as exc:      # the table does not fit the device (range, slew, capacity): bad input
         raise CliError(str(exc)) from None

@@ -42,9 +42,12 @@ class PlayError(RuntimeError):
 class TablePlayer(Protocol):
     """A device that plays a whole table itself, hardware-timed, and records the sensor."""
 
-    def play(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+    def play(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Check ``u [N, axes]`` V against the device, ramp to ``u[0]``, play it hardware-timed, ramp back to safe;
+        return ``(applied [N, axes] V, measured [N, axes] m)``; ValueError (one line) if it does not fit."""
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """Release the device."""
 
 
 def load_voltage_table(path: str | Path, axes: Sequence[str]) -> tuple[np.ndarray, float | None]:
@@ -124,7 +127,7 @@ def ramp_between(u_from: np.ndarray, u_to: np.ndarray, fs: float, ramp: SafeRamp
         return np.zeros((0, a.size))
     step = min(float(ramp.slew), float(operating_slew)) / float(fs)
     n = max(int(math.ceil(ramp.duration * fs - 1e-9)), int(math.ceil(dist / step - 1e-9)), 1)
-    out = a[None, :] + (b - a)[None, :] * (np.arange(1, n + 1) / n)[:, None]
+    out: np.ndarray = a[None, :] + (b - a)[None, :] * (np.arange(1, n + 1) / n)[:, None]
     out[-1] = b
     return out
 
