@@ -24,8 +24,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PKG = "piezo_ff_ros"
 
-# Cycles whose owners are breaking them on their own branches (issue: ownership without knots); the strict test
-# below refuses any other cycle now, the full one passes once those branches are merged.
+# Cycles whose owners are breaking them on their own branches; the strict test below refuses any other cycle now,
+# the full one passes once those branches are merged.
 PENDING_CYCLES = {
     frozenset({"piezo_ff_ros.core.commissioning", "piezo_ff_ros.core.identification.pipeline"}):
         "commissioning ⇄ identification.pipeline (axes)",

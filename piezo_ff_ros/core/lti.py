@@ -276,11 +276,6 @@ class LTIFilter:
         return FusedPart(BANK, (self.W, self.feeds, np.ascontiguousarray(self.ss.D), self._offsets, self.ss.sizes),
                          (self.x,))
 
-    def output_now(self) -> np.ndarray:
-        """C x (the strictly proper part of the next output)."""
-        y: np.ndarray = self.ss.C @ self.x
-        return y
-
     def settle_to(self, u_const: np.ndarray) -> None:
         """Put the state at its steady state for a constant input (for bumpless start from a held value)."""
         n = self.ss.n_states
