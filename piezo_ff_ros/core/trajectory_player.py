@@ -13,8 +13,8 @@ modes:
   the earlier blocks at once (the driver's stream never goes back).  No answer at all for ``lockstep_timeout``
   while blocks are in flight fails the run.
 
-Segments of a :class:`~piezo_ff_ros.core.trajectories.Sequence` are announced as ``experiment`` markers
-(``{"name", "k0", "stamp_ns", "stages", …}``) before their first block.  The run's state (``idle``, ``playing``,
+The segments of a trajectory made of named segments (one with ``segments(fs)``) are announced as ``experiment``
+markers (``{"name", "k0", "stamp_ns", "stages", …}``) before their first block.  The run's state (``idle``, ``playing``,
 ``finished``, ``stopped``, ``failed``) is published as a dict.
 
 Everything the player needs from the outside — clocks, sleeping, waiting for an answer, the graph being ready,
