@@ -83,9 +83,9 @@ def test_trajectory_parameters_keep_their_types(tmp_path, probe):
         v = probe.call(getp, GetParameters.Request(names=["lockstep_timeout"])).values[0]
         assert (v.type, v.double_value) == (ParameterType.PARAMETER_DOUBLE, 7.0)
         r = set_("block_size", type=ParameterType.PARAMETER_DOUBLE, double_value=2.5)
-        assert not r.successful and r.reason == "block_size: expected an integer, got a double 2.5"
+        assert not r.successful and r.reason == "block_size: expected an integer, got a double 2.5 (kept: 200)"
         r = set_("mode", type=ParameterType.PARAMETER_INTEGER, integer_value=3)
-        assert not r.successful and r.reason == "mode: expected a string, got an integer 3"
+        assert not r.successful and r.reason == "mode: expected a string, got an integer 3 (kept: 'realtime')"
         r = set_("window", type=ParameterType.PARAMETER_INTEGER, integer_value=0)
         assert not r.successful and r.reason.startswith("window: must be an integer ≥ 1")
         v = probe.call(getp, GetParameters.Request(names=["block_size", "mode", "window"])).values

@@ -14,8 +14,8 @@ modes:
   while blocks are in flight fails the run.
 
 The segments of a trajectory made of named segments (one with ``segments(fs)``) are announced as ``experiment``
-markers (``{"name", "k0", "stamp_ns", "stages", …}``) before their first block.  The run's state (``idle``, ``playing``,
-``finished``, ``stopped``, ``failed``) is published as a dict.
+markers (``{"name", "k0", "stamp_ns", "stages", …}``) before their first block.  The run's state (``idle``,
+``playing``, ``finished``, ``stopped``, ``failed``) is published as a dict.
 
 Everything the player needs from the outside — clocks, sleeping, waiting for an answer, the graph being ready,
 publishing — goes through a :class:`PlayerHost`: the node gives it ROS publishers and the system clocks, a test a
@@ -78,7 +78,8 @@ def check_play_params(values: Mapping[str, Any]) -> None:
         raise ConfigError("preview_s", f"must be a number of seconds in [0, 1], got {values['preview_s']!r}")
     if "workspace_m" in values and (not _is_number(values["workspace_m"])
                                     or not 0.0 <= values["workspace_m"] < math.inf):
-        raise ConfigError("workspace_m", f"must be a number of metres >= 0 (0: no check), got {values['workspace_m']!r}")
+        raise ConfigError("workspace_m",
+                          f"must be a number of metres >= 0 (0: no check), got {values['workspace_m']!r}")
     for name in ("sample_rate", "lockstep_timeout", "ack_timeout", "voltage_limit"):
         if name in values and (not _is_number(values[name]) or not values[name] > 0):
             raise ConfigError(name, f"must be a number > 0, got {values[name]!r}")

@@ -2,13 +2,13 @@
 
 :class:`TypedParameters` declares a node's parameters.  Each keeps the type of its default (or the one given, for an
 empty list); a value of another type is refused naming the parameter (``block_size: expected an integer, got a
-double 2.5``), except where nothing is lost: an integer where a double is declared (``-p sample_rate:=25000``,
-``ros2 param set … ack_timeout 5``) is taken as that double, an integer array as a double array, an empty array of
-any type as the declared array type.  rclpy offers this through public hooks only: the parameters are declared with
-``dynamic_typing`` (rclpy itself checks no type), an on-set callback checks the declared type, a pre-set callback
-converts the lossless cases of a runtime change, and a declaration whose override needed a conversion is set once
-more with the converted value (read-only parameters keep the override as given; :meth:`TypedParameters.declare`
-returns the converted value either way).
+double 2.5 (kept: 200)``), except where nothing is lost: an integer where a double is declared
+(``-p sample_rate:=25000``, ``ros2 param set … ack_timeout 5``) is taken as that double, an integer array as a
+double array, an empty array of any type as the declared array type.  rclpy offers this through public hooks
+only: the parameters are declared with ``dynamic_typing`` (rclpy itself checks no type), an on-set callback checks
+the declared type, a pre-set callback converts the lossless cases of a runtime change, and a declaration whose
+override needed a conversion is set once more with the converted value (read-only parameters keep the override as
+given; :meth:`TypedParameters.declare` returns the converted value either way).
 
 :func:`refuse_unknown_parameters` is the one call a node makes once its parameters are declared (before it opens a
 device or a file): an override it does not declare — ``-p name:=value`` or ``--param`` on the command line, or a
@@ -150,8 +150,10 @@ class TypedParameters:
                 continue
             if not _converted(_as_python(p.value), p.type_, declared)[0]:
                 shown = "" if p.type_ == Parameter.Type.NOT_SET else f" {_as_python(p.value)!r}"
+                # a runtime change: say what stays (a declaration has no old value yet)
+                kept = f" (kept: {self.value(p.name)!r})" if self.node.has_parameter(p.name) else ""
                 return SetParametersResult(successful=False, reason=f"{p.name}: expected {_TYPE_NAMES[declared]}, "
-                                                                    f"got {_TYPE_NAMES[p.type_]}{shown}")
+                                                                    f"got {_TYPE_NAMES[p.type_]}{shown}{kept}")
         return SetParametersResult(successful=True)
 
 
