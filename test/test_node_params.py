@@ -48,6 +48,17 @@ def test_a_params_file_entry_for_this_node_or_every_node_is_checked_another_node
         "unknown parameter 'wndow' (did you mean 'window'?)"
 
 
+def test_a_trajectory_node_at_a_rate_off_the_nanosecond_grid_does_not_start():
+    """30 kHz: 33 333.3 ns per sample, the stamps would drift from k / fs."""
+    r = _run("trajectory", "-p", "sample_rate:=30000.0")
+    assert r.returncode == 2, r.stdout + r.stderr
+    last = (r.stdout + r.stderr).strip().splitlines()[-1]
+    assert last.startswith("trajectory: error: sample_rate: 30000.0 Hz has no whole-nanosecond period"), last
+    r = _run("trajectory", "-p", "block_size:=2.5")
+    assert r.returncode == 2 and (r.stdout + r.stderr).strip().splitlines()[-1] == \
+        "trajectory: error: block_size: expected an integer, got a double 2.5"
+
+
 def test_override_names_reads_ros_args_sections_and_node_prefixes(tmp_path):
     argv = ["prog", "-p", "outside:=1", "--ros-args", "-r", "a:=b", "-p", "x:=1", "--param", "trajectory:y:=2",
             "-p", "/trajectory:z:=3", "-p", "driver:no:=4", "--", "-p", "after:=5", "--ros-args", "-p", "w:=6"]

@@ -280,11 +280,17 @@ def test_stop_ends_a_run_waiting_for_the_graph():
     ({"preview_s": True}, "preview_s"), ({"workspace_m": -1.0}, "workspace_m"),
     ({"workspace_m": math.inf}, "workspace_m"), ({"sample_rate": 0.0}, "sample_rate"),
     ({"lockstep_timeout": -1.0}, "lockstep_timeout"), ({"ack_timeout": "5"}, "ack_timeout"),
-    ({"voltage_limit": False}, "voltage_limit")])
+    ({"voltage_limit": False}, "voltage_limit"), ({"sample_rate": 30000.0}, "sample_rate")])
 def test_bad_parameters_are_refused_naming_the_field(values, field):
     with pytest.raises(ConfigError) as exc:
         check_play_params(values)
     assert exc.value.field == field
+
+
+def test_a_sample_rate_off_the_nanosecond_grid_is_refused_saying_why():
+    """30 kHz has no whole-nanosecond period: its stamps would drift from k / fs."""
+    with pytest.raises(ConfigError, match="^sample_rate: 30000.0 Hz has no whole-nanosecond period"):
+        check_play_params({"sample_rate": 30000.0})
 
 
 def test_good_parameters_pass_and_settings_check_theirs():

@@ -37,6 +37,7 @@ import yaml
 from .config import ConfigError
 from .status import ERROR, OK, WARN
 from .trajectories import Table, Trajectory, check_workspace, from_dict
+from .units import sample_period_ns
 
 __all__ = ["PLAY_MODES", "MAX_BLOCK_SIZE", "PlaySettings", "PlayerHost", "TrajectoryPlayer", "check_play_params",
            "parse_trajectory"]
@@ -59,8 +60,9 @@ def check_play_params(values: Mapping[str, Any]) -> None:
     Parameters
     ----------
     values : mapping
-        Parameter name → value; names other than ``mode``, ``block_size``, ``window``, ``preview_s``,
-        ``workspace_m``, ``sample_rate``, ``lockstep_timeout``, ``ack_timeout`` and ``voltage_limit`` are ignored.
+        Parameter name → value.  Checked: ``mode``, ``block_size``, ``window``, ``preview_s``, ``workspace_m``,
+        ``sample_rate`` (its period a whole number of nanoseconds), ``lockstep_timeout``, ``ack_timeout`` and
+        ``voltage_limit``; other names are ignored.
 
     Raises
     ------
@@ -83,6 +85,11 @@ def check_play_params(values: Mapping[str, Any]) -> None:
     for name in ("sample_rate", "lockstep_timeout", "ack_timeout", "voltage_limit"):
         if name in values and (not _is_number(values[name]) or not values[name] > 0):
             raise ConfigError(name, f"must be a number > 0, got {values[name]!r}")
+    if "sample_rate" in values:   # stamps are t0 + k·period on a whole-nanosecond grid: another rate would drift
+        try:
+            sample_period_ns(values["sample_rate"])
+        except ValueError as exc:
+            raise ConfigError("sample_rate", str(exc).split(": ", 1)[-1]) from None
 
 
 def parse_trajectory(text: str = "", file: str = "", sample_rate: float = 20000.0, workspace_m: float = 0.0,

@@ -28,10 +28,12 @@ import sys
 from typing import Any, Sequence
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
 
-__all__ = ["TypedParameters", "UnknownParameterError", "override_names", "refuse_unknown_parameters"]
+__all__ = ["TypedParameters", "UnknownParameterError", "ParameterRefused", "override_names",
+           "refuse_unknown_parameters"]
 
 _TYPE_NAMES = {Parameter.Type.NOT_SET: "nothing", Parameter.Type.BOOL: "a bool", Parameter.Type.INTEGER: "an integer",
                Parameter.Type.DOUBLE: "a double", Parameter.Type.STRING: "a string",
@@ -46,6 +48,10 @@ _EXACT_INT = 2 ** 53
 
 class UnknownParameterError(ValueError):
     """An override names a parameter the node does not declare (the text names it and the closest declared one)."""
+
+
+class ParameterRefused(ValueError):
+    """An override was refused at its declaration (the text is the refusal's reason, naming the parameter)."""
 
 
 def _as_python(value: Any) -> Any:
@@ -109,6 +115,11 @@ class TypedParameters:
         -------
         Any
             The value (override or default), converted to the declared type, arrays as lists.
+
+        Raises
+        ------
+        ParameterRefused
+            The override is refused (a wrong type, or the node's own on-set check): the reason, naming the field.
         """
         declared = type_ if type_ is not None else Parameter.Type.from_parameter_value(default)
         if declared == Parameter.Type.BYTE_ARRAY and isinstance(default, list) and not default:
@@ -122,7 +133,13 @@ class TypedParameters:
                 descriptor.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi),
                                                                       step=0.0)]
         self.types[name] = declared
-        param = self.node.declare_parameter(name, default, descriptor)
+        try:
+            param = self.node.declare_parameter(name, default, descriptor)
+        except InvalidParameterValueException as exc:
+            # an override an on-set callback refused: its reason alone (it names the field), not rclpy's wrapper
+            # "Invalid parameter value (…) for parameter. Reason: <reason>: <name>"
+            text = str(exc).split("Reason: ", 1)[-1]
+            raise ParameterRefused(text[:-len(name) - 2] if text.endswith(f": {name}") else text) from None
         ok, value = _converted(_as_python(param.value), param.type_, declared)
         if param.type_ != declared and ok and not read_only:
             self.node.set_parameters([Parameter(name, declared, value)])
