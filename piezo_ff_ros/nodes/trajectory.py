@@ -59,7 +59,8 @@ from std_srvs.srv import Trigger
 from ..core.config import ConfigError
 from ..core.trajectories import Trajectory
 from ..core.trajectory_player import PlaySettings, TrajectoryPlayer, check_play_params, parse_trajectory
-from .common import (BLOCK_QOS, LATCHED_QOS, BlockFormatError, dt_ns, log_lines, pack_block, run_node, stamp_to_ns,
+from ..core.units import sample_period_ns
+from .common import (BLOCK_QOS, LATCHED_QOS, BlockFormatError, log_lines, pack_block, run_node, stamp_to_ns,
                      unpack_block)
 from .params import TypedParameters, refuse_unknown_parameters
 
@@ -143,7 +144,7 @@ class TrajectoryNode(Node):
         self.pub_ref = self.create_publisher(PointCloud2, "reference", BLOCK_QOS)
         self.pub_exp = self.create_publisher(String, "experiment", LATCHED_QOS)
         self.pub_state = self.create_publisher(String, "~/state", LATCHED_QOS)
-        self.player = TrajectoryPlayer(_NodeHost(self), dt_ns(self.fs), int(p["t0_ns"]))
+        self.player = TrajectoryPlayer(_NodeHost(self), sample_period_ns(self.fs), int(p["t0_ns"]))
         self.create_subscription(PointCloud2, "displacement", self.on_displacement, BLOCK_QOS)
         self.create_subscription(PointCloud2, "~/table", self.on_table, LATCHED_QOS)
         self._tmp_tables: tempfile.TemporaryDirectory | None = None
