@@ -5,6 +5,8 @@
 - the compiled kernels import only the JIT helper (and each other);
 - the configuration imports nothing above the units: only modules that import nothing of the package themselves;
 - the core never imports the nodes, the ROS launchers, the CLI or the hardware backends;
+- the hardware backends never import rclpy, the nodes, the ROS launchers or the CLI, and the CLI never imports the
+  nodes (a command reaches ROS through ``ros/``);
 - the CLI and the ROS launchers never import a private (``_name``) module or name of the core.
 
 The import graph is read from the source (``ast``), so an import inside a function counts like one at the top.
@@ -24,8 +26,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PKG = "piezo_ff_ros"
 
-# Cycles whose owners are breaking them on their own branches (issue: ownership without knots); the strict test
-# below refuses any other cycle now, the full one passes once those branches are merged.
+# Cycles whose owners are breaking them on their own branches; the strict test below refuses any other cycle now,
+# the full one passes once those branches are merged.
 PENDING_CYCLES = {
     frozenset({"piezo_ff_ros.core.commissioning", "piezo_ff_ros.core.identification.pipeline"}):
         "commissioning ⇄ identification.pipeline (axes)",
@@ -210,6 +212,23 @@ def test_config_imports_nothing_above_the_units():
 def test_core_never_imports_the_outer_layers(area):
     bad = [i for i in imports() if _within(i.importer, "piezo_ff_ros.core") and _within(i.module, area)]
     assert not bad, _describe(bad)
+
+
+def test_the_cli_never_imports_the_nodes():
+    bad = [i for i in imports() if _within(i.importer, "piezo_ff_ros.cli") and _within(i.module, "piezo_ff_ros.nodes")]
+    assert not bad, _describe(bad)
+
+
+def test_backends_import_neither_rclpy_nor_the_outer_layers():
+    bad = [str(i) for i in imports() if _within(i.importer, "piezo_ff_ros.backends")
+           and any(_within(i.module, a) for a in ("piezo_ff_ros.nodes", "piezo_ff_ros.ros", "piezo_ff_ros.cli"))]
+    for name, path in modules().items():
+        if _within(name, "piezo_ff_ros.backends"):
+            for node in ast.walk(ast.parse(path.read_text(), str(path))):
+                targets = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                    [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else []
+                bad += [f"{name}:{node.lineno} imports {t}" for t in targets if t == "rclpy" or t.startswith("rclpy.")]
+    assert not bad, "\n".join(bad)
 
 
 def _private(imp: Import) -> bool:

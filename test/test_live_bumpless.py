@@ -1,4 +1,4 @@
-"""Bumpless swaps of every compensator stage (issue 9 point 2) — pure core, no ROS.
+"""Bumpless swaps of every compensator stage — pure core, no ROS.
 
 A cascade runs a reference into the simulated plant (``Plant``, the same models); at ``T_SWAP`` one stage's
 parameters change through the ROS parameter encoding (``param_map``), exactly as ``ros2 param set`` would.  The
@@ -107,7 +107,7 @@ def jump(cfg, new_cfg, kind: str, **kw) -> float:
 
 
 class SteadyStateSwap(HotSwapCascade):
-    """The previous behaviour: a changed linear stage restarted at its steady state (the defect of issue 9 pt 2)."""
+    """The previous behaviour: a changed linear stage restarted at its steady state (the defect the transfer fixes)."""
 
     def _transfer_state(self, old, new):
         r = self._last_in

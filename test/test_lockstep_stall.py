@@ -1,4 +1,4 @@
-"""A lockstep run must be lossless whatever the host's scheduling does (issue 10; found by bench/soak.py).
+"""A lockstep run must be lossless whatever the host's scheduling does (found by bench/soak.py).
 
 Lockstep (trajectory ``mode:=lockstep``) is documented as "deterministic and lossless": the next block is sent when
 the displacement of an earlier one came back.  But the driver's stale-input watchdog runs on the wall clock even

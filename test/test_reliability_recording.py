@@ -1,4 +1,4 @@
-"""Issue 10, items 1 and 8: the MCAP reader against outlier stamps and corrupt chunks, and ``piezo-ff recover``.
+"""The MCAP reader against outlier stamps and corrupt chunks, and ``piezo-ff recover``.
 
 Each test was written against the defect first (the reader allocated from the stamp span and crashed with
 ``Unable to allocate … TiB``; it stopped at the first corrupt chunk; a killed recorder's file was refused by the

@@ -1,4 +1,4 @@
-"""A table trajectory sent as a message (issue 11.4): a block on the trajectory node's ``~/table`` becomes
+"""A table trajectory sent as a message: a block on the trajectory node's ``~/table`` becomes
 ``trajectory_file`` (through the same validation as a parameter change) and is played sample-exactly."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Type checking gate (issue 11.5): mypy, configured in setup.cfg, passes ``--strict`` on all of piezo_ff_ros/core.
+"""Type checking gate: mypy, configured in setup.cfg, passes ``--strict`` on all of piezo_ff_ros/core.
 
 Every module found under ``piezo_ff_ros/core`` is listed in the strict section of setup.cfg (a new core module must
 be added there), every strict flag stays on, no ``ignore_errors`` exemption exists, and every ``# type: ignore``

@@ -4,8 +4,9 @@ state transfer that makes a swap of linear stages bumpless.
 Why not ``scipy.signal.cont2discrete`` + ``tf2sos``: the paper's transfer functions are order 9 with coefficients
 spanning 1e-7 … 1e9; expanded polynomials lose most of their digits.  Instead every transfer function is kept in
 factored form (:mod:`piezo_ff_ros.core.transfer`: :class:`FactoredTF`, :class:`TFMatrix`, re-exported here), split
-into its modes (partial fractions at distinct poles), and each mode is discretised exactly by zero-order hold (``a = exp(pT)``, ``b = expm1(pT)/p``).  The result is a block-diagonal real state space (1×1 and
-2×2 blocks) run by one compiled loop with carried state: bit-identical whatever the block split.
+into its modes (partial fractions at distinct poles), and each mode is discretised exactly by zero-order hold
+(``a = exp(pT)``, ``b = expm1(pT)/p``).  The result is a block-diagonal real state space (1×1 and 2×2 blocks) run by
+one compiled loop with carried state: bit-identical whatever the block split.
 
 Continuous MIMO state spaces (the H∞ controller) go through the same modal route when their eigenvectors are
 well conditioned, otherwise through a dense ZOH (``scipy.linalg.expm``) in a single block.
@@ -276,11 +277,6 @@ class LTIFilter:
         return FusedPart(BANK, (self.W, self.feeds, np.ascontiguousarray(self.ss.D), self._offsets, self.ss.sizes),
                          (self.x,))
 
-    def output_now(self) -> np.ndarray:
-        """C x (the strictly proper part of the next output)."""
-        y: np.ndarray = self.ss.C @ self.x
-        return y
-
     def settle_to(self, u_const: np.ndarray) -> None:
         """Put the state at its steady state for a constant input (for bumpless start from a held value)."""
         n = self.ss.n_states
@@ -397,8 +393,8 @@ def _steady_state(ss: DiscreteModalSS, u: np.ndarray | None) -> np.ndarray:
     return np.linalg.solve(np.eye(n) - ss.A, ss.B @ np.asarray(u, float))
 
 
-def transfer_linear_state(ss_old: DiscreteModalSS, x_old: np.ndarray, ss_new: DiscreteModalSS, u_last: np.ndarray | None = None,
-                          rtol: float = 1e-9) -> tuple[np.ndarray, int]:
+def transfer_linear_state(ss_old: DiscreteModalSS, x_old: np.ndarray, ss_new: DiscreteModalSS,
+                          u_last: np.ndarray | None = None, rtol: float = 1e-9) -> tuple[np.ndarray, int]:
     """State for ``ss_new`` continuing ``ss_old`` in state ``x_old``: the transfer that makes a swap of linear stages
     bumpless.
 

@@ -63,6 +63,7 @@ from ..core.param_map import config_to_params
 from ..core.tracking.front import FRONT_DEFAULTS
 from .common import (BLOCK_QOS, CONFIG_QOS, BlockFormatError, diag_values, log_lines, pack_block, run_node,
                      stamp_to_ns, unpack_block, writer_matches)
+from .params import refuse_unknown_parameters
 
 #: parse_config_yaml lives in the core now; importable from here as before
 __all__ = ["CompensatorNode", "main", "parse_config_yaml"]
@@ -196,6 +197,7 @@ class CompensatorNode(Node):
         for name, value in config_to_params(base).items():
             book.values[name] = self._declare(name, value)
         cfg = book.end_declarations()  # cross-field check of everything that was loaded
+        refuse_unknown_parameters(self)
         settings.validate(len(base.axes))
         self.get_logger().info(build_notice(cfg))
         self.core = CompensatorCore(book, cfg, settings,

@@ -42,6 +42,7 @@ from ..core.safety import SafeRampConfig
 from ..backends import get_spec
 from .common import (BLOCK_QOS, LATCHED_QOS, BlockFormatError, diag_values, log_lines, pack_block, run_node,
                      stamp_to_ns, unpack_block, writer_matches)
+from .params import refuse_unknown_parameters
 
 _LEVEL = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
 
@@ -193,6 +194,7 @@ class DriverNode(LifecycleNode):
 
     def _configure(self) -> None:
         settings, backend_name, bparams, p = self._declare_all()
+        refuse_unknown_parameters(self)   # before the device is opened
         self.axes = self.cfg.axes
         self.backend_name = backend_name
         backend = get_spec(backend_name).create(self.cfg, bparams)

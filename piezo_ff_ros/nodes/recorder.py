@@ -36,6 +36,7 @@ from std_msgs.msg import String
 from ..core.config import load_config
 from ..core.recording.mcap_io import McapRecorder, RecordingStopped
 from .common import CONFIG_QOS, LATCHED_QOS, RECORD_QOS, diag_values, run_node
+from .params import refuse_unknown_parameters
 
 DEFAULT_TOPICS = ["reference", "voltage", "displacement", "experiment", "/diagnostics", "/parameter_events",
                   "compensator/config", "voltage_applied"]
@@ -86,6 +87,7 @@ class RecorderNode(Node):
         extra_text: str = self.declare_parameter("metadata", "{}").value
         flush = float(self.declare_parameter("flush_interval", 1.0).value)
         period = float(self.declare_parameter("discovery_period", 0.5).value)
+        refuse_unknown_parameters(self)   # before the output file is created
         try:
             extra = json.loads(extra_text) if extra_text else {}
             if not isinstance(extra, dict):

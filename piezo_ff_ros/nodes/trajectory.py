@@ -1,5 +1,9 @@
 """Trajectory node: plays a :mod:`piezo_ff_ros.core.trajectories` trajectory as ``reference`` blocks [m].
 
+The play loop, the lockstep window, the acknowledgement expiry and the parameter checks are
+:class:`~piezo_ff_ros.core.trajectory_player.TrajectoryPlayer`'s; this node maps parameters, topics and services to
+it, and tells it when the graph is ready.
+
 Parameters (all reloadable; a new trajectory is validated in the on-set callback — rejected with the ConfigError
 text naming the field — and used from the next start):
 
@@ -36,7 +40,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import sys
 import tempfile
 import threading
@@ -45,49 +48,59 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.parameter import Parameter
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from ..core.config import ConfigError
-from ..core.trajectories import Sequence, Table, Trajectory, check_workspace, from_dict
-from .common import BLOCK_QOS, LATCHED_QOS, BlockFormatError, dt_ns, pack_block, run_node, stamp_to_ns, unpack_block
+from ..core.trajectories import Trajectory
+from ..core.trajectory_player import PlaySettings, TrajectoryPlayer, check_play_params, parse_trajectory
+from ..core.units import sample_period_ns
+from .common import (BLOCK_QOS, LATCHED_QOS, BlockFormatError, log_lines, pack_block, run_node, stamp_to_ns,
+                     unpack_block)
+from .params import TypedParameters, refuse_unknown_parameters
 
 DEFAULT_TRAJECTORY = json.dumps({"type": "circle", "radius": 2.0e-5, "frequency": 1.0, "revolutions": 5})
 
-
-def parse_trajectory(text: str = "", file: str = "", sample_rate: float = 20000.0, workspace_m: float = 0.0,
-                     voltage_limit: float | None = None) -> Trajectory:
-    """Trajectory from spec text (JSON/YAML), a spec file or a table file (.npy/.csv, at ``sample_rate``), checked
-    against the workspace; ConfigError naming the field otherwise."""
-    traj = _parse(text, file, sample_rate)
-    check_workspace(traj, workspace_m, voltage_limit, fs=sample_rate)
-    return traj
+__all__ = ["TrajectoryNode", "main", "parse_trajectory"]
 
 
-def _parse(text: str, file: str, sample_rate: float) -> Trajectory:
-    if file:
-        p = Path(file)
-        if not p.is_file():
-            raise ConfigError("trajectory_file", f"{file}: no such file")
-        if p.suffix.lower() in (".npy", ".csv"):
-            try:
-                return Table(file=str(p), sample_rate=sample_rate)
-            except ConfigError as exc:
-                raise ConfigError(f"trajectory_file.{exc.field}", exc.reason) from None
-        text = p.read_text()
-    try:
-        spec = yaml.safe_load(text) if text.strip() else None
-    except yaml.YAMLError as exc:
-        raise ConfigError("trajectory", f"not valid JSON/YAML ({exc})") from None
-    if spec is None:
-        raise ConfigError("trajectory", "empty")
-    return from_dict(spec, prefix="trajectory")
+class _NodeHost:
+    """The player's clocks, waits and publishers: the system clocks and this node's topics."""
+
+    def __init__(self, node: "TrajectoryNode") -> None:
+        self.node = node
+
+    def monotonic(self) -> float:
+        return time.monotonic()
+
+    def wall_ns(self) -> int:
+        return time.time_ns()
+
+    def sleep(self, seconds: float) -> None:
+        time.sleep(seconds)
+
+    def wait(self, cv: threading.Condition, seconds: float) -> None:
+        cv.wait(seconds)
+
+    def wait_graph(self, timeout: float, lockstep: bool) -> None:
+        self.node.wait_graph(timeout, lockstep)
+
+    def publish_reference(self, block: np.ndarray, axes: list[str], stamp_ns: int) -> None:
+        self.node.pub_ref.publish(pack_block(block, axes, stamp_ns))
+
+    def publish_experiment(self, info: dict[str, Any]) -> None:
+        self.node.pub_exp.publish(String(data=json.dumps(info, default=str)))
+
+    def publish_state(self, state: dict[str, Any]) -> None:
+        self.node.pub_state.publish(String(data=json.dumps(state)))
+
+    def log(self, level: int, text: str) -> None:
+        log_lines(self.node.get_logger(), [(level, text)])
 
 
 class TrajectoryNode(Node):
@@ -98,55 +111,49 @@ class TrajectoryNode(Node):
         self._ready = False
         self.add_on_set_parameters_callback(self._on_set)
         self.traj: Trajectory | None = None     # set below (the on-set callback runs during the declarations)
+        self.params = params = TypedParameters(self)   # after _on_set: the type check runs first
+        d = params.declare
         p: dict[str, Any] = {
-            "trajectory": self.declare_parameter("trajectory", DEFAULT_TRAJECTORY).value,
-            "trajectory_file": self.declare_parameter("trajectory_file", "").value,
-            "mode": self.declare_parameter("mode", "realtime").value,
-            "block_size": self.declare_parameter("block_size", 200).value,
-            "window": self.declare_parameter("window", 4).value,
-            "sample_rate": self.declare_parameter("sample_rate", 20000.0).value,
-            "autostart": self.declare_parameter("autostart", False).value,
-            "loop": self.declare_parameter("loop", False).value,
-            "lockstep_timeout": self.declare_parameter("lockstep_timeout", 10.0).value,
-            "ack_timeout": self.declare_parameter("ack_timeout", 5.0).value,
-            "t0_ns": self.declare_parameter("t0_ns", 0).value,
-            "min_subscribers": self.declare_parameter("min_subscribers", 1).value,
+            "trajectory": d("trajectory", DEFAULT_TRAJECTORY, "the trajectory: a spec as JSON or YAML"),
+            "trajectory_file": d("trajectory_file", "", "a spec file (YAML/JSON) or a table (.npy, .csv); wins "
+                                 "when set"),
+            "mode": d("mode", "realtime", "realtime (paced by the clock) or lockstep (as fast as the graph answers)"),
+            "block_size": d("block_size", 200, "samples per reference block"),
+            "window": d("window", 4, "lockstep: blocks in flight at most"),
+            "sample_rate": d("sample_rate", 20000.0, "samples per second [Hz] (read-only after start-up)"),
+            "autostart": d("autostart", False, "start playing once the node is up"),
+            "loop": d("loop", False, "play again at the end"),
+            "lockstep_timeout": d("lockstep_timeout", 10.0, "lockstep: no displacement for this long fails the run; "
+                                  "also how long playing waits for the graph [s]"),
+            "ack_timeout": d("ack_timeout", 5.0, "lockstep: a block not answered for this long is given up [s]"),
+            "t0_ns": d("t0_ns", 0, "stamp of sample index 0 [ns] (0: the wall clock at start-up)"),
+            "min_subscribers": d("min_subscribers", 1, "readers each block topic needs before playing"),
             # reference preview [s]: play the trajectory this far ahead, so that a plant with an input delay (e.g.
             # `piezo-ff diagnose --apply` → reference_preview.delay_s) lands on time; trajectories are pure
             # functions of the sample index, so the preview is exact
-            "preview_s": self.declare_parameter("preview_s", 0.0).value,
+            "preview_s": d("preview_s", 0.0, "play the trajectory this far ahead [s]"),
             # workspace: a trajectory beyond ±workspace_m [m] is refused (0: off); voltage segments: ±voltage_limit
-            "workspace_m": self.declare_parameter("workspace_m", 1e-4).value,
-            "voltage_limit": self.declare_parameter("voltage_limit", 200.0).value,
-            "table_dir": self.declare_parameter("table_dir", "").value,
+            "workspace_m": d("workspace_m", 1e-4, "a trajectory beyond ±workspace_m [m] is refused (0: no check)"),
+            "voltage_limit": d("voltage_limit", 200.0, "bound of segments marked input: voltage [V]"),
+            "table_dir": d("table_dir", "", "where tables received on ~/table are saved ('' = a temporary directory)"),
         }
+        refuse_unknown_parameters(self)
         self.traj = parse_trajectory(p["trajectory"], p["trajectory_file"], float(p["sample_rate"]),
                                      float(p["workspace_m"]), float(p["voltage_limit"]))
         self.fs = float(p["sample_rate"])
-        self.period_ns = dt_ns(self.fs)
-        t0 = int(p["t0_ns"]) or time.time_ns()
-        self.t0_ns = t0 // self.period_ns * self.period_ns
-        self.k_stream = 0            # stream sample index of the next block (never goes back)
-        self._cv = threading.Condition()
-        self._inflight: dict[int, float] = {}    # lockstep: stamp → when sent (monotonic)
-        self.unanswered = 0                       # lockstep blocks given up (never answered)
-        self._last_ack = time.monotonic()
-        self._play_thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self.state: dict[str, Any] = {"state": "idle"}
-        self._run_mode: str | None = None          # the mode of the run being played (the parameter may change)
         self.pub_ref = self.create_publisher(PointCloud2, "reference", BLOCK_QOS)
         self.pub_exp = self.create_publisher(String, "experiment", LATCHED_QOS)
         self.pub_state = self.create_publisher(String, "~/state", LATCHED_QOS)
+        self.player = TrajectoryPlayer(_NodeHost(self), sample_period_ns(self.fs), int(p["t0_ns"]))
         self.create_subscription(PointCloud2, "displacement", self.on_displacement, BLOCK_QOS)
         self.create_subscription(PointCloud2, "~/table", self.on_table, LATCHED_QOS)
         self._tmp_tables: tempfile.TemporaryDirectory | None = None
         self.create_service(Trigger, "~/start", self.on_start)
         self.create_service(Trigger, "~/stop", self.on_stop)
         self._ready = True
-        self._set_state("idle")
+        self.player.set_state("idle", mode=self.param("mode"))
         self.get_logger().info(f"trajectory ready: {type(self.traj).__name__}, mode {self.param('mode')}, "
-                               f"t0_ns {self.t0_ns}")
+                               f"t0_ns {self.player.t0_ns}")
         if p["autostart"]:
             self.start()
 
@@ -163,25 +170,7 @@ class TrajectoryNode(Node):
     def _on_set(self, params: list[Parameter]) -> SetParametersResult:
         values = {p.name: p.value for p in params}
         try:
-            if "mode" in values and values["mode"] not in ("realtime", "lockstep"):
-                raise ConfigError("mode", f"must be 'realtime' or 'lockstep', got {values['mode']!r}")
-            for name in ("block_size", "window"):
-                if name in values and (not isinstance(values[name], int) or values[name] < 1):
-                    raise ConfigError(name, f"must be an integer ≥ 1, got {values[name]!r}")
-            if "block_size" in values and values["block_size"] > 20000:
-                raise ConfigError("block_size", "must be ≤ 20000 (the driver's default max_block)")
-            if "preview_s" in values and (isinstance(values["preview_s"], bool)
-                                          or not isinstance(values["preview_s"], (int, float))
-                                          or not 0.0 <= values["preview_s"] <= 1.0):
-                raise ConfigError("preview_s", f"must be a number of seconds in [0, 1], got {values['preview_s']!r}")
-            for name in ("workspace_m",):
-                if name in values and (isinstance(values[name], bool) or not isinstance(values[name], (int, float))
-                                       or not 0.0 <= values[name] < math.inf):
-                    raise ConfigError(name, f"must be a number of metres >= 0 (0: no check), got {values[name]!r}")
-            for name in ("sample_rate", "lockstep_timeout", "ack_timeout", "voltage_limit"):
-                if name in values and (isinstance(values[name], bool) or not isinstance(values[name], (int, float))
-                                       or not values[name] > 0):
-                    raise ConfigError(name, f"must be a number > 0, got {values[name]!r}")
+            check_play_params(values)
             if self._ready and "sample_rate" in values:
                 raise ConfigError("sample_rate", "read-only after start-up")
             if "trajectory" in values or "trajectory_file" in values:
@@ -231,61 +220,30 @@ class TrajectoryNode(Node):
         return response
 
     def on_stop(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        was = self._play_thread is not None and self._play_thread.is_alive()
+        was = self.player.playing
         self.stop()
         response.success, response.message = True, ("stopped" if was else "was not playing")
         return response
 
     def start(self) -> tuple[bool, str]:
-        if self._play_thread is not None and self._play_thread.is_alive():
-            return False, "already playing (call ~/stop first)"
-        self._stop.clear()
-        self._play_thread = threading.Thread(target=self._play, name="trajectory-play", daemon=True)
-        self._play_thread.start()
-        return True, f"playing {type(self.traj).__name__} from sample {self.k_stream}"
+        """Play the current trajectory with the current parameters (from the stream's next sample)."""
+        settings = PlaySettings.from_params({name: self.param(name) for name in
+                                             ("mode", "block_size", "window", "preview_s", "loop",
+                                              "lockstep_timeout", "ack_timeout")})
+        return self.player.start(self._trajectory(), self.fs, settings)
 
     def stop(self, join: bool = True) -> None:
-        self._stop.set()
-        with self._cv:
-            self._cv.notify_all()
-        if join and self._play_thread is not None:
-            self._play_thread.join(timeout=5.0)
+        self.player.stop(join)
 
     def on_displacement(self, msg: PointCloud2) -> None:
-        stamp = stamp_to_ns(msg.header.stamp)
-        end_k = (stamp - self.t0_ns) // self.period_ns + int(msg.width)
-        with self._cv:
-            self._inflight.pop(stamp, None)
-            # blocks stamped before this one will never be answered (dropped as late, or their node died)
-            self._give_up([s for s in self._inflight if s < stamp], "the driver answered a later block")
-            self._last_ack = time.monotonic()
-            # the driver may have published samples of its own (stale ramp): never reuse their indices
-            self.k_stream = max(self.k_stream, end_k) if end_k > 0 else self.k_stream
-            self._cv.notify_all()
+        self.player.on_ack(stamp_to_ns(msg.header.stamp), int(msg.width))
 
-    def _give_up(self, stamps: list[int], why: str) -> None:
-        """Lockstep (under ``_cv``): stop waiting for these blocks; counted, WARN, in ``~/state``."""
-        if not stamps:
-            return
-        for s in stamps:
-            self._inflight.pop(s, None)
-        self.unanswered += len(stamps)
-        self.get_logger().warning(f"lockstep: {len(stamps)} block(s) never answered ({why}), given up: "
-                                  f"{self.unanswered} so far")
-        self.state["unanswered_blocks"] = self.unanswered
-        self.pub_state.publish(String(data=json.dumps(self.state)))
-
-    def _expire(self, ack_timeout: float) -> None:
-        now = time.monotonic()
-        self._give_up([s for s, t in self._inflight.items() if now - t > ack_timeout],
-                      f"no displacement within ack_timeout {ack_timeout} s")
-
-    def _wait_graph(self, timeout: float, lockstep: bool) -> None:
+    def wait_graph(self, timeout: float, lockstep: bool) -> None:
         """Before playing: every block topic has ``min_subscribers`` readers (e.g. 2 = next node + recorder)."""
         need = int(self.param("min_subscribers"))
         deadline = time.monotonic() + timeout
         settle = False
-        while not self._stop.is_set():
+        while not self.player.stopping:
             # reference: every reader discovered is matched by our own writer (discovered is not enough: a reader
             # this writer has not matched yet misses the first blocks — a recorder after a restart of this node lost
             # 3 of them)
@@ -306,96 +264,6 @@ class TrajectoryNode(Node):
             time.sleep(0.05)
         if settle:
             time.sleep(0.5)  # graph discovery precedes endpoint matching by a little
-
-    def _set_state(self, state: str, **extra: Any) -> None:
-        self.state = {"state": state, "mode": self._run_mode or self.param("mode"), "k": int(self.k_stream),
-                      "unanswered_blocks": self.unanswered, **extra}
-        self.pub_state.publish(String(data=json.dumps(self.state)))
-
-    def _marker(self, name: str, k0: int, meta: dict[str, Any], k1: int | None = None) -> None:
-        info = {"name": name, "k0": int(k0), "stamp_ns": int(self.t0_ns + k0 * self.period_ns),
-                "stages": meta.get("stages"), **{k: v for k, v in meta.items() if k != "stages"}}
-        if k1 is not None:   # the segment's own end: samples a clocked device holds after it are not part of it
-            info["k1"] = int(k1)
-        self.pub_exp.publish(String(data=json.dumps(info, default=str)))
-
-    def _play(self) -> None:
-        traj, fs = self._trajectory(), self.fs
-        mode, n_blk, window = self.param("mode"), int(self.param("block_size")), int(self.param("window"))
-        self._run_mode = mode
-        preview = int(round(float(self.param("preview_s")) * self.fs))  # samples played ahead
-        loop, timeout = bool(self.param("loop")), float(self.param("lockstep_timeout"))
-        ack_timeout = float(self.param("ack_timeout"))
-        total = traj.n_samples(fs)
-        segs = traj.segments(fs) if isinstance(traj, Sequence) else []
-        axes = list(traj.axes)
-        blocks = 0
-        try:
-            self._wait_graph(timeout, mode == "lockstep")
-            while True:
-                with self._cv:
-                    if mode == "realtime":  # stamps follow the wall clock (exact latency measurement)
-                        self.k_stream = max(self.k_stream, (time.time_ns() - self.t0_ns) // self.period_ns)
-                    start = self.k_stream
-                self._set_state("playing", start=int(start), total=None if math.isinf(total) else int(total))
-                k = 0
-                next_wall = time.monotonic()
-                seg_i = 0
-                while (math.isinf(total) or k < total) and not self._stop.is_set():
-                    n = n_blk if math.isinf(total) else int(min(n_blk, total - k))
-                    while seg_i < len(segs) and segs[seg_i].start < k + n:
-                        s = segs[seg_i]
-                        self._marker(s.name, start + s.start, s.meta,
-                                     None if math.isinf(s.stop) else start + int(s.stop))
-                        seg_i += 1
-                    block = traj.block(k + preview, n, fs)
-                    kk = start + k
-                    stamp = self.t0_ns + kk * self.period_ns
-                    if mode == "realtime":
-                        delay = next_wall - time.monotonic()
-                        if delay > 0:
-                            time.sleep(delay)
-                        next_wall += n / fs
-                    else:
-                        with self._cv:
-                            if not self._inflight:   # the timeout runs while something is in flight
-                                self._last_ack = time.monotonic()
-                            while len(self._inflight) >= window and not self._stop.is_set():
-                                self._cv.wait(0.1)
-                                self._expire(ack_timeout)
-                                if time.monotonic() - self._last_ack > timeout:
-                                    raise TimeoutError(f"lockstep: no displacement for {timeout} s "
-                                                       "(is the driver running?)")
-                            self._inflight[stamp] = time.monotonic()
-                    self.pub_ref.publish(pack_block(block, axes, stamp))
-                    with self._cv:
-                        self.k_stream = max(self.k_stream, kk + n)
-                    k += n
-                    blocks += 1
-                if mode == "lockstep":  # the run is finished when its last displacement came back
-                    with self._cv:
-                        self._last_ack = time.monotonic()
-                        while self._inflight and not self._stop.is_set():
-                            self._cv.wait(0.1)
-                            self._expire(ack_timeout)
-                            if time.monotonic() - self._last_ack > timeout:
-                                raise TimeoutError(f"lockstep: {len(self._inflight)} block(s) never answered")
-                if self._stop.is_set() or not loop:
-                    break
-            self._set_state("stopped" if self._stop.is_set() else "finished", blocks=blocks)
-            self.get_logger().info(f"trajectory {self.state['state']}: {blocks} blocks")
-        except TimeoutError as exc:
-            self.get_logger().error(str(exc))
-            with self._cv:
-                self._inflight.clear()
-            self._set_state("failed", error=str(exc), blocks=blocks)
-        except Exception as exc:  # noqa: BLE001 - context shut down while stopping, or a bad trajectory
-            if not self._stop.is_set():
-                self.get_logger().error(f"trajectory: {exc}")
-                try:
-                    self._set_state("failed", error=str(exc), blocks=blocks)
-                except Exception:  # noqa: BLE001
-                    pass
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,8 +10,8 @@ creep and the dynamics are ratios and do not scale.
 Layout: :mod:`.validation` (:class:`ConfigError`, the shared value checks and plausibility bounds),
 :mod:`.tf_entries` (transfer-function matrix entries ↔ YAML), :mod:`.stages` (the per-stage configs),
 :mod:`.piezo` (:class:`PiezoConfig`, its YAML form, units and variants), :mod:`.loader` (:func:`load_config`, the
-default file, duplicate-key refusal, :func:`flatten` / :func:`unflatten`).  Every name of the former single module is
-importable from here, as before.
+default file, duplicate-key refusal, :func:`flatten` / :func:`unflatten`).  Every public name of the former single
+module is importable from here, as before.
 """
 from __future__ import annotations
 
@@ -19,12 +19,7 @@ from .loader import DuplicateKeyError as DuplicateKeyError
 from .loader import UniqueKeyLoader as UniqueKeyLoader
 from .loader import default_config_path, flatten, load_config, unflatten
 from .piezo import PiezoConfig
-from .piezo import _set_path as _set_path
 from .stages import BoucWenConfig, CascadeConfig, CreepConfig, DynamicsConfig, HinfConfig, LimitsConfig
-from .tf_entries import _axis_pair as _axis_pair
-from .tf_entries import _check_tf_matrix as _check_tf_matrix
-from .tf_entries import _tf_matrix_from_dict as _tf_matrix_from_dict
-from .tf_entries import _tf_matrix_to_dict as _tf_matrix_to_dict
 from .validation import MAX_GAIN_M_PER_V as MAX_GAIN_M_PER_V
 from .validation import MAX_HYSTERESIS_RATE as MAX_HYSTERESIS_RATE
 from .validation import MAX_LIMIT_SLEW as MAX_LIMIT_SLEW
@@ -35,14 +30,6 @@ from .validation import MIN_SAMPLE_RATE as MIN_SAMPLE_RATE
 from .validation import VOLTAGE_UNITS as VOLTAGE_UNITS
 from .validation import ConfigError
 from .validation import Matrix as Matrix
-from .validation import _arr as _arr
-from .validation import _bounded as _bounded
-from .validation import _integer as _integer
-from .validation import _matrix as _matrix
-from .validation import _number as _number
-from .validation import _section as _section
-from .validation import _T as _T
-from .validation import _unknown_keys as _unknown_keys
 from .validation import dataclass_from_mapping as dataclass_from_mapping
 
 __all__ = [

@@ -1,9 +1,9 @@
 """Transfer-function matrix entries of a config: YAML ``{xy: {k, num, den}, …}`` ↔ ``TFMatrix``, checked.
 
 ``creep.Cr`` and ``dynamics.G_L`` are n×n matrices of factored transfer functions
-(:class:`~piezo_ff_ros.core.transfer.TFMatrix`).  In YAML an entry is named by its output and input axes (``xy``, ``x,y``
-or ``x_y``) or given as a nested list; an absent or zero entry is zero.  ``_tf_matrix_from_dict`` parses and checks
-the factors (finite, non-zero leading coefficient), ``_tf_matrix_to_dict`` writes the non-zero entries back,
+(:class:`~piezo_ff_ros.core.transfer.TFMatrix`).  In YAML an entry is named by its output and input axes (``xy``,
+``x,y`` or ``x_y``) or given as a nested list; an absent or zero entry is zero.  ``_tf_matrix_from_dict`` parses and
+checks the factors (finite, non-zero leading coefficient), ``_tf_matrix_to_dict`` writes the non-zero entries back,
 ``_check_tf_matrix`` refuses an improper, unstable or (where required) not strictly proper entry, named by its dotted
 field (``dynamics.G_L.xy``).  These helpers are private to the config package (:mod:`.stages`, :mod:`.piezo`).
 """

@@ -22,10 +22,6 @@ __all__ = ["localise", "BANDS"]
 BANDS = (("creep", 0.0, 0.1), ("hysteresis", 0.1, 100.0), ("dynamics", 100.0, math.inf))
 
 
-def _energy_share(parts: dict[str, float], total: float) -> dict[str, float]:
-    return {k: float(v / total) if total > 0 else 0.0 for k, v in parts.items()}
-
-
 def _lp(x: np.ndarray, fc: float, dt: float) -> np.ndarray:
     a = math.exp(-2 * math.pi * fc * dt)
     y: np.ndarray

@@ -14,7 +14,7 @@ from typing import Any, Iterable, NamedTuple
 import numpy as np
 
 from .blocks import BLOCK_TYPE, deserialize_block, deserialize_message, sample_period_ns
-from .mcap_scan import _MAX_RANGES, McapContents, scan_mcap
+from .mcap_scan import MAX_LISTED_RANGES, McapContents, scan_mcap
 from .run import RunData, canonical_axes
 from .schemas import BLOCK_ROLES, DIAGNOSTICS_TYPE, EXPERIMENT_TYPE
 
@@ -453,7 +453,7 @@ def _place_blocks(tl: _Timeline, roles: dict[str, str], warnings: list[str]) -> 
         info[role] = {
             "topic": roles[role], **placed, "malformed": tl.malformed[role],
             "outliers": len(tl.outliers.get(role, [])),
-            "outlier_stamps_ns": [int(st) for st, _ in tl.outliers.get(role, [])[:_MAX_RANGES]],
+            "outlier_stamps_ns": [int(st) for st, _ in tl.outliers.get(role, [])[:MAX_LISTED_RANGES]],
         }
         if placed["off_grid"]:
             warnings.append(f"{roles[role]}: {placed['off_grid']} block stamps off the {dt_ns} ns sample grid "

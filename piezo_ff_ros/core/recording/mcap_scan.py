@@ -10,7 +10,7 @@ from typing import Any, Iterator
 
 from .schemas import METADATA_NAME
 
-__all__ = ["McapContents", "scan_mcap", "iter_mcap_records"]
+__all__ = ["McapContents", "scan_mcap", "iter_mcap_records", "new_loss_account", "MAX_LISTED_RANGES"]
 
 
 @dataclass
@@ -67,10 +67,11 @@ _OP_DATA_END = 0x0F
 _COMPRESSIONS = (b"", b"lz4", b"zstd")
 #: the bytes a file is read from (memory-mapped, or empty)
 _Buf = mmap.mmap | bytes
-_MAX_RANGES = 50  # lost time ranges listed individually (the counts are always complete)
+#: lost time ranges (and errors, outlier stamps) listed individually; the counts are always complete
+MAX_LISTED_RANGES = 50
 
 
-def _new_loss() -> dict[str, Any]:
+def new_loss_account() -> dict[str, Any]:
     """The reader's account of what it could not read (every count is a lower bound on what was lost)."""
     return {"chunks_total": 0, "chunks_lost": 0, "messages_lost": 0, "messages_lost_by_channel": Counter(),
             "lost_time_ranges_ns": [], "bytes_skipped": 0, "records_skipped": 0, "orphan_messages": 0,
@@ -123,9 +124,9 @@ def _partial_chunk_times(buf: _Buf, pos: int) -> tuple[int, int] | None:
 
 def _lose_chunk(loss: dict[str, Any], times: tuple[int, int] | None, why: str) -> None:
     loss["chunks_lost"] += 1
-    if times is not None and len(loss["lost_time_ranges_ns"]) < _MAX_RANGES:
+    if times is not None and len(loss["lost_time_ranges_ns"]) < MAX_LISTED_RANGES:
         loss["lost_time_ranges_ns"].append([int(times[0]), int(times[1])])
-    if len(loss["errors"]) < _MAX_RANGES:
+    if len(loss["errors"]) < MAX_LISTED_RANGES:
         loss["errors"].append(why)
 
 
@@ -137,7 +138,7 @@ def iter_mcap_records(path: str | Path, loss: dict[str, Any] | None = None) -> I
     give the count of messages lost per channel, its header the log-time range); damaged framing (an absurd
     record length, a reserved opcode) is skipped up to the next self-consistent Chunk record; a file that ends
     inside a record (a killed writer) ends the walk.  Everything skipped is accounted in ``loss`` (see
-    :func:`_new_loss`).  Raises ``ValueError`` if the file does not start with the MCAP magic.
+    :func:`new_loss_account`).  Raises ``ValueError`` if the file does not start with the MCAP magic.
     """
     from io import BytesIO
 
@@ -149,7 +150,7 @@ def iter_mcap_records(path: str | Path, loss: dict[str, Any] | None = None) -> I
     parsers = {_OP_HEADER: Header.read, _OP_FOOTER: Footer.read, _OP_SCHEMA: Schema.read,
                _OP_CHANNEL: Channel.read, _OP_CHUNK: Chunk.read, _OP_MESSAGE_INDEX: MessageIndex.read,
                0x09: Attachment.read, 0x0B: Statistics.read, 0x0C: Metadata.read}
-    loss = _new_loss() if loss is None else loss
+    loss = new_loss_account() if loss is None else loss
     path = Path(path)
     buf: mmap.mmap | bytes
     with open(path, "rb") as f:
@@ -240,7 +241,7 @@ def iter_mcap_records(path: str | Path, loss: dict[str, Any] | None = None) -> I
 def _scan_one(path: Path, out: McapContents) -> None:
     from mcap.records import Channel, Header, Message, Metadata, Schema, Statistics
 
-    loss = _new_loss()
+    loss = new_loss_account()
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     by_channel: dict[int, list[tuple[int, int, bytes]]] = defaultdict(list)

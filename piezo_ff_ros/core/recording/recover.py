@@ -44,7 +44,7 @@ def recover_mcap(src: str | Path, dst: str | Path, *, compression: str = "zstd",
     from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
     from mcap.writer import CompressionType, Writer
 
-    from .mcap_scan import _new_loss, iter_mcap_records
+    from .mcap_scan import iter_mcap_records, new_loss_account
 
     src, dst = Path(src), Path(dst)
     if not src.is_file():
@@ -55,7 +55,7 @@ def recover_mcap(src: str | Path, dst: str | Path, *, compression: str = "zstd",
     if compression not in comp:
         raise ValueError(f"compression: {compression!r} not one of {sorted(comp)}")
 
-    loss = _new_loss()
+    loss = new_loss_account()
     header = None
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
