@@ -158,7 +158,8 @@ class DriverCore:
     """See the module docstring."""
 
     def __init__(self, settings: DriverSettings, backend: StreamingBackend,
-                 now: Callable[[], float] = time.monotonic) -> None:
+                 now: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
         self.s = settings.validate()
         self.backend = backend
         self.info = backend.info
@@ -168,6 +169,7 @@ class DriverCore:
             raise ConfigError("backend", f"{self.info.name} runs at {self.info.sample_rate_hz} Hz, "
                                          f"the config at {self.s.sample_rate} Hz")
         self.now = now
+        self.sleep = sleep     # how close() waits for the device to play its ramp (injectable with ``now``)
         self.period_ns = int(round(1e9 / self.s.sample_rate))
         self.guard = VoltageGuard(self.s.limits, self.s.n_axes, self.s.sample_rate, max_block=self.s.max_block)
         self.book = StreamBook(self.period_ns, self.s.samples(self.s.max_gap))
