@@ -28,7 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..config import ConfigError, LimitsConfig
-from ..safety import BlockRejected, SafeRampConfig, VoltageGuard
+from ..safety import BlockRejected, SafeRampConfig, VoltageGuard, limit_block
 from .contract import DeviceFault, Disconnect, StreamingBackend
 from .stream import StreamBook
 
@@ -193,8 +193,14 @@ class DriverCore:
     def _prefill(self) -> int:
         return min(self.s.samples(self.s.write_ahead), self.info.fifo_depth) if self.info.clocked else 0
 
+    def _warm_kernels(self) -> None:
+        """Load the compiled kernels the first block runs (the guard's limiter) now, before the device's clock
+        starts: loading one takes longer than the write-ahead (0.3-0.5 s from numba's disk cache)."""
+        limit_block(np.zeros((2, self.s.n_axes)), np.zeros(self.s.n_axes), 1.0, 1.0)
+
     def start(self) -> Emit:
         """Start the device (its clock runs from here: call it where the periodic ``tick`` starts too)."""
+        self._warm_kernels()
         self._w = self.backend.start(self.safe.copy(), self._prefill())
         self._started = True
         return self.tick()
@@ -212,6 +218,7 @@ class DriverCore:
         self.state, self.last_block_wall, self.last_error = "idle", None, ""
         self.starved_samples = self.resumes = 0
         self.faults = dict.fromkeys(self.faults, 0)
+        self._warm_kernels()
         self._w = self.backend.start(self.safe.copy(), self._prefill())
         return True
 
@@ -226,9 +233,29 @@ class DriverCore:
         """True once the device stream has started."""
         return self._started
 
-    def close(self) -> None:
-        """Close the backend."""
-        self.backend.close()
+    def close(self) -> Emit:
+        """Stop: ramp to the safe voltage **while the device still runs** (the safe ramp, in time), wait until it
+        has output the ramp (a clocked device; bounded by the ramp's duration + 1 s), then close the backend — also
+        when the ramp fails.  Returns what was emitted meanwhile."""
+        em = Emit()
+        try:
+            if self._started and self.state != "fault":
+                self._poll(em)
+                if self.state != "fault" and not self.guard.at_safe:
+                    self._ramp(em, "closing")
+                end = self._w
+                em.extend(self._collect())
+                if self.info.clocked:
+                    fs = self.s.sample_rate
+                    deadline = self.now() + max(0, end - self.backend.clock()) / fs + 1.0
+                    while self.state != "fault" and self.backend.clock() < end and self.now() < deadline:
+                        self.sleep(0.002)
+                        em.extend(self.tick())   # keeps feeding: the safe voltage follows the ramp
+        except Exception as exc:  # noqa: BLE001 - closing: the backend is closed whatever happened
+            self._err(em, f"closing: {type(exc).__name__}: {exc}")
+        finally:
+            self.backend.close()
+        return em
 
     def set_stream_paced(self, on: bool, why: str = "") -> Emit:
         """Tell the core whether a lockstep source paces the stream (``why``: for the log).
@@ -395,42 +422,46 @@ class DriverCore:
     def _poll(self, em: Emit) -> None:
         try:
             self.backend.poll()
-        except Disconnect as exc:
+        except DeviceFault as exc:
+            self._fault(em, exc)
+
+    def _fault(self, em: Emit, exc: DeviceFault) -> None:
+        """A device fault from any call: a disconnect stops the output (nothing can be written); anything else
+        (underrun, overrun, limit) is counted and, while a stream runs, ramps to the safe voltage."""
+        if isinstance(exc, Disconnect):
             self.faults["disconnect"] += 1
             self.state = "fault"
             self._err(em, f"device fault: {exc}; output stopped")
             return
-        except DeviceFault as exc:
-            self.faults[exc.kind] = self.faults.get(exc.kind, 0) + 1
-            self._window["lost"] += 1
-            self._err(em, f"device fault ({exc.kind}): {exc}")
-            if self.state == "active":
-                self._ramp(em, f"device {exc.kind}")
+        self.faults[exc.kind] = self.faults.get(exc.kind, 0) + 1
+        self._window["lost"] += 1
+        self._err(em, f"device fault ({exc.kind}): {exc}")
+        if self.state == "active":
+            self._ramp(em, f"device {exc.kind}")
 
     def _collect(self) -> Emit:
         """Write what fits into the FIFO; map what the device applied and measured to stamps."""
         em = Emit()
-        try:
-            self._sync()
-            while self._queue:
-                space = self.backend.write_space()
-                if space <= 0:
-                    break
-                b = self._queue[0]
-                part = b[:space]
-                self.backend.write(self.backend.write_index, part)
-                self._queued -= part.shape[0]
-                if part.shape[0] == b.shape[0]:
-                    self._queue.popleft()
+        applied: list[tuple[int, np.ndarray]] = []
+        measured: list[tuple[int, np.ndarray]] = []
+        for _attempt in range(3):   # a fault queues the safe ramp; the next attempt writes it (a DAQ restarts)
+            try:
+                self._write_queue()
+                break
+            except DeviceFault as exc:
+                self._fault(em, exc)
+                if self.state == "fault":
+                    return em
+        for what in ("applied", "measured"):
+            try:
+                if what == "applied":
+                    applied = self.backend.take_applied()
                 else:
-                    self._queue[0] = b[part.shape[0]:]
-            applied = self.backend.take_applied()
-            measured = self.backend.read()
-        except Disconnect as exc:
-            self.faults["disconnect"] += 1
-            self.state = "fault"
-            self._err(em, f"device fault: {exc}; output stopped")
-            return em
+                    measured = self.backend.read()
+            except DeviceFault as exc:
+                self._fault(em, exc)
+                if self.state == "fault":
+                    return em
         for src, dst, chunker in ((applied, em.applied, self._chunks[0]), (measured, em.displacement,
                                                                            self._chunks[1])):
             for d_in, b_in in src:
@@ -438,6 +469,22 @@ class DriverCore:
                     for off, cnt, stamp in self.book.split(d0, blk.shape[0]):
                         dst.append((stamp, blk[off:off + cnt]))
         return em
+
+    def _write_queue(self) -> None:
+        """Write the committed samples that fit into the device FIFO."""
+        self._sync()
+        while self._queue:
+            space = self.backend.write_space()
+            if space <= 0:
+                break
+            b = self._queue[0]
+            part = b[:space]
+            self.backend.write(self.backend.write_index, part)
+            self._queued -= part.shape[0]
+            if part.shape[0] == b.shape[0]:
+                self._queue.popleft()
+            else:
+                self._queue[0] = b[part.shape[0]:]
 
     # -- reporting ---------------------------------------------------------------------------------------------------
     def _err(self, em: Emit, text: str, level: int = ERROR) -> None:
