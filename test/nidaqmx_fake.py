@@ -16,7 +16,7 @@ implements :class:`nidaqmx._base_interpreter.BaseInterpreter` for the calls an A
 
 Errors are raised the way the library interpreter raises them: ``DaqWriteError`` from writes, ``DaqReadError`` from
 reads, ``DaqError`` otherwise, with DAQmx's real error codes.  ``FakeDaq.fail`` injects an error into the next call
-of a named interpreter method (e.g. ``stop_task``).
+of a named interpreter method (e.g. ``stop_task``), ``FakeDaq.fail_after`` into its n-th call from now.
 """
 from __future__ import annotations
 
@@ -117,6 +117,7 @@ class FakeDaq:
         #: (device time [s], channel, value) of every value that reached an AO pin, in order
         self.wire: list[tuple[float, str, float]] = []
         self.fail: dict[str, int] = {}        # interpreter method → error code raised on its next call
+        self.fail_after: dict[str, tuple[int, int]] = {}   # method → (on its n-th call from now, error code)
         self.calls: list[str] = []
         self.gone = False
 
@@ -208,6 +209,13 @@ class FakeInterpreter(BaseInterpreter):
         if dev.gone:
             raise _error(DEVICE_GONE)
         code = dev.fail.pop(name, None)
+        if code is None and name in dev.fail_after:
+            left, c = dev.fail_after[name]
+            if left <= 1:
+                del dev.fail_after[name]
+                code = c
+            else:
+                dev.fail_after[name] = (left - 1, c)
         if code is not None:
             if name.startswith("write"):
                 raise _error(code, written=0)

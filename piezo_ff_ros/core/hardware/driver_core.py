@@ -247,8 +247,11 @@ class DriverCore:
                 em.extend(self._collect())
                 if self.info.clocked:
                     fs = self.s.sample_rate
-                    deadline = self.now() + max(0, end - self.backend.clock()) / fs + 1.0
-                    while self.state != "fault" and self.backend.clock() < end and self.now() < deadline:
+                    wait = max(0, end - self.backend.clock()) / fs + 1.0
+                    deadline = self.now() + wait
+                    for _ in range(int(wait / 0.002) + 1):   # bounded also when now() stands still
+                        if self.state == "fault" or self.backend.clock() >= end or self.now() > deadline:
+                            break
                         self.sleep(0.002)
                         em.extend(self.tick())   # keeps feeding: the safe voltage follows the ramp
         except Exception as exc:  # noqa: BLE001 - closing: the backend is closed whatever happened
