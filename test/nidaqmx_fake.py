@@ -113,9 +113,8 @@ class FakeDaq:
         self.tasks: dict[int, _Task] = {}
         self._next = 1
         self.ao_value = {f"Dev1/ao{i}": 0.0 for i in range(n_ao)}   # what each AO pin holds now
-        self.ao_history: dict[str, deque] = {ch: deque(maxlen=4096) for ch in self.ao_value}
-        #: (device time [s], channel, value) of every value that reached an AO pin, in order
-        self.wire: list[tuple[float, str, float]] = []
+        self._delay_line: dict[str, np.ndarray] = {}                     # the last `latency` AO values per pin
+        self._wire: list[tuple[str, np.ndarray, np.ndarray]] = []         # see wire / trace()
         self.fail: dict[str, int] = {}        # interpreter method → error code raised on its next call
         self.fail_after: dict[str, tuple[int, int]] = {}   # method → (on its n-th call from now, error code)
         self.calls: list[str] = []
@@ -138,12 +137,11 @@ class FakeDaq:
                 return
             b = t.buffer[0]
             take = min(n, b.shape[1])
-            for j in range(take):
-                k = t.generated + j
-                tk = t.t_start + k / t.rate
-                for c, ch in enumerate(t.ao):
-                    self._drive(ch, float(b[c, j]), tk)
-                self._acquire(t, k)
+            k = t.generated + np.arange(take)
+            tk = t.t_start + k / t.rate
+            for c, ch in enumerate(t.ao):
+                self._drive(ch, b[c, :take], tk)
+            self._acquire(take, {ch: b[c, :take] for c, ch in enumerate(t.ao)})
             t.generated += take
             t.buffered -= take
             n -= take
@@ -152,28 +150,44 @@ class FakeDaq:
             else:
                 t.buffer[0] = b[:, take:]
 
-    def _drive(self, ch: str, v: float, tk: float) -> None:
-        self.ao_value[ch] = v
-        self.ao_history[ch].append(v)
-        self.wire.append((tk, ch, v))
+    def _drive(self, ch: str, v: np.ndarray, tk: np.ndarray) -> None:
+        """Values ``v`` reach pin ``ch`` at device times ``tk``."""
+        self.ao_value[ch] = float(v[-1])
+        self._wire.append((ch, np.asarray(tk, dtype=float), np.array(v, dtype=float)))
 
-    def _acquire(self, ao_task: _Task, k: int) -> None:
-        """AI tasks clocked by this AO task take one sample on its edge k."""
-        for t in self.tasks.values():
-            if not (t.ai and t.running and t.error is None and t.source.endswith("/ao/SampleClock")):
-                continue
-            row = []
-            for ch in t.ai:
-                ao_ch = ch.replace("/ai", "/ao")
-                hist = self.ao_history.get(ao_ch)
-                row.append(self.ai_gain * (hist[-1 - self.latency] if hist is not None and len(hist) > self.latency
-                                           else 0.0))
-            t.acquired.append(row)
-            if t.buf_size is not None and len(t.acquired) > t.buf_size:
+    def _acquire(self, n: int, ao: dict[str, np.ndarray]) -> None:
+        """AI tasks clocked by the AO sample clock take one sample per edge: AO of ``latency`` edges earlier."""
+        tasks = [t for t in self.tasks.values()
+                 if t.ai and t.running and t.error is None and t.source.endswith("/ao/SampleClock")]
+        cols = []
+        for ch in (tasks[0].ai if tasks else []):
+            ao_ch = ch.replace("/ai", "/ao")
+            new = ao.get(ao_ch, np.full(n, self.ao_value.get(ao_ch, 0.0)))
+            past = self._delay_line.get(ao_ch, np.zeros(self.latency))
+            line = np.concatenate([past, new])
+            cols.append(self.ai_gain * line[:n])
+            self._delay_line[ao_ch] = line[-self.latency:] if self.latency else np.zeros(0)
+        for t in tasks:
+            rows = np.column_stack(cols) if cols else np.zeros((n, 0))
+            t.acquired.extend(rows.tolist())
+            while t.buf_size is not None and len(t.acquired) > t.buf_size:
                 t.acquired.popleft()
                 t.lost += 1
                 t.error = OVERWRITTEN
-            t.generated += 1
+
+    @property
+    def wire(self) -> list[tuple[float, str, float]]:
+        """``(device time [s], channel, value)`` of every value that reached an AO pin, in order."""
+        return [(float(tt), ch, float(vv)) for ch, tk, v in self._wire for tt, vv in zip(tk, v)]
+
+    def trace(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Per AO channel: ``(device times, values)`` of everything that reached it, in order."""
+        out: dict[str, tuple[list, list]] = {}
+        for ch, tk, v in self._wire:
+            out.setdefault(ch, ([], []))
+            out[ch][0].append(tk)
+            out[ch][1].append(v)
+        return {ch: (np.concatenate(t), np.concatenate(v)) for ch, (t, v) in out.items()}
 
     # -- helpers for the interpreter --------------------------------------------------------------------------------
     def task(self, handle: int) -> _Task:
@@ -381,7 +395,7 @@ class FakeInterpreter(BaseInterpreter):
             if not t.clocked:       # on demand: out at once
                 now = self.dev.clock.now()
                 for c, ch in enumerate(t.ao):
-                    self.dev._drive(ch, float(data[c, -1]), now)
+                    self.dev._drive(ch, data[c, -1:], np.array([now]))
                 return num_samps_per_chan
             if t.error is not None:
                 t.error_reported = True

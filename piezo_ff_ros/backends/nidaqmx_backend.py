@@ -395,10 +395,12 @@ class NidaqmxBackend(StreamingBackend):
             if self._ao_task is not None or self._restart:
                 ramp = safe_ramp(self._last, float(self.cfg.limits.safe_voltage), float(self.cfg.sample_rate),
                                  SafeRampConfig(), self.cfg.limits.slew)
-                if ramp.shape[0]:
-                    tail = np.tile(safe, (max(self._prefill, 2), 1))
+                tail = np.tile(safe, (max(self._prefill, 2), 1))   # so that the buffer never runs dry meanwhile
+                if ramp.shape[0] or self.write_space() >= tail.shape[0]:
                     self.write(self.write_index, np.vstack([ramp, tail]))
                     self._wait_generated(self._widx - tail.shape[0])
+                else:    # the buffer is full: its last sample is the safe voltage; stop once it is out
+                    self._wait_generated(self._widx)
         except Exception as exc:  # noqa: BLE001 - closing: the tasks are closed whatever happened
             self.close_errors.append(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
         finally:
@@ -424,7 +426,7 @@ SPEC = BackendSpec(
         "amp_offset": Param([0.0], "amplifier offset per axis [V]"),
         "sensor_gain": Param([1.0e-5], "sensor gain per axis [m/V]"),
         "sensor_offset": Param([0.0], "sensor offset per axis [m]"),
-        "fifo_depth": Param(8000, "AO buffer [samples]", int_range(64, 10_000_000)),
+        "fifo_depth": Param(20000, "AO buffer [samples] (≥ the driver's write_ahead)", int_range(64, 10_000_000)),
         "input_buffer": Param(100000, "AI buffer [samples]", int_range(64, 100_000_000)),
         "latency_samples": Param(1, "AO→AI latency [samples] (measure it with rig-check)", int_range(0, 100000)),
     },

@@ -71,8 +71,19 @@ class DriverSettings:
     ramp: SafeRampConfig = field(default_factory=SafeRampConfig)
     max_block: int = 20000           #: largest accepted block [samples]
     max_gap: float = 1.0             #: largest gap filled by holding [s]; larger jumps need confirmation
-    write_ahead: float = 0.05        #: clocked devices: target FIFO margin ahead of the clock [s]
-    low_water: float = 0.01          #: clocked devices: below this margin the last voltage is held [s]
+    #: clocked devices: target FIFO margin ahead of the clock [s].  0.5 s held with 0 underruns on the clocked
+    #: simulator with two CPU-bound loaders on a 2-core host (rig-check, 60 s; 0.05–0.3 s did not); references are
+    #: known ahead, so a deeper write-ahead costs no tracking, only the delay between a block's arrival and its output
+    write_ahead: float = 0.5
+    #: clocked devices: below this margin the last voltage is held [s]; the driver's own holds (idle after a ramp,
+    #: a late stream) stay within 1–2× this of the clock, so it is also the margin a stalled host has in the safe
+    #: state (0.01 s underran on a loaded 2-core host).  Left at its default with a write-ahead ≤ 0.1 s it becomes
+    #: write_ahead / 5.
+    low_water: float = 0.1
+
+    def __post_init__(self) -> None:
+        if self.low_water == 0.1 and isinstance(self.write_ahead, (int, float)) and 0 < self.write_ahead <= 0.1:
+            object.__setattr__(self, "low_water", self.write_ahead / 5)
 
     def validate(self) -> "DriverSettings":
         """Check every field (``ConfigError`` naming the field); returns self."""
@@ -203,7 +214,12 @@ class DriverCore:
         self._warm_kernels()
         self._w = self.backend.start(self.safe.copy(), self._prefill())
         self._started = True
-        return self.tick()
+        em = Emit()
+        if self.info.clocked and self.s.samples(self.s.write_ahead) > self.info.fifo_depth:
+            em.log.append((WARN, f"write_ahead {self.s.write_ahead} s is more than {self.info.name}'s FIFO "
+                                 f"({self.info.fifo_depth} samples): the margin is capped there (raise the "
+                                 "backend's fifo_depth or lower write_ahead)"))
+        return em.extend(self.tick())
 
     def reset(self) -> bool:
         """Back to rest if the device can (the simulator); stream and counters start anew."""
@@ -243,14 +259,15 @@ class DriverCore:
                 self._poll(em)
                 if self.state != "fault" and not self.guard.at_safe:
                     self._ramp(em, "closing")
-                end = self._w
                 em.extend(self._collect())
+                self._sync()          # a restarted device may have moved the write cursor
+                end = self._w
                 if self.info.clocked:
                     fs = self.s.sample_rate
-                    wait = max(0, end - self.backend.clock()) / fs + 1.0
+                    wait = max(0, end - self._clock_or_fault(em)) / fs + 1.0
                     deadline = self.now() + wait
                     for _ in range(int(wait / 0.002) + 1):   # bounded also when now() stands still
-                        if self.state == "fault" or self.backend.clock() >= end or self.now() > deadline:
+                        if self.state == "fault" or self.now() > deadline or self._clock_or_fault(em) >= end:
                             break
                         self.sleep(0.002)
                         em.extend(self.tick())   # keeps feeding: the safe voltage follows the ramp
@@ -399,7 +416,11 @@ class DriverCore:
         voltage (the first block then lands that far ahead of the clock: the stream's margin).  Afterwards the
         driver's own holds stay close to the clock (below ``low_water``, up to 2·low_water), so that a stream
         that resumes a little late still finds its sample instants free."""
-        margin = self._w - self.backend.clock()
+        try:
+            margin = self._w - self.backend.clock()
+        except DeviceFault as exc:
+            self._fault(em, exc)
+            return
         lw = self.s.samples(self.s.low_water)
         if self.book.started:
             if margin >= lw:
@@ -427,6 +448,14 @@ class DriverCore:
             self.backend.poll()
         except DeviceFault as exc:
             self._fault(em, exc)
+
+    def _clock_or_fault(self, em: Emit) -> int:
+        """The device clock; a fault reading it goes through :meth:`_fault` (then the write cursor is returned)."""
+        try:
+            return self.backend.clock()
+        except DeviceFault as exc:
+            self._fault(em, exc)
+            return self._w
 
     def _fault(self, em: Emit, exc: DeviceFault) -> None:
         """A device fault from any call: a disconnect stops the output (nothing can be written); anything else
@@ -503,7 +532,10 @@ class DriverCore:
               "next_stamp_ns": self.book.stamp_of(self._w) if self.book.started else None,
               "latency_samples": self.backend.latency_samples, "last_error": self.last_error}
         if self.info.clocked and self.state != "fault":
-            st["write_ahead_samples"] = self._w - self.backend.clock()
+            try:
+                st["write_ahead_samples"] = self._w - self.backend.clock()
+            except DeviceFault as exc:   # reported by the next tick's fault path
+                st["device.error"] = str(exc)
         try:
             st.update({f"device.{k}": v for k, v in self.backend.status().items()})
         except Exception as exc:  # noqa: BLE001 - a status read must never take the driver down

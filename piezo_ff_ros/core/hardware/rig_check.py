@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, NamedTuple
+from typing import Any, Callable, Iterable, Iterator, NamedTuple
 
 import numpy as np
 
@@ -172,7 +172,7 @@ def _open_link(plan: _Plan, open_backend: OpenBackend, report: _Report) -> _Link
         backend, bparams = open_backend()
         settings = DriverSettings(sample_rate=cfg.sample_rate, n_axes=cfg.n_axes, limits=cfg.limits, ramp=plan.ramp,
                                   max_block=max(block_size, 20000), write_ahead=write_ahead,
-                                  low_water=min(0.01, write_ahead / 2))
+                                  low_water=min(DriverSettings.low_water, write_ahead / 2))
         core = DriverCore(settings, backend)
         run = _Run(core)
         run.take(core.start())
@@ -190,26 +190,20 @@ def _open_link(plan: _Plan, open_backend: OpenBackend, report: _Report) -> _Link
     return _Link(backend, core, run, settings)
 
 
-def _test_blocks(plan: _Plan, period_ns: int) -> list[tuple[int, np.ndarray]]:
-    """The paced test signal: 5 Hz sines at ``plan.test_voltage`` (one phase per axis), faded in over 50 ms.
-
-    Parameters
-    ----------
-    plan : _Plan
-        Duration, block size, test voltage.
-    period_ns : int
-        Sample period; the first block is stamp 0.
-
-    Returns
-    -------
-    list of (stamp, block)
-    """
+def _test_blocks(plan: _Plan, period_ns: int) -> Iterator[tuple[int, np.ndarray]]:
+    """The paced test signal, made block by block as it is sent (building a minute of it at once takes longer than
+    the write-ahead on a loaded host, while nothing feeds the device): 5 Hz sines at ``plan.test_voltage`` (one
+    phase per axis), faded in over 50 ms; the first block is stamp 0."""
     fs, block_size = plan.cfg.sample_rate, plan.block_size
-    n_blocks = max(1, int(round(plan.duration * fs / block_size)))
-    k = np.arange(n_blocks * block_size)
-    u_all = plan.test_voltage * np.column_stack([np.sin(2 * np.pi * 5.0 * k / fs + i) for i in range(plan.cfg.n_axes)])
-    u_all *= np.minimum(1.0, k / (0.05 * fs))[:, None]      # fade in: no step at the start
-    return [(i * block_size * period_ns, u_all[i * block_size:(i + 1) * block_size]) for i in range(n_blocks)]
+    phase = np.arange(plan.cfg.n_axes)
+    for i in range(_n_test_blocks(plan)):
+        k = np.arange(i * block_size, (i + 1) * block_size)[:, None]
+        u = plan.test_voltage * np.sin(2 * np.pi * 5.0 * k / fs + phase) * np.minimum(1.0, k / (0.05 * fs))
+        yield i * block_size * period_ns, u
+
+
+def _n_test_blocks(plan: _Plan) -> int:
+    return max(1, int(round(plan.duration * plan.cfg.sample_rate / plan.block_size)))
 
 
 class _StepRecord(NamedTuple):
@@ -266,8 +260,9 @@ class _Checks:
         underruns_before = core.status()["underrun_faults"]
         blocks = _test_blocks(plan, core.period_ns)
         clocked = self.link.backend.info.clocked
-        self.report.say(f"rig-check: streaming {len(blocks)} blocks of {plan.block_size} samples "
-                        f"({len(blocks) * plan.block_size / plan.cfg.sample_rate:g} s) …")
+        n_blocks = _n_test_blocks(plan)
+        self.report.say(f"rig-check: streaming {n_blocks} blocks of {plan.block_size} samples "
+                        f"({n_blocks * plan.block_size / plan.cfg.sample_rate:g} s) …")
         run.stream(blocks, pace=clocked)
         st = core.status()
         underruns = self.report.rep["underruns"] = st["underrun_faults"] - underruns_before     # while streaming
