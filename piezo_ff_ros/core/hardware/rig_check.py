@@ -52,9 +52,9 @@ class _Run:
 
     def __init__(self, core: DriverCore) -> None:
         self.core = core
-        self.applied: list = []
-        self.measured: list = []
-        self.log: list = []
+        self.applied: list[tuple[int, np.ndarray]] = []
+        self.measured: list[tuple[int, np.ndarray]] = []
+        self.log: list[tuple[int, str]] = []
         self.min_margin = math.inf
         self.read_delay = math.inf
 
@@ -427,8 +427,8 @@ def _xcorr_latency(u: np.ndarray, y: np.ndarray, lag_max: int) -> dict[str, Any]
     y = y - y.mean()
     n = u.size
     norm = math.sqrt(float(np.dot(u, u)) * float(np.dot(y, y))) or 1.0
-    lags = np.arange(-lag_max, lag_max + 1)
-    c = np.array([np.dot(u[max(0, -l):n - max(0, l)], y[max(0, l):n - max(0, -l)]) for l in lags]) / norm
+    lags = list(range(-lag_max, lag_max + 1))
+    c = np.array([np.dot(u[max(0, -lag):n - max(0, lag)], y[max(0, lag):n - max(0, -lag)]) for lag in lags]) / norm
     a = np.abs(c)
     i_peak = int(np.argmax(a))
     threshold = max(0.1 * a[i_peak], 5.0 / math.sqrt(n))
