@@ -107,7 +107,7 @@ NI_ERRORS = {"write underflow": ("write_analog_f64", -200290), "read overrun": (
              "device gone": ("is_task_done", -201003)}
 
 
-def bench_nidaqmx(monkeypatch: Any) -> Bench:
+def bench_nidaqmx(monkeypatch: Any, fifo_depth: int = 4000) -> Bench:
     pytest.importorskip("nidaqmx")
     from nidaqmx_fake import DeviceClock, FakeDaq, install
 
@@ -119,7 +119,7 @@ def bench_nidaqmx(monkeypatch: Any) -> Bench:
     clock.now = dev.clock.now          # type: ignore[method-assign]
     clock.advance = dev.clock.advance  # type: ignore[method-assign]
     p = get_spec("nidaqmx").validate({"ai_channels": "Dev1/ai0,Dev1/ai1", "amp_gain": [25.0, 25.0],
-                                      "fifo_depth": 4000, "latency_samples": 2})
+                                      "fifo_depth": fifo_depth, "latency_samples": 2})
     be = NidaqmxBackend(CFG, p, now=clock.now, sleep=clock.advance)
     core = DriverCore(_settings(), be, now=clock.now, sleep=clock.advance)
 
@@ -137,6 +137,9 @@ BENCHES: dict[str, Callable[[Any], Bench]] = {
     "sim-lockstep": lambda mp: bench_sim("lockstep", mp),
     "sim-clocked": lambda mp: bench_sim("clocked", mp),
     "nidaqmx": bench_nidaqmx,
+    # a buffer barely larger than the write-ahead: a restart must fit the held value, the samples not yet generated
+    # and the new block into it
+    "nidaqmx-small-buffer": lambda mp: bench_nidaqmx(mp, fifo_depth=1500),
 }
 
 # one scenario: a list of actions

@@ -136,10 +136,26 @@ class NidaqmxBackend(StreamingBackend):
         return Disconnect(f"nidaqmx: {first} ({code})")
 
     def _mark_dead(self) -> None:
-        """The AO task stopped generating: from now on the output holds ``_last``, and the clock is counted on the
-        host from the task's start (the held samples keep their place on the device's sample grid)."""
-        if not self._restart:
-            self._restart = True
+        """The AO task stopped generating: from now on the output holds its last generated value, and the clock is
+        counted on the host from the task's start (the held samples keep their place on the sample grid)."""
+        self._restart = True
+
+    def _stopped_at(self) -> int:
+        """Device index where the stopped task's output stopped (asked once; a failed restart keeps it)."""
+        if self._dead_at is None:
+            self._dead_at = self._widx
+            try:
+                self._dead_at = min(self._widx,
+                                    self._base + int(self._ao_task.out_stream.total_samp_per_chan_generated))
+            except Exception:  # noqa: BLE001 - no count: a real underflow generated everything written
+                pass
+        return self._dead_at
+
+    def _restart_hold(self) -> int:
+        """Samples of the held value a restarted task starts with: the write-ahead, within the buffer that must
+        also take the samples the stopped task had not generated."""
+        unplayed = self._widx - self._stopped_at()
+        return max(2, min(self._prefill, self.info.fifo_depth - unplayed - 1))
 
     def _host_clock(self) -> int:
         """The device index the sample clock would be at now, counted on the host since the task started."""
@@ -210,7 +226,7 @@ class NidaqmxBackend(StreamingBackend):
 
     def write_space(self) -> int:
         if self._restart:
-            return max(0, self.info.fifo_depth - self._prefill)
+            return max(0, self.info.fifo_depth - self._restart_hold() - (self._widx - self._stopped_at()))
         try:
             return int(self._ao_task.out_stream.space_avail)
         except Exception as exc:  # noqa: BLE001
@@ -238,24 +254,19 @@ class NidaqmxBackend(StreamingBackend):
         meanwhile keep their place on the sample grid (the new task's first sample is the device index the host
         clock says it is) and are reported as applied; what the stopped AI task had acquired is kept for
         :meth:`read`."""
-        if self._dead_at is None:   # where the output stopped (first attempt; a failed restart keeps it)
-            self._dead_at = self._widx
-            try:
-                self._dead_at = min(self._widx,
-                                    self._base + int(self._ao_task.out_stream.total_samp_per_chan_generated))
-            except Exception:  # noqa: BLE001 - no count: a real underflow generated everything written
-                pass
-        gen_end = self._dead_at
+        gen_end = self._stopped_at()
+        n_hold = self._restart_hold()
         held, unplayed = self._split_pending(gen_end)
         self._drain_ai()
         self.close_tasks()
-        hold = np.tile(held, (self._prefill, 1))
+        hold = np.tile(held, (n_hold, 1))
         first = np.vstack([hold, unplayed, u])
         old_base, old_t0 = self._base, self._t_start
         try:
             self._make_tasks(first)
         except Exception as exc:  # noqa: BLE001 - the restart failed: a fault, retried on the next write
             self.close_tasks()
+            self._t_start = old_t0        # the host clock still counts from the stopped task's start
             if unplayed.shape[0]:
                 self._pending_applied.append((gen_end, unplayed))   # still to be output by the next attempt
             raise self._fault(exc) from None
