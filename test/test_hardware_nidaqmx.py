@@ -306,3 +306,36 @@ def test_without_the_ni_library_start_fails_with_one_line():
 
     with pytest.raises(BackendError, match="nidaqmx: cannot start on Dev1"):
         be.start(np.zeros(2), prefill=10)
+
+
+def _stall_and_resume(daq, core, fail=None):
+    s = Stream(core, daq)
+    u = np.column_stack([np.linspace(1.0, 9.0, 4000), np.full(4000, -3.0)])
+    for i in range(10):
+        s.send(u[i * 200:(i + 1) * 200])
+    daq.clock.advance(0.12)                    # host stall: the buffer runs dry, the AI keeps what it acquired
+    if fail:
+        daq.fail.update(fail)
+    s.idle(0.3)
+    return s, u
+
+
+def test_ai_samples_acquired_before_an_underflow_are_delivered_after_the_restart(daq):
+    be, core = make_core(daq)
+    core.start()
+    s, u = _stall_and_resume(daq, core)
+    assert core.status()["underrun_faults"] == 1 and core.status()["overrun_faults"] == 0
+    # every streamed sample's answer (AI = AO three samples late, tagged back by latency_samples=3) came back, but
+    # for the last three: the clock stopped before their answers were sampled
+    got = {st + j * 50_000: row for st, blk in s.measured for j, row in enumerate(blk)}
+    for k in range(2000 - 3):
+        np.testing.assert_allclose(got[k * 50_000], (u[k] - OFFSET) / GAIN, rtol=0, atol=1e-12)
+
+
+def test_ai_samples_that_cannot_be_read_at_a_restart_count_as_an_overrun(daq):
+    be, core = make_core(daq)
+    core.start()
+    s, _ = _stall_and_resume(daq, core, fail={"get_read_attribute_uint32": -200279})
+    st = core.status()
+    assert st["underrun_faults"] == 1 and st["overrun_faults"] == 1, (st, s.log)
+    assert any("AI samples" in t and "lost" in t for _, t in s.log), s.log
