@@ -13,6 +13,10 @@
 - ``set_stream_paced(on)`` — a lockstep trajectory paces the stream: on a device whose time follows the samples
   written (the lockstep simulator) the wall-clock stale watchdog is suspended meanwhile, since no device time passes
   between blocks — a host stall then loses nothing (issue 10); ignored by every other device;
+- ``close()`` — the safe ramp written while the device still runs, waited for on a clocked device, then the
+  backend closed (SIGINT and crash paths end the same way: no step on the output);
+- device faults from any backend call (poll, write, clock, read) go through one fault path: counted, logged, the
+  safe ramp while a stream runs; a disconnect stops writing;
 - each call returns an :class:`Emit`: ``applied`` and ``displacement`` blocks ``(stamp_ns, [N, axes])`` on the
   topic grid (every applied sample exactly once, in order, holds and ramps included), and log lines.
 """
