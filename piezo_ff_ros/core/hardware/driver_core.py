@@ -471,7 +471,11 @@ class DriverCore:
             return
         self.faults[exc.kind] = self.faults.get(exc.kind, 0) + 1
         self._window["lost"] += 1
-        self._err(em, f"device fault ({exc.kind}): {exc}")
+        hint = ""
+        if exc.kind == "underrun" and self.info.clocked:
+            hint = (f" (the host fell more than the write-ahead behind the device: raise the driver's write_ahead, "
+                    f"now {self.s.write_ahead:g} s, and low_water, now {self.s.low_water:g} s, or unload the host)")
+        self._err(em, f"device fault ({exc.kind}): {exc}{hint}")
         if self.state == "active":
             self._ramp(em, f"device {exc.kind}")
 
