@@ -76,7 +76,8 @@ class DriverSettings:
     max_block: int = 20000           #: largest accepted block [samples]
     max_gap: float = 1.0             #: largest gap filled by holding [s]; larger jumps need confirmation
     #: clocked devices: target FIFO margin ahead of the clock [s].  0.5 s held with 0 underruns on the clocked
-    #: simulator with two CPU-bound loaders on a 2-core host (rig-check, 60 s; 0.05–0.3 s did not); references are
+    #: simulator with two CPU-bound loaders on a 2-core host (rig-check, 60 s, twice; 0.1 and 0.2 s underran
+    #: 6 times in 30 s, 0.3 s passed once: docs/hardware.md); references are
     #: known ahead, so a deeper write-ahead costs no tracking, only the delay between a block's arrival and its output
     write_ahead: float = 0.5
     #: clocked devices: below this margin the last voltage is held [s]; the driver's own holds (idle after a ramp,
