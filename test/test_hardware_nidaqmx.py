@@ -339,3 +339,24 @@ def test_ai_samples_that_cannot_be_read_at_a_restart_count_as_an_overrun(daq):
     st = core.status()
     assert st["underrun_faults"] == 1 and st["overrun_faults"] == 1, (st, s.log)
     assert any("AI samples" in t and "lost" in t for _, t in s.log), s.log
+
+
+def test_an_ai_buffer_that_overflows_is_an_overrun_fault_and_a_ramp(daq):
+    """The card overwrites unread AI samples (-200279 on the next read): an overrun through the fault path."""
+    be, core = make_core(daq, input_buffer=150)
+    core.start()
+    s = Stream(core, daq)
+    s.send(ramp_to(0.0, 5.0, 200))
+    daq.clock.advance(0.01)                    # 200 samples acquired, 150 kept: the oldest are overwritten
+    s.take(core.tick())
+    s.idle(0.2)
+    st = core.status()
+    assert st["overrun_faults"] == 1 and st["underrun_faults"] == 0, st
+    assert any("AI samples lost (-200279)" in t for _, t in s.log)
+    assert core.state == "safe"
+    assert_safe(trace(daq), 1 / FS, RAMP_STEP)
+    # both tasks restarted (DAQmx reports the overrun until then): the sensor answers again, on the right stamps
+    assert be.restarts == 1
+    late = [(st, b) for st, b in s.measured if st > s.k * 50_000 + 2000 * 50_000]
+    rest = (np.zeros(2) - OFFSET) / GAIN                          # the output rests at 0 V: what the AI reads back
+    assert late and all(np.allclose(b, rest, rtol=0, atol=1e-12) for _, b in late)

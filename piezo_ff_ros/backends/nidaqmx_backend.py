@@ -20,6 +20,8 @@ Thin by design — buffering, alignment, stale input, faults and the safe ramp l
 - errors from any call (write, read, poll, start, the restart): output underflow / regeneration stop (-200290,
   -200621, -200016, -200018) → :class:`Underrun`, samples no longer available (-200279) → :class:`Overrun`, device
   not accessible (-201003, -50405) and anything else → :class:`Disconnect`;
+- after an AI overrun (DAQmx reports it until the task restarts; the samples still buffered have no known index)
+  both tasks are restarted the same way as after an underflow (the AO task stopped first);
 - after an underflow the output holds its last generated value.  The next write restarts the task: the write-ahead
   (that held value), the samples the old task had not generated and the new block are written **before** the clock
   starts; the new task's first sample takes the device index the host clock says it is, so the held samples keep
@@ -104,6 +106,7 @@ class NidaqmxBackend(StreamingBackend):
         self._read_idx = 0          # AI samples read from the current AI task
         self._ai_backlog: list[tuple[int, np.ndarray]] = []
         self._ai_lost = False
+        self._ai_overrun = False    # the AI task reported lost samples: restart both tasks
         self._last_released = np.zeros(n)   # the last sample reported applied
         self._last = np.zeros(n)    # the last sample written: what the output holds once the buffer ran dry
         self._dead_at: int | None = None   # device index where the stopped task's output stopped
@@ -130,7 +133,11 @@ class NidaqmxBackend(StreamingBackend):
             return Underrun(f"nidaqmx: output underflow ({code}): the AO task stopped, the output holds "
                             f"{self._last.tolist()} V", k=self._widx)
         if code in OVERRUN_CODES:
-            return Overrun(f"nidaqmx: AI samples lost ({code})", k=self._base + self._read_idx)
+            # DAQmx keeps reporting it until the task restarts, and the samples still buffered no longer have a
+            # known index: both tasks are restarted (the AI re-armed on the new AO start trigger) on the next write
+            self._ai_overrun = True
+            self._mark_dead()
+            return Overrun(f"nidaqmx: AI samples lost ({code}): the tasks restart", k=self._base + self._read_idx)
         if code in DISCONNECT_CODES:
             return Disconnect(f"nidaqmx: device not accessible ({code})")
         return Disconnect(f"nidaqmx: {first} ({code})")
@@ -140,21 +147,28 @@ class NidaqmxBackend(StreamingBackend):
         counted on the host from the task's start (the held samples keep their place on the sample grid)."""
         self._restart = True
 
+    def _generated_end(self) -> int:
+        """Device index after the last sample the AO task generated (everything written if it cannot say)."""
+        try:
+            return min(self._widx, self._base + int(self._ao_task.out_stream.total_samp_per_chan_generated))
+        except Exception:  # noqa: BLE001 - no count (no task, device error): a real underflow generated everything
+            return self._widx
+
     def _stopped_at(self) -> int:
-        """Device index where the stopped task's output stopped (asked once; a failed restart keeps it)."""
+        """Device index where the stopped task's output stopped (asked once, after stopping it; a failed restart
+        keeps it)."""
         if self._dead_at is None:
-            self._dead_at = self._widx
-            try:
-                self._dead_at = min(self._widx,
-                                    self._base + int(self._ao_task.out_stream.total_samp_per_chan_generated))
-            except Exception:  # noqa: BLE001 - no count: a real underflow generated everything written
-                pass
+            if self._ao_task is not None:
+                try:
+                    self._ao_task.stop()     # a task restarted after an overrun still runs: stop it before counting
+                except Exception:  # noqa: BLE001 - it had stopped (underflow): its count stands
+                    pass
+            self._dead_at = self._generated_end()
         return self._dead_at
 
-    def _restart_hold(self) -> int:
+    def _restart_hold(self, unplayed: int) -> int:
         """Samples of the held value a restarted task starts with: the write-ahead, within the buffer that must
-        also take the samples the stopped task had not generated."""
-        unplayed = self._widx - self._stopped_at()
+        also take the ``unplayed`` samples the stopped task had not generated."""
         return max(2, min(self._prefill, self.info.fifo_depth - unplayed - 1))
 
     def _host_clock(self) -> int:
@@ -225,8 +239,10 @@ class NidaqmxBackend(StreamingBackend):
         return max(self._widx, self._host_clock()) if self._restart else self._widx
 
     def write_space(self) -> int:
-        if self._restart:
-            return max(0, self.info.fifo_depth - self._restart_hold() - (self._widx - self._stopped_at()))
+        if self._restart:   # conservative: fewer samples remain unplayed by the time the task restarts
+            end = self._dead_at if self._dead_at is not None else self._generated_end()
+            unplayed = self._widx - end
+            return max(0, self.info.fifo_depth - self._restart_hold(unplayed) - unplayed)
         try:
             return int(self._ao_task.out_stream.space_avail)
         except Exception as exc:  # noqa: BLE001
@@ -255,9 +271,12 @@ class NidaqmxBackend(StreamingBackend):
         clock says it is) and are reported as applied; what the stopped AI task had acquired is kept for
         :meth:`read`."""
         gen_end = self._stopped_at()
-        n_hold = self._restart_hold()
+        n_hold = self._restart_hold(self._widx - gen_end)
         held, unplayed = self._split_pending(gen_end)
-        self._drain_ai()
+        if self._ai_overrun:
+            self._ai_overrun = False    # what it still holds has no known index: lost (counted by that overrun)
+        else:
+            self._drain_ai()
         self.close_tasks()
         hold = np.tile(held, (n_hold, 1))
         first = np.vstack([hold, unplayed, u])
