@@ -17,7 +17,7 @@ import json
 import math
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -58,9 +58,31 @@ def _parse_params(items: Sequence[str]) -> dict[str, Any]:
     return out
 
 
+def backend_opener(cfg: Any, backend_name: str, params: dict[str, Any]) -> Callable[[], tuple[Any, dict[str, Any]]]:
+    """``open_backend()`` for the rig-check engine: the plug-in ``backend_name`` with ``params`` validated (``sim``
+    defaults to its clocked mode), created for ``cfg``."""
+    def open_backend() -> tuple[Any, dict[str, Any]]:
+        from ..backends import get_spec
+
+        spec = get_spec(backend_name)
+        p = {"mode": "clocked", **params} if backend_name == "sim" else params
+        bparams = spec.validate(p)
+        return spec.create(cfg, bparams), bparams
+
+    return open_backend
+
+
+def rig_check(cfg: Any, backend_name: str, params: dict[str, Any], **kw: Any) -> dict[str, Any]:
+    """The checks on the plug-in ``backend_name`` with ``params`` (keyword options: those of
+    :func:`piezo_ff_ros.core.hardware.rig_check.rig_check`); returns the report."""
+    from ..core.hardware.rig_check import rig_check as engine
+
+    return engine(cfg, backend_name, backend_opener(cfg, backend_name, params), **kw)
+
+
 def run(args: argparse.Namespace) -> int:
     from ..core.config import load_config
-    from ..core.hardware.rig_check import DEFAULT_WRITE_AHEAD, markdown, rig_check
+    from ..core.hardware.rig_check import DEFAULT_WRITE_AHEAD, markdown
     from ..core.safety import SafeRampConfig
 
     cfg = load_config(args.config, variant=args.variant)
@@ -80,18 +102,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"{out}: not a writable file path")
     ramp = SafeRampConfig(duration=args.ramp_duration, slew=args.ramp_slew).validate()
     cfg = replace(cfg, limits=cfg.limits.validate())
-    params = _parse_params(args.param)
-
-    def open_backend() -> tuple[Any, dict[str, Any]]:
-        from ..backends import get_spec
-
-        spec = get_spec(args.backend)
-        p = {"mode": "clocked", **params} if args.backend == "sim" else params
-        bparams = spec.validate(p)
-        return spec.create(cfg, bparams), bparams
-
-    rep = rig_check(cfg, args.backend, open_backend, duration=args.duration, block_size=args.block_size,
-                    write_ahead=args.write_ahead, test_voltage=tv, ramp=ramp, loopback=args.loopback)
+    rep = rig_check(cfg, args.backend, _parse_params(args.param), duration=args.duration, block_size=args.block_size, write_ahead=args.write_ahead,
+                    test_voltage=tv, ramp=ramp, loopback=args.loopback)
     if args.json:
         Path(args.json).write_text(json.dumps(rep, indent=2, default=str))
     if args.md:

@@ -358,6 +358,31 @@ class _Checks:
         if peak < (0.5 if plan.loopback else 0.2):
             values["remedy"] = "the sensor does not follow the command (wiring, sensor channels, sensor gain?)"
         self.report.check("latency", ok, **values)
+        self._settle()
+
+    def _settle(self) -> None:
+        """Tick until the driver, left without input, has ramped to the safe voltage and the device has output it
+        (bounded): the next check starts from rest, not from the excitation still in the FIFO."""
+        self._until_ramped_and_output()
+
+    def _until_ramped_and_output(self) -> None:
+        """Tick (no input) until the driver has ramped to the safe voltage after ``limits.stale_timeout`` **and**
+        the device has output the ramp's last sample (the write-ahead may be longer than the stale timeout), or
+        the timeout, the ramp, the write-ahead and a margin have passed."""
+        core, run, plan, lim = self.link.core, self.link.run, self.plan, self.plan.cfg.limits
+        t_end = time.monotonic() + lim.stale_timeout + plan.ramp.duration + 4 * plan.write_ahead + 2.0
+        ramp_end = None
+        while time.monotonic() < t_end and core.state != "fault":
+            run.tick()
+            if core.state == "safe" and ramp_end is None:
+                ramp_end = core._w      # the ramp's end (the driver's holds may follow it)
+            if ramp_end is not None and run.applied:
+                s, b = run.applied[-1]
+                d = core.book.device_index(s)
+                if d is not None and d + b.shape[0] >= ramp_end and np.all(b[-1] == lim.safe_voltage):
+                    break
+            if core.info.clocked:
+                time.sleep(0.002)
 
     def _on_grid(self, s0: int, n: int, blocks: list[tuple[int, np.ndarray]]) -> np.ndarray:
         """Samples of ``blocks`` ``(stamp, [m, axes])`` on the grid ``s0 + i·period``, i < n (NaN where absent)."""
@@ -378,12 +403,7 @@ class _Checks:
         u_from = core.guard.u_last.copy()
         step = np.tile(np.where(u_from > 0, -plan.test_voltage, plan.test_voltage), (plan.block_size, 1))
         run.stream([(core.next_stamp, step)], pace=False)
-        t_end = time.monotonic() + lim.stale_timeout + plan.ramp.duration + 4 * plan.write_ahead + 2.0
-        while time.monotonic() < t_end:
-            run.tick()
-            if core.state == "safe" and run.applied and np.all(run.applied[-1][1][-1] == lim.safe_voltage):
-                break
-            time.sleep(0.002)
+        self._until_ramped_and_output()
         u_app = np.vstack([u_from[None, :]] + [b for _, b in run.applied[n_before:]])
         return _StepRecord(u_from, step, u_app)
 
