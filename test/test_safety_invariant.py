@@ -85,9 +85,13 @@ class RecordedLockstep(_Recorded, LockstepSim):
         super().__init__(*a, **kw)
 
 
+WRITE_AHEAD = {"value": 0.05}      # drawn per example (see the test)
+
+
 def _settings() -> DriverSettings:
-    return DriverSettings(sample_rate=FS, n_axes=2, limits=LIM, ramp=SafeRampConfig(), write_ahead=0.05,
-                          low_water=0.01)
+    wa = WRITE_AHEAD["value"]
+    return DriverSettings(sample_rate=FS, n_axes=2, limits=LIM, ramp=SafeRampConfig(), write_ahead=wa,
+                          low_water=wa / 5)
 
 
 def bench_sim(mode: str, monkeypatch: Any) -> Bench:
@@ -185,9 +189,10 @@ def play(b: Bench, actions: list[tuple]) -> dict[str, bool]:
 
 @pytest.mark.parametrize("backend", list(BENCHES))
 def test_the_output_never_steps_more_than_allowed(backend, monkeypatch):
-    @settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
-    @given(actions=SCENARIO)
-    def check(actions):
+    @settings(max_examples=100, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(actions=SCENARIO, write_ahead=st.sampled_from([0.02, 0.05, 0.15]))
+    def check(actions, write_ahead):
+        WRITE_AHEAD["value"] = write_ahead
         with monkeypatch.context() as mp:
             b = BENCHES[backend](mp)
             out = play(b, actions)
