@@ -360,3 +360,18 @@ def test_an_ai_buffer_that_overflows_is_an_overrun_fault_and_a_ramp(daq):
     late = [(st, b) for st, b in s.measured if st > s.k * 50_000 + 2000 * 50_000]
     rest = (np.zeros(2) - OFFSET) / GAIN                          # the output rests at 0 V: what the AI reads back
     assert late and all(np.allclose(b, rest, rtol=0, atol=1e-12) for _, b in late)
+
+
+def test_backend_close_alone_while_generating_at_100_v_ramps_then_stops(daq):
+    """A crash path that skips the driver core: the backend closed while its task still generates at 100 V."""
+    be, core = make_core(daq)
+    core.start()
+    s = Stream(core, daq)
+    u = np.vstack([ramp_to(0.0, 100.0, 4000), ramp_to(100.0, 100.0, 1000)])
+    for i in range(25):
+        s.send(u[i * 200:(i + 1) * 200])
+    be.close()
+    tr = trace(daq)
+    assert_safe(tr, 1 / FS, RAMP_STEP)
+    assert all(abs(v[-1]) < 1e-12 for _, v in tr.values())
+    assert all(t.cleared for t in daq.tasks.values())
