@@ -165,7 +165,7 @@ def test_rejected_block_holds_and_resume_after_safe_is_announced():
 
 def test_settings_validated_with_the_field_named():
     for kw, field in ((dict(max_block=0), "max_block"), (dict(max_gap=-1.0), "max_gap"),
-                      (dict(write_ahead=0.0), "write_ahead"), (dict(low_water=0.2), "low_water"),
+                      (dict(write_ahead=0.0), "write_ahead"), (dict(low_water=0.6), "low_water"),
                       (dict(ramp=SafeRampConfig(duration=float("nan"))), "safe_ramp.duration"),
                       (dict(limits=LimitsConfig(voltage=-1.0)), "limits.voltage")):
         with pytest.raises(ConfigError, match=field.replace(".", r"\.")):

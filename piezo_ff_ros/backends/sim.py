@@ -37,7 +37,7 @@ SPEC = BackendSpec(
                       one_of("lockstep", "clocked")),
         "noise_std": Param(0.0, "sensor noise standard deviation [m]", float_range(0.0, 1e-3)),
         "seed": Param(0, "seed of the sensor noise and jitter", int_range(0, 2 ** 31 - 1)),
-        "fifo_depth": Param(8000, "clocked: output FIFO [samples]", int_range(16, 10_000_000)),
+        "fifo_depth": Param(20000, "clocked: output FIFO [samples] (≥ the driver's write_ahead)", int_range(16, 10_000_000)),
         "latency_samples": Param(2, "clocked: sensor transport latency [samples]", int_range(0, 1_000_000)),
         "jitter_samples": Param(0, "clocked: random extra sensor delivery delay, up to [samples]",
                                 int_range(0, 1_000_000)),

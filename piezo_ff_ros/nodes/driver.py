@@ -272,8 +272,10 @@ class DriverNode(LifecycleNode):
                               slew=float(self._param("safe_ramp.slew", 1.0e4, "maximum safe-ramp slew [V/s]")))
         p = {"max_block": self._param("max_block", 20000, "largest accepted block [samples]"),
              "max_gap": float(self._param("max_gap", 1.0, "largest gap held [s]; larger jumps need confirmation")),
-             "write_ahead": float(self._param("write_ahead", 0.05, "clocked devices: FIFO margin [s]")),
-             "low_water": float(self._param("low_water", 0.01, "clocked devices: hold below this margin [s]")),
+             "write_ahead": float(self._param("write_ahead", DriverSettings.write_ahead,
+                                              "clocked devices: FIFO margin [s]")),
+             "low_water": float(self._param("low_water", DriverSettings.low_water,
+                                            "clocked devices: hold below this margin [s]")),
              "joint_states_rate": float(self._param("joint_states_rate", 100.0, "joint_states rate [Hz]")),
              "diagnostics_period": float(self._param("diagnostics_period", 1.0, "/diagnostics period [s]")),
              "trajectory_state": str(self._param("trajectory_state", "trajectory/state",

@@ -16,8 +16,11 @@ sample they answer:
   underrun included), in order, each sample exactly once — the driver publishes it as ``voltage_applied``;
 - ``latency_samples``: the input→output latency the device measured or was configured with (samples);
 - faults are typed (:class:`Underrun`, :class:`Overrun`, :class:`Disconnect`, :class:`LimitFault`), raised from
-  ``write``/``poll``/``read``; the driver turns them into the safe ramp and ``/diagnostics``;
-- ``close()`` releases the device (after putting the output at the safe voltage if it can).
+  any call (``write``, ``write_space``, ``clock``, ``poll``, ``read``, ``take_applied``); the driver turns every one
+  into its fault path (counted, ``/diagnostics``, the safe ramp while a stream runs; a disconnect stops writing);
+- ``close()`` releases the device, after bringing the output to the safe voltage **by a ramp, in time**, where it
+  can (the driver core ramps first and waits until the device has output it; a backend closed on its own, e.g.
+  after a crash, ramps from what its output holds).
 
 Misuse of the contract (a write not at ``write_index``, more than ``write_space()``) raises :class:`ContractError`:
 that is a bug in the caller, not a device fault.

@@ -13,6 +13,10 @@
 - ``set_stream_paced(on)`` — a lockstep trajectory paces the stream: on a device whose time follows the samples
   written (the lockstep simulator) the wall-clock stale watchdog is suspended meanwhile, since no device time passes
   between blocks — a host stall then loses nothing (issue 10); ignored by every other device;
+- ``close()`` — the safe ramp written while the device still runs, waited for on a clocked device, then the
+  backend closed (SIGINT and crash paths end the same way: no step on the output);
+- device faults from any backend call (poll, write, clock, read) go through one fault path: counted, logged, the
+  safe ramp while a stream runs; a disconnect stops writing;
 - each call returns an :class:`Emit`: ``applied`` and ``displacement`` blocks ``(stamp_ns, [N, axes])`` on the
   topic grid (every applied sample exactly once, in order, holds and ramps included), and log lines.
 """
@@ -28,7 +32,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..config import ConfigError, LimitsConfig
-from ..safety import BlockRejected, SafeRampConfig, VoltageGuard
+from ..safety import BlockRejected, SafeRampConfig, VoltageGuard, limit_block
 from ..status import ERROR, OK, WARN
 from .contract import DeviceFault, Disconnect, StreamingBackend
 from .stream import StreamBook
@@ -70,8 +74,20 @@ class DriverSettings:
     ramp: SafeRampConfig = field(default_factory=SafeRampConfig)
     max_block: int = 20000           #: largest accepted block [samples]
     max_gap: float = 1.0             #: largest gap filled by holding [s]; larger jumps need confirmation
-    write_ahead: float = 0.05        #: clocked devices: target FIFO margin ahead of the clock [s]
-    low_water: float = 0.01          #: clocked devices: below this margin the last voltage is held [s]
+    #: clocked devices: target FIFO margin ahead of the clock [s].  0.5 s held with 0 underruns on the clocked
+    #: simulator with two CPU-bound loaders on a 2-core host (rig-check, 60 s, twice; 0.1 and 0.2 s underran
+    #: 6 times in 30 s, 0.3 s passed once: docs/hardware.md); references are
+    #: known ahead, so a deeper write-ahead costs no tracking, only the delay between a block's arrival and its output
+    write_ahead: float = 0.5
+    #: clocked devices: below this margin the last voltage is held [s]; the driver's own holds (idle after a ramp,
+    #: a late stream) stay within 1–2× this of the clock, so it is also the margin a stalled host has in the safe
+    #: state (0.01 s underran on a loaded 2-core host).  Left at its default with a write-ahead ≤ 0.1 s it becomes
+    #: write_ahead / 5.
+    low_water: float = 0.1
+
+    def __post_init__(self) -> None:
+        if self.low_water == 0.1 and isinstance(self.write_ahead, (int, float)) and 0 < self.write_ahead <= 0.1:
+            object.__setattr__(self, "low_water", self.write_ahead / 5)
 
     def validate(self) -> "DriverSettings":
         """Check every field (``ConfigError`` naming the field); returns self."""
@@ -157,7 +173,8 @@ class DriverCore:
     """See the module docstring."""
 
     def __init__(self, settings: DriverSettings, backend: StreamingBackend,
-                 now: Callable[[], float] = time.monotonic) -> None:
+                 now: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
         self.s = settings.validate()
         self.backend = backend
         self.info = backend.info
@@ -167,6 +184,7 @@ class DriverCore:
             raise ConfigError("backend", f"{self.info.name} runs at {self.info.sample_rate_hz} Hz, "
                                          f"the config at {self.s.sample_rate} Hz")
         self.now = now
+        self.sleep = sleep     # how close() waits for the device to play its ramp (injectable with ``now``)
         self.period_ns = int(round(1e9 / self.s.sample_rate))
         self.guard = VoltageGuard(self.s.limits, self.s.n_axes, self.s.sample_rate, max_block=self.s.max_block)
         self.book = StreamBook(self.period_ns, self.s.samples(self.s.max_gap))
@@ -190,11 +208,22 @@ class DriverCore:
     def _prefill(self) -> int:
         return min(self.s.samples(self.s.write_ahead), self.info.fifo_depth) if self.info.clocked else 0
 
+    def _warm_kernels(self) -> None:
+        """Load the compiled kernels the first block runs (the guard's limiter) now, before the device's clock
+        starts: loading one takes longer than the write-ahead (0.3-0.5 s from numba's disk cache)."""
+        limit_block(np.zeros((2, self.s.n_axes)), np.zeros(self.s.n_axes), 1.0, 1.0)
+
     def start(self) -> Emit:
         """Start the device (its clock runs from here: call it where the periodic ``tick`` starts too)."""
+        self._warm_kernels()
         self._w = self.backend.start(self.safe.copy(), self._prefill())
         self._started = True
-        return self.tick()
+        em = Emit()
+        if self.info.clocked and self.s.samples(self.s.write_ahead) > self.info.fifo_depth:
+            em.log.append((WARN, f"write_ahead {self.s.write_ahead} s is more than {self.info.name}'s FIFO "
+                                 f"({self.info.fifo_depth} samples): the margin is capped there (raise the "
+                                 "backend's fifo_depth or lower write_ahead)"))
+        return em.extend(self.tick())
 
     def reset(self) -> bool:
         """Back to rest if the device can (the simulator); stream and counters start anew."""
@@ -209,6 +238,7 @@ class DriverCore:
         self.state, self.last_block_wall, self.last_error = "idle", None, ""
         self.starved_samples = self.resumes = 0
         self.faults = dict.fromkeys(self.faults, 0)
+        self._warm_kernels()
         self._w = self.backend.start(self.safe.copy(), self._prefill())
         return True
 
@@ -223,9 +253,33 @@ class DriverCore:
         """True once the device stream has started."""
         return self._started
 
-    def close(self) -> None:
-        """Close the backend."""
-        self.backend.close()
+    def close(self) -> Emit:
+        """Stop: ramp to the safe voltage **while the device still runs** (the safe ramp, in time), wait until it
+        has output the ramp (a clocked device; bounded by the ramp's duration + 1 s), then close the backend — also
+        when the ramp fails.  Returns what was emitted meanwhile."""
+        em = Emit()
+        try:
+            if self._started and self.state != "fault":
+                self._poll(em)
+                if self.state != "fault" and not self.guard.at_safe:
+                    self._ramp(em, "closing")
+                em.extend(self._collect())
+                self._sync()          # a restarted device may have moved the write cursor
+                end = self._w
+                if self.info.clocked:
+                    fs = self.s.sample_rate
+                    wait = max(0, end - self._clock_or_fault(em)) / fs + 1.0
+                    deadline = self.now() + wait
+                    for _ in range(int(wait / 0.002) + 1):   # bounded also when now() stands still
+                        if self.state == "fault" or self.now() > deadline or self._clock_or_fault(em) >= end:
+                            break
+                        self.sleep(0.002)
+                        em.extend(self.tick())   # keeps feeding: the safe voltage follows the ramp
+        except Exception as exc:  # noqa: BLE001 - closing: the backend is closed whatever happened
+            self._err(em, f"closing: {type(exc).__name__}: {exc}")
+        finally:
+            self.backend.close()
+        return em
 
     def set_stream_paced(self, on: bool, why: str = "") -> Emit:
         """Tell the core whether a lockstep source paces the stream (``why``: for the log).
@@ -366,7 +420,11 @@ class DriverCore:
         voltage (the first block then lands that far ahead of the clock: the stream's margin).  Afterwards the
         driver's own holds stay close to the clock (below ``low_water``, up to 2·low_water), so that a stream
         that resumes a little late still finds its sample instants free."""
-        margin = self._w - self.backend.clock()
+        try:
+            margin = self._w - self.backend.clock()
+        except DeviceFault as exc:
+            self._fault(em, exc)
+            return
         lw = self.s.samples(self.s.low_water)
         if self.book.started:
             if margin >= lw:
@@ -392,42 +450,58 @@ class DriverCore:
     def _poll(self, em: Emit) -> None:
         try:
             self.backend.poll()
-        except Disconnect as exc:
+        except DeviceFault as exc:
+            self._fault(em, exc)
+
+    def _clock_or_fault(self, em: Emit) -> int:
+        """The device clock; a fault reading it goes through :meth:`_fault` (then the write cursor is returned)."""
+        try:
+            return self.backend.clock()
+        except DeviceFault as exc:
+            self._fault(em, exc)
+            return self._w
+
+    def _fault(self, em: Emit, exc: DeviceFault) -> None:
+        """A device fault from any call: a disconnect stops the output (nothing can be written); anything else
+        (underrun, overrun, limit) is counted and, while a stream runs, ramps to the safe voltage."""
+        if isinstance(exc, Disconnect):
             self.faults["disconnect"] += 1
             self.state = "fault"
             self._err(em, f"device fault: {exc}; output stopped")
             return
-        except DeviceFault as exc:
-            self.faults[exc.kind] = self.faults.get(exc.kind, 0) + 1
-            self._window["lost"] += 1
-            self._err(em, f"device fault ({exc.kind}): {exc}")
-            if self.state == "active":
-                self._ramp(em, f"device {exc.kind}")
+        self.faults[exc.kind] = self.faults.get(exc.kind, 0) + 1
+        self._window["lost"] += 1
+        hint = ""
+        if exc.kind == "underrun" and self.info.clocked:
+            hint = (f" (the host fell more than the write-ahead behind the device: raise the driver's write_ahead, "
+                    f"now {self.s.write_ahead:g} s, and low_water, now {self.s.low_water:g} s, or unload the host)")
+        self._err(em, f"device fault ({exc.kind}): {exc}{hint}")
+        if self.state == "active":
+            self._ramp(em, f"device {exc.kind}")
 
     def _collect(self) -> Emit:
         """Write what fits into the FIFO; map what the device applied and measured to stamps."""
         em = Emit()
-        try:
-            self._sync()
-            while self._queue:
-                space = self.backend.write_space()
-                if space <= 0:
-                    break
-                b = self._queue[0]
-                part = b[:space]
-                self.backend.write(self.backend.write_index, part)
-                self._queued -= part.shape[0]
-                if part.shape[0] == b.shape[0]:
-                    self._queue.popleft()
+        applied: list[tuple[int, np.ndarray]] = []
+        measured: list[tuple[int, np.ndarray]] = []
+        for _attempt in range(3):   # a fault queues the safe ramp; the next attempt writes it (a DAQ restarts)
+            try:
+                self._write_queue()
+                break
+            except DeviceFault as exc:
+                self._fault(em, exc)
+                if self.state == "fault":
+                    return em
+        for what in ("applied", "measured"):
+            try:
+                if what == "applied":
+                    applied = self.backend.take_applied()
                 else:
-                    self._queue[0] = b[part.shape[0]:]
-            applied = self.backend.take_applied()
-            measured = self.backend.read()
-        except Disconnect as exc:
-            self.faults["disconnect"] += 1
-            self.state = "fault"
-            self._err(em, f"device fault: {exc}; output stopped")
-            return em
+                    measured = self.backend.read()
+            except DeviceFault as exc:
+                self._fault(em, exc)
+                if self.state == "fault":
+                    return em
         for src, dst, chunker in ((applied, em.applied, self._chunks[0]), (measured, em.displacement,
                                                                            self._chunks[1])):
             for d_in, b_in in src:
@@ -435,6 +509,22 @@ class DriverCore:
                     for off, cnt, stamp in self.book.split(d0, blk.shape[0]):
                         dst.append((stamp, blk[off:off + cnt]))
         return em
+
+    def _write_queue(self) -> None:
+        """Write the committed samples that fit into the device FIFO."""
+        self._sync()
+        while self._queue:
+            space = self.backend.write_space()
+            if space <= 0:
+                break
+            b = self._queue[0]
+            part = b[:space]
+            self.backend.write(self.backend.write_index, part)
+            self._queued -= part.shape[0]
+            if part.shape[0] == b.shape[0]:
+                self._queue.popleft()
+            else:
+                self._queue[0] = b[part.shape[0]:]
 
     # -- reporting ---------------------------------------------------------------------------------------------------
     def _err(self, em: Emit, text: str, level: int = ERROR) -> None:
@@ -450,7 +540,10 @@ class DriverCore:
               "next_stamp_ns": self.book.stamp_of(self._w) if self.book.started else None,
               "latency_samples": self.backend.latency_samples, "last_error": self.last_error}
         if self.info.clocked and self.state != "fault":
-            st["write_ahead_samples"] = self._w - self.backend.clock()
+            try:
+                st["write_ahead_samples"] = self._w - self.backend.clock()
+            except DeviceFault as exc:   # reported by the next tick's fault path
+                st["device.error"] = str(exc)
         try:
             st.update({f"device.{k}": v for k, v in self.backend.status().items()})
         except Exception as exc:  # noqa: BLE001 - a status read must never take the driver down

@@ -80,7 +80,7 @@ class BackendRig:
         ahead = core.s.samples(core.s.write_ahead)
         i = 0
         while True:
-            if i < u.shape[0] and (not core.info.clocked or core._w - core.backend.clock() < ahead):
+            if i < u.shape[0] and (not core.info.clocked or core.status().get("write_ahead_samples", 0) < ahead):
                 stamp = stamp0 + i * core.period_ns
                 blk = u[i:i + self.block]
                 want[stamp] = blk.shape[0]
