@@ -34,6 +34,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import String
 
 from ..core.config import load_config
+from ..core.recording.blocks import sample_period_ns
 from ..core.recording.mcap_io import McapRecorder, RecordingStopped
 from .common import CONFIG_QOS, LATCHED_QOS, RECORD_QOS, diag_values, run_node
 
@@ -103,7 +104,7 @@ class RecorderNode(Node):
         self.node_parameters = {"recorder": {"output": str(out), "topics": topics, "config_file": cfg_file,
                                              "variant": variant, "flush_interval": flush}}
         self.rec.set_metadata({"parameters": self.node_parameters})
-        self.period_ns = int(round(1e9 / cfg.sample_rate))
+        self.period_ns = sample_period_ns(cfg.sample_rate)
         self.t0_ns: int | None = None
         self.config_versions: list[dict] = []
         self.topics = {self.resolve_topic_name(t): t for t in topics}

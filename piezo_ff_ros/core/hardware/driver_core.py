@@ -28,6 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..config import ConfigError, LimitsConfig
+from ..recording.blocks import sample_period_ns
 from ..safety import BlockRejected, SafeRampConfig, VoltageGuard
 from .contract import DeviceFault, Disconnect, StreamingBackend
 from .stream import StreamBook
@@ -168,7 +169,7 @@ class DriverCore:
             raise ConfigError("backend", f"{self.info.name} runs at {self.info.sample_rate_hz} Hz, "
                                          f"the config at {self.s.sample_rate} Hz")
         self.now = now
-        self.period_ns = int(round(1e9 / self.s.sample_rate))
+        self.period_ns = sample_period_ns(self.s.sample_rate)
         self.guard = VoltageGuard(self.s.limits, self.s.n_axes, self.s.sample_rate, max_block=self.s.max_block)
         self.book = StreamBook(self.period_ns, self.s.samples(self.s.max_gap))
         self.safe = np.full(self.s.n_axes, float(self.s.limits.safe_voltage))
