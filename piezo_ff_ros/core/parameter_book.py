@@ -44,8 +44,9 @@ def same_value(a: Any, b: Any) -> bool:
     return bool(a == b) and type(a) is type(b)
 
 
-def check_workspace(flat: Sequence[float], n_axes: int) -> None:
-    """Check a ``workspace`` parameter: empty, or ``[min, max]`` per axis, finite, ``min < max``.
+def check_workspace(flat: Sequence[float], n_axes: int, name: str = "workspace") -> None:
+    """Check a box parameter (``workspace``, ``reference_limit``): empty, or ``[min, max]`` per axis, finite,
+    ``min < max``.
 
     Parameters
     ----------
@@ -53,16 +54,18 @@ def check_workspace(flat: Sequence[float], n_axes: int) -> None:
         ``[min_x, max_x, min_y, max_y, …]`` [m].
     n_axes : int
         Number of axes of the configuration.
+    name : str
+        The parameter's name (the refusal starts with it).
 
     Raises
     ------
     ConfigError
-        Starting with ``workspace:``, saying what is expected and what was given.
+        Starting with ``<name>:``, saying what is expected and what was given.
     """
     if flat and (len(flat) != 2 * n_axes or not all(np.isfinite(flat))
                  or any(flat[2 * i] >= flat[2 * i + 1] for i in range(n_axes))):
-        raise ConfigError("workspace", f"expected [min, max] per axis ({2 * n_axes} finite values, min < max), "
-                                       f"got {list(flat)}")
+        raise ConfigError(name, f"expected [min, max] per axis ({2 * n_axes} finite values, min < max), "
+                                f"got {list(flat)}")
 
 
 def parse_config_yaml(text: str) -> dict[str, Any]:
@@ -229,9 +232,9 @@ class ParameterBook:
                     return Verdict(False, str(exc), ((ERROR, f"config_yaml rejected: {exc}"),))
                 updates.update(from_text)
                 from_yaml = True
-            elif name == "workspace":
+            elif name in ("workspace", "reference_limit"):
                 try:
-                    check_workspace(list(value or []), len(self.base.axes))
+                    check_workspace(list(value or []), len(self.base.axes), name)
                 except ConfigError as exc:
                     return Verdict(False, str(exc))
             elif is_front_param(name) and not front_checked:   # all the front's parameters of the set at once
