@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike
 from .kernels.limits import limit_run
 from .config import LimitsConfig
 
-__all__ = ["VoltageGuard", "GuardCounters", "BlockRejected", "SafeRampConfig", "safe_ramp", "slew_limit", "limit_block"]
+__all__ = ["at_limit", "VoltageGuard", "GuardCounters", "BlockRejected", "SafeRampConfig", "safe_ramp", "slew_limit", "limit_block"]
 
 
 class BlockRejected(ValueError):
@@ -40,7 +40,7 @@ class GuardCounters:
 
     blocks_applied: int = 0
     samples_applied: int = 0
-    saturated_samples: int = 0      #: samples where at least one axis was clamped to ±voltage
+    saturated_samples: int = 0      #: samples sent at or beyond ±voltage on an axis (clamped here or by the sender)
     slew_limited_samples: int = 0   #: samples where at least one axis was held back by the slew limit
     rejected_blocks: int = 0        #: NaN/Inf, wrong shape, oversized
     safe_ramps: int = 0             #: ramps to the safe state (stale input)
@@ -111,6 +111,13 @@ def limit_block(target: ArrayLike, u_prev: np.ndarray, step: float, limit: float
     return out, int(counts[0]), int(counts[1])
 
 
+def at_limit(u: ArrayLike, limit: float) -> int:
+    """Samples of ``u [N, axes]`` at the voltage limit on at least one axis: ``|u| ≥ limit·(1 − 1e-9)`` (the rule
+    of the driver's ``saturated_samples`` and of ``piezo-ff analyze``)."""
+    a = np.asarray(u, float)
+    return int(np.count_nonzero(np.any(np.abs(a) >= float(limit) * (1 - 1e-9), axis=1)))
+
+
 class VoltageGuard:
     """Clamp, slew-limit and validate voltage blocks before they reach the amplifier.
 
@@ -165,8 +172,10 @@ class VoltageGuard:
     def apply(self, block: ArrayLike) -> np.ndarray:
         """Validated, clamped and slew-limited copy of ``block`` (what may be applied); updates the state."""
         u = self.check(block)
-        out, n_clamped, n_limited = limit_block(u, self.u_last, self.step, self.limits.voltage)
-        self.counters.saturated_samples += n_clamped
+        out, _, n_limited = limit_block(u, self.u_last, self.step, self.limits.voltage)
+        # sent at or beyond the limit, whoever clamped it (a compensator clamps to exactly ±voltage): the rule
+        # of the analyzer on the voltage topic, so that the two agree
+        self.counters.saturated_samples += at_limit(u, self.limits.voltage)
         self.counters.slew_limited_samples += n_limited
         self.counters.blocks_applied += 1
         self.counters.samples_applied += out.shape[0]

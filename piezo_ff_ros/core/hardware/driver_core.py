@@ -28,7 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..config import ConfigError, LimitsConfig
-from ..recording.blocks import sample_period_ns
+from ..recording.blocks import BlockFormatError, check_stamp, sample_period_ns
 from ..safety import BlockRejected, SafeRampConfig, VoltageGuard
 from .contract import DeviceFault, Disconnect, StreamingBackend
 from .stream import StreamBook
@@ -258,6 +258,12 @@ class DriverCore:
         if self.state == "fault":
             em.log.append((ERROR, f"block at {stamp} ignored: device fault ({self.last_error})"))
             return em
+        try:   # a stamp off the grid cannot be placed (and must never anchor the stream): refused, counted
+            check_stamp(stamp, self.period_ns)
+        except BlockFormatError as exc:
+            self.guard.counters.rejected_blocks += 1
+            self._err(em, f"voltage block rejected ({exc}); nothing applied")
+            return em
         u: np.ndarray | None = None
         if reject is not None:
             self.guard.counters.rejected_blocks += 1
@@ -288,9 +294,19 @@ class DriverCore:
             if not self.book.started:
                 self._feed(em)
         self._sync()
+        if self.state == "safe" and self.book.started:
+            # after a safe ramp the stream re-anchors on the next valid block that is not in the past: a new stream
+            # (or the old one resuming later) starts right away, without the gap hold or the jump confirmation
+            nxt = self.book.stamp_of(self._w)
+            if nxt is not None and stamp >= nxt and stamp != nxt:
+                self.book.candidate = None
+                self.book.rebase(self._w, int(stamp))
+                self.book.counters.rebases += 1
+                em.log.append((WARN, f"stream re-anchored on the block at {stamp} after the safe state"))
         try:
             d = self.book.classify(int(stamp), n, self._w, payload=u)
         except ValueError as exc:
+            self.guard.counters.rejected_blocks += 1
             self._err(em, f"voltage block dropped: {exc}")
             return em
         if d.kind == "pending":
