@@ -13,14 +13,18 @@ from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
-import yaml
 
 from .config import ConfigError, PiezoConfig
+from .config.loader import safe_yaml
 from .hardware.driver_core import ERROR
 from .param_map import config_to_params, is_config_param, params_to_config
 from .tracking.front import FRONT_DEFAULTS, TrackingFront, front_settings, is_front_param
 
-__all__ = ["ParameterBook", "Verdict", "check_workspace", "parse_config_yaml", "same_value"]
+__all__ = ["ParameterBook", "Verdict", "check_workspace", "parse_config_yaml", "same_value", "CONFIG_YAML_MAX_BYTES"]
+
+#: the largest ``config_yaml`` accepted [bytes] (every stage parameter of the paper's configuration: about 4 kB);
+#: checked before parsing, so that a huge string never blocks the node's executor
+CONFIG_YAML_MAX_BYTES = 64 * 1024
 
 
 def same_value(a: Any, b: Any) -> bool:
@@ -85,12 +89,11 @@ def parse_config_yaml(text: str) -> dict[str, Any]:
     Raises
     ------
     ConfigError
-        One line starting with ``config_yaml:``: not YAML, not a mapping, or a name that is not a stage parameter.
+        One line starting with ``config_yaml:``: larger than :data:`CONFIG_YAML_MAX_BYTES`, nested too deeply or
+        an alias bomb (:func:`~.config.loader.safe_yaml`), not YAML, not a mapping, or a name that is not a stage
+        parameter.
     """
-    try:
-        d = yaml.safe_load(text) if text.strip() else {}
-    except yaml.YAMLError as exc:
-        raise ConfigError("config_yaml", f"not YAML ({str(exc).splitlines()[0]})") from None
+    d = safe_yaml(text, "config_yaml", max_bytes=CONFIG_YAML_MAX_BYTES) if text.strip() else {}
     if d is None:
         return {}
     if not isinstance(d, dict):

@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike
 from .kernels.limits import limit_run
 from .config import LimitsConfig
 
-__all__ = ["at_limit", "VoltageGuard", "GuardCounters", "BlockRejected", "SafeRampConfig", "safe_ramp", "slew_limit", "limit_block"]
+__all__ = ["at_limit", "MIN_RAMP_DURATION", "MAX_RAMP_DURATION", "MAX_RAMP_SLEW", "VoltageGuard", "GuardCounters", "BlockRejected", "SafeRampConfig", "safe_ramp", "slew_limit", "limit_block"]
 
 
 class BlockRejected(ValueError):
@@ -50,6 +50,12 @@ class GuardCounters:
         return dict(self.__dict__)
 
 
+#: the documented bounds of the safe ramp (docs/nodes.md): at least 50 ms, at most 1e4 V/s (200 V in ≥ 20 ms)
+MIN_RAMP_DURATION = 0.05
+MAX_RAMP_DURATION = 60.0
+MAX_RAMP_SLEW = 1.0e4
+
+
 @dataclass(frozen=True)
 class SafeRampConfig:
     """How the driver brings the output to the safe voltage (stale input, device fault).
@@ -62,13 +68,18 @@ class SafeRampConfig:
     slew: float = 1.0e4      #: maximum ramp slew [V/s] (applied together with the operating limit)
 
     def validate(self, prefix: str = "safe_ramp") -> "SafeRampConfig":
-        """Check the fields (``ConfigError`` naming ``prefix.<field>``); returns self."""
+        """Check the fields against the documented bounds (docs/nodes.md: ``duration`` in
+        [:data:`MIN_RAMP_DURATION`, 60] s, ``slew`` in (0, :data:`MAX_RAMP_SLEW`] V/s): a "ramp" of one sample is
+        a step.  ``ConfigError`` naming ``prefix.<field>``; returns self."""
         from .config import ConfigError
 
-        if not (isinstance(self.duration, (int, float)) and math.isfinite(self.duration) and 0 <= self.duration <= 60):
-            raise ConfigError(f"{prefix}.duration", f"must be a number of seconds in [0, 60], got {self.duration!r}")
-        if not (isinstance(self.slew, (int, float)) and math.isfinite(self.slew) and self.slew > 0):
-            raise ConfigError(f"{prefix}.slew", f"must be a finite number > 0 V/s, got {self.slew!r}")
+        d, v = self.duration, self.slew
+        if isinstance(d, bool) or not (isinstance(d, (int, float)) and math.isfinite(d)
+                                       and MIN_RAMP_DURATION <= d <= MAX_RAMP_DURATION):
+            raise ConfigError(f"{prefix}.duration", f"must be a number of seconds in [{MIN_RAMP_DURATION:g}, "
+                                                    f"{MAX_RAMP_DURATION:g}], got {d!r}")
+        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and 0 < v <= MAX_RAMP_SLEW):
+            raise ConfigError(f"{prefix}.slew", f"must be a number of V/s in (0, {MAX_RAMP_SLEW:g}], got {v!r}")
         return self
 
 
