@@ -8,7 +8,11 @@ recorder leaves a file readable up to its last flushed chunk (flushed at least e
 Parameters: ``output`` (file, default ``run_<UTC time>.mcap``), ``topics`` (default reference, voltage,
 displacement, experiment, /diagnostics, /parameter_events; relative names resolve in the node's namespace),
 ``config_file``/``variant`` (the PiezoConfig stored in the metadata), ``metadata`` (extra JSON object),
-``flush_interval`` [s], ``discovery_period`` [s] (how often topics of unknown type are looked up in the graph).
+``flush_interval`` [s], ``discovery_period`` [s] (how often topics of unknown type are looked up in the graph),
+``t0_ns`` and ``block_size`` (the run's sample origin [ns] and block size, written to the metadata; 0 = not given:
+``t0_ns`` is then taken from the trajectory's first ``experiment`` marker, ``stamp_ns − k0·dt``, else from the
+compensator's first configuration version, and ``block_size`` is left out).  Never from whatever block comes first:
+a stray or hostile block must not set the run's origin.
 Topic ``~/status`` (std_msgs/String, transient-local JSON: ``{"recording": path, "topics": {...}, "subscribed": [...],
 "publishers": {topic: matched publisher count}, "error": null or why recording stopped}``, republished when a count
 changes) lets a launcher wait until the recorder is actually connected to the publishers before a run starts.
@@ -34,7 +38,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import String
 
 from ..core.config import load_config
-from ..core.recording.blocks import sample_period_ns
+from ..core.recording.blocks import MAX_BLOCK_SAMPLES, sample_period_ns
 from ..core.recording.mcap_io import McapRecorder, RecordingStopped
 from .common import CONFIG_QOS, LATCHED_QOS, RECORD_QOS, diag_values, run_node
 
@@ -48,8 +52,6 @@ KNOWN_TYPES = {"reference": "sensor_msgs/msg/PointCloud2", "voltage": "sensor_ms
                "voltage_applied": "sensor_msgs/msg/PointCloud2"}
 #: the experiment markers are transient-local: a recorder started late still gets the current segment
 _LATCHED = {"experiment"}
-#: block topics whose first message gives t0_ns and block_size to the metadata
-_BLOCK_TOPICS = {"reference", "voltage", "displacement"}
 #: chunks hold at most this many bytes of uncompressed records (docs/topics.md): the recorder closes the open
 #: chunk before a message that would take it past (the MCAP writer itself only closes a chunk once it is over)
 CHUNK_LIMIT = 512 * 1024
@@ -87,6 +89,8 @@ class RecorderNode(Node):
         extra_text: str = self.declare_parameter("metadata", "{}").value
         flush = float(self.declare_parameter("flush_interval", 1.0).value)
         period = float(self.declare_parameter("discovery_period", 0.5).value)
+        t0_param = int(self.declare_parameter("t0_ns", 0).value)
+        block_size = int(self.declare_parameter("block_size", 0).value)
         try:
             extra = json.loads(extra_text) if extra_text else {}
             if not isinstance(extra, dict):
@@ -105,8 +109,16 @@ class RecorderNode(Node):
                                              "variant": variant, "flush_interval": flush}}
         self.rec.set_metadata({"parameters": self.node_parameters})
         self.period_ns = sample_period_ns(cfg.sample_rate)
+        if t0_param < 0 or t0_param % self.period_ns:
+            raise ValueError(f"t0_ns: {t0_param} is not a stamp on the {self.period_ns} ns sample grid")
+        if not 0 <= block_size <= MAX_BLOCK_SAMPLES:
+            raise ValueError(f"block_size: {block_size} is outside [0, {MAX_BLOCK_SAMPLES}] samples")
         self.t0_ns: int | None = None
         self.config_versions: list[dict] = []
+        if block_size:
+            self.rec.set_metadata({"block_size": block_size})
+        if t0_param:
+            self._set_t0(t0_param)
         self.topics = {self.resolve_topic_name(t): t for t in topics}
         self.types: dict[str, str] = {}
         self.subs: dict[str, Any] = {}
@@ -198,25 +210,33 @@ class RecorderNode(Node):
         self.counts[topic] += 1
         last = topic.rsplit("/", 1)[-1]
         try:
-            if self.t0_ns is None and last in _BLOCK_TOPICS:
-                self._first_block(data)
-            elif last == "config" and self.types.get(topic) == "std_msgs/msg/String":
+            if last == "config" and self.types.get(topic) == "std_msgs/msg/String":
                 self._config_version(data)
+            elif last == "experiment" and self.t0_ns is None and self.types.get(topic) == "std_msgs/msg/String":
+                self._t0_from_marker(data)
         except RecordingStopped:
             raise
         except Exception as exc:  # noqa: BLE001 - metadata is best effort; the message itself is recorded
             self.get_logger().warning(f"{topic}: metadata not updated ({exc})")
 
-    def _first_block(self, data: bytes) -> None:
-        from ..core.recording.blocks import deserialize_block
-
-        stamp, block = deserialize_block(data)[:2]
-        self.t0_ns = int(stamp)
-        self.rec.set_metadata({"t0_ns": self.t0_ns, "block_size": int(block.shape[0])})
+    def _set_t0(self, t0_ns: int) -> None:
+        """The run's sample origin: written to the metadata, the configuration versions' ``k0`` from it."""
+        self.t0_ns = int(t0_ns)
+        self.rec.set_metadata({"t0_ns": self.t0_ns})
         for v in self.config_versions:
             v["k0"] = (v["stamp_ns"] - self.t0_ns) // self.period_ns
         if self.config_versions:
             self.rec.set_metadata({"config_versions": self.config_versions})
+
+    def _t0_from_marker(self, data: bytes) -> None:
+        """``t0_ns = stamp_ns − k0·dt`` of the trajectory's first experiment marker (the trajectory's own origin)."""
+        from rclpy.serialization import deserialize_message
+
+        d = json.loads(deserialize_message(data, String).data)
+        k0, stamp = d.get("k0"), d.get("stamp_ns")
+        if isinstance(k0, int) and isinstance(stamp, int) and not isinstance(k0, bool) and k0 >= 0 \
+                and stamp % self.period_ns == 0:
+            self._set_t0(stamp - k0 * self.period_ns)
 
     def _config_version(self, data: bytes) -> None:
         """A configuration version of the compensator (``~/config``): stored with the sample index where it took
@@ -227,6 +247,11 @@ class RecorderNode(Node):
         entry = {"version": d["version"], "stamp_ns": d["stamp_ns"],
                  "k0": None if self.t0_ns is None else (d["stamp_ns"] - self.t0_ns) // self.period_ns,
                  "config_yaml": d["config_yaml"], "parameters": d.get("parameters", {})}
+        if self.t0_ns is None and entry["version"] == 1 and isinstance(entry["stamp_ns"], int) \
+                and entry["stamp_ns"] % self.period_ns == 0:   # no parameter, no marker: the compensator's origin
+            self.t0_ns = int(entry["stamp_ns"])
+            self.rec.set_metadata({"t0_ns": self.t0_ns})
+            entry["k0"] = 0
         self.config_versions = [v for v in self.config_versions if v["version"] != entry["version"]] + [entry]
         self.config_versions.sort(key=lambda v: v["version"])
         meta: dict[str, Any] = {"config_versions": self.config_versions}

@@ -45,7 +45,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.parameter import Parameter
@@ -54,6 +53,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
+from ..core.config.loader import safe_yaml
 from ..core.config import ConfigError
 from ..core.trajectories import Sequence, Table, Trajectory, check_workspace, from_dict
 from .common import BLOCK_QOS, LATCHED_QOS, BlockFormatError, dt_ns, pack_block, run_node, stamp_to_ns, unpack_block
@@ -81,10 +81,7 @@ def _parse(text: str, file: str, sample_rate: float) -> Trajectory:
             except ConfigError as exc:
                 raise ConfigError(f"trajectory_file.{exc.field}", exc.reason) from None
         text = p.read_text()
-    try:
-        spec = yaml.safe_load(text) if text.strip() else None
-    except yaml.YAMLError as exc:
-        raise ConfigError("trajectory", f"not valid JSON/YAML ({exc})") from None
+    spec = safe_yaml(text, "trajectory") if text.strip() else None   # size/depth/alias limits: no crash, no stall
     if spec is None:
         raise ConfigError("trajectory", "empty")
     return from_dict(spec, prefix="trajectory")
