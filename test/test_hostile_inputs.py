@@ -36,7 +36,7 @@ def test_config_yaml_bombs_are_refused_with_one_line_at_once(case):
     took = time.perf_counter() - t0
     msg = str(err.value)
     assert msg.startswith("config_yaml:") and "\n" not in msg, msg
-    assert took < 1.0, f"{case}: {took:.2f} s"   # refused before any real work (noisy machine: generous)
+    assert took < 5.0, f"{case}: {took:.2f} s"   # refused before any real work (was 25–33 s; noisy machine)
 
 
 def test_yaml_limits_and_what_still_parses():

@@ -232,8 +232,8 @@ def _implausible(a: np.ndarray | None, bound: float, length_rows: np.ndarray | N
     if a is None or not len(a):
         return np.zeros(0 if a is None else len(a), bool)
     with np.errstate(invalid="ignore"):
-        bad = np.any(np.isfinite(a) & (np.abs(a) > bound), axis=1)
-    return bad if length_rows is None else bad & length_rows
+        bad: np.ndarray = np.any(np.isfinite(a) & (np.abs(a) > bound), axis=1)
+    return bad if length_rows is None else np.asarray(bad & length_rows)
 
 
 def _sanitised(run: RunData, warnings: list[str]) -> RunData:
@@ -265,7 +265,10 @@ def _sanitised(run: RunData, warnings: list[str]) -> RunData:
         fixed = arr.copy()
         fixed[bad] = np.nan
         changes[name] = fixed
-    return _replace(run, **changes) if changes else run
+    if not changes:
+        return run
+    return _replace(run, u=changes.get("u", run.u), y=changes.get("y", run.y),
+                    reference=changes.get("reference", run.reference))
 
 
 def analyze_run(run: RunData, evaluate: Evaluate | None = None) -> AnalysisResult:
