@@ -78,6 +78,8 @@ def test_compensator_with_its_driver_refuses_what_would_pin_or_poison_it(tmp_pat
         g.pub_applied.publish(pack_block(np.full((N, 2), 1e10), AXES, stamp))
         d = g.diag_after(lambda d: int(d.get("applied_rejected", 0)) >= 2, "refused voltage_applied")
         assert d["_level"] >= 1
+        # exactly those two: the paired driver's own blocks are used (tracked and confirmed), never refused
+        assert d["applied_rejected"] == "2" and int(d["applied_blocks"]) > 0, d
         # the reference is back at 10 µm (≈ 64 V): the voltages are finite and off the limit, no reset needed
         for _ in range(20):
             g.send(held(N))

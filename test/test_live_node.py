@@ -298,7 +298,7 @@ def test_config_yaml_forms_and_one_line_errors():
                              "    creep.Cr.xx.den_deg: [1]\n") == flat
     assert parse_config_yaml("") == {}
     for bad, text in [("crossfade: 0.1", "not a stage parameter: crossfade"), ("[1, 2]", "expected a mapping"),
-                      ("a: [", "not YAML")]:
+                      ("a: [", "not valid YAML")]:
         with pytest.raises(ConfigError) as e:
             parse_config_yaml(bad)
         assert str(e.value).startswith("config_yaml") and text in str(e.value) and "\n" not in str(e.value)

@@ -403,7 +403,7 @@ class CompensatorNode(Node):
         return (f"sender {others[0] if others else 'unknown'} is not the paired driver "
                 f"{self.get_namespace().rstrip('/')}/{self.driver_name} (parameter driver)")
 
-    def on_applied(self, msg: PointCloud2, info: Any = None) -> None:
+    def on_applied(self, msg: PointCloud2, info: Any) -> None:
         if not self.core.wants_applied:
             return
         foreign = self._sender(info)

@@ -295,10 +295,11 @@ class DriverCore:
                 self._feed(em)
         self._sync()
         if self.state == "safe" and self.book.started:
-            # after a safe ramp the stream re-anchors on the next valid block that is not in the past: a new stream
-            # (or the old one resuming later) starts right away, without the gap hold or the jump confirmation
+            # after a safe ramp the stream re-anchors on the next valid block beyond max_gap ahead: a new stream
+            # starts right away, without waiting for a second block to confirm the jump (a nearer one is a gap,
+            # held as before, so that the stamps of voltage_applied stay contiguous)
             nxt = self.book.stamp_of(self._w)
-            if nxt is not None and stamp >= nxt and stamp != nxt:
+            if nxt is not None and stamp - nxt > self.book.max_gap * self.period_ns:
                 self.book.candidate = None
                 self.book.rebase(self._w, int(stamp))
                 self.book.counters.rebases += 1
