@@ -72,6 +72,7 @@ class Peer:
         self.volts: dict[int, np.ndarray] = {}
         self.applied: dict[int, float] = {}
         self.diag: dict[str, dict[str, str]] = {"compensator": {}, "driver": {}}
+        self.max_level = {"compensator": 0, "driver": 0}   # highest /diagnostics level since the last reset
         n = self.node
         self.vsub = n.create_subscription(PointCloud2, "voltage", lambda m: self.volts.__setitem__(
             stamp_to_ns(m.header.stamp), unpack_block(m, AXES)), BLOCK_QOS)
@@ -92,6 +93,7 @@ class Peer:
                     level = ord(s.level) if isinstance(s.level, bytes) else int(s.level)
                     self.diag[who] = {kv.key: kv.value for kv in s.values} | {"_level": str(level),
                                                                               "_message": s.message}
+                    self.max_level[who] = max(self.max_level[who], level)
 
     def spin_until(self, cond: Callable[[], bool], timeout: float) -> bool:
         end = time.monotonic() + timeout
@@ -174,14 +176,16 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
 
         def case(name: str, send: Callable[[], Any], who: str, key: str, note: str = "") -> None:
             before = peer.counter(who, key)
+            peer.max_level[who] = 0
             t0 = time.monotonic()
             extra = send()
+            t_rec = recover(peer, t0, limit)          # good blocks right after the hostile input
             refused = refused_by(peer, who, key, before) if key else bool(extra)
-            t_rec = recover(peer, t0, limit)
-            level = peer.diag[who].get("_level", "?")
+            peer.spin_for(1.1)                         # one more /diagnostics period: the level while it lasted
             rows.append({"case": name, "refused": refused, "recovered": t_rec is not None,
                          "time_to_recover_s": None if t_rec is None else round(t_rec, 3),
-                         "said": note or f"{who} {key} {peer.counter(who, key)} (level {level})"})
+                         "said": note or f"{who} {key} {peer.counter(who, key)}, /diagnostics level "
+                                         f"{['OK', 'WARN', 'ERROR', 'STALE'][peer.max_level[who]]}"})
 
         def ref_block(block: np.ndarray, stamp_offset: int = 0) -> Callable[[], None]:
             def send() -> None:
@@ -239,7 +243,7 @@ def run(args: argparse.Namespace) -> list[dict[str, Any]]:
             peer.volt.publish(peer.pack(np.zeros((N, 2)), peer.k * DT_NS + 1))
         case("voltage (direct): 1 ns off the grid", to_driver_off_grid, "driver", "rejected_blocks")
 
-        deep = "a:\n" + "".join("  " * (i + 1) + f"k{i}:\n" for i in range(1000)) + "  " * 1001 + "1\n"
+        deep = "{a: " * 1000 + "1" + "}" * 1000     # 5 kB, 1000 levels (it crashed the node: RecursionError)
         bomb = 'a0: &a0 ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]\n' + "".join(
             f"a{i}: &a{i} [" + ",".join([f"*a{i - 1}"] * 9) + "]\n" for i in range(1, 10))
         for name, text in (("1000 levels deep", deep), ("alias bomb (624 chars)", bomb),

@@ -114,7 +114,7 @@ def test_off_grid_and_empty_reference_blocks_are_refused(base):
     assert core.rejected_blocks == 2 and core.blocks == 0
 
 
-@pytest.mark.parametrize("case", ["NaN", "1e10", "off grid", "foreign"])
+@pytest.mark.parametrize("case", ["NaN", "1e10", "off grid", "foreign", "far ahead"])
 def test_poisoned_applied_voltage_is_refused_and_changes_no_state(base, case):
     core, clean = make_core(base), make_core(base)
     ks = [S0 + i * N * DT for i in range(30)]
@@ -126,8 +126,11 @@ def test_poisoned_applied_voltage_is_refused_and_changes_no_state(base, case):
         outs.append(u)
         if i == 3:
             bad = {"NaN": np.full((N, 2), np.nan), "1e10": np.full((N, 2), 1e10), "off grid": outs[0] * 0.5,
-                   "foreign": np.zeros((N, 2))}[case]
-            em = core.on_applied(ks[0] + (1 if case == "off grid" else 0), bad, 0.03,
+                   "foreign": np.zeros((N, 2)), "far ahead": None}[case]
+            if case == "far ahead":   # a stamp 1e12 samples ahead: a hold that long asked for 14.6 TiB
+                bad = outs[0]
+            em = core.on_applied(ks[0] + (1 if case == "off grid" else 10**12 * DT if case == "far ahead" else 0),
+                                 bad, 0.03,
                                  foreign="sender /intruder is not the paired driver" if case == "foreign" else "")
             assert len(em.log) == 1 and em.log[0][0] == ERROR and "voltage_applied block rejected" in em.log[0][1]
             assert core.applied_rejected == 1 and core.hs.resyncs == 0

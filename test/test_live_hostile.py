@@ -104,7 +104,7 @@ def test_compensator_with_its_driver_refuses_what_would_pin_or_poison_it(tmp_pat
         d = g.diag_after(lambda d: int(d.get("input_jumps", 0)) >= 1, "a counted jump")
         assert int(d["input_gap_samples"]) < 10 * N, d["input_gap_samples"]
         # YAML bombs in config_yaml: refused with one line, the service answers, the node keeps working
-        deep = "a:\n" + "".join("  " * (i + 1) + f"k{i}:\n" for i in range(1000)) + "  " * 1001 + "1\n"
+        deep = "{a: " * 1000 + "1" + "}" * 1000     # 5 kB, 1000 levels
         bomb = 'a0: &a0 ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]\n' + "".join(
             f"a{i}: &a{i} [" + ",".join([f"*a{i - 1}"] * 9) + "]\n" for i in range(1, 10))
         for text in (deep, bomb, "x: '" + "a" * (8 << 20) + "'"):

@@ -522,6 +522,13 @@ class CompensatorCore:
             check_stamp(stamp, self.period_ns)
         except BlockFormatError as exc:
             return self.reject("voltage_applied", str(exc))
+        horizon = self._next_stamp + int(_MAX_GAP_S * self.cfg.sample_rate) * self.period_ns \
+            if self._next_stamp is not None else None
+        if horizon is not None and stamp > horizon:
+            # no driver applies samples more than 1 s beyond what it was sent (a hold before them would be that
+            # long: a stamp 1e12 samples ahead asked for terabytes)
+            return self.reject("voltage_applied", f"block.header.stamp: {stamp} ns is more than {_MAX_GAP_S:g} s "
+                                                  f"ahead of the voltage produced (next {self._next_stamp} ns)")
         v = float(self.cfg.limits.voltage)
         if np.any(np.abs(u) > v * (1 + 1e-9)):
             return self.reject("voltage_applied", f"limits.voltage: {float(np.max(np.abs(u))):.6g} V beyond ±{v:g} V "
