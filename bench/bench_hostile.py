@@ -85,6 +85,7 @@ class Peer:
         self.point = n.create_publisher(PointStamped, "reference_point", 10)
         self.setp = n.create_client(SetParameters, "/compensator/set_parameters")
         self.k = 10**6 * N
+        self._wall0 = (time.monotonic(), self.k)   # a realtime client: its stamps follow the wall clock
 
     def _on_diag(self, m: Any) -> None:
         for s in m.status:
@@ -118,6 +119,10 @@ class Peer:
         return pack_block(block, AXES, stamp)
 
     def good(self) -> int:
+        """A good 10 µm block; after a pause the stream resumes at the wall clock's sample (as the trajectory
+        node's realtime mode does), not behind it."""
+        t0, k0 = self._wall0
+        self.k = max(self.k, k0 + int((time.monotonic() - t0) * 1e9) // DT_NS // N * N)
         stamp = self.k * DT_NS
         self.ref.publish(self.pack(np.tile([10e-6, 0.0], (N, 1)), stamp))
         self.k += N
