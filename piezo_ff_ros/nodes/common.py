@@ -27,9 +27,10 @@ __all__ = ["BLOCK_QOS", "RECORD_QOS", "LATCHED_QOS", "CONFIG_QOS", "FRAME_ID", "
            "stamp_to_ns", "ns_to_stamp", "k0_of", "spin_node", "BlockFormatError", "log_lines",
            "writer_matches", "MAX_BLOCK_SAMPLES"]
 
-FRAME_ID = "piezo"
+FRAME_ID = blocks.FRAME_ID
 
-#: blocks: reliable, keep-last 100, volatile — publishers and subscribers alike
+#: blocks: reliable, keep-last 100, volatile — publishers and subscribers alike (a client that bursts more than 100
+#: blocks at once loses the oldest: docs/topics.md says how to pace)
 BLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
 #: the recorder's subscriptions: same policies, deeper queue (a busy recorder must not lose blocks)
@@ -42,6 +43,7 @@ LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=
 #: the compensator's ``~/config`` (every configuration version): a recorder started late still gets them all
 CONFIG_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
 
 def dt_ns(sample_rate: float) -> int:
     """Sample period in integer nanoseconds (50 000 at 20 kHz); ``ValueError`` for a rate whose period is not a

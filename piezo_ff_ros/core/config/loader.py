@@ -100,18 +100,18 @@ class _LimitedLoader(UniqueKeyLoader):
         from yaml.events import AliasEvent
 
         if self.check_event(AliasEvent):
-            event = self.peek_event()  # type: ignore[no-untyped-call]
+            event = self.peek_event()  # type: ignore[no-untyped-call]  # PyYAML ships no annotations
             target = self.anchors.get(event.anchor)
             self._expanded += self._sizes.get(id(target), 1)
             self._check_nodes(event)
             return super().compose_node(parent, index)
         self._depth += 1
         if self._depth > self.max_depth:
-            mark = self.peek_event().start_mark  # type: ignore[no-untyped-call]
+            mark = self.peek_event().start_mark  # type: ignore[no-untyped-call]  # PyYAML ships no annotations
             raise YamlLimitError(f"nested deeper than {self.max_depth} levels (line {mark.line + 1})")
         before = self._expanded
         self._expanded += 1
-        self._check_nodes(self.peek_event())  # type: ignore[no-untyped-call]
+        self._check_nodes(self.peek_event())  # type: ignore[no-untyped-call]  # PyYAML ships no annotations
         try:
             node = super().compose_node(parent, index)
         finally:
