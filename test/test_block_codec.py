@@ -135,3 +135,38 @@ def test_trajectory_node_refuses_30_khz_with_one_line(tmp_path):
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     assert p.returncode == 2, p.stderr
     assert len(lines) == 1 and "sample_rate" in lines[0] and "30000" in lines[0], lines
+
+
+def test_a_recording_of_the_hostile_blocks_is_read_with_the_same_verdicts(tmp_path):
+    """Every block a node refuses for its structure is a malformed block to the reader (``load_run``); the stamp
+    off the grid is counted as such; the good blocks are read."""
+    from rclpy.serialization import serialize_message
+
+    from piezo_ff_ros.core.recording import load_run
+    from piezo_ff_ros.core.recording.mcap_io import McapRecorder
+    from piezo_ff_ros.nodes.common import pack_block, unpack_block
+
+    hostile = _hostile()
+    structural = []
+    path = tmp_path / "hostile.mcap"
+    k = 100
+    with McapRecorder(path) as rec:
+        rec.set_metadata({"sample_rate": 20000, "axes": list(AXES), "t0_ns": 0})
+        rec.register_topic("/reference", B.BLOCK_TYPE)
+        for name, msg in hostile.items():
+            if name in ("good", "off-grid stamp", "NaN"):
+                continue
+            try:
+                unpack_block(msg, AXES)
+            except ValueError:
+                structural.append(name)
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(k * DT, 10**9)
+            rec.write("/reference", serialize_message(msg), 0)
+            k += 4
+        for i in range(3):   # good blocks around the off-grid one
+            rec.write("/reference", serialize_message(pack_block(np.ones((4, 2)) * 1e-6, AXES, (k + 4 * i) * DT)), 0)
+        rec.write("/reference", serialize_message(pack_block(np.ones((4, 2)) * 1e-6, AXES, (k + 12) * DT + 1)), 0)
+    run = load_run(path)
+    info = run.meta["blocks"]["reference"]
+    assert info["malformed"] == len(structural) == 8, (info, structural)
+    assert info["off_grid"] == 1 and info["count"] == 4
