@@ -170,3 +170,10 @@ def test_a_recording_of_the_hostile_blocks_is_read_with_the_same_verdicts(tmp_pa
     info = run.meta["blocks"]["reference"]
     assert info["malformed"] == len(structural) == 8, (info, structural)
     assert info["off_grid"] == 1 and info["count"] == 4
+
+
+@pytest.mark.parametrize("n, frame", [(1, "piezo"), (7, ""), (20_001, "a_longer_frame_id"), (3, "abc")])
+def test_the_sample_count_is_read_from_the_first_bytes(n, frame):
+    raw = B.serialize_block(np.zeros((n, 2)), 5 * DT, frame_id=frame)
+    assert B.peek_block_samples(raw) == n
+    assert B.peek_block_samples(raw[:10]) is None

@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike
 
 from . import metrics
 from .recording.run import RunData
+from .safety import at_limit
 from .jsonable import JsonResult, jsonable
 from .units import to_um
 
@@ -293,7 +294,7 @@ def analyze_run(run: RunData, evaluate: Evaluate | None = None) -> AnalysisResul
     limit = _voltage_limit(run)
     u_raw = np.asarray(run.u, float)
     finite_u = np.all(np.isfinite(u_raw), axis=1)
-    saturated = int(np.sum(np.any(np.abs(u_raw[finite_u]) >= limit * (1 - 1e-9), axis=1)))
+    saturated = at_limit(u_raw[finite_u], limit)   # the driver's saturated_samples rule: the two agree
     run = _sanitised(run, warnings)
     tables: Any = None
     recorded, seg_warn = segment_signals(run)

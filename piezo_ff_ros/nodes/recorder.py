@@ -38,7 +38,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import String
 
 from ..core.config import load_config
-from ..core.recording.blocks import MAX_BLOCK_SAMPLES, sample_period_ns
+from ..core.recording.blocks import MAX_BLOCK_SAMPLES, peek_block_samples, sample_period_ns
 from ..core.recording.mcap_io import McapRecorder, RecordingStopped
 from .common import CONFIG_QOS, LATCHED_QOS, RECORD_QOS, diag_values, run_node
 
@@ -126,6 +126,8 @@ class RecorderNode(Node):
         self._matched: dict[str, int] = {}
         self.error: str | None = None      # why recording stopped early
         self.dropped = 0                    # messages received after that
+        self.oversized = 0                  # block messages too large for the contract (not recorded)
+        self._oversized_logged = -1e9
         self.pub_status = self.create_publisher(String, "~/status", LATCHED_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._subscribe_known()
@@ -172,6 +174,16 @@ class RecorderNode(Node):
     def _on_message(self, topic: str, data: bytes, info: Any) -> None:
         if self.error is not None:
             self.dropped += 1
+            return
+        if self.types.get(topic) == "sensor_msgs/msg/PointCloud2" and \
+                (peek_block_samples(data) or 0) > MAX_BLOCK_SAMPLES:   # read from the first bytes: no work
+            self.oversized += 1   # more than any block of the contract: not written (it would bloat the file)
+            now = time.monotonic()
+            if now - self._oversized_logged > 1.0:
+                self._oversized_logged = now
+                self.get_logger().error(f"{topic}: a block of {peek_block_samples(data)} samples is larger than "
+                                        f"any block of the contract ({MAX_BLOCK_SAMPLES}): not recorded "
+                                        f"({self.oversized} so far)")
             return
         try:
             self._record(topic, data, info)
@@ -277,7 +289,9 @@ class RecorderNode(Node):
             if self.error is None:
                 size = self.rec.path.stat().st_size if self.rec.path.exists() else 0
                 print(f"recorder: wrote {self.rec.message_count} messages ({size} bytes) to {self.rec.path}: "
-                      + ", ".join(f"{t} {n}" for t, n in sorted(self.counts.items())), file=sys.stderr)
+                      + ", ".join(f"{t} {n}" for t, n in sorted(self.counts.items()))
+                      + (f"; {self.oversized} oversized block message(s) not recorded" if self.oversized else ""),
+                      file=sys.stderr)
         if self.error is not None:   # exit code 1 (run_node), one line: the recording is incomplete
             f = self.rec.failure
             raise RuntimeError(f"{self.error}; {self.dropped} message(s) received afterwards dropped"

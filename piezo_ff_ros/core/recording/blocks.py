@@ -40,7 +40,7 @@ if TYPE_CHECKING:
 __all__ = [
     "BLOCK_TYPE", "FRAME_ID", "FLOAT64", "MAX_BLOCK_SAMPLES", "BlockFormatError", "sample_period_ns", "check_stamp", "stamp_for_index", "index_for_stamp",
     "stamp_to_ns", "ns_to_stamp", "encode_block", "decode_block", "block_axes", "serialize_block",
-    "deserialize_block", "serialize_message", "deserialize_message", "typestore",
+    "deserialize_block", "serialize_message", "deserialize_message", "typestore", "peek_block_samples",
 ]
 
 BLOCK_TYPE = "sensor_msgs/msg/PointCloud2"  #: message type of the reference/voltage/displacement topics
@@ -276,6 +276,26 @@ def decode_block(msg: Any, axes: Sequence[str] | None = None, *, period_ns: int 
     if finite and not np.all(np.isfinite(block)):
         raise BlockFormatError(f"block.data: {int(np.count_nonzero(~np.isfinite(block)))} NaN/Inf value(s)")
     return stamp_ns, block
+
+
+def peek_block_samples(raw: bytes | bytearray | memoryview) -> int | None:
+    """``height·width`` of a CDR-serialised block message, read from its first bytes only (no decoding): what a
+    node checks against :data:`MAX_BLOCK_SAMPLES` before doing any work on a raw message; None if the bytes are
+    too short to say."""
+    import struct
+
+    buf = memoryview(raw)
+    if len(buf) < 4 + 8 + 4:
+        return None
+    endian = "<" if buf[1] == 1 else ">"   # encapsulation: CDR_LE = 00 01, CDR_BE = 00 00
+    try:
+        (n,) = struct.unpack_from(endian + "I", buf, 4 + 8)   # header.stamp (8 bytes), then frame_id's length
+        off = 4 + 8 + 4 + n
+        off = 4 + ((off - 4 + 3) & ~3)                        # uint32 alignment, relative to the payload
+        height, width = struct.unpack_from(endian + "II", buf, off)
+    except struct.error:
+        return None
+    return int(height) * int(width)
 
 
 # ----------------------------------------------------------------------------------------------------------------
