@@ -7,13 +7,18 @@ and the ``/diagnostics`` status; its :class:`~.parameter_book.ParameterBook` hol
 parameter transactions.  The compensator node only declares and types the ROS parameters, converts messages, and publishes,
 logs and sets what each call returns in an :class:`Emit`:
 
-- ``on_reference(stamp, block, now)`` — a reference block from the topic: NaN/Inf rejected; after a pause of
+- ``on_reference(stamp, block, now)`` — a reference block from the topic: NaN/Inf, an empty block, a stamp off the
+  sample grid and a sample outside ``reference_limit`` refused (counted, one ERROR line a second at most,
+  ``/diagnostics`` at ERROR while it lasts); a jump of more than 1 s in the stamps is a new stream or a stray stamp
+  (``input_jumps``), never lost samples; after a pause of
   ``max(hold_timeout, 0.5 s)`` a jump in the stamps starts a new stream, otherwise a jump forward is a gap (lost
   blocks, counted with their samples) and a jump back a late block; then the workspace clamp (counted, a WARN at
   most once a second), the tracking front and the cascade (``bypass``: the block is forwarded unchanged);
 - ``process(block, None, now)`` — a block of the held point: its stamp continues the stream (or starts it on the
   wall clock's sample grid);
-- ``on_applied(stamp, u, now)`` — the driver's applied voltage, for the re-synchronisation of the inverse models;
+- ``on_applied(stamp, u, now, foreign)`` — the driver's applied voltage, for the re-synchronisation of the inverse
+  models: only from the paired driver (the node says who else sent it), finite, on the grid, within
+  ``±limits.voltage`` and not beyond the stream produced — anything else refused and counted (``applied_rejected``);
 - ``propose(params)`` then ``commit(params)`` — a parameter change: validated as a whole
   (:meth:`ParameterBook.propose`, the on-set check; a rejection's reason starts with the field's name) and applied
   after (node settings, the tracking front, a new configuration — built in the background when it needs an H∞
@@ -317,6 +322,7 @@ class CompensatorCore:
         self._seen_failed = 0
         self._ws_warn = _Throttle(1.0)
         self._resync_warn = _Throttle(1.0)
+        self._jump_warn = _Throttle(1.0)
         self._reject_log = {"reference": _Throttle(1.0), "voltage_applied": _Throttle(1.0)}
         self._refused_now = {"reference": 0, "voltage_applied": 0}   # since the last diagnostics() call
         self._last_refusal = {"reference": "", "voltage_applied": ""}
@@ -370,7 +376,8 @@ class CompensatorCore:
         Returns
         -------
         Emit
-            The error line.
+            The error line (at most one a second per topic, with the count so far; every block is counted and
+            ``/diagnostics`` is at ERROR until the next report).
         """
         text = f"{topic} block rejected: {reason}"
         if topic == "reference":
@@ -459,8 +466,9 @@ class CompensatorCore:
         if not restart and expected is not None and abs(k0 - expected) > _MAX_GAP_S * self.cfg.sample_rate:
             # a stray stamp or a new stream, not lost blocks: counted as a jump, never as gap samples
             self.input["jumps"] += 1
-            em.log.append((WARN, f"reference stamps jumped by {k0 - expected} samples at stamp {stamp} (more "
-                                 f"than {_MAX_GAP_S:g} s): a new stream or a stray stamp, not counted as lost"))
+            if self._jump_warn.due(time.monotonic()):
+                em.log.append((WARN, f"reference stamps jumped by {k0 - expected} samples at stamp {stamp} (more "
+                                     f"than {_MAX_GAP_S:g} s): a new stream or a stray stamp, not counted as lost"))
         elif not restart and expected is not None and k0 != expected:
             if k0 > expected:
                 self.input["gaps"] += 1
