@@ -138,6 +138,17 @@ def test_poisoned_applied_voltage_is_refused_and_changes_no_state(base, case):
     assert np.all(np.isfinite(np.vstack(outs)))
 
 
+def test_the_cascade_never_follows_a_hold_of_absurd_length(base):
+    """Beneath the compensator's own check: the hot-swap cascade ignores an applied block far beyond the stream."""
+    from piezo_ff_ros.core.hot_swap import HotSwapCascade
+
+    hs = HotSwapCascade(make_core(base).cfg)
+    u = hs.process(held(5e-6), k0=0)
+    assert hs.applied(10**12, u) == "ignored"     # a 1e12-sample hold: 14.6 TiB before
+    u1 = hs.process(held(5e-6), k0=N)
+    assert hs.applied(N, u1) in ("match", "resync")   # tracking restarted with the next block
+
+
 def test_valid_applied_voltage_still_resynchronises(base):
     core = make_core(base)
     u0 = core.on_reference(S0, held(5e-6), 0.0).voltage[0].u
