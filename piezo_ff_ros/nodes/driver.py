@@ -381,7 +381,8 @@ class DriverNode(LifecycleNode):
         others = {t: self.count_publishers(t) - (1 if t == "voltage_applied" or self.has_sensor else 0)
                   for t in ("displacement", "voltage_applied")}
         if any(v > 0 for v in others.values()):
-            text = (f"another driver publishes on {self.resolve_topic_name('displacement')} (publishers besides this "
+            topics = ", ".join(self.resolve_topic_name(t) for t, v in others.items() if v > 0)  # the ones it is on
+            text = (f"another driver publishes on {topics} (publishers besides this "
                     f"one: {others}): two graphs on ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}? Give each "
                     "graph its own ROS_DOMAIN_ID or namespace (--ros-args -r __ns:=/tube2)")
             if text != self.conflict:
