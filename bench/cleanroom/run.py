@@ -50,9 +50,9 @@ def draw_split(split_seed, per_class, nulls):
     return cases
 
 
-def run_case(seed, cls, form, *, quick, workdir, python, timeout):
+def run_case(seed, cls, form, *, quick, workdir, python, timeout, sampler="point"):
     t0 = time.time()
-    case = truth.make_case(seed, cls, form, quick=quick)
+    case = truth.make_case(seed, cls, form, quick=quick, sampler=sampler)
     d = truth.write_case(case, Path(workdir) / f"{cls}__{form}__{seed}")
     gen_s = time.time() - t0
     out = d / "out.json"
@@ -137,6 +137,8 @@ def main(argv=None):
     ap.add_argument("--json", help="write rows + summary here")
     ap.add_argument("--keep", help="write the cases into this directory and keep them")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per CLI call")
+    ap.add_argument("--sampler", choices=truth.SAMPLERS, default="point",
+                    help="ADC model: ideal sample-and-hold (default) or zero-phase anti-alias low-pass + decimation")
     ap.add_argument("--list", action="store_true", help="print the case list and exit")
     a = ap.parse_args(argv)
     seed, per_class, nulls = SPLITS[a.split]
@@ -154,12 +156,13 @@ def main(argv=None):
     workdir = a.keep or tempfile.mkdtemp(prefix="cleanroom_")
     Path(workdir).mkdir(parents=True, exist_ok=True)
     t0 = time.time()
-    print(f"split={a.split} seed={seed} cases={len(cases)} quick={a.quick} workdir={workdir}", flush=True)
+    print(f"split={a.split} seed={seed} cases={len(cases)} quick={a.quick} sampler={a.sampler} "
+          f"generator={truth.GENERATOR_VERSION} workdir={workdir}", flush=True)
     print(HEADER, flush=True)
     rows = []
     with cf.ThreadPoolExecutor(max_workers=max(1, a.jobs)) as ex:
         futs = {ex.submit(run_case, s, c, f, quick=a.quick, workdir=workdir, python=sys.executable,
-                          timeout=a.timeout): (s, c, f) for s, c, f in cases}
+                          timeout=a.timeout, sampler=a.sampler): (s, c, f) for s, c, f in cases}
         for fut in cf.as_completed(futs):
             s, c, f = futs[fut]
             try:
@@ -182,7 +185,8 @@ def main(argv=None):
     print(f"per class: {summ['per_class']}")
     print(f"errors: {summ['errors']}; wall {summ['wall_s']} s")
     if a.json:
-        Path(a.json).write_text(json.dumps({"split": a.split, "seed": seed, "quick": a.quick, "rows": rows,
+        Path(a.json).write_text(json.dumps({"split": a.split, "seed": seed, "quick": a.quick, "sampler": a.sampler,
+                                            "generator": truth.GENERATOR_VERSION, "rows": rows,
                                             "summary": summ}, indent=1))
     if not a.keep:
         import shutil
