@@ -25,6 +25,7 @@ SUBCOMMANDS = ["reproduce", "demo", "analyze", "identify", "commission", "diagno
 #: later subcommands, one statement each, so that parallel additions merge without conflicts
 SUBCOMMANDS += ["recover"]
 SUBCOMMANDS += ["track"]
+SUBCOMMANDS += ["hold", "param", "echo", "lifecycle"]   # ROS helpers where the ros2 CLI is absent (pip wheels)
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERNAL = 1
