@@ -64,3 +64,26 @@ def test_helpers_step_the_driver_set_parameters_hold_a_point_and_echo(tmp_path):
         assert r.returncode == 2 and "did you mean /plot_error" in r.stderr, r.stderr
     finally:
         assert [stop_node(p) for p in procs] == [0, 0, 0]
+
+
+def test_the_documented_ros2_param_set_form_of_config_yaml_is_a_string(tmp_path):
+    """What ``ros2 param set`` does with its VALUE (rclpy's own ``get_parameter_value``): the raw mapping fails with
+    the issue's TypeError; the block literal docs/nodes.md shows — built by the shell exactly as written there —
+    arrives as a string holding the file's contents."""
+    from rcl_interfaces.msg import ParameterType
+    from rclpy.parameter import get_parameter_value
+
+    change = tmp_path / "change.yaml"
+    change.write_text("creep.Cr.xx.den: [1.0, 0.12809, 0.001443844]\ncreep.Cr.xx.den_deg: [2]\n")
+    from rclpy.serialization import serialize_message
+
+    with pytest.raises(TypeError):   # what `ros2 param set … "$(cat change.yaml)"` sends: a dict where a string goes
+        serialize_message(get_parameter_value(change.read_text()))
+    docs = (__import__("pathlib").Path(__file__).resolve().parents[1] / "docs" / "nodes.md").read_text()
+    assert 'ros2 param set /compensator config_yaml "|\n$(sed \'s/^/  /\' change.yaml)"' in docs
+    arg = subprocess.run(["bash", "-c", 'printf %s "|\n$(sed \'s/^/  /\' change.yaml)"'], cwd=tmp_path,
+                         capture_output=True, text=True, check=True).stdout
+    value = get_parameter_value(arg)
+    serialize_message(value)
+    assert value.type == ParameterType.PARAMETER_STRING
+    assert value.string_value == change.read_text().rstrip("\n")      # the file, less its last newline
