@@ -33,19 +33,21 @@ def test_readme_rig_block_runs_as_written(tmp_path):
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT)          # this tree's code behind the venv's console scripts
     # its own session: whatever the block leaves running (bash -e stops at a failed line) is ended by group id
-    p = subprocess.Popen(["bash", "-euo", "pipefail", "-c", script], cwd=tmp_path, env=env, text=True,
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
-    try:
-        out, err = p.communicate(timeout=600)
-    finally:
+    with open(tmp_path / "out.txt", "w") as out, open(tmp_path / "err.txt", "w") as err:
+        p = subprocess.Popen(["bash", "-euo", "pipefail", "-c", script], cwd=tmp_path, env=env, text=True,
+                             stdout=out, stderr=err, start_new_session=True)
         try:
-            os.killpg(p.pid, signal.SIGINT)
-        except ProcessLookupError:
-            pass
-        if p.poll() is None:
-            p.kill()
-            out, err = p.communicate()
-    r = subprocess.CompletedProcess(p.args, p.returncode, out, err)
+            p.wait(timeout=600)
+        finally:
+            try:
+                os.killpg(p.pid, signal.SIGINT)
+            except ProcessLookupError:
+                pass
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+    r = subprocess.CompletedProcess(p.args, p.returncode, (tmp_path / "out.txt").read_text(),
+                                    (tmp_path / "err.txt").read_text())
     problems = [ln for ln in r.stderr.splitlines() if "[INFO]" not in ln and "[WARN]" not in ln]
     assert r.returncode == 0, r.stdout[-3000:] + "\n--- stderr (no INFO/WARN):\n" + "\n".join(problems[-40:])
     assert "active" in r.stdout and "holding [1e-05, 0.0]" in r.stdout
