@@ -9,12 +9,19 @@ confirms the jump; with no block for ``limits.stale_timeout`` s the output ramps
 ``safe_ramp`` (its own duration and slew).  ``voltage_applied`` carries every sample the device actually output
 (holds and ramps included) on the stamp grid of ``voltage``; ``displacement`` the sensor samples on the same grid.
 
-Parameters (read-only, validated at start-up; a bad one is a one-line error naming it): ``config_file``,
-``variant``, ``backend`` (``sim``; plug-ins: ``piezo_ff_ros.backends`` entry points) and its ``<backend>.*``
-parameters, ``noise_std`` [m] and ``seed`` (sim sensor), ``max_block`` [samples], ``max_gap``, ``write_ahead``,
-``low_water`` [s], ``joint_states_rate`` [Hz], ``diagnostics_period`` [s], ``limits.voltage|slew|stale_timeout|
-safe_voltage`` (default the config's; may only tighten them), ``safe_ramp.duration|slew``.  Service ``~/reset``
-(std_srvs/Trigger): back to rest (simulator only).
+A managed (lifecycle) node: ``configure`` validates the parameters, opens the backend at the safe voltage and
+warms the kernels (a failure: one line, still unconfigured); ``activate`` applies voltage blocks; ``deactivate``
+ramps to the safe voltage (played on the device) and holds it, ignoring blocks; ``cleanup`` closes the backend;
+``shutdown`` (any state), SIGINT/SIGTERM and an error in a transition ramp to safe, then close.  ``autostart``
+(default true) steps it to active at start, so ``ros2 run`` behaves as a plain node.
+
+Parameters (validated at configure; settable only while unconfigured; a bad one is a one-line error naming it):
+``autostart``, ``config_file``, ``variant``, ``backend`` (``sim``; plug-ins: ``piezo_ff_ros.backends`` entry points)
+and its ``<backend>.*`` parameters, ``noise_std`` [m] and ``seed`` (sim sensor), ``max_block`` [samples],
+``max_gap``, ``write_ahead`` (default :data:`DEFAULT_WRITE_AHEAD_S`), ``low_water`` [s], ``joint_states_rate`` [Hz],
+``diagnostics_period`` [s], ``limits.voltage|slew|stale_timeout|safe_voltage`` (default the config's; may only
+tighten them), ``safe_ramp.duration|slew``.  Service ``~/reset`` (std_srvs/Trigger): back to rest (simulator only).
+A late or starved stream and stale input are named once with the setting that fixes them (a ``hint:`` line).
 """
 from __future__ import annotations
 
