@@ -133,19 +133,19 @@ class DriverNode(LifecycleNode):
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Safe ramp now, then hold the safe voltage; blocks are ignored until activated again."""
-        self._to_safe("deactivated")
+        self._logged("deactivate", self._to_safe, "deactivated")
         self.get_logger().info("inactive: output held at the safe voltage, blocks ignored "
                                "(`ros2 lifecycle set /driver activate` resumes)")
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Close the backend (the output is at the safe voltage since deactivate)."""
-        self._close()
+        self._logged("cleanup", self._close)
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         """From any state: the safe voltage by a ramp, then the backend closed."""
-        self._close()
+        self._logged("shutdown", self._close)
         return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -157,6 +157,15 @@ class DriverNode(LifecycleNode):
             self.get_logger().error(f"closing after the error failed: {exc}")
             return TransitionCallbackReturn.FAILURE
         return TransitionCallbackReturn.SUCCESS
+
+    def _logged(self, transition: str, fn: Any, *args: Any) -> None:
+        """Run a transition's work; an exception is logged in one line (rclpy would swallow it), then raised so
+        that the node goes through ErrorProcessing (:meth:`on_error`)."""
+        try:
+            fn(*args)
+        except Exception as exc:
+            self.get_logger().error(f"{transition} failed: {exc}")
+            raise
 
     def finish(self) -> None:
         """The process ends (SIGINT/SIGTERM or an error): from whatever state, ramp to safe and close."""
