@@ -200,7 +200,10 @@ def test_an_error_in_a_transition_goes_through_error_processing_to_safe():
 
     ctx = Context()
     rclpy.init(context=ctx)
-    node = DriverNode(context=ctx, parameter_overrides=[rclpy.parameter.Parameter("autostart", value=False)])
+    # renamed and namespaced: no later test of this session may take it for a running driver (`/driver`, `/voltage`)
+    node = DriverNode(context=ctx, namespace="/lifecycle_error_test",
+                      cli_args=["--ros-args", "-r", "__node:=driver_error_test"],
+                      parameter_overrides=[rclpy.parameter.Parameter("autostart", value=False)])
     try:
         assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
         assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
