@@ -48,7 +48,7 @@ def test_held_point_is_in_the_recording_and_analyze_reports_its_tracking_error(t
     run = read_run(mcap)
     assert run.reference is not None
     held = ~np.isnan(run.reference[:, 0])
-    assert held.sum() >= 100 * 200
+    assert held.sum() >= 90 * 200   # the run spans where every topic has samples: the last blocks may fall outside
     np.testing.assert_array_equal(np.unique(run.reference[held], axis=0), [[5e-6, -2e-6]])
     r = subprocess.run([sys.executable, "-m", "piezo_ff_ros", "analyze", str(mcap)], env=child_env(),
                        capture_output=True, text=True, timeout=300)
