@@ -410,8 +410,12 @@ def plot_run(run: RunData, out_dir: str | Path, max_points: int = 20000) -> list
             ax.plot(t, to_um(run.y[sl, j]), lw=1, label="displacement")
             ax.set_ylabel(f"{axis} [µm]")
             ax.legend(loc="best", fontsize=8)
-            if run.reference is not None:
+            if run.reference is not None and np.isfinite(run.reference[sl, j]).any():
                 axs[1][j].plot(t, to_um(run.y[sl, j] - run.reference[sl, j]), lw=1, color="C3")
+            else:   # an empty panel says why
+                axs[1][j].text(0.5, 0.5, "no reference recorded here: no tracking error\n(the recording has no "
+                               "`reference` blocks for this span)", ha="center", va="center",
+                               transform=axs[1][j].transAxes, fontsize=9, color="0.3")
             axs[1][j].set_ylabel(f"error {axis} [µm]")
             axs[2][j].plot(t, run.u[sl, j], lw=1, color="C2")
             axs[2][j].set_ylabel(f"u{axis} [V]")

@@ -20,7 +20,9 @@ numbers, a range.
 Other parameters: ``config_file`` and ``variant`` (read-only: the base configuration), ``crossfade`` [s] (output
 crossfade at a swap), ``block_size`` (samples per block generated from a held ``reference_point``),
 ``hold_timeout`` [s] (the held point is played only while no ``reference`` block arrived for this long; played
-from one executor timer, paced by :class:`~piezo_ff_ros.core.hold_pacer.HoldPacer`),
+from one executor timer, paced by :class:`~piezo_ff_ros.core.hold_pacer.HoldPacer`; its blocks also go out on
+``reference``, stamped like their voltage blocks, so that a recording and the plots hold what the stage was asked to
+do whatever its source),
 ``bypass`` (bool: the reference blocks are voltages [V] forwarded unchanged, for open-loop characterisation such as
 the paper's S0 experiments; the cascade is not run).
 ``resync`` (bool, default true): follow ``voltage_applied`` (the driver's applied voltage, same block layout
@@ -49,6 +51,7 @@ import json
 import sys
 import threading
 import time
+from collections import deque
 from typing import Any, Sequence
 
 import numpy as np
@@ -219,6 +222,8 @@ class CompensatorNode(Node):
         self.core = CompensatorCore(book, cfg, settings, applied_feedback=self._driver_publishes)
 
         self.pub_u = self.create_publisher(PointCloud2, "voltage", BLOCK_QOS)
+        self.pub_ref = self.create_publisher(PointCloud2, "reference", BLOCK_QOS)   # a held point's blocks
+        self._own_reference: deque[int] = deque(maxlen=1000)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.pub_config = self.create_publisher(String, "~/config", CONFIG_QOS)
         self.create_subscription(PointCloud2, "reference", self.on_reference, BLOCK_QOS)
@@ -359,6 +364,8 @@ class CompensatorNode(Node):
     # -- data path -------------------------------------------------------------------------------------------------
     def on_reference(self, msg: PointCloud2) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
+        if stamp in self._own_reference:   # a held point's block this node published itself
+            return
         with self._lock:
             try:
                 block = unpack_block(msg, self.core.axes)
@@ -369,9 +376,16 @@ class CompensatorNode(Node):
 
     def _process_and_publish(self, block: np.ndarray, stamp: int | None) -> None:
         """One block through the core and out (``stamp`` None: continue the stream, as the held point does); one
-        lock around the core and the publish."""
+        lock around the core and the publish.  A held point's blocks also go out on ``reference`` (what the stage
+        is asked to do is recorded and plotted whatever its source); :meth:`on_reference` ignores them."""
         with self._lock:
-            self._emit(self.core.process(block, stamp, time.monotonic()))
+            em = self.core.process(block, stamp, time.monotonic())
+            if stamp is None:
+                for vb in em.voltage:
+                    self._own_reference.append(vb.stamp)
+                    self.pub_ref.publish(pack_block(np.repeat(block[:1], vb.u.shape[0], axis=0), self.core.axes,
+                                                    vb.stamp))
+            self._emit(em)
 
     def _refresh_driver_gids(self, now: float) -> None:
         """The publisher GIDs of the paired driver on ``voltage_applied`` (looked up in the graph, at most every

@@ -6,7 +6,8 @@ definitions, ``cdr`` messages, ``offered_qos_profiles`` + ``topic_type_hash`` pe
 recorder leaves a file readable up to its last flushed chunk (flushed at least every ``flush_interval`` s).
 
 Parameters: ``output`` (file, default ``run_<UTC time>.mcap``), ``topics`` (default reference, voltage,
-displacement, experiment, /diagnostics, /parameter_events; relative names resolve in the node's namespace),
+displacement, voltage_applied, experiment, /diagnostics, /parameter_events, compensator/config and the plotter's
+plot_reference/voltage/displacement/error; relative names resolve in the node's namespace),
 ``config_file``/``variant`` (the PiezoConfig stored in the metadata), ``metadata`` (extra JSON object),
 ``flush_interval`` [s], ``discovery_period`` [s] (how often topics of unknown type are looked up in the graph),
 ``t0_ns`` and ``block_size`` (the run's sample origin [ns] and block size, written to the metadata; 0 = not given:
@@ -44,13 +45,17 @@ from .common import CONFIG_QOS, LATCHED_QOS, RECORD_QOS, diag_values, run_node
 from .params import refuse_unknown_parameters
 
 DEFAULT_TOPICS = ["reference", "voltage", "displacement", "experiment", "/diagnostics", "/parameter_events",
-                  "compensator/config", "voltage_applied"]
+                  "compensator/config", "voltage_applied",
+                  # the plotter's decimated topics (nodes/plotter.py): a run.mcap opened in Foxglove plots them
+                  "plot_reference", "plot_voltage", "plot_displacement", "plot_error"]
 KNOWN_TYPES = {"reference": "sensor_msgs/msg/PointCloud2", "voltage": "sensor_msgs/msg/PointCloud2",
                "displacement": "sensor_msgs/msg/PointCloud2", "experiment": "std_msgs/msg/String",
                "joint_states": "sensor_msgs/msg/JointState", "reference_point": "geometry_msgs/msg/PointStamped",
                "diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
                "parameter_events": "rcl_interfaces/msg/ParameterEvent", "config": "std_msgs/msg/String",
-               "voltage_applied": "sensor_msgs/msg/PointCloud2"}
+               "voltage_applied": "sensor_msgs/msg/PointCloud2",
+               **dict.fromkeys(("plot_reference", "plot_voltage", "plot_displacement", "plot_error"),
+                               "geometry_msgs/msg/PointStamped")}
 #: the experiment markers are transient-local: a recorder started late still gets the current segment
 _LATCHED = {"experiment"}
 #: chunks hold at most this many bytes of uncompressed records (docs/topics.md): the recorder closes the open
