@@ -259,3 +259,19 @@ def test_commissioned_plant_reproduces_the_truth_on_held_out_voltages(cfg, noise
         # identify_all on the recorded runs reports the same whole-plant figure
         _, rep2 = identify_all(runs, base=cfg, synthesize=False)
         assert rep2.fit_percent["plant"] == pytest.approx(plant_fit, abs=0.5)
+
+
+
+def test_a_modal_fit_with_a_single_unknown_pole():
+    """One real pole to fit (a single-axis creep entry of order 1): the bounded solver finds it (it stopped with
+    an IndexError inside scipy's 2-D trust-region step)."""
+    from piezo_ff_ros.core.identification.modal import fit_row, poles_to_theta
+
+    dt = 1e-3
+    t = np.arange(4000) * dt
+    u = (t > 0.1).astype(float)
+    y = 2.0 * (1 - np.exp(-5.0 * np.clip(t - 0.1, 0, None))) * (t > 0.1)   # 2/(s/5 + 1): pole at −5 rad/s
+    y = y + 1e-3 * np.random.default_rng(0).standard_normal(len(t))
+    th0, st = poles_to_theta(np.array([-0.001]))   # started slow, as an automatic order search may
+    models, _ = fit_row([y], [[u]], [st], [th0], dt)
+    assert models[0].poles().real[0] == pytest.approx(-5.0, rel=0.05)
