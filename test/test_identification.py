@@ -224,7 +224,8 @@ def test_commissioned_plant_reproduces_the_truth_on_held_out_voltages(cfg, noise
     """Issue 4 acceptance: stage-by-stage commissioning of the paper's sim plant (60 s creep steps), then the
     identified *whole* plant (Bouc-Wen → K + Cr → G_L, as exported) simulated from the held-out multisine + step
     pair record: fit ≥ 99 % noise-free, ≥ 95 % with 100 nm sensor noise scored against the noisy measurement."""
-    from piezo_ff_ros.core.identification.pipeline import commission_sim, identify_all
+    from piezo_ff_ros.core.commissioning import commission_sim
+    from piezo_ff_ros.core.identification.pipeline import identify_all
     from piezo_ff_ros.core.reproduce import truth_plant
 
     truth = truth_plant(cfg, "nominal", noise_nm * 1e-9, seed=2)

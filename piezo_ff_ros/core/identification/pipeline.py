@@ -4,8 +4,10 @@
   plant} and ``meta['role']`` ∈ {fit, validation}; the characterisation and ``piezo-ff identify`` tag them).
   ``plant`` runs (voltages into S0, never fitted on) score the identified model of the *whole* plant,
   ``Plant(identified config)``, against the measured output: :func:`plant_fit`.
-- :func:`commission_sim` runs the characterisation stage by stage on a core sim plant (no ROS), each stage through
-  the compensators identified before it, and identifies as it goes.
+
+The characterisation sequence that produces such runs, stage by stage through the compensators identified before
+(and :func:`~piezo_ff_ros.core.commissioning.commission_sim` on a core sim plant), is the commissioning's
+(:mod:`piezo_ff_ros.core.commissioning`): this module only fits recorded runs.
 """
 from __future__ import annotations
 
@@ -23,20 +25,16 @@ from .creep import identify_creep
 from .dynamics import identify_dynamics
 
 if TYPE_CHECKING:
-    from ..characterisation import CharacterisationSettings
-    from ..commissioning import CommissionReport
     from ..config import CreepConfig
-    from ..stage import Processor
     from ..synthesis.hinf import HinfDesign
-    from ..trajectories import Trajectory
     from .bouc_wen import BoucWenFit
     from .creep import CreepFit
     from .dynamics import DynamicsFit
 
 Fits = dict[str, float | None]  #: fit [%] per axis/entry (None where not finite)
 
-__all__ = ["identify_all", "commission_sim", "split_runs", "build_config", "synthesize_for", "with_hinf_controller", "plant_fit",
-           "IdentificationReport"]
+__all__ = ["identify_all", "split_runs", "build_config", "fits_report", "synthesize_for", "with_hinf_controller",
+           "plant_fit", "simulate_plant", "refit_hysteresis_without_creep", "IdentificationReport", "REFIT_TAG"]
 
 STAGES = ("hysteresis", "creep", "dynamics")
 #: a run is fitted on or only scored on
@@ -146,7 +144,8 @@ def fits_report(hf: BoucWenFit, cf: CreepFit | None, df: DynamicsFit | None, axe
     return out
 
 
-def _simulate_plant(cfg: PiezoConfig, u: np.ndarray, fs: float) -> np.ndarray:
+def simulate_plant(cfg: PiezoConfig, u: np.ndarray, fs: float) -> np.ndarray:
+    """The identified whole plant ``Plant(cfg)`` (noise-free, from rest) driven by ``u`` [V] at ``fs`` [Hz]."""
     from ..models.plant import Plant
 
     pcfg = cfg if abs(cfg.sample_rate - fs) <= 1e-9 * fs else cfg.with_sample_rate(fs)
@@ -166,7 +165,7 @@ def plant_fit(cfg: PiezoConfig, runs: Sequence[RunData], reference_outputs: Sequ
     ys, yh = [], []
     for i, r in enumerate(runs):
         ys.append(r.y if reference_outputs is None else reference_outputs[i])
-        yh.append(_simulate_plant(cfg, r.u, r.sample_rate))
+        yh.append(simulate_plant(cfg, r.u, r.sample_rate))
     f = fit_percent(np.vstack(ys), np.vstack(yh))
     return {a: (None if not np.isfinite(v) else round(float(v), 3)) for a, v in zip(runs[0].axes, f)}
 
@@ -309,25 +308,6 @@ def with_hinf_controller(cfg: PiezoConfig, say: Callable[[str], None] = lambda s
     return replace(cfg, vibration=vib).validate(), design, note
 
 
-def commission_sim(plant: Processor, fs: float, axes: Sequence[str] = ("x", "y"),
-                   settings: CharacterisationSettings | None = None, base: PiezoConfig | None = None,
-                   generalized: bool = False, creep_order: int | str = "auto", dynamics_order: int | str = "auto",
-                   refine_hysteresis: bool = True,
-                   progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, CommissionReport, list[RunData]]:
-    """Characterise and identify stage by stage on a sim plant (``process``/``reset``), as in Fig. 3.
-
-    The sequence of :func:`piezo_ff_ros.core.commissioning.commission` on a
-    :class:`~piezo_ff_ros.core.commissioning.SimRig`, without the H∞ synthesis.  Returns ``(config, report, runs)``;
-    ``runs`` are tagged so :func:`identify_all` can redo the identification.
-    """
-    from ..commissioning import SimRig, commission
-
-    res = commission(SimRig(plant, fs, axes), base=base, settings=settings, generalized=generalized,
-                     creep_order=creep_order, dynamics_order=dynamics_order, refine_hysteresis=refine_hysteresis,
-                     synthesize=False, progress=progress)
-    return res.config, res.report, res.runs
-
-
 def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg: CreepConfig, generalized: bool = False,
                                    init: BoucWenFit | None = None,
                                    progress: Callable[[str], None] | None = None, **bouc_wen: Any) -> BoucWenFit:
@@ -347,23 +327,3 @@ def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg: Cree
         out["validation" if r.meta.get("role") == "validation" else "fit"].append(replace(r, y=cc.process(r.y)))
     return identify_bouc_wen(out["fit"], out["validation"], generalized=generalized, init=init, progress=progress,
                              **bouc_wen)
-
-
-def part_fits(cfg: PiezoConfig, run: RunData, y_ref: np.ndarray, traj: Trajectory,
-              axes: Sequence[str]) -> dict[str, dict[str, float]]:
-    """Whole-plant fit on each part of the validation record (multisine: hysteresis loops and G_L in the band;
-    step pair: creep and the G_L transients), to see which stage limits the whole-record figure."""
-    from ..trajectories import Sequence as TrajSequence
-    from .metrics import fit_percent
-
-    if not isinstance(traj, TrajSequence):
-        raise ValueError(f"part_fits: the validation record must be a sequence of named parts, got {traj.kind}")
-    y_model = _simulate_plant(cfg, run.u, run.sample_rate)
-    segs = {seg.name: seg for seg in traj.segments(run.sample_rate)}
-    parts = {"multisine": (segs["multisine_full"].start, segs["multisine_half"].stop),
-             "step_pair": (segs["multisine_half"].stop, len(run))}
-    out = {}
-    for name, (k0, k1) in parts.items():
-        f = fit_percent(y_ref[k0:k1], y_model[k0:k1])
-        out[name] = {a: round(float(v), 3) for a, v in zip(axes, f)}
-    return out

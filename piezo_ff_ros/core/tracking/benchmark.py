@@ -11,7 +11,7 @@ Methods (each ends in the same amplifier: ±voltage and slew, applied by the cas
 Truths: ``nominal`` (model = plant), ``asymmetric`` (generalized Bouc-Wen truth, the compensators keep the printed
 symmetric model), ``noise_100nm`` (nominal plant, 100 nm RMS white sensor noise in the learning trials; the figures
 are of the true displacement), ``identified`` (the compensators built from a config identified on the simulated
-printed plant, :func:`~..identification.pipeline.commission_sim`; the truth is the printed plant).
+printed plant, :func:`~..commissioning.commission_sim`; the truth is the printed plant).
 
 Every reference starts with a 0.1 s smooth lead-in from rest to its first sample.  Errors are the Euclidean
 distance ``|y − r|`` (over every axis) read on a window: the last revolution of a circle, a helix or a sine, the lines
