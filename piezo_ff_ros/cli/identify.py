@@ -1,10 +1,12 @@
 """``piezo-ff identify``: recorded characterisation runs → a complete config the compensator loads.
 
-Runs come from MCAP (recorded by the node graph), CSV or MATLAB .mat.  Each file (or each run inside it) must be
+Runs come from MCAP (recorded by the node graph), CSV, MATLAB .mat, or a ``u_<tag>.npy``/``y_<tag>.npy`` pair of
+periodic records (one run per realization; ``--sample-rate``).  Each file (or each run inside it) must be
 tagged with its stage (hysteresis / creep / dynamics) — from the recording's metadata, or from the file name
 (``*hyst*``, ``*creep*``, ``*dyn*``; ``*val*`` or ``*held*`` marks a held-out run), or with ``--stage``.
-Any number of axes, and hysteresis alone (a single-stage record) or hysteresis and creep are enough: the stages
-without runs keep the ``--base`` config's parameters (whose axes must be the runs') and are switched off.
+Any number of axes; hysteresis is required, creep and dynamics are optional (a hysteresis-only record; voltage
+records of a stage without creep, whose dynamics runs need no reference): a stage without runs is switched off
+(creep none, G_L the ``--base`` config's, whose axes must be the runs').
 For creep and dynamics runs the input of the characterised system (Y_H / Y_L) must be recorded as the reference
 (CSV columns ``r_<axis>``, .mat variable ``r``).
 """
@@ -35,6 +37,8 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
                    help="hysteresis: identify a constant sensor offset (measured records)")
     p.add_argument("--delay", type=int, default=0, metavar="N",
                    help="hysteresis: samples by which the measured output lags the voltage (default 0)")
+    p.add_argument("--sample-rate", type=float, default=None, metavar="HZ",
+                   help="sample rate of .npy records (the u_<tag>.npy / y_<tag>.npy layout holds none)")
     p.add_argument("--skip", type=float, default=0.0, metavar="S",
                    help="hysteresis: seconds at the start of each run left out (initial transient; default 0)")
     p.add_argument("--quiet", action="store_true")
@@ -57,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.config import load_config
     from ..core.identification.pipeline import identify_all
     from ..core.jsonable import parse_order
-    from ..core.recording.run import load_run
+    from ..core.recording.run import RunData, load_run
 
     from . import output_file
 
@@ -81,7 +85,12 @@ def run(args: argparse.Namespace) -> int:
     for i, f in enumerate(args.data):
         p = Path(f)
         say(f"loading {p}")
-        loaded = load_run(p)
+        if p.suffix.lower() == ".npy":   # a u_/y_ pair of periodic records: one run per realization
+            from ..core.recording.importers import load_npy_realizations
+
+            loaded: RunData | list[RunData] = load_npy_realizations(p, sample_rate=args.sample_rate)
+        else:
+            loaded = load_run(p)
         items = loaded if isinstance(loaded, list) else [loaded]
         for r in items:
             if args.stage is not None:
@@ -104,9 +113,8 @@ def run(args: argparse.Namespace) -> int:
     print("held-out fit [%] (MATLAB compare):")
     for stage, d in fits.items():
         print(f"  {stage:10s} " + "  ".join(f"{k}: {v:.2f}" if v is not None else f"{k}: n/a" for k, v in d.items()))
-    if report.kept_from_base:
-        print(f"  not identified (no runs), kept from the base config and switched off: "
-              f"{', '.join(report.kept_from_base)}")
+    for stage, what in (report.not_identified or {}).items():
+        print(f"  {stage:10s} not identified (no runs): {what}")
     if args.json:
         Path(args.json).write_text(json.dumps(report.to_json(), indent=2))
     return 0

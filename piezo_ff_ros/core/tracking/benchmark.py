@@ -96,7 +96,7 @@ def benchmark_cases(quick: bool = False, axes: Sequence[str] = ("x", "y")) -> li
     cases.append(Case("spiral", 20, 10, on_stage(Spiral(radius=20 * um, frequency=10, revolutions=5), axes)))
     if len(axes) >= 3:
         rest = [Hold(value=0.0, duration=0.1, axes=axes[3:])] if len(axes) > 3 else []
-        h = helix(20 * um, 10, 4, 10 * um, axes=axes[:3])
+        h = helix(20 * um, 10, 4, 10 * um, axes=(axes[0], axes[1], axes[2]))
         cases.append(Case("helix", 20, 10, PerAxis(list(h.parts) + rest, axes=axes)))
         ras = Raster(width=20 * um, lines=6, line_rate=10, axes=axes[:2], fast_axis=axes[0])
         ramp = Ramp(start=0.0, end=10 * um, duration=ras.duration, axes=axes[2:3])
