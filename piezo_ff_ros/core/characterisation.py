@@ -92,10 +92,11 @@ def hysteresis_trajectories(s: CharacterisationSettings,
         return _sum(axes, [Sine(amplitude=s.sine_amplitude, frequency=s.sine_frequency, axis=a, phase=i * np.pi / 2,
                                 duration=T, axes=axes_t) for i, a in enumerate(moving)])
 
-    if len(axes_t) <= 2:
+    if len(axes_t) == 2:
         fit.append(("sine_all", together(axes_t)))
-    else:
-        # three sines of one frequency span a plane only: one run per pair of axes, so every cross term is seen
+    elif len(axes_t) > 2:
+        # (one axis: its own sine is all there is) three sines of one frequency span a plane only: one run per pair
+        # of axes, so every cross term is seen
         fit += [(f"sine_{a}{b}", together((a, b))) for i, a in enumerate(axes_t) for b in axes_t[i + 1:]]
     va = s.validation_fraction * s.sine_amplitude
     # held out: every axis at once at another amplitude and phase, a quarter period apart with two axes (a circle,
