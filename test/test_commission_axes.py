@@ -34,7 +34,7 @@ def test_a_starting_config_whose_axes_differ_from_the_rigs_is_refused():
 def test_commission_identifies_every_axis_and_pair_of_the_configured_stage(name, axes):
     cfg = load_config(CONFIG / f"{name}.yaml")
     rig = SimRig(Plant(cfg), cfg.sample_rate, cfg.axes)
-    res = commission(rig, base=cfg, settings=SHORT, creep_order=2, dynamics_order=4 if len(axes) == 1 else 2,
+    res = commission(rig, base=cfg, settings=SHORT, creep_order=2, dynamics_order="auto",
                      synthesize=True)
     assert res.config.axes == axes and res.config.name == f"{name}_identified"
     pairs = {o + i for o in axes for i in axes}

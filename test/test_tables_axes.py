@@ -96,4 +96,4 @@ def test_feedforward_on_three_and_one_axes(tmp_path):
         if name == "c":
             assert np.abs(u[:, 2]).max() < 1e-6 and np.abs(u[:, :2]).max() > 30
         if name == "h":
-            assert u[-1, 2] > 30   # 5 µm up on z (0.12 µm/V)
+            assert u[-1, 2] > 25   # 5 µm up on z (0.16 µm/V)
