@@ -212,8 +212,8 @@ def test_identify_cli_errors(cfg, tmp_path, capsys):
     np.savetxt(anon, data, delimiter=",", header="t,u_x,u_y,x,y", comments="")
     fails(["identify", "--data", str(anon), "--out", out, "--quiet"], "cannot tell its stage")
     fails(["identify", "--data", str(anon), "--stage", "creep", "dynamics", "--out", out], "--stage")
-    # a config without creep/dynamics runs cannot be completed: says which stage is missing
-    fails(["identify", "--data", str(anon), "--stage", "hysteresis", "--out", out, "--quiet"], "'creep'")
+    # every identification starts with the hysteresis: runs of a later stage alone say which one is missing
+    fails(["identify", "--data", str(anon), "--stage", "creep", "--out", out, "--quiet"], "'hysteresis'")
     fails(["identify", "--data", str(tmp_path / "missing.csv"), "--stage", "hysteresis", "--out", out],
           "missing.csv")
     assert not (tmp_path / "o.yaml").exists()
