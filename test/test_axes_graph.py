@@ -62,3 +62,25 @@ def test_commission_graph_recording_analyze(tmp_path, name, axes, only):
         assert "x←z" in a.stdout and "circle20_T" in analysis["tracking"]
     else:
         assert "one axis: no cross-coupling" in a.stdout
+
+
+def test_commission_refuses_a_driver_of_other_axes(tmp_path):
+    """A running driver loaded with the XYZ tube's config, commissioning started from the paper's 2-axis config:
+    refused in one line naming both axis sets, before anything moves (no recording written)."""
+    from test_nodes_integration import start_node, stop_node
+
+    driver = start_node("driver", "-p", f"config_file:={ROOT / 'config' / 'xyz_tube.yaml'}", log_dir=tmp_path)
+    try:
+        env = dict(os.environ)
+        env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+        r = subprocess.run([sys.executable, "-m", "piezo_ff_ros", "commission", "--out", str(tmp_path / "c"),
+                            "--quiet", "--creep-duration", "2", "--probe-timeout", "10",
+                            "--domain-id", os.environ["ROS_DOMAIN_ID"]],
+                           env=env, capture_output=True, text=True, timeout=300)
+    finally:
+        assert stop_node(driver) == 0
+    assert r.returncode == 2, r.stderr[-2000:]
+    err = r.stderr.strip().splitlines()
+    assert len(err) == 1 and "Traceback" not in r.stderr
+    assert "['x', 'y']" in err[0] and "['x', 'y', 'z']" in err[0], err
+    assert not (tmp_path / "c" / "commission.mcap").exists()
