@@ -37,6 +37,9 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
                    help="hysteresis: identify a constant sensor offset (measured records)")
     p.add_argument("--delay", type=int, default=0, metavar="N",
                    help="hysteresis: samples by which the measured output lags the voltage (default 0)")
+    p.add_argument("--input-gain", type=float, default=1.0, metavar="G",
+                   help="volts at the actuator per recorded volt (records of an amplifier's input; default 1): the "
+                        "fits do not depend on it, the identified parameters are per actuator volt")
     p.add_argument("--sample-rate", type=float, default=None, metavar="HZ",
                    help="sample rate of .npy records (the u_<tag>.npy / y_<tag>.npy layout holds none)")
     p.add_argument("--skip", type=float, default=0.0, metavar="S",
@@ -79,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
         if st not in STAGE_NAMES or (role and role not in ("fit", "validation")):
             raise ValueError(f"--stage {spec!r}: expected STAGE[:ROLE] with STAGE one of {list(STAGE_NAMES)} and "
                              "ROLE fit or validation")
+    if not (0 < args.input_gain < float("inf")):
+        raise ValueError(f"--input-gain must be a positive number, got {args.input_gain}")
     if args.delay < 0 or not (args.skip >= 0 and args.skip < float("inf")):
         raise ValueError(f"--delay and --skip must be >= 0, got {args.delay} and {args.skip}")
     runs = []
@@ -102,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
                     raise ValueError(f"{p}: cannot tell its stage (name it *hyst*/*creep*/*dyn* or use --stage)")
                 r.meta["stage"] = st
                 r.meta.setdefault("role", role)
+            if args.input_gain != 1.0:
+                r.u = r.u * args.input_gain
             runs.append(r)
     base = load_config(args.base) if args.base else load_config()
     cfg, report = identify_all(runs, base=base, generalized=args.generalized, creep_order=parse_order(args.creep_order),
