@@ -107,3 +107,26 @@ def test_npy_realizations_layout(tmp_path):
     np.save(tmp_path / "y_um.npy", y * 1e6)   # µm stored as m
     with pytest.raises(ValueError, match="not plausible in metres"):
         load_npy_realizations(tmp_path / "u_um.npy", sample_rate=6400.0)
+
+
+def test_input_gain_states_the_parameters_per_actuator_volt(tmp_path, capsys):
+    """The same loops recorded at an amplifier's input (×1/10): with --input-gain 10 the identified Dp is the
+    actuator's again and the held-out fit the same."""
+    from piezo_ff_ros.core.config import load_config as load
+    from piezo_ff_ros.core.models.bouc_wen import BoucWenModel
+
+    stack = load(CONFIG / "single_stack.yaml")
+    t = np.arange(8000) / 2000.0
+    u = 150 * np.sin(2 * np.pi * 1.0 * t)[:, None]
+    y = BoucWenModel(stack.hysteresis).process(u)
+    fits = {}
+    for gain, scale in ((1.0, 1.0), (10.0, 0.1)):
+        fit = _csv(tmp_path / f"hyst_{gain:g}.csv", t[:4000], scale * u[:4000], y[:4000])
+        val = _csv(tmp_path / f"hyst_val_{gain:g}.csv", t[:4000], scale * u[4000:], y[4000:])
+        out = tmp_path / f"c{gain:g}.yaml"
+        assert cli_main(["identify", "--data", str(fit), str(val), "--stage", "hysteresis", "hysteresis:validation",
+                         "--base", str(CONFIG / "single_stack.yaml"), "--input-gain", str(gain), "--quiet",
+                         "--out", str(out), "--json", str(tmp_path / f"r{gain:g}.json")]) == 0, capsys.readouterr()
+        fits[gain] = json.loads((tmp_path / f"r{gain:g}.json").read_text())["fit_percent"]["hysteresis"]["x"]
+        assert load(out).hysteresis.Dp[0][0] == pytest.approx(stack.hysteresis.Dp[0][0], rel=0.02)
+    assert fits[10.0] == pytest.approx(fits[1.0], abs=0.5) and fits[1.0] > 95
