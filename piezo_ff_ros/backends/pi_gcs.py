@@ -59,7 +59,7 @@ class GCSFault(DeviceFault):
     value) and ``controller`` otherwise.
     """
 
-    def __init__(self, code: int, text: str, where: str, k: int | None = None):
+    def __init__(self, code: int, text: str, where: str, k: int | None = None) -> None:
         self.code, self.text, self.where = int(code), str(text), str(where)
         self.kind = "limit" if self.code in LIMIT_CODES else "controller"
         super().__init__(f"pi_gcs: controller error {self.code} ({self.text}) on {where}", k)
@@ -69,7 +69,7 @@ class TableError(BackendError):
     """Table mode failed (after the generator was stopped and the output ramped to safe); ``code`` is the GCS error
     code when the controller reported one."""
 
-    def __init__(self, message: str, code: int | None = None):
+    def __init__(self, message: str, code: int | None = None) -> None:
         super().__init__(message)
         self.code = code
 

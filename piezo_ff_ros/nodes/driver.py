@@ -395,6 +395,8 @@ class DriverNode(LifecycleNode):
                     write_ahead=wa, suggest=max(2 * wa, DEFAULT_WRITE_AHEAD_S), stale=c.s.limits.stale_timeout))
 
     def _joint_states(self, y: np.ndarray, stamp: int) -> None:
+        if self.core is None or self.pub_js is None:   # not configured (any more): nothing to publish
+            return
         n = y.shape[0]
         before = self._js_count
         self._js_count += n

@@ -57,7 +57,7 @@ class Session:
             self.executor.spin_once(timeout_sec=0.02)
 
     def call(self, srv_type: Any, service: str, request: Any) -> Any:
-        client = self.node.create_client(srv_type, service)
+        client: Any = self.node.create_client(srv_type, service)
         try:
             self.spin_until(client.service_is_ready, f"no service {service} within {self.timeout:g} s: is the "
                                                      "node running?")

@@ -23,7 +23,7 @@ from typing import Any, NoReturn, Sequence
 
 import numpy as np
 
-from .run import RunData, canonical_axes
+from .run import AXIS_ORDER, RunData, canonical_axes
 
 __all__ = ["load_csv", "load_mat", "load_npy_realizations", "check_run_arrays", "MAX_DISPLACEMENT", "MAX_VOLTAGE",
            "MIN_DRIVE_VOLTAGE", "MIN_SAMPLE_RATE", "MAX_SAMPLE_RATE", "UNIFORM_TOL"]
