@@ -104,7 +104,8 @@ def _run(args: argparse.Namespace) -> int:
     from ..core.experiments import paper_experiments, select_experiments
     from ..core.recording.mcap_io import read_run
     from ..core.reproduce import evaluate, format_tables
-    from ..ros.graph_session import GraphClient, sim_graph
+    from ..ros.graph_session import GraphClient
+    from ..ros.sim_graph import sim_graph
 
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     cfg = load_config(args.config, variant=args.variant)

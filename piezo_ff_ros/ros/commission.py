@@ -64,7 +64,8 @@ def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     from ..core.jsonable import parse_order
     from ..core.reproduce import format_tables
     from .graph_rig import GraphRig
-    from .graph_session import GraphClient, displacement_present, driver_present, sim_graph
+    from .graph_session import GraphClient, displacement_present, driver_present
+    from .sim_graph import sim_graph
 
     t_start = time.perf_counter()
     out = Path(args.out)

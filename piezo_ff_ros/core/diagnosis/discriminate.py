@@ -18,7 +18,7 @@ import numpy as np
 
 from ..config import PiezoConfig
 from ..recording.run import RunData
-from ..trajectories import Sequence, from_dict
+from ..trajectories import from_dict
 from . import stats
 from .replay import residual, simulate
 
@@ -112,7 +112,7 @@ def propose(cfg: PiezoConfig, best: FitResult, rivals: list[FitResult], psd: "st
     reps = 1 if top["z"] >= TARGET_Z else int(math.ceil((TARGET_Z / max(top["z"], 1e-9)) ** 2))
     reps = max(1, min(reps, int(MAX_SECONDS // top["base_seconds"]) or 1))
     spec = _repeat(top["spec"], reps)
-    traj = Sequence(spec["segments"], axes=spec["axes"]) if spec["type"] == "sequence" else from_dict(spec)
+    traj = from_dict(spec)
     return {
         "design": top["design"],
         "purpose": top["why"],

@@ -52,11 +52,7 @@ class TrajectorySequence(Trajectory):
                 if len(seg) not in (2, 3):
                     raise ConfigError(f"segments[{i}]", "expected (name, trajectory[, meta])")
                 name, traj, meta = seg[0], seg[1], (seg[2] if len(seg) == 3 else {})
-            if isinstance(traj, Mapping):
-                from .spec import from_dict  # spec builds sequences: imported on use
-
-                traj = from_dict(traj, prefix=f"segments[{i}].trajectory")
-            if not isinstance(traj, Trajectory):
+            if not isinstance(traj, Trajectory):   # a spec (mapping) is built by trajectories.from_dict first
                 raise ConfigError(f"segments[{i}].trajectory", f"expected a Trajectory, got {type(traj).__name__}")
             name = str(name)
             if name in names:

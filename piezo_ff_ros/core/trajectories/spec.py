@@ -51,7 +51,7 @@ def from_dict(spec: Mapping[str, Any], prefix: str = "trajectory") -> Trajectory
         except TypeError:
             raise ConfigError(f"{prefix}.segments", "expected a list of segments") from None
         try:
-            return TrajectorySequence(segs, axes=d.get("axes"))
+            return TrajectorySequence(_built_segments(segs, prefix), axes=d.get("axes"))
         except ConfigError as exc:
             raise ConfigError(f"{prefix}.{exc.field}", exc.reason) from None
     if kind == "per_axis":
@@ -95,3 +95,16 @@ def from_dict(spec: Mapping[str, Any], prefix: str = "trajectory") -> Trajectory
         raise ConfigError(f"{prefix}.{exc.field}", exc.reason) from None
     except TypeError as exc:
         raise ConfigError(prefix, str(exc)) from None
+
+
+def _built_segments(segments: list[Any], prefix: str) -> list[Any]:
+    """The segments of a sequence spec with every trajectory given as a mapping built by :func:`from_dict`
+    (a :class:`TrajectorySequence` takes built trajectories only: the spec layer builds, the sequence plays)."""
+    out: list[Any] = []
+    for i, seg in enumerate(segments):
+        if isinstance(seg, Mapping) and isinstance(seg.get("trajectory"), Mapping):
+            seg = {**seg, "trajectory": from_dict(seg["trajectory"], prefix=f"{prefix}.segments[{i}].trajectory")}
+        elif isinstance(seg, (list, tuple)) and len(seg) in (2, 3) and isinstance(seg[1], Mapping):
+            seg = (seg[0], from_dict(seg[1], prefix=f"{prefix}.segments[{i}].trajectory"), *seg[2:])
+        out.append(seg)
+    return out
