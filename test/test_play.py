@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from piezo_ff_ros.cli import main
-from piezo_ff_ros.core.recording.run import load_run
+from piezo_ff_ros.core.recording import load_run
 
 FS = 20000.0
 
