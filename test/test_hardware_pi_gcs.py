@@ -160,6 +160,31 @@ def test_the_drivers_stale_input_ramp_reaches_the_controller_as_a_paced_staircas
         core.close()
 
 
+def test_blocks_fed_at_the_nominal_rate_never_trip_the_stale_input_ramp():
+    """A set point write lasts its block's duration: blocks as long as the stale timeout (and longer), each sent as
+    soon as the previous one has played, with a tick in between (as the node's timer does), keep the driver active;
+    the stale ramp still comes once the input really stops."""
+    cfg = config(slew=1000.0)
+    stale = cfg.limits.stale_timeout
+    with GCSServer() as srv:
+        be = PISetpointBackend(cfg, params(srv))
+        core = DriverCore(DriverSettings(sample_rate=cfg.sample_rate, n_axes=2, limits=cfg.limits), be)
+        log = list(core.start().log)
+        n = int(round(1.25 * stale * cfg.sample_rate))
+        stamp = 0
+        for i in range(4):
+            u = np.tile([[5.0 + i, -2.0]], (n, 1))
+            log += core.on_block(stamp, u).log
+            log += core.tick().log
+            assert core.state == "active", (i, log)
+            stamp += n * core.period_ns
+        assert not any("no voltage block" in m for _, m in log), log
+        t_stop = time.monotonic()
+        wait_until(lambda: core.tick() is not None and core.state == "safe", timeout=5)
+        assert time.monotonic() - t_stop >= stale * 0.9
+        core.close()
+
+
 def test_a_controller_error_is_a_named_fault_and_the_driver_ramps_to_safe_from_the_last_accepted_value():
     """A GCS error on a set point (302) reaches the driver core as a named ``limit`` fault, not a lost link: the core
     ramps from the last value the controller accepted to safe as a paced staircase (≤ 1 V per set point, no faster
