@@ -338,7 +338,8 @@ class Staircase:
                 nsub = int(math.ceil(float(dev[0]) / self.step_max - 1e-12))
                 for q in range(1, nsub + 1):
                     pos.append(j0 + q / nsub)
-                    val.append(prev + (u[j0] - prev) * (q / nsub))
+                    # the last one is the sample itself (prev + (u - prev)·1 may differ from it in the last bit)
+                    val.append(u[j0].copy() if q == nsub else prev + (u[j0] - prev) * (q / nsub))
                 prev = u[j0]
                 j0 += 1
                 continue
