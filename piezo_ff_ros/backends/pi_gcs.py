@@ -418,8 +418,10 @@ class Staircase:
 class PISetpointBackend(WriteCursorClock, StreamingBackend):
     """Set-point mode behind the streaming contract (see the module docstring)."""
 
-    def __init__(self, cfg: PiezoConfig, p: dict[str, Any], ramp: SafeRampConfig | None = None) -> None:
+    def __init__(self, cfg: PiezoConfig, p: dict[str, Any], ramp: SafeRampConfig | None = None,
+                 now: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> None:
         self.p = p
+        self._now, self._sleep = now, sleep      # the staircase's pacing clock (injectable for tests)
         self.axes = _axes(p["axes"])
         if len(self.axes) != cfg.n_axes:
             raise BackendError(f"pi_gcs.axes: {len(self.axes)} controller axes for {cfg.n_axes} axes "
@@ -500,7 +502,8 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
             raise BackendError(f"pi_gcs: start failed on {self.link.info.idn}: {_first_line(exc)}") from None
         self.held_at_start = held.copy()
         self.stairs = Staircase(self._send, self.fs, float(self.p["setpoint_step"]),
-                                int(round(self.fs / float(self.p["setpoint_rate"]))), held)
+                                int(round(self.fs / float(self.p["setpoint_rate"]))), held, sleep=self._sleep,
+                                clock=self._now)
         r = safe_ramp(held, float(np.asarray(safe_voltage).flat[0]), self.fs, self.ramp, self.cfg.limits.slew)
         if r.shape[0]:
             self._append(self._k, self._play(r, "the start ramp"))
