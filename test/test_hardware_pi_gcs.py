@@ -239,6 +239,24 @@ def test_a_controller_error_is_a_named_fault_and_the_driver_ramps_to_safe_from_t
         wait_until(lambda: srv.open_connections == 0)
 
 
+def test_a_controller_error_during_the_start_ramp_still_ends_at_safe_by_a_paced_ramp():
+    """The output holds 20 V at start; a set point of the start ramp is refused: the driver ramps on from the value
+    the controller holds to safe, paced, instead of leaving the output mid-way."""
+    cfg = config(slew=1000.0)
+    emu = GCSEmulator(output=[20.0, -10.0])
+    emu.inject_error("SVA", 302, after=5)
+    with GCSServer(emu) as srv:
+        be = PISetpointBackend(cfg, params(srv))
+        core = DriverCore(DriverSettings(sample_rate=cfg.sample_rate, n_axes=2, limits=cfg.limits), be)
+        log = [m for _, m in core.start().log]
+        wait_until(lambda: log.extend(m for _, m in core.tick().log) is None and emu.output == [0.0, 0.0],
+                   timeout=3)
+        assert any("controller error 302" in m for m in log), log
+        assert core.faults["limit"] == 1 and core.state == "safe"
+        assert_paced(emu, 20.0 / 0.05 * 1.02, start=np.array([20.0, -10.0]))
+        core.close()
+
+
 def test_a_controller_error_holds_the_last_accepted_set_point_and_names_it_in_the_fault():
     """At the backend: a refused set point fills the rest of the block with the last accepted value (every sample
     reported once), the fault (kind ``limit``, code 302, its text) carries that value as ``held``, and the link

@@ -486,8 +486,8 @@ class DriverCore:
         if held is not None and not self._queued and np.shape(held) == self.guard.u_last.shape:
             # the output stopped short of what was committed: the stream goes on from where it really is
             self.guard.u_last[:] = held
-            if self.state == "safe" and not self.guard.at_safe:
-                self.state = "active"        # the safe ramp was cut short: ramp again from where it stopped
+            if self.state in ("idle", "safe") and not self.guard.at_safe:
+                self.state = "active"        # a ramp to safe (the start's, the safe ramp) was cut short: ramp again
         hint = ""
         if exc.kind == "underrun" and self.info.clocked:
             hint = (f" (the host fell more than the write-ahead behind the device: raise the driver's write_ahead, "
