@@ -3,7 +3,7 @@ from glob import glob
 from setuptools import find_packages, setup
 
 package_name = "piezo_ff_ros"
-executables = ["driver", "compensator", "trajectory", "recorder", "reproduce"]
+executables = ["driver", "compensator", "trajectory", "recorder", "plotter", "reproduce"]
 
 setup(
     name=package_name,
@@ -14,6 +14,8 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
+        # Foxglove layouts of the plottable topics (docs/topics.md "Plotting")
+        ("share/" + package_name + "/foxglove", glob("share/foxglove/*.json")),
         # `ros2 run` looks in lib/<pkg>/; after a plain `pip install .` scripts live in bin/: tiny shims bridge it.
         ("lib/" + package_name, ["ros2run/" + e for e in executables]),
     ],

@@ -145,7 +145,8 @@ def bench_fsm(say) -> dict:
 def bench_cascade(say, creep_duration: float) -> dict:
     from piezo_ff_ros.core.characterisation import CharacterisationSettings
     from piezo_ff_ros.core.config import load_config
-    from piezo_ff_ros.core.identification.pipeline import commission_sim, identify_all
+    from piezo_ff_ros.core.commissioning import commission_sim
+    from piezo_ff_ros.core.identification.pipeline import identify_all
     from piezo_ff_ros.core.models.plant import Plant
 
     cfg = load_config()

@@ -52,6 +52,7 @@ def generate_launch_description():
         driver,
         Node(package="piezo_ff_ros", executable="compensator", namespace=ns, output="screen",
              parameters=[LaunchConfiguration("params_file")]),
+        Node(package="piezo_ff_ros", executable="plotter", namespace=ns, output="screen"),
         Node(package="piezo_ff_ros", executable="trajectory", namespace=ns, output="screen",
              parameters=[{"mode": LaunchConfiguration("mode"), "autostart": True, "min_subscribers": 2,
                           "trajectory": ParameterValue(LaunchConfiguration("trajectory"), value_type=str)}]),

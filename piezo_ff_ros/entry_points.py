@@ -28,6 +28,12 @@ def recorder(argv=None):
     return main(argv)
 
 
+def plotter(argv=None):
+    from .nodes.plotter import main
+
+    return main(argv)
+
+
 def reproduce(argv=None):
     from .cli import main
 

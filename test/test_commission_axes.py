@@ -34,7 +34,7 @@ def test_a_starting_config_whose_axes_differ_from_the_rigs_is_refused():
 def test_commission_identifies_every_axis_and_pair_of_the_configured_stage(name, axes):
     cfg = load_config(CONFIG / f"{name}.yaml")
     rig = SimRig(Plant(cfg), cfg.sample_rate, cfg.axes)
-    res = commission(rig, base=cfg, settings=SHORT, creep_order=2, dynamics_order=4 if len(axes) == 1 else 2,
+    res = commission(rig, base=cfg, settings=SHORT, creep_order=2, dynamics_order="auto",
                      synthesize=True)
     assert res.config.axes == axes and res.config.name == f"{name}_identified"
     pairs = {o + i for o in axes for i in axes}
@@ -49,3 +49,26 @@ def test_commission_identifies_every_axis_and_pair_of_the_configured_stage(name,
     assert min(res.report.fit_percent["dynamics"][a + a] for a in axes) > 90
     ctrl = res.config.vibration.controller
     assert np.asarray(ctrl["B"]).shape[1] == len(axes) and np.asarray(ctrl["C"]).shape[0] == len(axes)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 6])
+def test_the_characterisation_plan_is_generated_from_the_axes(n):
+    """Per axis a hysteresis sine, a creep and a dynamics step; the runs moving several axes: one with two axes (the
+    paper's), one per pair from three on; the held-out runs move every axis."""
+    from piezo_ff_ros.core.commissioning import characterisation_plan
+
+    axes = tuple("xyzabc"[:n])
+    plan = characterisation_plan(CharacterisationSettings(), axes)
+    names = [r.name for r in plan["hysteresis"] if r.role == "fit"]
+    pairs = [f"sine_{a}{b}" for i, a in enumerate(axes) for b in axes[i + 1:]] if n > 2 else (
+        ["sine_all"] if n == 2 else [])
+    assert names == [f"sine_{a}" for a in axes] + pairs
+    assert [r.name for r in plan["creep"]] == [f"creep_step_{a}" for a in axes]
+    assert [r.name for r in plan["dynamics"]] == [f"dynamics_step_{a}" for a in axes]
+    fs = 2000.0
+    for r in plan["hysteresis"] + plan["plant"]:
+        assert r.trajectory.axes == axes
+    _, val = next(r for r in plan["hysteresis"] if r.role == "validation").trajectory.sample(fs)
+    assert np.all(np.ptp(val, axis=0) > 100)   # every axis moves in the held-out run
+    _, pv = plan["plant"][0].trajectory.sample(fs)
+    assert np.all(np.ptp(pv, axis=0) > 100) and np.abs(pv).max() <= 200

@@ -59,15 +59,18 @@ def test_gaps_late_blocks_and_a_restart_after_a_pause_are_counted(base):
     # a pause longer than max(hold_timeout 0.2, 0.5) s: a new stream may start anywhere, no gap
     em = core.on_reference(S0 + 10_000 * N * DT, held(), t + 0.6)
     assert not em.log and core.input["gaps"] == 1
-    # with hold_timeout 2 s the same pause is no restart: the jump is a gap
+    # with hold_timeout 2 s the same pause is no restart: a jump of up to 1 s is a gap
     core.commit([("hold_timeout", 2.0)])
-    core.on_reference(S0 + 20_000 * N * DT, held(), t + 1.2)
+    core.on_reference(S0 + (10_001 + 50) * N * DT, held(), t + 1.2)
     assert core.input["gaps"] == 2 and core.pacer.hold_timeout == 2.0
+    # a jump of more than 1 s (a stray stamp, a new stream) is no gap: it never counts as lost samples
+    em = core.on_reference(S0 + 10**9 * N * DT, held(), t + 1.3)
+    assert core.input["jumps"] == 1 and core.input["gaps"] == 2 and "jumped" in warnings(em)[0]
     st = core.status()
-    assert (st["input_gaps"], st["input_gap_samples"], st["input_late_blocks"]) == (2, N + 9_999 * N, 1)
+    assert (st["input_gaps"], st["input_gap_samples"], st["input_late_blocks"]) == (2, N + 50 * N, 1)
     level, message, _ = core.diagnostics()
     assert level == WARN and "input_gaps 2" in message and "input_late_blocks 1" in message
-    assert core.blocks == 7
+    assert core.blocks == 8
 
 
 def test_a_held_point_continues_the_stream_and_starts_on_the_wall_clock_grid(base):
@@ -127,7 +130,8 @@ def test_nan_reference_is_rejected_and_counted(base):
     assert core.rejected_blocks == 1 and core.blocks == 0
     st = core.status()
     assert st["rejected_blocks"] == 1 and st["last_error"] == "reference block rejected: NaN/Inf in the reference"
-    assert core.diagnostics()[0] == WARN
+    assert core.diagnostics()[0] == ERROR   # while it lasts
+    assert core.diagnostics()[0] == WARN    # then the count stays
 
 
 def test_the_first_block_of_a_version_announces_it(base):
@@ -254,9 +258,9 @@ def test_status_keys(base):
     st = make_core(base).status()
     assert list(st) == ["config_version", "pending_version", "swaps", "failed_builds", "crossfading", "last_error",
                         "resyncs", "applied_blocks", "in_flight_blocks", "bypass", "blocks", "rejected_blocks",
-                        "input_gaps", "input_gap_samples", "input_late_blocks", "input_workspace_clamped_samples",
-                        "applied_rejected", "stages", "order", "resync_active", "preview_s", "learning_file",
-                        "hysteresis_fallbacks"]
+                        "input_gaps", "input_gap_samples", "input_late_blocks", "input_jumps",
+                        "input_workspace_clamped_samples", "applied_rejected", "stages", "order", "resync_active",
+                        "preview_s", "learning_file", "reference_limit", "hysteresis_fallbacks"]
     assert (st["stages"], st["order"], st["resync_active"], st["preview_s"]) == ("creep,hysteresis", "paper", True,
                                                                                   0.0)
     level, message, _ = make_core(base).diagnostics()

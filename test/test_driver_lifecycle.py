@@ -188,3 +188,43 @@ def test_sigint_while_active_at_100_volts_ramps_before_closing(tmp_path, probe):
     line = next(ln for ln in log.splitlines() if "shutting down: ramping from" in ln)
     n = int(line.split(" in ")[-1].split()[0])
     assert "[100.0, 100.0]" in line and n >= 100 / SAFE_STEP, line
+
+
+def test_an_error_in_a_transition_goes_through_error_processing_to_safe():
+    """A transition that raises (here: deactivate, once) → ErrorProcessing → the output ramps to the safe voltage,
+    the backend is closed, the driver is back unconfigured (and can be configured again)."""
+    from rclpy.context import Context
+    from rclpy.lifecycle import TransitionCallbackReturn
+
+    from piezo_ff_ros.nodes.driver import DriverNode
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    # renamed and namespaced: no later test of this session may take it for a running driver (`/driver`, `/voltage`)
+    node = DriverNode(context=ctx, namespace="/lifecycle_error_test",
+                      cli_args=["--ros-args", "-r", "__node:=driver_error_test"],
+                      parameter_overrides=[rclpy.parameter.Parameter("autostart", value=False)])
+    try:
+        assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+        node.on_tick()
+        node.core.on_block(0, np.full((400, 2), 100.0))
+        assert node.core.guard.u_last.tolist() == [100.0, 100.0]
+        core, real = node.core, node._to_safe
+        calls = []
+
+        def failing_once(why):
+            calls.append(why)
+            if len(calls) == 1:
+                raise RuntimeError("the device did not answer")
+            real(why)
+
+        node._to_safe = failing_once
+        assert node.trigger_deactivate() == TransitionCallbackReturn.ERROR
+        assert node.lifecycle_state == "unconfigured" and node.core is None
+        assert core.guard.u_last.tolist() == [0.0, 0.0] and core.guard.counters.safe_ramps >= 1
+        node._to_safe = real
+        assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)

@@ -32,6 +32,14 @@ def test_launcher_records_a_finite_trajectory_from_its_first_sample_and_stops_wh
     for arr in (run.u, run.y, run.reference):
         assert not np.isnan(arr).any()
     assert np.isclose(np.max(run.reference[:, 0]), 2e-6, rtol=1e-3) and np.all(run.reference[:, 1] == 0.0)
+    # the plotter's decimated topics are recorded too (Foxglove plots them from run.mcap)
+    from mcap.reader import make_reader
+
+    with open(tmp_path / "run.mcap", "rb") as f:
+        summary = make_reader(f).get_summary()
+    counts = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
+    for topic in ("/plot_reference", "/plot_voltage", "/plot_displacement", "/plot_error"):
+        assert counts.get(topic, 0) > 0, counts
     # the managed driver was started unconfigured and stepped by the launcher (configure, then activate)
     log = (tmp_path / "logs" / "driver.log").read_text()
     assert log.index("driver ready: unconfigured") < log.index("driver configured") < log.index("active:")

@@ -214,10 +214,10 @@ def test_applied_voltage_resync_workspace_and_input_gaps(tmp_path, probe):
 
     g = Graph(probe)
     comp = start_node("compensator", "-p", "cascade.vibration:=false", "-p", "workspace:=[-5.0e-5, 5.0e-5, "
-                      "-5.0e-5, 5.0e-5]", log_dir=tmp_path)
+                      "-5.0e-5, 5.0e-5]", "-p", "driver:=live_probe", log_dir=tmp_path)
     try:
         g.wait_ready()
-        # the compensator tracks blocks in flight only once it sees a voltage_applied publisher (this probe)
+        # the compensator tracks blocks in flight only once its paired driver (this probe) publishes voltage_applied
         probe.spin_until(lambda: g.pub_applied.get_subscription_count() > 0, 30, "voltage_applied subscriber")
         probe.spin_for(0.5)
         stamps = [g.send(held(N_BLK)) for _ in range(3)]
@@ -225,7 +225,7 @@ def test_applied_voltage_resync_workspace_and_input_gaps(tmp_path, probe):
         g.pub_applied.publish(pack_block(g.volts[stamps[0]], AXES, stamps[0]))
         g.pub_applied.publish(pack_block(np.zeros((N_BLK, 2)), AXES, stamps[1]))
         g.diag_after(lambda d: d.get("resyncs") == "1" and d.get("applied_blocks") == "1", "a re-synchronisation")
-        g.send(held(N_BLK, x=1.0))                     # 1 m: outside the workspace, clamped and counted
+        g.send(held(N_BLK, x=6e-5))                    # 60 µm: outside the workspace, clamped and counted
         g.k += 5 * N_BLK                               # 5 blocks lost
         g.send(held(N_BLK))
         d = g.diag_after(lambda d: d.get("input_gaps") == "1", "a counted input gap")
@@ -298,7 +298,7 @@ def test_config_yaml_forms_and_one_line_errors():
                              "    creep.Cr.xx.den_deg: [1]\n") == flat
     assert parse_config_yaml("") == {}
     for bad, text in [("crossfade: 0.1", "not a stage parameter: crossfade"), ("[1, 2]", "expected a mapping"),
-                      ("a: [", "not YAML")]:
+                      ("a: [", "not valid YAML")]:
         with pytest.raises(ConfigError) as e:
             parse_config_yaml(bad)
         assert str(e.value).startswith("config_yaml") and text in str(e.value) and "\n" not in str(e.value)

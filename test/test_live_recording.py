@@ -29,14 +29,26 @@ def test_metadata_has_t0_block_size_parameters_and_every_configuration_version(t
     from mcap.reader import make_reader
 
     out = tmp_path / "run.mcap"
+    from sensor_msgs.msg import PointCloud2
+
+    from piezo_ff_ros.nodes.common import BLOCK_QOS, pack_block
+
     g = Graph(probe)
     g.k = T0 // DT_NS
-    rec = start_node("recorder", "-p", f"output:={out}", log_dir=tmp_path)
+    stray = probe.node.create_publisher(PointCloud2, "displacement", BLOCK_QOS)
+    rec = start_node("recorder", "-p", f"output:={out}", "-p", f"t0_ns:={T0}", "-p", "block_size:=200",
+                     log_dir=tmp_path)
     comp = start_node("compensator", "-p", "cascade.vibration:=false", "-p", "crossfade:=0.005", log_dir=tmp_path)
     try:
         g.wait_ready()
         wait_recorder_connected(probe, ["/reference", "/voltage", "/compensator/config"], timeout=60)
         probe.spin_for(1.0)
+        # a stray 7-sample block stamped 0 before the run: recorded, but it sets neither t0_ns nor block_size
+        probe.spin_until(lambda: stray.get_subscription_count() > 0, 30, "recorder on /displacement")
+        stray.publish(pack_block(held(7), ["x", "y"], 0))
+        # and one larger than any block of the contract: not recorded at all
+        stray.publish(pack_block(held(100_000), ["x", "y"], 7 * DT_NS))
+        probe.spin_for(0.5)
         for _ in range(10):
             g.send(held(200))
         assert g.set(cascade__creep=False)[0].successful
@@ -58,6 +70,8 @@ def test_metadata_has_t0_block_size_parameters_and_every_configuration_version(t
             if m.name == "piezo_ff_ros":
                 meta.update(m.metadata)
         chunks = reader.get_summary().chunk_indexes
+        displacement = [m.log_time for _, _, m in reader.iter_messages(topics=["/displacement"])]
+    assert len(displacement) == 1   # the stray block, not the oversized one
     assert int(meta["t0_ns"]) == T0 and int(meta["block_size"]) == 200
     versions = json.loads(meta["config_versions"])
     assert [(v["version"], v["k0"]) for v in versions] == [(1, 0), (2, 10 * 200)]

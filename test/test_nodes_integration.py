@@ -329,8 +329,7 @@ def test_driver_safety_limits_rejection_and_stale_ramp(tmp_path, probe, cfg_novi
         {kv.key: kv.value for kv in s.values} for s in m.status if s.name.endswith("driver")), 10)
     pub = probe.node.create_publisher(PointCloud2, "voltage", BLOCK_QOS)
     drv = start_node("driver", "-p", "max_block:=1000", "-p", "limits.stale_timeout:=1.0",
-                     "-p", f"limits.slew:={DRIVER_SLEW}", "-p", "safe_ramp.duration:=0.0",
-                     "-p", f"safe_ramp.slew:={DRIVER_SLEW}",  # a ramp at the operating limit: 20 samples
+                     "-p", f"limits.slew:={DRIVER_SLEW}",   # the default safe ramp: ≥ 0.05 s, ≤ 1e4 V/s
                      "-p", "diagnostics_period:=0.2", log_dir=tmp_path)
     n = 100
     guard = VoltageGuard(DRIVER_LIMITS(cfg_novib), 2, FS, max_block=1000)
@@ -375,8 +374,8 @@ def test_driver_safety_limits_rejection_and_stale_ramp(tmp_path, probe, cfg_novi
         assert int(last["safe_ramps"]) == 1 and int(last["slew_limited_samples"]) > 0
         ramp_stamp = (k - 1500) * DT_NS
         assert ramp_stamp in got  # the ramp continues the sample stream (the oversized block took no indices)
-        ramp = guard.ramp_to_safe(SafeRampConfig(duration=0.0, slew=DRIVER_SLEW))
-        assert ramp.shape[0] == 20  # 200 V at 10 V/sample
+        ramp = guard.ramp_to_safe(SafeRampConfig())
+        assert ramp.shape[0] == 1000  # 200 V in 0.05 s (0.2 V/sample, below the 0.5 V/sample of 1e4 V/s)
         np.testing.assert_allclose(got[ramp_stamp], plant.process(ramp), rtol=0, atol=1e-15)
         # a block for sample instants already past (here: the very first) is dropped, never re-applied
         n_diag = len(diags)

@@ -96,7 +96,8 @@ def test_node_unpack_block_maps_fields_by_name():
     for axes in (["x"], ["x", "z"], ["x", "y", "z"]):
         with pytest.raises(BlockFormatError, match="do not name the axes"):
             unpack_block(msg, axes)
-    dup = pack_block(blk, ["x", "x"], 0)
+    dup = pack_block(blk, ["x", "y"], 0)   # a peer's own packing: two fields named x
+    dup.fields[1].name = "x"
     with pytest.raises(BlockFormatError, match="duplicate"):
         unpack_block(dup, ["x", "y"])
 

@@ -77,3 +77,23 @@ def test_analyze_reads_a_circle_error_after_its_lead_in(tmp_path):
     lag = 2 * np.pi * 20 * UM * 20 / FS   # the 1 ms lag's error on a 20 µm circle at 1 Hz ≈ 0.126 µm
     assert max(seg["tracking"]["max"]) == pytest.approx(lag, rel=0.01)   # was the radius, 20 µm
     assert seg["tracking_from_s"] == 1.0
+
+
+def test_feedforward_on_three_and_one_axes(tmp_path):
+    """A plane circle on an XYZ stage (z at rest), a helix spec per axis, and a sine on a single-axis stack."""
+    from piezo_ff_ros.cli import main
+
+    xyz, one = str(CONFIG / "xyz_tube.yaml"), str(CONFIG / "single_stack.yaml")
+    circle = "{type: circle, radius: 1.0e-5, frequency: 10, revolutions: 1}"
+    helix = ("{type: per_axis, axes: [x, y, z], parts: [{type: circle, axes: [x, y], radius: 1.0e-5, frequency: 10,"
+             " revolutions: 1}, {type: ramp, axes: [z], start: 0, end: 5.0e-6, duration: 0.1}]}")
+    sine = "{type: sine, axes: [x], axis: x, amplitude: 1.0e-5, frequency: 10, duration: 0.1}"
+    for name, cfg, spec, n_axes in (("c", xyz, circle, 3), ("h", xyz, helix, 3), ("s", one, sine, 1)):
+        out = tmp_path / f"{name}.npy"
+        assert main(["feedforward", "--config", cfg, "--trajectory", spec, "--out", str(out)]) == 0
+        u = np.load(out)
+        assert u.shape == (2000, n_axes) and np.all(np.isfinite(u))
+        if name == "c":
+            assert np.abs(u[:, 2]).max() < 1e-6 and np.abs(u[:, :2]).max() > 30
+        if name == "h":
+            assert u[-1, 2] > 25   # 5 µm up on z (0.16 µm/V)

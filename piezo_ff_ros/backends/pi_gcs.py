@@ -62,7 +62,7 @@ class GCSFault(ControllerFault):
     controller accepted (what its output holds).
     """
 
-    def __init__(self, code: int, text: str, where: str, k: int | None = None, held: np.ndarray | None = None):
+    def __init__(self, code: int, text: str, where: str, k: int | None = None, held: np.ndarray | None = None) -> None:
         self.text, self.where = str(text), str(where)
         self.kind = "limit" if int(code) in LIMIT_CODES else "controller"
         super().__init__(f"pi_gcs: controller error {int(code)} ({self.text}) on {where}", k, code=int(code),
@@ -73,7 +73,7 @@ class TableError(BackendError):
     """Table mode failed (after the generator was stopped and the output ramped to safe); ``code`` is the GCS error
     code when the controller reported one."""
 
-    def __init__(self, message: str, code: int | None = None):
+    def __init__(self, message: str, code: int | None = None) -> None:
         super().__init__(message)
         self.code = code
 

@@ -26,6 +26,7 @@ SUBCOMMANDS = ["reproduce", "demo", "analyze", "identify", "commission", "diagno
 SUBCOMMANDS += ["recover"]
 SUBCOMMANDS += ["track"]
 SUBCOMMANDS += ["play"]
+SUBCOMMANDS += ["hold", "param", "echo", "lifecycle"]   # ROS helpers where the ros2 CLI is absent (pip wheels)
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERNAL = 1

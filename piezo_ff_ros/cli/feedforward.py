@@ -79,6 +79,10 @@ def compute(cfg: PiezoConfig, traj: Trajectory, duration: float | None = None,
     n = int(n)
     if n < 1 or n > 3600 * fs:
         raise ValueError(f"--duration: {n} samples is outside [1, 1 h]")
+    if set(traj.axes) < set(cfg.axes):   # some axes of the stage (a circle on an XYZ stage): the others at rest
+        from ..core.trajectories import PerAxis
+
+        traj = PerAxis([traj], axes=cfg.axes)
     if tuple(traj.axes) != tuple(cfg.axes):
         raise ValueError(f"--trajectory: axes {list(traj.axes)} do not match the config's {list(cfg.axes)}")
     ref = traj.block(0, n, fs)

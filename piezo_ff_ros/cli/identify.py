@@ -1,10 +1,12 @@
 """``piezo-ff identify``: recorded characterisation runs → a complete config the compensator loads.
 
-Runs come from MCAP (recorded by the node graph), CSV or MATLAB .mat.  Each file (or each run inside it) must be
+Runs come from MCAP (recorded by the node graph), CSV, MATLAB .mat, or a ``u_<tag>.npy``/``y_<tag>.npy`` pair of
+periodic records (one run per realization; ``--sample-rate``).  Each file (or each run inside it) must be
 tagged with its stage (hysteresis / creep / dynamics) — from the recording's metadata, or from the file name
 (``*hyst*``, ``*creep*``, ``*dyn*``; ``*val*`` or ``*held*`` marks a held-out run), or with ``--stage``.
-Any number of axes, and hysteresis alone (a single-stage record) or hysteresis and creep are enough: the stages
-without runs keep the ``--base`` config's parameters (whose axes must be the runs') and are switched off.
+Any number of axes; hysteresis is required, creep and dynamics are optional (a hysteresis-only record; voltage
+records of a stage without creep, whose dynamics runs need no reference): a stage without runs is switched off
+(creep none, G_L the ``--base`` config's, whose axes must be the runs').
 For creep and dynamics runs the input of the characterised system (Y_H / Y_L) must be recorded as the reference
 (CSV columns ``r_<axis>``, .mat variable ``r``).
 """
@@ -35,6 +37,11 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
                    help="hysteresis: identify a constant sensor offset (measured records)")
     p.add_argument("--delay", type=int, default=0, metavar="N",
                    help="hysteresis: samples by which the measured output lags the voltage (default 0)")
+    p.add_argument("--input-gain", type=float, default=1.0, metavar="G",
+                   help="volts at the actuator per recorded volt (records of an amplifier's input; default 1): the "
+                        "fits do not depend on it, the identified parameters are per actuator volt")
+    p.add_argument("--sample-rate", type=float, default=None, metavar="HZ",
+                   help="sample rate of .npy records (the u_<tag>.npy / y_<tag>.npy layout holds none)")
     p.add_argument("--skip", type=float, default=0.0, metavar="S",
                    help="hysteresis: seconds at the start of each run left out (initial transient; default 0)")
     p.add_argument("--quiet", action="store_true")
@@ -58,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.identification.pipeline import identify_all
     from ..core.jsonable import parse_order
     from ..core.recording import load_run
+    from ..core.recording.run import RunData
 
     from . import output_file
 
@@ -75,13 +83,20 @@ def run(args: argparse.Namespace) -> int:
         if st not in STAGE_NAMES or (role and role not in ("fit", "validation")):
             raise ValueError(f"--stage {spec!r}: expected STAGE[:ROLE] with STAGE one of {list(STAGE_NAMES)} and "
                              "ROLE fit or validation")
+    if not (0 < args.input_gain < float("inf")):
+        raise ValueError(f"--input-gain must be a positive number, got {args.input_gain}")
     if args.delay < 0 or not (args.skip >= 0 and args.skip < float("inf")):
         raise ValueError(f"--delay and --skip must be >= 0, got {args.delay} and {args.skip}")
     runs = []
     for i, f in enumerate(args.data):
         p = Path(f)
         say(f"loading {p}")
-        loaded = load_run(p)
+        if p.suffix.lower() == ".npy":   # a u_/y_ pair of periodic records: one run per realization
+            from ..core.recording.importers import load_npy_realizations
+
+            loaded: RunData | list[RunData] = load_npy_realizations(p, sample_rate=args.sample_rate)
+        else:
+            loaded = load_run(p)
         items = loaded if isinstance(loaded, list) else [loaded]
         for r in items:
             if args.stage is not None:
@@ -93,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
                     raise ValueError(f"{p}: cannot tell its stage (name it *hyst*/*creep*/*dyn* or use --stage)")
                 r.meta["stage"] = st
                 r.meta.setdefault("role", role)
+            if args.input_gain != 1.0:
+                r.u = r.u * args.input_gain
             runs.append(r)
     base = load_config(args.base) if args.base else load_config()
     cfg, report = identify_all(runs, base=base, generalized=args.generalized, creep_order=parse_order(args.creep_order),
@@ -104,9 +121,8 @@ def run(args: argparse.Namespace) -> int:
     print("held-out fit [%] (MATLAB compare):")
     for stage, d in fits.items():
         print(f"  {stage:10s} " + "  ".join(f"{k}: {v:.2f}" if v is not None else f"{k}: n/a" for k, v in d.items()))
-    if report.kept_from_base:
-        print(f"  not identified (no runs), kept from the base config and switched off: "
-              f"{', '.join(report.kept_from_base)}")
+    for stage, what in (report.not_identified or {}).items():
+        print(f"  {stage:10s} not identified (no runs): {what}")
     if args.json:
         Path(args.json).write_text(json.dumps(report.to_json(), indent=2))
     return 0

@@ -60,7 +60,7 @@ def _check_out(path: str | None, what: str) -> None:
 
 def _identified_config(printed: PiezoConfig, say: Callable[[str], None]) -> PiezoConfig:
     from ..core.characterisation import CharacterisationSettings
-    from ..core.identification.pipeline import commission_sim
+    from ..core.commissioning import commission_sim
     from ..core.reproduce import truth_plant
 
     say("identify a config on the simulated printed plant (commission --sim-only, 60 s creep records)")

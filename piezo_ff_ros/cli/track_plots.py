@@ -32,17 +32,20 @@ def plot_all(result: dict, out_dir: Path) -> list[Path]:
         ax.set_ylabel("RMS error [µm]")
         ax.set_title(f"truth: {truth}", fontsize=9, loc="left")
         ax.grid(True, axis="y", which="both", alpha=0.3)
-    axes[0, 0].legend(ncol=4, fontsize=8)
     axes[-1, 0].set_xticks(np.arange(len(labels)))
     axes[-1, 0].set_xticklabels(labels, rotation=30, ha="right", fontsize=8)
     fig.suptitle("piezo-ff track: RMS tracking error (log scale), ±200 V amplifier")
-    fig.tight_layout()
+    # the legend in a strip of its own under the title: inside a panel it covered bars
+    handles, names = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, names, ncol=len(names), fontsize=8, loc="upper center", bbox_to_anchor=(0.5, 0.955),
+               frameon=False)
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
     p1 = out_dir / "tracking.png"
     fig.savefig(p1, dpi=110)
     plt.close(fig)
 
     lim = result["limits"]
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.8))
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(13, 3.8))
     sw = lim["horizon_sweep_circle20um_10hz"]
     a1.loglog([s["horizon_s"] * 1e3 for s in sw], [s["rms_error_um"] for s in sw], "o-")
     a1.set_xlabel("preview horizon [ms]")
@@ -54,8 +57,9 @@ def plot_all(result: dict, out_dir: Path) -> list[Path]:
     a2.set_xlabel("trial")
     a2.set_ylabel("RMS error [µm]")
     a2.set_title(lim["learning_violation"]["truth"], fontsize=9)
-    a2.legend(fontsize=8)
     a2.grid(True, which="both", alpha=0.3)
+    # beside the panel, not over the histories it names
+    a2.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     p2 = out_dir / "limits.png"
     fig.savefig(p2, dpi=110)

@@ -15,6 +15,8 @@ No ROS import.
 """
 from __future__ import annotations
 
+import math
+
 import importlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +27,7 @@ from numpy.typing import ArrayLike
 
 from . import metrics
 from .recording.run import RunData
+from .safety import at_limit
 from .jsonable import JsonResult, jsonable
 from .units import to_um
 
@@ -204,18 +207,20 @@ def _voltage_limit(run: RunData) -> float:
     for key in ("voltage_limit", "limits.voltage"):
         if key in md:
             try:
-                return float(md[key])
-            except ValueError:
-                pass
+                v = float(md[key])
+            except (TypeError, ValueError):
+                continue
+            if math.isfinite(v) and v > 0:
+                return v
     cfg_yaml = md.get("config_yaml")
-    if cfg_yaml:
+    if cfg_yaml and isinstance(cfg_yaml, str):
         try:
-            import yaml
+            from .config.loader import safe_yaml
 
-            limit = (yaml.safe_load(cfg_yaml) or {}).get("limits", {}).get("voltage")
-            if limit is not None:
+            limit = (safe_yaml(cfg_yaml, "metadata config_yaml") or {}).get("limits", {}).get("voltage")
+            if limit is not None and math.isfinite(float(limit)) and float(limit) > 0:
                 return float(limit)
-        except Exception:  # a config we cannot parse: fall back to the default limit
+        except Exception:  # a config we cannot parse (or a hostile one): fall back to the default limit
             pass
     return DEFAULT_VOLTAGE_LIMIT
 
@@ -230,6 +235,56 @@ def _driver_counters(diagnostics: Mapping[str, Any]) -> dict[str, float]:
             except (TypeError, ValueError):
                 continue
     return out
+
+
+#: a displacement beyond this [m] is no position of a piezo stage (a corrupt or hostile sample): left out
+PLAUSIBLE_DISPLACEMENT_M = 1.0
+#: a voltage beyond this [V] is no drive voltage (a corrupt sample): left out of everything but the saturation count
+PLAUSIBLE_VOLTAGE_V = 1e6
+
+
+def _implausible(a: np.ndarray | None, bound: float, length_rows: np.ndarray | None = None) -> np.ndarray:
+    """Rows of ``a`` with a finite value beyond ``±bound`` (only where ``length_rows`` is True, when given)."""
+    if a is None or not len(a):
+        return np.zeros(0 if a is None else len(a), bool)
+    with np.errstate(invalid="ignore"):
+        bad: np.ndarray = np.any(np.isfinite(a) & (np.abs(a) > bound), axis=1)
+    return bad if length_rows is None else np.asarray(bad & length_rows)
+
+
+def _sanitised(run: RunData, warnings: list[str]) -> RunData:
+    """``run`` with implausible samples (a reference or displacement beyond ±1 m, a voltage beyond ±1e6 V) set to
+    NaN — missing, as a lost block is — and one warning per signal saying how many and where; the voltage's
+    saturation count is taken before (such a sample is at the limit)."""
+    from dataclasses import replace as _replace
+
+    by_voltage = np.zeros(len(run), bool)   # voltage-driven segments: the reference is in volts there
+    for seg in run.meta.get("segments", []):
+        if (seg.get("info") or {}).get("input") == "voltage":
+            by_voltage[seg["start"]:seg["stop"]] = True
+    changes: dict[str, np.ndarray] = {}
+    for name, arr, bound, unit, rows in (
+            ("reference", run.reference, PLAUSIBLE_DISPLACEMENT_M, "m", ~by_voltage),
+            ("reference", run.reference, PLAUSIBLE_VOLTAGE_V, "V", by_voltage),
+            ("y", run.y, PLAUSIBLE_DISPLACEMENT_M, "m", None), ("u", run.u, PLAUSIBLE_VOLTAGE_V, "V", None)):
+        if arr is None:
+            continue
+        arr = np.asarray(changes.get(name, arr), float)
+        bad = _implausible(arr, bound, rows if len(rows if rows is not None else []) == len(arr) else None)
+        if not bad.any():
+            continue
+        k = int(np.argmax(bad))
+        worst = float(np.nanmax(np.abs(arr[bad])))
+        warnings.append(f"{'displacement' if name == 'y' else 'voltage' if name == 'u' else name}: "
+                        f"{int(bad.sum())} sample(s) beyond ±{bound:g} {unit} (first at sample {k}, up to "
+                        f"{worst:.3g} {unit}): not a plausible value, left out as missing")
+        fixed = arr.copy()
+        fixed[bad] = np.nan
+        changes[name] = fixed
+    if not changes:
+        return run
+    return _replace(run, u=changes.get("u", run.u), y=changes.get("y", run.y),
+                    reference=changes.get("reference", run.reference))
 
 
 def analyze_run(run: RunData, evaluate: Evaluate | None = None) -> AnalysisResult:
@@ -251,6 +306,11 @@ def analyze_run(run: RunData, evaluate: Evaluate | None = None) -> AnalysisResul
     """
     meta = run.meta
     warnings = list(meta.get("warnings", []))
+    limit = _voltage_limit(run)
+    u_raw = np.asarray(run.u, float)
+    finite_u = np.all(np.isfinite(u_raw), axis=1)
+    saturated = at_limit(u_raw[finite_u], limit)   # the driver's saturated_samples rule: the two agree
+    run = _sanitised(run, warnings)
     tables: Any = None
     recorded, seg_warn = segment_signals(run)
     warnings += seg_warn
@@ -304,10 +364,6 @@ def analyze_run(run: RunData, evaluate: Evaluate | None = None) -> AnalysisResul
     if run.reference is not None:
         whole_ref = np.where(length_ref[:, None], run.reference, np.nan)
 
-    limit = _voltage_limit(run)
-    u = np.asarray(run.u, float)
-    finite_u = np.all(np.isfinite(u), axis=1)
-    saturated = int(np.sum(np.any(np.abs(u[finite_u]) >= limit * (1 - 1e-9), axis=1)))
     diag = meta.get("diagnostics", {})
     blocks = {role: {k: v for k, v in info.items()} for role, info in meta.get("blocks", {}).items()}
     replay = ReplayReport(
@@ -354,8 +410,12 @@ def plot_run(run: RunData, out_dir: str | Path, max_points: int = 20000) -> list
             ax.plot(t, to_um(run.y[sl, j]), lw=1, label="displacement")
             ax.set_ylabel(f"{axis} [µm]")
             ax.legend(loc="best", fontsize=8)
-            if run.reference is not None:
+            if run.reference is not None and np.isfinite(run.reference[sl, j]).any():
                 axs[1][j].plot(t, to_um(run.y[sl, j] - run.reference[sl, j]), lw=1, color="C3")
+            else:   # an empty panel says why
+                axs[1][j].text(0.5, 0.5, "no reference recorded here: no tracking error\n(the recording has no "
+                               "`reference` blocks for this span)", ha="center", va="center",
+                               transform=axs[1][j].transAxes, fontsize=9, color="0.3")
             axs[1][j].set_ylabel(f"error {axis} [µm]")
             axs[2][j].plot(t, run.u[sl, j], lw=1, color="C2")
             axs[2][j].set_ylabel(f"u{axis} [V]")

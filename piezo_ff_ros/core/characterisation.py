@@ -36,7 +36,7 @@ from .config import ConfigError
 from .recording.run import RunData
 from .stage import Processor
 from .trajectories import Hold, Ramp, Sine, Trajectory
-from .trajectories import Sequence as TrajSequence
+from .trajectories import TrajectorySequence
 
 __all__ = ["CharacterisationSettings", "Ramp", "Sum", "hysteresis_trajectories", "creep_trajectories", "dynamics_trajectories",
            "plant_validation_trajectory", "run_open_loop"]
@@ -92,10 +92,11 @@ def hysteresis_trajectories(s: CharacterisationSettings,
         return _sum(axes, [Sine(amplitude=s.sine_amplitude, frequency=s.sine_frequency, axis=a, phase=i * np.pi / 2,
                                 duration=T, axes=axes_t) for i, a in enumerate(moving)])
 
-    if len(axes_t) <= 2:
+    if len(axes_t) == 2:
         fit.append(("sine_all", together(axes_t)))
-    else:
-        # three sines of one frequency span a plane only: one run per pair of axes, so every cross term is seen
+    elif len(axes_t) > 2:
+        # (one axis: its own sine is all there is) three sines of one frequency span a plane only: one run per pair
+        # of axes, so every cross term is seen
         fit += [(f"sine_{a}{b}", together((a, b))) for i, a in enumerate(axes_t) for b in axes_t[i + 1:]]
     va = s.validation_fraction * s.sine_amplitude
     # held out: every axis at once at another amplitude and phase, a quarter period apart with two axes (a circle,
@@ -137,7 +138,7 @@ def _sum(axes: Sequence[str], parts: Sequence[Trajectory]) -> Sum:
 
 
 def _up_down(step: float, duration: float, lead: float, axes: tuple[str, ...], a: str,
-             ramp: float) -> tuple[TrajSequence, float]:
+             ramp: float) -> tuple[TrajectorySequence, float]:
     """Rest ``lead`` s, ramp up to ``step`` on axis ``a``, hold, ramp down, rest: ``(sequence, down_start_s)``."""
     amp = tuple(step if b == a else 0.0 for b in axes)
     zero = tuple(0.0 for _ in axes)
@@ -150,18 +151,18 @@ def _up_down(step: float, duration: float, lead: float, axes: tuple[str, ...], a
     if ramp > 0:
         segs.append(("down", Ramp(start=amp, end=zero, duration=ramp, axes=axes)))
     segs.append(("hold_down", Hold(value=zero, duration=duration - ramp, axes=axes)))
-    return TrajSequence(segs, axes=axes), lead + duration
+    return TrajectorySequence(segs, axes=axes), lead + duration
 
 
 def creep_trajectories(s: CharacterisationSettings,
-                       axes: Sequence[str] = ("x", "y")) -> list[tuple[str, TrajSequence, float]]:
+                       axes: Sequence[str] = ("x", "y")) -> list[tuple[str, TrajectorySequence, float]]:
     """Step up/down per axis [m] for S_H: ``[(name, traj, score_start_seconds)]``."""
     return [(f"creep_step_{a}",) + _up_down(s.creep_step, s.creep_duration, s.creep_lead, tuple(axes), a, s.step_ramp)
             for a in axes]
 
 
 def dynamics_trajectories(s: CharacterisationSettings,
-                          axes: Sequence[str] = ("x", "y")) -> list[tuple[str, TrajSequence, float]]:
+                          axes: Sequence[str] = ("x", "y")) -> list[tuple[str, TrajectorySequence, float]]:
     """Step up/down per axis [m] for S_L: ``[(name, traj, score_start_seconds)]``."""
     return [(f"dynamics_step_{a}",) + _up_down(s.dynamics_step, s.dynamics_duration, s.dynamics_lead, tuple(axes), a,
                                                 s.step_ramp) for a in axes]
@@ -176,7 +177,7 @@ PLANT_VALIDATION_LINES = {
 }
 
 
-def plant_validation_trajectory(s: CharacterisationSettings, axes: Sequence[str] = ("x", "y")) -> TrajSequence:
+def plant_validation_trajectory(s: CharacterisationSettings, axes: Sequence[str] = ("x", "y")) -> TrajectorySequence:
     """Held-out voltage record [V] for the identified model of the whole plant S0.
 
     A multisine on every axis at full level (``plant_validation_amplitude`` peak-sum, ``plant_validation_duration``
@@ -207,7 +208,7 @@ def plant_validation_trajectory(s: CharacterisationSettings, axes: Sequence[str]
     if s.step_ramp > 0:
         segs.append(("step_down", Ramp(start=step, end=zero, duration=s.step_ramp, axes=axes)))
     segs.append(("hold_down", Hold(value=zero, duration=s.plant_validation_hold, axes=axes)))
-    return TrajSequence(segs, axes=axes)
+    return TrajectorySequence(segs, axes=axes)
 
 
 def run_open_loop(system: Processor, traj: Trajectory, fs: float, name: str, axes: Sequence[str],

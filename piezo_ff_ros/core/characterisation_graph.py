@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .characterisation import Ramp, Sum
-from .trajectories import TRAJECTORY_TYPES, Circle, Sequence, Sine, Staircase, Table, Trajectory
+from .trajectories import TRAJECTORY_TYPES, Circle, Sine, Staircase, Table, Trajectory, TrajectorySequence
 
 __all__ = ["graph_playable", "from_rest"]
 
@@ -44,7 +44,7 @@ SAMPLED_RATE = 2000.0
 SAMPLED_CHUNK = 2000
 
 
-def _sampled(traj: Trajectory, fs: float) -> Sequence:
+def _sampled(traj: Trajectory, fs: float) -> TrajectorySequence:
     """``traj`` held at ≤ ``SAMPLED_RATE`` (its samples at rate ``fs``, every ``fs/SAMPLED_RATE``-th held) as
     ``Staircase`` chunks, 9 significant digits; as long as ``traj`` rounded up to a whole hold."""
     hold = max(1, int(round(fs / SAMPLED_RATE)))
@@ -57,7 +57,7 @@ def _sampled(traj: Trajectory, fs: float) -> Sequence:
                Staircase(levels=[tuple(r) for r in v[i:i + SAMPLED_CHUNK].tolist()], dwell=hold / fs,
                          axes=traj.axes))
               for i in range(0, len(v), SAMPLED_CHUNK)]
-    return Sequence(chunks, axes=traj.axes)
+    return TrajectorySequence(chunks, axes=traj.axes)
 
 
 def _table_file(traj: Trajectory, fs: float, table_dir: Path) -> Table:
@@ -77,7 +77,7 @@ def graph_playable(traj: Trajectory, fs: float, table_dir: Path | str | None = N
     Parameters
     ----------
     traj : Trajectory
-        A characterisation preset (``Sum``, ``Ramp``, a ``Sequence`` of them, or any graph type).
+        A characterisation preset (``Sum``, ``Ramp``, a ``TrajectorySequence`` of them, or any graph type).
     fs : float
         The rate the graph plays at [Hz].
     table_dir : path or None
@@ -95,8 +95,9 @@ def graph_playable(traj: Trajectory, fs: float, table_dir: Path | str | None = N
     ValueError
         For a type with no graph equivalent.
     """
-    if isinstance(traj, Sequence):
-        return Sequence([(n, graph_playable(t, fs, table_dir), m) for n, t, m in traj.segments_], axes=traj.axes)
+    if isinstance(traj, TrajectorySequence):
+        return TrajectorySequence([(n, graph_playable(t, fs, table_dir), m) for n, t, m in traj.segments_],
+                                  axes=traj.axes)
     if isinstance(traj, Ramp):
         return _ramp_staircase(traj.start, traj.end, int(traj.n_samples(fs)), fs, traj.axes)
     if isinstance(traj, Sum):
@@ -124,4 +125,5 @@ def from_rest(name: str, traj: Trajectory, fs: float, ramp: float) -> Trajectory
         return traj
     n = max(1, int(round(ramp * fs)))
     zero = tuple(0.0 for _ in traj.axes)
-    return Sequence([("from_rest", _ramp_staircase(zero, first, n, fs, traj.axes)), (name, traj)], axes=traj.axes)
+    return TrajectorySequence([("from_rest", _ramp_staircase(zero, first, n, fs, traj.axes)), (name, traj)],
+                              axes=traj.axes)

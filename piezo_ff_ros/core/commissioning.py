@@ -32,8 +32,8 @@ from .jsonable import JsonResult, jsonable
 from .identification.bouc_wen import identify_bouc_wen
 from .identification.creep import identify_creep
 from .identification.dynamics import identify_dynamics
-from .identification.pipeline import (REFIT_TAG, build_config, fits_report, part_fits, plant_fit,
-                                      refit_hysteresis_without_creep, with_hinf_controller)
+from .identification.pipeline import (REFIT_TAG, build_config, fits_report, plant_fit, refit_hysteresis_without_creep,
+                                      simulate_plant, with_hinf_controller)
 from .recording.run import RunData
 from .stage import Processor, Stage
 from .trajectories import Trajectory
@@ -43,7 +43,8 @@ if TYPE_CHECKING:  # imported where used (the simulation and the evaluation are 
     from .reproduce import ReproduceResult
 
 __all__ = ["CommissioningError", "PlannedRun", "Rig", "RigLimits", "SimRig", "CommissionResult", "CommissionReport",
-           "characterisation_plan", "check_voltage_runs", "commission", "verify", "save_config", "save_report"]
+           "characterisation_plan", "check_voltage_runs", "commission", "commission_sim", "part_fits", "verify",
+           "save_config", "save_report"]
 
 Progress = Callable[[str], None]
 
@@ -506,6 +507,43 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
                                                                    else ""),
                               plant_fit_parts=parts, timing_s=timing, plant_fit_noise_free=fit_noise_free)
     return CommissionResult(config=cfg, design=design, hinf_note=note, report=report, runs=runs)
+
+
+def commission_sim(plant: Processor, fs: float, axes: Sequence[str] = ("x", "y"),
+                   settings: CharacterisationSettings | None = None, base: PiezoConfig | None = None,
+                   generalized: bool = False, creep_order: int | str = "auto", dynamics_order: int | str = "auto",
+                   refine_hysteresis: bool = True,
+                   progress: Progress | None = None) -> tuple[PiezoConfig, CommissionReport, list[RunData]]:
+    """Characterise and identify stage by stage on a sim plant (``process``/``reset``), as in Fig. 3.
+
+    The sequence of :func:`commission` on a :class:`SimRig`, without the H∞ synthesis.  Returns ``(config, report,
+    runs)``; ``runs`` are tagged so :func:`~.identification.pipeline.identify_all` can redo the identification.
+    """
+
+    res = commission(SimRig(plant, fs, axes), base=base, settings=settings, generalized=generalized,
+                     creep_order=creep_order, dynamics_order=dynamics_order, refine_hysteresis=refine_hysteresis,
+                     synthesize=False, progress=progress)
+    return res.config, res.report, res.runs
+
+
+def part_fits(cfg: PiezoConfig, run: RunData, y_ref: np.ndarray, traj: Trajectory,
+              axes: Sequence[str]) -> dict[str, dict[str, float]]:
+    """Whole-plant fit on each part of the validation record (multisine: hysteresis loops and G_L in the band;
+    step pair: creep and the G_L transients), to see which stage limits the whole-record figure."""
+    from .identification.metrics import fit_percent
+    from .trajectories import TrajectorySequence
+
+    if not isinstance(traj, TrajectorySequence):
+        raise ValueError(f"part_fits: the validation record must be a sequence of named parts, got {traj.kind}")
+    y_model = simulate_plant(cfg, run.u, run.sample_rate)
+    segs = {seg.name: seg for seg in traj.segments(run.sample_rate)}
+    parts = {"multisine": (segs["multisine_full"].start, segs["multisine_half"].stop),
+             "step_pair": (segs["multisine_half"].stop, len(run))}
+    out = {}
+    for name, (k0, k1) in parts.items():
+        f = fit_percent(y_ref[k0:k1], y_model[k0:k1])
+        out[name] = {a: round(float(v), 3) for a, v in zip(axes, f)}
+    return out
 
 
 def verify(rig: Rig, cfg: PiezoConfig, design: object, experiments: Sequence[Experiment],

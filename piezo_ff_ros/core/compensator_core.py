@@ -7,13 +7,18 @@ and the ``/diagnostics`` status; its :class:`~.parameter_book.ParameterBook` hol
 parameter transactions.  The compensator node only declares and types the ROS parameters, converts messages, and publishes,
 logs and sets what each call returns in an :class:`Emit`:
 
-- ``on_reference(stamp, block, now)`` — a reference block from the topic: NaN/Inf rejected; after a pause of
+- ``on_reference(stamp, block, now)`` — a reference block from the topic: NaN/Inf, an empty block, a stamp off the
+  sample grid and a sample outside ``reference_limit`` refused (counted, one ERROR line a second at most,
+  ``/diagnostics`` at ERROR while it lasts); a jump of more than 1 s in the stamps is a new stream or a stray stamp
+  (``input_jumps``), never lost samples; after a pause of
   ``max(hold_timeout, 0.5 s)`` a jump in the stamps starts a new stream, otherwise a jump forward is a gap (lost
   blocks, counted with their samples) and a jump back a late block; then the workspace clamp (counted, a WARN at
   most once a second), the tracking front and the cascade (``bypass``: the block is forwarded unchanged);
 - ``process(block, None, now)`` — a block of the held point: its stamp continues the stream (or starts it on the
   wall clock's sample grid);
-- ``on_applied(stamp, u, now)`` — the driver's applied voltage, for the re-synchronisation of the inverse models;
+- ``on_applied(stamp, u, now, foreign)`` — the driver's applied voltage, for the re-synchronisation of the inverse
+  models: only from the paired driver (the node says who else sent it), finite, on the grid, within
+  ``±limits.voltage`` and not beyond the stream produced — anything else refused and counted (``applied_rejected``);
 - ``propose(params)`` then ``commit(params)`` — a parameter change: validated as a whole
   (:meth:`ParameterBook.propose`, the on-set check; a rejection's reason starts with the field's name) and applied
   after (node settings, the tracking front, a new configuration — built in the background when it needs an H∞
@@ -40,7 +45,7 @@ from .hold_pacer import HoldPacer
 from .hot_swap import CascadeFactory, HotSwapCascade
 from .param_map import needs_synthesis
 from .parameter_book import ParameterBook, Verdict, check_workspace, parse_config_yaml, same_value
-from .recording.blocks import sample_period_ns
+from .recording.blocks import BlockFormatError, check_stamp, sample_period_ns
 from .status import ERROR, OK, WARN
 from .tracking.front import TrackingFront
 from .tracking.linear import controller_matrices
@@ -50,13 +55,18 @@ __all__ = ["CompensatorCore", "CompensatorSettings", "Emit", "ParameterBook", "S
            "ERROR"]
 
 #: the node parameters that are not stage parameters and change the running core (:class:`CompensatorSettings`)
-SETTING_NAMES = ("crossfade", "block_size", "hold_timeout", "bypass", "resync", "workspace")
+SETTING_NAMES = ("crossfade", "block_size", "hold_timeout", "bypass", "resync", "workspace", "reference_limit")
 
 #: the ``input_*`` counters of ``/diagnostics`` (without the prefix), in their order
-_INPUT_KEYS = ("gaps", "gap_samples", "late_blocks", "workspace_clamped_samples")
+_INPUT_KEYS = ("gaps", "gap_samples", "late_blocks", "jumps", "workspace_clamped_samples")
 
 #: the status keys whose non-zero value makes ``/diagnostics`` WARN
-_WARN_KEYS = ("failed_builds", "rejected_blocks", "input_gaps", "input_late_blocks", "input_workspace_clamped_samples")
+_WARN_KEYS = ("failed_builds", "rejected_blocks", "applied_rejected", "input_gaps", "input_late_blocks",
+              "input_jumps", "input_workspace_clamped_samples")
+
+#: a jump in the reference stamps of more than this [s] is no gap (no lost blocks are that long): a stray stamp or
+#: a new stream, counted in ``input_jumps`` and never as lost samples
+_MAX_GAP_S = 1.0
 
 
 
@@ -103,6 +113,11 @@ class CompensatorSettings:
         Follow the applied voltage and re-synchronise the hysteresis/creep states on it.
     workspace : tuple of float
         ``[min_x, max_x, min_y, …]`` [m] the reference is clamped to; empty = none.
+    reference_limit : tuple of float
+        ``[min_x, max_x, min_y, …]`` [m]: a reference block (or ``reference_point``) with a sample outside is
+        refused whole (the node's default: the stage's reachable range with a margin,
+        :func:`~.trajectories.workspace.reachable_range`); empty = none.  In ``bypass`` the reference is in volts
+        and ``±limits.voltage`` bounds it instead.
     """
 
     crossfade: float = 0.01
@@ -111,6 +126,7 @@ class CompensatorSettings:
     bypass: bool = False
     resync: bool = True
     workspace: tuple[float, ...] = ()
+    reference_limit: tuple[float, ...] = ()
 
     def validate(self, n_axes: int) -> "CompensatorSettings":
         """Check the workspace against the number of axes (:func:`check_workspace`); returns self.
@@ -126,6 +142,7 @@ class CompensatorSettings:
             self.
         """
         check_workspace(self.workspace, n_axes)
+        check_workspace(self.reference_limit, n_axes, "reference_limit")
         return self
 
     def with_value(self, name: str, value: Any) -> "CompensatorSettings":
@@ -145,7 +162,8 @@ class CompensatorSettings:
         """
         conv: dict[str, Callable[[Any], Any]] = {"crossfade": float, "block_size": int, "hold_timeout": float,
                                                  "bypass": bool, "resync": bool,
-                                                 "workspace": lambda v: tuple(float(x) for x in v)}
+                                                 "workspace": lambda v: tuple(float(x) for x in v),
+                                                 "reference_limit": lambda v: tuple(float(x) for x in v)}
         return replace(self, **{name: conv[name](value)})
 
     def crossfade_samples(self, sample_rate: float) -> int:
@@ -304,6 +322,10 @@ class CompensatorCore:
         self._seen_failed = 0
         self._ws_warn = _Throttle(1.0)
         self._resync_warn = _Throttle(1.0)
+        self._jump_warn = _Throttle(1.0)
+        self._reject_log = {"reference": _Throttle(1.0), "voltage_applied": _Throttle(1.0)}
+        self._refused_now = {"reference": 0, "voltage_applied": 0}   # since the last diagnostics() call
+        self._last_refusal = {"reference": "", "voltage_applied": ""}
 
     # -- data path -------------------------------------------------------------------------------------------------
     def on_reference(self, stamp: int, block: np.ndarray, now: float) -> Emit:
@@ -324,8 +346,17 @@ class CompensatorCore:
         Emit
             The voltage block (and a configuration announcement), or the rejection of a block with NaN/Inf.
         """
+        if block.ndim != 2 or block.shape[0] < 1 or block.shape[1] != len(self.axes):
+            return self.reject("reference", f"block: shape {block.shape}, expected [N ≥ 1, {len(self.axes)}]")
         if not np.all(np.isfinite(block)):
             return self.reject("reference", "NaN/Inf in the reference")
+        try:
+            check_stamp(stamp, self.period_ns)
+        except BlockFormatError as exc:
+            return self.reject("reference", str(exc))
+        outside = self._outside_limit(block)
+        if outside:
+            return self.reject("reference", outside)
         restart = now - self._last_block_wall > max(self.settings.hold_timeout, 0.5)
         self._last_block_wall = now
         self.pacer.note_block(now)
@@ -345,15 +376,42 @@ class CompensatorCore:
         Returns
         -------
         Emit
-            The error line.
+            The error line (at most one a second per topic, with the count so far; every block is counted and
+            ``/diagnostics`` is at ERROR until the next report).
         """
         text = f"{topic} block rejected: {reason}"
         if topic == "reference":
             self.rejected_blocks += 1
             self.last_error = text
+            total = self.rejected_blocks
         else:
             self.applied_rejected += 1
-        return Emit(log=[(ERROR, text)])
+            total = self.applied_rejected
+        self._refused_now[topic] += 1
+        self._last_refusal[topic] = text
+        # one line a second at most: a flood of bad blocks must not flood the log (every one is counted)
+        if self._reject_log[topic].due(time.monotonic()):
+            return Emit(log=[(ERROR, text + (f" ({total} so far)" if total > 1 else ""))])
+        return Emit()
+
+    def _outside_limit(self, block: np.ndarray) -> str:
+        """Why ``block`` lies outside the reference limit (``reference_limit`` [m]; ``bypass``: ±limits.voltage
+        [V]); empty when it does not."""
+        if self.settings.bypass:
+            v = float(self.cfg.limits.voltage)
+            lo, hi, name, unit = np.full(len(self.axes), -v), np.full(len(self.axes), v), "limits.voltage", "V"
+        elif self.settings.reference_limit:
+            lim = self.settings.reference_limit
+            lo, hi, name, unit = np.asarray(lim[0::2]), np.asarray(lim[1::2]), "reference_limit", "m"
+        else:
+            return ""
+        bad = np.any((block < lo) | (block > hi), axis=1)
+        n = int(np.count_nonzero(bad))
+        if not n:
+            return ""
+        worst = block[int(np.argmax(bad))]
+        return (f"{name}: {n} sample(s) outside {[float(x) for pair in zip(lo, hi) for x in pair]} [{unit}] "
+                f"(e.g. {[float(f'{x:.6g}') for x in worst]}); adjust {name} if the stage really goes there")
 
     def process(self, block: np.ndarray, stamp: int | None, now: float, *, from_topic: bool = False,
                 restart: bool = False) -> Emit:
@@ -405,7 +463,13 @@ class CompensatorCore:
 
     def _book_input(self, k0: int, n: int, stamp: int, restart: bool, em: Emit) -> None:
         expected = self._expected_k
-        if not restart and expected is not None and k0 != expected:
+        if not restart and expected is not None and abs(k0 - expected) > _MAX_GAP_S * self.cfg.sample_rate:
+            # a stray stamp or a new stream, not lost blocks: counted as a jump, never as gap samples
+            self.input["jumps"] += 1
+            if self._jump_warn.due(time.monotonic()):
+                em.log.append((WARN, f"reference stamps jumped by {k0 - expected} samples at stamp {stamp} (more "
+                                     f"than {_MAX_GAP_S:g} s): a new stream or a stray stamp, not counted as lost"))
+        elif not restart and expected is not None and k0 != expected:
             if k0 > expected:
                 self.input["gaps"] += 1
                 self.input["gap_samples"] += int(k0 - expected)
@@ -433,8 +497,12 @@ class CompensatorCore:
         """Whether ``voltage_applied`` blocks are used (``resync``): otherwise they are ignored unread."""
         return self.settings.resync
 
-    def on_applied(self, stamp: int, u: np.ndarray, now: float) -> Emit:
+    def on_applied(self, stamp: int, u: np.ndarray, now: float, foreign: str = "") -> Emit:
         """The voltage the driver applied (same stamps as the voltage blocks): re-synchronise where it differs.
+
+        Only what the paired driver could have applied is used: a block from another sender (``foreign``: who sent
+        it, as the node found out), with NaN/Inf, off the sample grid or beyond ``±limits.voltage`` is refused and
+        counted (``applied_rejected``), the states stay as they are.
 
         Parameters
         ----------
@@ -444,12 +512,35 @@ class CompensatorCore:
             ``[N, axes]`` [V].
         now : float
             Monotonic clock [s] (the re-synchronisation WARN comes at most once a second).
+        foreign : str
+            Non-empty: the block does not come from the paired driver (the text says from whom).
 
         Returns
         -------
         Emit
-            A WARN line when the states were re-synchronised.
+            A WARN line when the states were re-synchronised, an ERROR line (at most once a second) for a refusal.
         """
+        if foreign:
+            return self.reject("voltage_applied", foreign)
+        if u.ndim != 2 or u.shape[0] < 1 or u.shape[1] != len(self.axes):
+            return self.reject("voltage_applied", f"block: shape {u.shape}, expected [N ≥ 1, {len(self.axes)}]")
+        if not np.all(np.isfinite(u)):
+            return self.reject("voltage_applied", "NaN/Inf in the applied voltage")
+        try:
+            check_stamp(stamp, self.period_ns)
+        except BlockFormatError as exc:
+            return self.reject("voltage_applied", str(exc))
+        horizon = self._next_stamp + int(_MAX_GAP_S * self.cfg.sample_rate) * self.period_ns \
+            if self._next_stamp is not None else None
+        if horizon is not None and stamp > horizon:
+            # no driver applies samples more than 1 s beyond what it was sent (a hold before them would be that
+            # long: a stamp 1e12 samples ahead asked for terabytes)
+            return self.reject("voltage_applied", f"block.header.stamp: {stamp} ns is more than {_MAX_GAP_S:g} s "
+                                                  f"ahead of the voltage produced (next {self._next_stamp} ns)")
+        v = float(self.cfg.limits.voltage)
+        if np.any(np.abs(u) > v * (1 + 1e-9)):
+            return self.reject("voltage_applied", f"limits.voltage: {float(np.max(np.abs(u))):.6g} V beyond ±{v:g} V "
+                                                  "(no driver applies that)")
         em = Emit()
         if self.hs.applied(stamp // self.period_ns, u) == "resync" and self._resync_warn.due(now):
             em.log.append((WARN, "applied voltage differs from the command: hysteresis/creep states "
@@ -471,6 +562,13 @@ class CompensatorCore:
         """
         if not np.all(np.isfinite(point)):
             return Emit(log=[(ERROR, "reference_point rejected: NaN/Inf")])
+        outside = self._outside_limit(np.asarray(point, float)[None, :])
+        if outside:
+            self.rejected_blocks += 1
+            self.last_error = f"reference_point rejected: {outside}"
+            self._refused_now["reference"] += 1
+            self._last_refusal["reference"] = self.last_error
+            return Emit(log=[(ERROR, self.last_error + "; the previous point stays")])
         self.pacer.set_point(point)
         return Emit(hold_timer="start")
 
@@ -615,7 +713,8 @@ class CompensatorCore:
               "order": hs.cfg.cascade.order,
               # re-synchronisation needs the paper order (commuted: the voltage leaves C(s), not the hysteresis⁻¹)
               "resync_active": bool(self.settings.resync and hs.active.can_follow),
-              "preview_s": self.front.preview_s, "learning_file": self.front.learning_file}
+              "preview_s": self.front.preview_s, "learning_file": self.front.learning_file,
+              "reference_limit": list(self.settings.reference_limit)}
         if self.last_error:
             st["last_error"] = self.last_error
         h = hs.active.hysteresis
@@ -634,15 +733,21 @@ class CompensatorCore:
         Returns
         -------
         (int, str, dict)
-            :data:`WARN` when a build failed or input was rejected, lost, late or clamped, else :data:`OK`; the
-            message ``config v<n>`` (then the last error after a failed build, and the counts that warn); the
-            :meth:`status`.
+            :data:`ERROR` while blocks are being refused (since the previous call: the message says what and
+            why), :data:`WARN` when a build failed or input was rejected, lost, late, jumped or clamped, else
+            :data:`OK`; the message ``config v<n>`` (then the last error after a failed build, and the counts that
+            warn); the :meth:`status`.
         """
         st = self.status()
         warn = [k for k in _WARN_KEYS if st.get(k)]
         msg = f"config v{st['config_version']}"
+        refusing = [f"{n} {topic} block(s) refused now ({self._last_refusal[topic]})"
+                    for topic, n in self._refused_now.items() if n]
+        self._refused_now = dict.fromkeys(self._refused_now, 0)
+        if refusing:
+            msg += "; " + "; ".join(refusing)
         if st["failed_builds"] and self.last_error:
             msg += f"; {self.last_error}"
         if warn:
             msg += "; " + ", ".join(f"{k} {st[k]}" for k in warn)
-        return (WARN if warn else OK), msg, st
+        return (ERROR if refusing else WARN if warn else OK), msg, st

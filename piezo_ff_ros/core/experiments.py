@@ -5,7 +5,7 @@ compensator stages are on, what drives it (a voltage applied directly, or a refe
 trajectory, and which metric (Section VII-A) is read from it.  The same list drives
 
 * :func:`simulate_experiments` — core cascade + :class:`~piezo_ff_ros.core.models.plant.Plant`, in blocks;
-* the ROS demo (another package part) — :func:`experiment_sequence` gives a named :class:`Sequence` whose segment
+* the ROS demo (another package part) — :func:`experiment_sequence` gives a named :class:`~.trajectories.TrajectorySequence` whose segment
   ``meta`` carries everything a node needs (``Experiment.meta()``);
 * :func:`piezo_ff_ros.core.reproduce.evaluate` — the tables from recorded signals, whatever produced them.
 
@@ -41,7 +41,7 @@ import numpy as np
 from .compensators.cascade import CompensatorCascade
 from .config import PiezoConfig
 from .models.plant import Plant
-from .trajectories import Circle, PerAxis, Sequence, Sine, Step, Trajectory
+from .trajectories import Circle, PerAxis, Sine, Step, Trajectory, TrajectorySequence
 from .stage import Processor
 from .units import UM
 
@@ -117,7 +117,7 @@ class Experiment:
         return STAGE_SETS[self.system]
 
     def meta(self) -> dict[str, Any]:
-        """Plain-dict description for a :class:`Sequence` segment / ROS parameters (no trajectory)."""
+        """Plain-dict description for a :class:`~.trajectories.TrajectorySequence` segment / ROS parameters (no trajectory)."""
         return {"experiment": self.name, "section": self.section, "system": self.system, "input": self.input,
                 "stages": list(self.stages), "metric": self.metric, "axis": self.axis,
                 "params": dict(self.params), "reset_before": True, "description": self.description}
@@ -229,9 +229,9 @@ def paper_experiments(cfg: PiezoConfig | None = None, creep_duration: float = 60
     return exps
 
 
-def experiment_sequence(experiments: list[Experiment]) -> Sequence:
-    """The experiments as one named :class:`Sequence` (segment meta = :meth:`Experiment.meta`)."""
-    return Sequence([(e.name, e.trajectory, e.meta()) for e in experiments])
+def experiment_sequence(experiments: list[Experiment]) -> TrajectorySequence:
+    """The experiments as one named :class:`TrajectorySequence` (segment meta = :meth:`Experiment.meta`)."""
+    return TrajectorySequence([(e.name, e.trajectory, e.meta()) for e in experiments])
 
 
 def _stage_config(cfg: PiezoConfig, exp: Experiment) -> PiezoConfig:

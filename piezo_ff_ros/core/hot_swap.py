@@ -402,6 +402,14 @@ class HotSwapCascade:
             return "ignored"
         if k0 < k_conf:
             u, k0 = u[k_conf - k0:], k_conf
+        if k0 - k_conf > self.max_inflight_samples:
+            # no amplifier held its voltage that long between two blocks it reported (a stray stamp): following
+            # it would allocate the whole hold; the tracking restarts with the next block sent instead
+            self._inflight.clear()
+            self._inflight_samples = 0
+            self._conf = None
+            self.applied_ignored += 1
+            return "ignored"
         self._last_applied = u[-1].copy()
         head = self._inflight[0] if self._inflight else None
         if head is not None and k0 == k_conf == head.k0 and head.u.shape == u.shape and \

@@ -13,14 +13,18 @@ from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
-import yaml
 
 from .config import ConfigError, PiezoConfig
+from .config.loader import safe_yaml
 from .param_map import config_to_params, is_config_param, params_to_config
 from .status import ERROR
 from .tracking.front import FRONT_DEFAULTS, TrackingFront, front_settings, is_front_param
 
-__all__ = ["ParameterBook", "Verdict", "check_workspace", "parse_config_yaml", "same_value"]
+__all__ = ["ParameterBook", "Verdict", "check_workspace", "parse_config_yaml", "same_value", "CONFIG_YAML_MAX_BYTES"]
+
+#: the largest ``config_yaml`` accepted [bytes] (every stage parameter of the paper's configuration: about 4 kB);
+#: checked before parsing, so that a huge string never blocks the node's executor
+CONFIG_YAML_MAX_BYTES = 64 * 1024
 
 
 def same_value(a: Any, b: Any) -> bool:
@@ -44,8 +48,9 @@ def same_value(a: Any, b: Any) -> bool:
     return bool(a == b) and type(a) is type(b)
 
 
-def check_workspace(flat: Sequence[float], n_axes: int) -> None:
-    """Check a ``workspace`` parameter: empty, or ``[min, max]`` per axis, finite, ``min < max``.
+def check_workspace(flat: Sequence[float], n_axes: int, name: str = "workspace") -> None:
+    """Check a box parameter (``workspace``, ``reference_limit``): empty, or ``[min, max]`` per axis, finite,
+    ``min < max``.
 
     Parameters
     ----------
@@ -53,16 +58,18 @@ def check_workspace(flat: Sequence[float], n_axes: int) -> None:
         ``[min_x, max_x, min_y, max_y, …]`` [m].
     n_axes : int
         Number of axes of the configuration.
+    name : str
+        The parameter's name (the refusal starts with it).
 
     Raises
     ------
     ConfigError
-        Starting with ``workspace:``, saying what is expected and what was given.
+        Starting with ``<name>:``, saying what is expected and what was given.
     """
     if flat and (len(flat) != 2 * n_axes or not all(np.isfinite(flat))
                  or any(flat[2 * i] >= flat[2 * i + 1] for i in range(n_axes))):
-        raise ConfigError("workspace", f"expected [min, max] per axis ({2 * n_axes} finite values, min < max), "
-                                       f"got {list(flat)}")
+        raise ConfigError(name, f"expected [min, max] per axis ({2 * n_axes} finite values, min < max), "
+                                f"got {list(flat)}")
 
 
 def parse_config_yaml(text: str) -> dict[str, Any]:
@@ -82,12 +89,11 @@ def parse_config_yaml(text: str) -> dict[str, Any]:
     Raises
     ------
     ConfigError
-        One line starting with ``config_yaml:``: not YAML, not a mapping, or a name that is not a stage parameter.
+        One line starting with ``config_yaml:``: larger than :data:`CONFIG_YAML_MAX_BYTES`, nested too deeply or
+        an alias bomb (:func:`~.config.loader.safe_yaml`), not YAML, not a mapping, or a name that is not a stage
+        parameter.
     """
-    try:
-        d = yaml.safe_load(text) if text.strip() else {}
-    except yaml.YAMLError as exc:
-        raise ConfigError("config_yaml", f"not YAML ({str(exc).splitlines()[0]})") from None
+    d = safe_yaml(text, "config_yaml", max_bytes=CONFIG_YAML_MAX_BYTES) if text.strip() else {}
     if d is None:
         return {}
     if not isinstance(d, dict):
@@ -229,9 +235,9 @@ class ParameterBook:
                     return Verdict(False, str(exc), ((ERROR, f"config_yaml rejected: {exc}"),))
                 updates.update(from_text)
                 from_yaml = True
-            elif name == "workspace":
+            elif name in ("workspace", "reference_limit"):
                 try:
-                    check_workspace(list(value or []), len(self.base.axes))
+                    check_workspace(list(value or []), len(self.base.axes), name)
                 except ConfigError as exc:
                     return Verdict(False, str(exc))
             elif is_front_param(name) and not front_checked:   # all the front's parameters of the set at once

@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike
 from .kernels.limits import limit_run
 from .config import LimitsConfig
 
-__all__ = ["VoltageGuard", "GuardCounters", "BlockRejected", "SafeRampConfig", "safe_ramp", "slew_limit", "limit_block"]
+__all__ = ["at_limit", "MIN_RAMP_DURATION", "MAX_RAMP_DURATION", "MAX_RAMP_SLEW", "VoltageGuard", "GuardCounters", "BlockRejected", "SafeRampConfig", "safe_ramp", "slew_limit", "limit_block"]
 
 
 class BlockRejected(ValueError):
@@ -40,7 +40,7 @@ class GuardCounters:
 
     blocks_applied: int = 0
     samples_applied: int = 0
-    saturated_samples: int = 0      #: samples where at least one axis was clamped to ±voltage
+    saturated_samples: int = 0      #: samples sent at or beyond ±voltage on an axis (clamped here or by the sender)
     slew_limited_samples: int = 0   #: samples where at least one axis was held back by the slew limit
     rejected_blocks: int = 0        #: NaN/Inf, wrong shape, oversized
     safe_ramps: int = 0             #: ramps to the safe state (stale input)
@@ -48,6 +48,12 @@ class GuardCounters:
     def as_dict(self) -> dict[str, int]:
         """The counters as a plain mapping."""
         return dict(self.__dict__)
+
+
+#: the documented bounds of the safe ramp (docs/nodes.md): at least 50 ms, at most 1e4 V/s (200 V in ≥ 20 ms)
+MIN_RAMP_DURATION = 0.05
+MAX_RAMP_DURATION = 60.0
+MAX_RAMP_SLEW = 1.0e4
 
 
 @dataclass(frozen=True)
@@ -62,13 +68,18 @@ class SafeRampConfig:
     slew: float = 1.0e4      #: maximum ramp slew [V/s] (applied together with the operating limit)
 
     def validate(self, prefix: str = "safe_ramp") -> "SafeRampConfig":
-        """Check the fields (``ConfigError`` naming ``prefix.<field>``); returns self."""
+        """Check the fields against the documented bounds (docs/nodes.md: ``duration`` in
+        [:data:`MIN_RAMP_DURATION`, 60] s, ``slew`` in (0, :data:`MAX_RAMP_SLEW`] V/s): a "ramp" of one sample is
+        a step.  ``ConfigError`` naming ``prefix.<field>``; returns self."""
         from .config import ConfigError
 
-        if not (isinstance(self.duration, (int, float)) and math.isfinite(self.duration) and 0 <= self.duration <= 60):
-            raise ConfigError(f"{prefix}.duration", f"must be a number of seconds in [0, 60], got {self.duration!r}")
-        if not (isinstance(self.slew, (int, float)) and math.isfinite(self.slew) and self.slew > 0):
-            raise ConfigError(f"{prefix}.slew", f"must be a finite number > 0 V/s, got {self.slew!r}")
+        d, v = self.duration, self.slew
+        if isinstance(d, bool) or not (isinstance(d, (int, float)) and math.isfinite(d)
+                                       and MIN_RAMP_DURATION <= d <= MAX_RAMP_DURATION):
+            raise ConfigError(f"{prefix}.duration", f"must be a number of seconds in [{MIN_RAMP_DURATION:g}, "
+                                                    f"{MAX_RAMP_DURATION:g}], got {d!r}")
+        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and 0 < v <= MAX_RAMP_SLEW):
+            raise ConfigError(f"{prefix}.slew", f"must be a number of V/s in (0, {MAX_RAMP_SLEW:g}], got {v!r}")
         return self
 
 
@@ -109,6 +120,13 @@ def limit_block(target: ArrayLike, u_prev: np.ndarray, step: float, limit: float
     counts = np.zeros(2, np.int64)
     limit_run(target, u_prev, np.ones(1, np.bool_), float(limit), float(step), out, counts)
     return out, int(counts[0]), int(counts[1])
+
+
+def at_limit(u: ArrayLike, limit: float) -> int:
+    """Samples of ``u [N, axes]`` at the voltage limit on at least one axis: ``|u| ≥ limit·(1 − 1e-9)`` (the rule
+    of the driver's ``saturated_samples`` and of ``piezo-ff analyze``)."""
+    a = np.asarray(u, float)
+    return int(np.count_nonzero(np.any(np.abs(a) >= float(limit) * (1 - 1e-9), axis=1)))
 
 
 class VoltageGuard:
@@ -165,8 +183,10 @@ class VoltageGuard:
     def apply(self, block: ArrayLike) -> np.ndarray:
         """Validated, clamped and slew-limited copy of ``block`` (what may be applied); updates the state."""
         u = self.check(block)
-        out, n_clamped, n_limited = limit_block(u, self.u_last, self.step, self.limits.voltage)
-        self.counters.saturated_samples += n_clamped
+        out, _, n_limited = limit_block(u, self.u_last, self.step, self.limits.voltage)
+        # sent at or beyond the limit, whoever clamped it (a compensator clamps to exactly ±voltage): the rule
+        # of the analyzer on the voltage topic, so that the two agree
+        self.counters.saturated_samples += at_limit(u, self.limits.voltage)
         self.counters.slew_limited_samples += n_limited
         self.counters.blocks_applied += 1
         self.counters.samples_applied += out.shape[0]

@@ -32,9 +32,10 @@ from pathlib import Path
 from typing import Any, Mapping, Protocol
 
 import numpy as np
-import yaml
+
 
 from .config import ConfigError
+from .config.loader import safe_yaml
 from .status import ERROR, OK, WARN
 from .trajectories import Table, Trajectory, check_workspace, from_dict
 from .units import sample_period_ns
@@ -135,10 +136,7 @@ def _parse(text: str, file: str, sample_rate: float) -> Trajectory:
             except ConfigError as exc:
                 raise ConfigError(f"trajectory_file.{exc.field}", exc.reason) from None
         text = p.read_text()
-    try:
-        spec = yaml.safe_load(text) if text.strip() else None
-    except yaml.YAMLError as exc:
-        raise ConfigError("trajectory", f"not valid JSON/YAML ({exc})") from None
+    spec = safe_yaml(text, "trajectory") if text.strip() else None   # size/depth/alias limits: no crash, no stall
     if spec is None:
         raise ConfigError("trajectory", "empty")
     return from_dict(spec, prefix="trajectory")

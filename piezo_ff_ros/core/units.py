@@ -48,13 +48,13 @@ def sample_period_ns(sample_rate: float) -> int:
     """Sample period in integer nanoseconds, ``round(1e9 / fs)`` (50 000 at 20 kHz).
 
     Raises ``ValueError`` when ``fs`` is not positive and finite, or when the period is not a whole number of
-    nanoseconds to within 1e-6 ns relative error (stamps would then drift from ``k / fs``).
+    nanoseconds (to within float rounding: stamps would otherwise drift from ``k / fs``).
     """
     fs = float(sample_rate)
     if not np.isfinite(fs) or fs <= 0:
         raise ValueError(f"sample_rate: must be positive and finite, got {sample_rate!r}")
     dt_ns = round(1e9 / fs)
-    if dt_ns < 1 or abs(dt_ns - 1e9 / fs) > 1e-6 * dt_ns:
+    if dt_ns < 1 or abs(dt_ns - 1e9 / fs) > 1e-6:   # float rounding only: no drift from k/fs
         raise ValueError(f"sample_rate: {fs} Hz has no whole-nanosecond period (1e9/fs = {1e9 / fs!r} ns); "
                          "choose a rate that divides 1e9")
     return int(dt_ns)

@@ -2,7 +2,8 @@
 
 Block message (docs/topics.md): ``sensor_msgs/msg/PointCloud2`` used as a table of N samples, height 1, width N,
 one FLOAT64 field per axis named after it, row-major little-endian ``[N, axes]`` data, ``header.stamp`` = time of
-the first sample = ``t0 + k0·dt_ns`` with ``dt_ns = round(1e9/fs)`` so that sample indices are exact.
+the first sample = ``t0 + k0·dt_ns`` with ``dt_ns = round(1e9/fs)`` so that sample indices are exact.  The codec
+itself is :mod:`piezo_ff_ros.core.recording.blocks` (one codec for the nodes, the recorder and the readers).
 """
 from __future__ import annotations
 
@@ -19,14 +20,17 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import PointCloud2, PointField
 
 from ..core.hardware.driver_core import ERROR, WARN
+from ..core.recording import blocks
+from ..core.recording.blocks import MAX_BLOCK_SAMPLES, BlockFormatError, sample_period_ns, stamp_to_ns
 
 __all__ = ["BLOCK_QOS", "RECORD_QOS", "LATCHED_QOS", "CONFIG_QOS", "FRAME_ID", "dt_ns", "pack_block", "unpack_block",
            "stamp_to_ns", "ns_to_stamp", "k0_of", "spin_node", "BlockFormatError", "log_lines",
-           "writer_matches"]
+           "writer_matches", "MAX_BLOCK_SAMPLES"]
 
-FRAME_ID = "piezo"
+FRAME_ID = blocks.FRAME_ID
 
-#: blocks: reliable, keep-last 100, volatile — publishers and subscribers alike
+#: blocks: reliable, keep-last 100, volatile — publishers and subscribers alike (a client that bursts more than 100
+#: blocks at once loses the oldest: docs/topics.md says how to pace)
 BLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
 #: the recorder's subscriptions: same policies, deeper queue (a busy recorder must not lose blocks)
@@ -40,27 +44,17 @@ LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=
 CONFIG_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
-_FLOAT64 = PointField.FLOAT64
-
-
-class BlockFormatError(ValueError):
-    """A block message that does not follow the contract (the text says what is wrong)."""
-
 
 def dt_ns(sample_rate: float) -> int:
-    """Sample period in integer nanoseconds (50 000 at 20 kHz)."""
-    return int(round(1e9 / float(sample_rate)))
+    """Sample period in integer nanoseconds (50 000 at 20 kHz); ``ValueError`` for a rate whose period is not a
+    whole number of nanoseconds (:func:`piezo_ff_ros.core.recording.blocks.sample_period_ns`)."""
+    return sample_period_ns(sample_rate)
 
 
 def ns_to_stamp(ns: int, stamp: Any) -> None:
     """Write ``ns`` [ns] into a ``builtin_interfaces/Time`` (``sec``, ``nanosec``)."""
-    stamp.sec = int(ns // 1_000_000_000)
-    stamp.nanosec = int(ns % 1_000_000_000)
-
-
-def stamp_to_ns(stamp: Any) -> int:
-    """A ``builtin_interfaces/Time`` as integer nanoseconds."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    t = blocks.ns_to_stamp(ns)
+    stamp.sec, stamp.nanosec = t["sec"], t["nanosec"]
 
 
 def k0_of(msg: Any, t0_ns: int, period_ns: int) -> int:
@@ -69,57 +63,32 @@ def k0_of(msg: Any, t0_ns: int, period_ns: int) -> int:
 
 
 def pack_block(block: np.ndarray, axes: Sequence[str], stamp_ns: int, msg: PointCloud2 | None = None) -> PointCloud2:
-    """``[N, axes]`` float array → PointCloud2 of the contract."""
-    data = np.ascontiguousarray(block, dtype="<f8")
-    n, k = data.shape
-    if k != len(axes):
-        raise ValueError(f"block has {k} columns for axes {list(axes)}")
+    """``[N, axes]`` float array → PointCloud2 of the contract (:func:`~piezo_ff_ros.core.recording.blocks.
+    encode_block`)."""
+    d = blocks.encode_block(block, stamp_ns, axes)
     msg = PointCloud2() if msg is None else msg
     ns_to_stamp(stamp_ns, msg.header.stamp)
-    msg.header.frame_id = FRAME_ID
-    msg.height = 1
-    msg.width = n
-    msg.fields = [PointField(name=a, offset=8 * i, datatype=_FLOAT64, count=1) for i, a in enumerate(axes)]
-    msg.is_bigendian = False
-    msg.point_step = 8 * k
-    msg.row_step = 8 * k * n
-    msg.is_dense = True
-    msg.data = data.tobytes()
+    msg.header.frame_id = d["header"]["frame_id"]
+    msg.height, msg.width = d["height"], d["width"]
+    msg.fields = [PointField(name=f["name"], offset=f["offset"], datatype=f["datatype"], count=f["count"])
+                  for f in d["fields"]]
+    msg.is_bigendian, msg.is_dense = d["is_bigendian"], d["is_dense"]
+    msg.point_step, msg.row_step = d["point_step"], d["row_step"]
+    msg.data = d["data"]
     return msg
 
 
-def unpack_block(msg: PointCloud2, axes: Sequence[str] | None = None) -> np.ndarray:
+def unpack_block(msg: PointCloud2, axes: Sequence[str] | None = None, *, period_ns: int | None = None,
+                 finite: bool = False) -> np.ndarray:
     """PointCloud2 of the contract → ``[N, axes]`` float64 array (a copy); :class:`BlockFormatError` otherwise.
 
-    With ``axes`` (what a node that applies the block must pass) the columns are taken **by field name**, in the
-    order of ``axes``: a block whose fields are ``[y, x]`` gives the same array as one with ``[x, y]``; missing,
-    duplicate or unknown field names are refused.  Without ``axes`` the fields' own order is kept.
+    The one codec (:func:`piezo_ff_ros.core.recording.blocks.decode_block`, same verdicts as the recorder and the
+    readers): with ``axes`` (what a node that applies the block must pass) the columns are taken **by field name**,
+    in the order of ``axes``; the fields must name exactly these axes.  ``period_ns``: a stamp off the sample grid
+    is refused; ``finite``: a NaN/Inf value is refused.  The width is checked against
+    :data:`~piezo_ff_ros.core.recording.blocks.MAX_BLOCK_SAMPLES` before the data is read.
     """
-    fields = list(msg.fields)
-    k = len(fields)
-    if k == 0:
-        raise BlockFormatError("no fields")
-    names = [f.name for f in fields]
-    if len(set(names)) != k:
-        raise BlockFormatError(f"duplicate field names {names}")
-    if axes is not None and sorted(names) != sorted(axes):
-        raise BlockFormatError(f"fields {names} do not name the axes {list(axes)} (missing "
-                               f"{sorted(set(axes) - set(names))}, unknown {sorted(set(names) - set(axes))})")
-    for i, f in enumerate(fields):
-        if f.datatype != _FLOAT64 or f.offset != 8 * i or f.count not in (0, 1):
-            raise BlockFormatError(f"field {f.name!r}: expected FLOAT64 at offset {8 * i}")
-    if msg.is_bigendian:
-        raise BlockFormatError("big-endian data")
-    n = int(msg.width) * int(msg.height)
-    if msg.point_step != 8 * k:
-        raise BlockFormatError(f"point_step {msg.point_step}, expected {8 * k}")
-    raw = bytes(msg.data) if not isinstance(msg.data, (bytes, bytearray, memoryview)) else msg.data
-    if len(raw) != 8 * k * n:
-        raise BlockFormatError(f"{len(raw)} data bytes for {n} samples × {k} fields")
-    table = np.frombuffer(raw, dtype="<f8").reshape(n, k)
-    if axes is not None and names != list(axes):
-        return table[:, [names.index(a) for a in axes]].astype(float)
-    return table.astype(float)
+    return blocks.decode_block(msg, axes, period_ns=period_ns, finite=finite)[1]
 
 
 #: how long a callback's fault may precede the context's shutdown and still count as part of the stop [s]

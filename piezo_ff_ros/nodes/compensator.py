@@ -20,13 +20,22 @@ numbers, a range.
 Other parameters: ``config_file`` and ``variant`` (read-only: the base configuration), ``crossfade`` [s] (output
 crossfade at a swap), ``block_size`` (samples per block generated from a held ``reference_point``),
 ``hold_timeout`` [s] (the held point is played only while no ``reference`` block arrived for this long; played
-from one executor timer, paced by :class:`~piezo_ff_ros.core.hold_pacer.HoldPacer`),
+from one executor timer, paced by :class:`~piezo_ff_ros.core.hold_pacer.HoldPacer`; its blocks also go out on
+``reference``, stamped like their voltage blocks, so that a recording and the plots hold what the stage was asked to
+do whatever its source),
 ``bypass`` (bool: the reference blocks are voltages [V] forwarded unchanged, for open-loop characterisation such as
 the paper's S0 experiments; the cascade is not run).
 ``resync`` (bool, default true): follow ``voltage_applied`` (the driver's applied voltage, same block layout
 and stamps as ``voltage``) and rebuild the hysteresis and creep states when what was applied differs from what
 was sent (clamps, safe ramps, stalls).  ``workspace`` (double[], ``[min_x, max_x, min_y, max_y]`` [m]; default
 the config's ``limits.workspace``, empty = none): references outside are clamped, with a WARN and a count.
+``reference_limit`` (double[], same layout [m]; default the stage's reachable range at ``±limits.voltage`` with a
+margin of 2, :func:`~piezo_ff_ros.core.trajectories.workspace.reachable_range`; empty = none): a reference block or
+``reference_point`` with a sample outside is refused whole (one ERROR line a second at most, counted in
+``rejected_blocks``, ``/diagnostics`` at ERROR while it lasts) — a unit mistake or a corrupt sample never reaches
+the cascade.  ``driver`` (read-only, default ``driver``): the node name of the paired driver, resolved in this
+node's namespace; ``voltage_applied`` is used only from that node's publisher (by publisher GID), finite, on the
+sample grid and within ``±limits.voltage``; anything else is refused and counted (``applied_rejected``).
 Tracking stages in front of the cascade (:mod:`piezo_ff_ros.core.tracking.front`, docs/tracking.md), after the
 workspace clamp: ``preview.enabled`` (bool), ``preview.horizon_s``, ``preview.tail_s``, ``preview.bandwidth_hz``,
 ``preview.constrained``, ``learning.file`` (a stored learned correction); with the preview on, the reference must
@@ -42,6 +51,7 @@ import json
 import sys
 import threading
 import time
+from collections import deque
 from typing import Any, Sequence
 
 import numpy as np
@@ -61,6 +71,7 @@ from ..core.compensator_core import (SETTING_NAMES, CompensatorCore, Compensator
 from ..core.config import load_config
 from ..core.param_map import config_to_params
 from ..core.tracking.front import FRONT_DEFAULTS
+from ..core.trajectories.workspace import reachable_range
 from .common import (BLOCK_QOS, CONFIG_QOS, BlockFormatError, diag_values, log_lines, pack_block, run_node,
                      stamp_to_ns, unpack_block, writer_matches)
 from .params import refuse_unknown_parameters
@@ -189,7 +200,13 @@ class CompensatorNode(Node):
                                       "when it differs from what was sent")),
             workspace=tuple(float(v) for v in self._declare(
                 "workspace", [float(v) for pair in (ws or ()) for v in pair],
-                "reference limits [m], [min, max] per axis, flat; empty = none")))
+                "reference limits [m], [min, max] per axis, flat; empty = none")),
+            reference_limit=tuple(float(v) for v in self._declare(
+                "reference_limit", list(reachable_range(base)),
+                "a reference outside [m] ([min, max] per axis, flat) is refused; default: the stage's reachable "
+                "range at the voltage limit with a margin of 2; empty = none")))
+        self.driver_name = str(self._declare("driver", "driver", "node name of the paired driver: voltage_applied "
+                                             "is used only from it", read_only=True))
         self._declare("config_yaml", "", "a YAML mapping of stage parameters applied as one atomic change "
                       "(then cleared)")
         book.front_values = {n: self._declare(n, v, "tracking front (docs/tracking.md)")
@@ -200,10 +217,13 @@ class CompensatorNode(Node):
         refuse_unknown_parameters(self)
         settings.validate(len(base.axes))
         self.get_logger().info(build_notice(cfg))
-        self.core = CompensatorCore(book, cfg, settings,
-                                    applied_feedback=lambda: self._applied_sub.get_publisher_count() > 0)
+        self._driver_gids: set[bytes] = set()
+        self._gids_checked = -1.0
+        self.core = CompensatorCore(book, cfg, settings, applied_feedback=self._driver_publishes)
 
         self.pub_u = self.create_publisher(PointCloud2, "voltage", BLOCK_QOS)
+        self.pub_ref = self.create_publisher(PointCloud2, "reference", BLOCK_QOS)   # a held point's blocks
+        self._own_reference: deque[int] = deque(maxlen=1000)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.pub_config = self.create_publisher(String, "~/config", CONFIG_QOS)
         self.create_subscription(PointCloud2, "reference", self.on_reference, BLOCK_QOS)
@@ -344,6 +364,8 @@ class CompensatorNode(Node):
     # -- data path -------------------------------------------------------------------------------------------------
     def on_reference(self, msg: PointCloud2) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
+        if stamp in self._own_reference:   # a held point's block this node published itself
+            return
         with self._lock:
             try:
                 block = unpack_block(msg, self.core.axes)
@@ -354,20 +376,61 @@ class CompensatorNode(Node):
 
     def _process_and_publish(self, block: np.ndarray, stamp: int | None) -> None:
         """One block through the core and out (``stamp`` None: continue the stream, as the held point does); one
-        lock around the core and the publish."""
+        lock around the core and the publish.  A held point's blocks also go out on ``reference`` (what the stage
+        is asked to do is recorded and plotted whatever its source); :meth:`on_reference` ignores them."""
         with self._lock:
-            self._emit(self.core.process(block, stamp, time.monotonic()))
+            em = self.core.process(block, stamp, time.monotonic())
+            if stamp is None:
+                for vb in em.voltage:
+                    self._own_reference.append(vb.stamp)
+                    self.pub_ref.publish(pack_block(np.repeat(block[:1], vb.u.shape[0], axis=0), self.core.axes,
+                                                    vb.stamp))
+            self._emit(em)
 
-    def on_applied(self, msg: PointCloud2) -> None:
+    def _refresh_driver_gids(self, now: float) -> None:
+        """The publisher GIDs of the paired driver on ``voltage_applied`` (looked up in the graph, at most every
+        0.5 s)."""
+        if now - self._gids_checked < 0.5:
+            return
+        self._gids_checked = now
+        ns = self.get_namespace()
+        self._driver_gids = {bytes(bytearray(i.endpoint_gid)) for i in
+                             self.get_publishers_info_by_topic(self._applied_sub.topic_name)
+                             if i.node_name == self.driver_name and i.node_namespace == ns}
+
+    def _driver_publishes(self) -> bool:
+        """Whether the paired driver publishes ``voltage_applied`` (the blocks are kept in flight only then)."""
+        self._refresh_driver_gids(time.monotonic())
+        return bool(self._driver_gids)
+
+    def _sender(self, info: Any) -> str:
+        """Empty when ``info`` (the message info) names a publisher of the paired driver, else who sent it."""
+        gid = (info or {}).get("publisher_gid") if isinstance(info, dict) else None
+        data = bytes(bytearray(gid.get("data", b""))) if isinstance(gid, dict) else b""
+        if data and data in self._driver_gids:
+            return ""
+        self._gids_checked = -1.0   # a new driver may just have appeared: look again now
+        self._refresh_driver_gids(time.monotonic())
+        if data and data in self._driver_gids:
+            return ""
+        others = sorted(f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in
+                        self.get_publishers_info_by_topic(self._applied_sub.topic_name)
+                        if bytes(bytearray(i.endpoint_gid)) == data)
+        return (f"sender {others[0] if others else 'unknown'} is not the paired driver "
+                f"{self.get_namespace().rstrip('/')}/{self.driver_name} (parameter driver)")
+
+    def on_applied(self, msg: PointCloud2, info: Any) -> None:
         if not self.core.wants_applied:
             return
+        foreign = self._sender(info)
         try:
-            u = unpack_block(msg, self.core.axes)
+            u = unpack_block(msg, self.core.axes) if not foreign else np.zeros((0, len(self.core.axes)))
         except BlockFormatError as exc:
-            log_lines(self.get_logger(), self.core.reject("voltage_applied", str(exc)).log)
+            with self._lock:
+                log_lines(self.get_logger(), self.core.reject("voltage_applied", str(exc)).log)
             return
         with self._lock:
-            em = self.core.on_applied(stamp_to_ns(msg.header.stamp), u, time.monotonic())
+            em = self.core.on_applied(stamp_to_ns(msg.header.stamp), u, time.monotonic(), foreign=foreign)
         log_lines(self.get_logger(), em.log)
 
     def on_point(self, msg: PointStamped) -> None:

@@ -9,12 +9,19 @@ confirms the jump; with no block for ``limits.stale_timeout`` s the output ramps
 ``safe_ramp`` (its own duration and slew).  ``voltage_applied`` carries every sample the device actually output
 (holds and ramps included) on the stamp grid of ``voltage``; ``displacement`` the sensor samples on the same grid.
 
-Parameters (read-only, validated at start-up; a bad one is a one-line error naming it): ``config_file``,
-``variant``, ``backend`` (``sim``; plug-ins: ``piezo_ff_ros.backends`` entry points) and its ``<backend>.*``
-parameters, ``noise_std`` [m] and ``seed`` (sim sensor), ``max_block`` [samples], ``max_gap``, ``write_ahead``,
-``low_water`` [s], ``joint_states_rate`` [Hz], ``diagnostics_period`` [s], ``limits.voltage|slew|stale_timeout|
-safe_voltage`` (default the config's; may only tighten them), ``safe_ramp.duration|slew``.  Service ``~/reset``
-(std_srvs/Trigger): back to rest (simulator only).
+A managed (lifecycle) node: ``configure`` validates the parameters, opens the backend at the safe voltage and
+warms the kernels (a failure: one line, still unconfigured); ``activate`` applies voltage blocks; ``deactivate``
+ramps to the safe voltage (played on the device) and holds it, ignoring blocks; ``cleanup`` closes the backend;
+``shutdown`` (any state), SIGINT/SIGTERM and an error in a transition ramp to safe, then close.  ``autostart``
+(default true) steps it to active at start, so ``ros2 run`` behaves as a plain node.
+
+Parameters (validated at configure; settable only while unconfigured; a bad one is a one-line error naming it):
+``autostart``, ``config_file``, ``variant``, ``backend`` (``sim``; plug-ins: ``piezo_ff_ros.backends`` entry points)
+and its ``<backend>.*`` parameters, ``noise_std`` [m] and ``seed`` (sim sensor), ``max_block`` [samples],
+``max_gap``, ``write_ahead`` (default :data:`DEFAULT_WRITE_AHEAD_S`), ``low_water`` [s], ``joint_states_rate`` [Hz],
+``diagnostics_period`` [s], ``limits.voltage|slew|stale_timeout|safe_voltage`` (default the config's; may only
+tighten them), ``safe_ramp.duration|slew``.  Service ``~/reset`` (std_srvs/Trigger): back to rest (simulator only).
+A late or starved stream and stale input are named once with the setting that fixes them (a ``hint:`` line).
 """
 from __future__ import annotations
 
@@ -43,6 +50,22 @@ from ..backends import get_spec
 from .common import (BLOCK_QOS, LATCHED_QOS, BlockFormatError, diag_values, log_lines, pack_block, run_node,
                      stamp_to_ns, unpack_block, writer_matches)
 from .params import refuse_unknown_parameters
+
+#: the write-ahead of a clocked device by default [s] (DriverSettings.write_ahead, 0.5 s).  0.05 s underran on the
+#: first held point in 2 of 3 runs on a 2-core machine at load ≈ 9 (test/test_live_first_hold.py); 0.2 s underran
+#: in rig-check with two CPU-bound loaders, 0.5 s held (docs/hardware.md).  Tracking costs nothing: references are
+#: known ahead, only the latency of a newly held point grows by it.
+DEFAULT_WRITE_AHEAD_S = DriverSettings.write_ahead
+
+#: the setting that fixes each kind of start-up/stream trouble, said once per run in the driver's log
+_HINTS = {
+    "late": "blocks arrive later than the write-ahead allows (a loaded host?): raise the driver's write_ahead "
+            "(now {write_ahead} s; e.g. --ros-args -p write_ahead:={suggest}, or set it while unconfigured)",
+    "underrun": "the device ran dry: blocks arrive later than the write-ahead allows: raise the driver's "
+                "write_ahead (now {write_ahead} s; e.g. --ros-args -p write_ahead:={suggest})",
+    "stale": "no block for limits.stale_timeout ({stale} s): if the source is only slow (start-up, a loaded host), "
+             "raise the driver's limits.stale_timeout or start the source before the driver is activated",
+}
 
 _LEVEL = {0: DiagnosticStatus.OK, 1: DiagnosticStatus.WARN, 2: DiagnosticStatus.ERROR}
 
@@ -111,19 +134,19 @@ class DriverNode(LifecycleNode):
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Safe ramp now, then hold the safe voltage; blocks are ignored until activated again."""
-        self._to_safe("deactivated")
+        self._logged("deactivate", self._to_safe, "deactivated")
         self.get_logger().info("inactive: output held at the safe voltage, blocks ignored "
                                "(`ros2 lifecycle set /driver activate` resumes)")
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Close the backend (the output is at the safe voltage since deactivate)."""
-        self._close()
+        self._logged("cleanup", self._close)
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         """From any state: the safe voltage by a ramp, then the backend closed."""
-        self._close()
+        self._logged("shutdown", self._close)
         return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -135,6 +158,15 @@ class DriverNode(LifecycleNode):
             self.get_logger().error(f"closing after the error failed: {exc}")
             return TransitionCallbackReturn.FAILURE
         return TransitionCallbackReturn.SUCCESS
+
+    def _logged(self, transition: str, fn: Any, *args: Any) -> None:
+        """Run a transition's work; an exception is logged in one line (rclpy would swallow it), then raised so
+        that the node goes through ErrorProcessing (:meth:`on_error`)."""
+        try:
+            fn(*args)
+        except Exception as exc:
+            self.get_logger().error(f"{transition} failed: {exc}")
+            raise
 
     def finish(self) -> None:
         """The process ends (SIGINT/SIGTERM or an error): from whatever state, ramp to safe and close."""
@@ -208,6 +240,7 @@ class DriverNode(LifecycleNode):
             raise
         self.malformed_blocks = 0
         self.ignored_blocks = 0
+        self._hinted: set[str] = set()
         self.conflict = ""
         self._js_every = max(1, int(round(self.cfg.sample_rate / p["joint_states_rate"])))
         self._js_count = 0
@@ -273,7 +306,8 @@ class DriverNode(LifecycleNode):
         p = {"max_block": self._param("max_block", 20000, "largest accepted block [samples]"),
              "max_gap": float(self._param("max_gap", 1.0, "largest gap held [s]; larger jumps need confirmation")),
              "write_ahead": float(self._param("write_ahead", DriverSettings.write_ahead,
-                                              "clocked devices: FIFO margin [s]")),
+                                              "clocked devices: how far ahead of the device's clock the stream is "
+                                              "placed [s]; raise it when blocks arrive late or the device runs dry")),
              "low_water": float(self._param("low_water", DriverSettings.low_water,
                                             "clocked devices: hold below this margin [s]")),
              "joint_states_rate": float(self._param("joint_states_rate", 100.0, "joint_states rate [Hz]")),
@@ -344,8 +378,25 @@ class DriverNode(LifecycleNode):
                 self.pub_y.publish(pack_block(y, self.axes, stamp))
                 self._joint_states(y, stamp)
         log_lines(self.get_logger(), em.log)
+        self._hint(em)
+
+    def _hint(self, em: Emit) -> None:
+        """Name the setting that fixes a late/underrun/stale stream, once per kind."""
+        if self.core is None or not em.log:
+            return
+        c = self.core
+        seen = {"late": c.book.counters.late_blocks > 0, "underrun": c.faults.get("underrun", 0) > 0,
+                "stale": any("no voltage block for" in text for _, text in em.log)}
+        for kind, now in seen.items():
+            if now and kind not in self._hinted:
+                self._hinted.add(kind)
+                wa = c.s.write_ahead
+                self.get_logger().warning("hint: " + _HINTS[kind].format(
+                    write_ahead=wa, suggest=max(2 * wa, DEFAULT_WRITE_AHEAD_S), stale=c.s.limits.stale_timeout))
 
     def _joint_states(self, y: np.ndarray, stamp: int) -> None:
+        if self.core is None or self.pub_js is None:   # not configured (any more): nothing to publish
+            return
         n = y.shape[0]
         before = self._js_count
         self._js_count += n
@@ -381,7 +432,8 @@ class DriverNode(LifecycleNode):
         others = {t: self.count_publishers(t) - (1 if t == "voltage_applied" or self.has_sensor else 0)
                   for t in ("displacement", "voltage_applied")}
         if any(v > 0 for v in others.values()):
-            text = (f"another driver publishes on {self.resolve_topic_name('displacement')} (publishers besides this "
+            topics = ", ".join(self.resolve_topic_name(t) for t, v in others.items() if v > 0)  # the ones it is on
+            text = (f"another driver publishes on {topics} (publishers besides this "
                     f"one: {others}): two graphs on ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}? Give each "
                     "graph its own ROS_DOMAIN_ID or namespace (--ros-args -r __ns:=/tube2)")
             if text != self.conflict:

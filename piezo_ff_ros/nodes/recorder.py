@@ -6,9 +6,14 @@ definitions, ``cdr`` messages, ``offered_qos_profiles`` + ``topic_type_hash`` pe
 recorder leaves a file readable up to its last flushed chunk (flushed at least every ``flush_interval`` s).
 
 Parameters: ``output`` (file, default ``run_<UTC time>.mcap``), ``topics`` (default reference, voltage,
-displacement, experiment, /diagnostics, /parameter_events; relative names resolve in the node's namespace),
+displacement, voltage_applied, experiment, /diagnostics, /parameter_events, compensator/config and the plotter's
+plot_reference/voltage/displacement/error; relative names resolve in the node's namespace),
 ``config_file``/``variant`` (the PiezoConfig stored in the metadata), ``metadata`` (extra JSON object),
-``flush_interval`` [s], ``discovery_period`` [s] (how often topics of unknown type are looked up in the graph).
+``flush_interval`` [s], ``discovery_period`` [s] (how often topics of unknown type are looked up in the graph),
+``t0_ns`` and ``block_size`` (the run's sample origin [ns] and block size, written to the metadata; 0 = not given:
+``t0_ns`` is then taken from the trajectory's first ``experiment`` marker, ``stamp_ns − k0·dt``, else from the
+compensator's first configuration version, and ``block_size`` is left out).  Never from whatever block comes first:
+a stray or hostile block must not set the run's origin.
 Topic ``~/status`` (std_msgs/String, transient-local JSON: ``{"recording": path, "topics": {...}, "subscribed": [...],
 "publishers": {topic: matched publisher count}, "error": null or why recording stopped}``, republished when a count
 changes) lets a launcher wait until the recorder is actually connected to the publishers before a run starts.
@@ -34,22 +39,25 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import String
 
 from ..core.config import load_config
+from ..core.recording.blocks import MAX_BLOCK_SAMPLES, peek_block_samples, sample_period_ns
 from ..core.recording.mcap_io import McapRecorder, RecordingStopped
 from .common import CONFIG_QOS, LATCHED_QOS, RECORD_QOS, diag_values, run_node
 from .params import refuse_unknown_parameters
 
 DEFAULT_TOPICS = ["reference", "voltage", "displacement", "experiment", "/diagnostics", "/parameter_events",
-                  "compensator/config", "voltage_applied"]
+                  "compensator/config", "voltage_applied",
+                  # the plotter's decimated topics (nodes/plotter.py): a run.mcap opened in Foxglove plots them
+                  "plot_reference", "plot_voltage", "plot_displacement", "plot_error"]
 KNOWN_TYPES = {"reference": "sensor_msgs/msg/PointCloud2", "voltage": "sensor_msgs/msg/PointCloud2",
                "displacement": "sensor_msgs/msg/PointCloud2", "experiment": "std_msgs/msg/String",
                "joint_states": "sensor_msgs/msg/JointState", "reference_point": "geometry_msgs/msg/PointStamped",
                "diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
                "parameter_events": "rcl_interfaces/msg/ParameterEvent", "config": "std_msgs/msg/String",
-               "voltage_applied": "sensor_msgs/msg/PointCloud2"}
+               "voltage_applied": "sensor_msgs/msg/PointCloud2",
+               **dict.fromkeys(("plot_reference", "plot_voltage", "plot_displacement", "plot_error"),
+                               "geometry_msgs/msg/PointStamped")}
 #: the experiment markers are transient-local: a recorder started late still gets the current segment
 _LATCHED = {"experiment"}
-#: block topics whose first message gives t0_ns and block_size to the metadata
-_BLOCK_TOPICS = {"reference", "voltage", "displacement"}
 #: chunks hold at most this many bytes of uncompressed records (docs/topics.md): the recorder closes the open
 #: chunk before a message that would take it past (the MCAP writer itself only closes a chunk once it is over)
 CHUNK_LIMIT = 512 * 1024
@@ -87,7 +95,9 @@ class RecorderNode(Node):
         extra_text: str = self.declare_parameter("metadata", "{}").value
         flush = float(self.declare_parameter("flush_interval", 1.0).value)
         period = float(self.declare_parameter("discovery_period", 0.5).value)
-        refuse_unknown_parameters(self)   # before the output file is created
+        t0_param = int(self.declare_parameter("t0_ns", 0).value)
+        block_size = int(self.declare_parameter("block_size", 0).value)
+        refuse_unknown_parameters(self)   # every parameter declared; before the output file is created
         try:
             extra = json.loads(extra_text) if extra_text else {}
             if not isinstance(extra, dict):
@@ -105,9 +115,17 @@ class RecorderNode(Node):
         self.node_parameters = {"recorder": {"output": str(out), "topics": topics, "config_file": cfg_file,
                                              "variant": variant, "flush_interval": flush}}
         self.rec.set_metadata({"parameters": self.node_parameters})
-        self.period_ns = int(round(1e9 / cfg.sample_rate))
+        self.period_ns = sample_period_ns(cfg.sample_rate)
+        if t0_param < 0 or t0_param % self.period_ns:
+            raise ValueError(f"t0_ns: {t0_param} is not a stamp on the {self.period_ns} ns sample grid")
+        if not 0 <= block_size <= MAX_BLOCK_SAMPLES:
+            raise ValueError(f"block_size: {block_size} is outside [0, {MAX_BLOCK_SAMPLES}] samples")
         self.t0_ns: int | None = None
         self.config_versions: list[dict] = []
+        if block_size:
+            self.rec.set_metadata({"block_size": block_size})
+        if t0_param:
+            self._set_t0(t0_param)
         self.topics = {self.resolve_topic_name(t): t for t in topics}
         self.types: dict[str, str] = {}
         self.subs: dict[str, Any] = {}
@@ -115,6 +133,8 @@ class RecorderNode(Node):
         self._matched: dict[str, int] = {}
         self.error: str | None = None      # why recording stopped early
         self.dropped = 0                    # messages received after that
+        self.oversized = 0                  # block messages too large for the contract (not recorded)
+        self._oversized_logged = -1e9
         self.pub_status = self.create_publisher(String, "~/status", LATCHED_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._subscribe_known()
@@ -162,6 +182,16 @@ class RecorderNode(Node):
         if self.error is not None:
             self.dropped += 1
             return
+        if self.types.get(topic) == "sensor_msgs/msg/PointCloud2" and \
+                (peek_block_samples(data) or 0) > MAX_BLOCK_SAMPLES:   # read from the first bytes: no work
+            self.oversized += 1   # more than any block of the contract: not written (it would bloat the file)
+            now = time.monotonic()
+            if now - self._oversized_logged > 1.0:
+                self._oversized_logged = now
+                self.get_logger().error(f"{topic}: a block of {peek_block_samples(data)} samples is larger than "
+                                        f"any block of the contract ({MAX_BLOCK_SAMPLES}): not recorded "
+                                        f"({self.oversized} so far)")
+            return
         try:
             self._record(topic, data, info)
         except RecordingStopped as exc:
@@ -199,25 +229,33 @@ class RecorderNode(Node):
         self.counts[topic] += 1
         last = topic.rsplit("/", 1)[-1]
         try:
-            if self.t0_ns is None and last in _BLOCK_TOPICS:
-                self._first_block(data)
-            elif last == "config" and self.types.get(topic) == "std_msgs/msg/String":
+            if last == "config" and self.types.get(topic) == "std_msgs/msg/String":
                 self._config_version(data)
+            elif last == "experiment" and self.t0_ns is None and self.types.get(topic) == "std_msgs/msg/String":
+                self._t0_from_marker(data)
         except RecordingStopped:
             raise
         except Exception as exc:  # noqa: BLE001 - metadata is best effort; the message itself is recorded
             self.get_logger().warning(f"{topic}: metadata not updated ({exc})")
 
-    def _first_block(self, data: bytes) -> None:
-        from ..core.recording.blocks import deserialize_block
-
-        stamp, block = deserialize_block(data)[:2]
-        self.t0_ns = int(stamp)
-        self.rec.set_metadata({"t0_ns": self.t0_ns, "block_size": int(block.shape[0])})
+    def _set_t0(self, t0_ns: int) -> None:
+        """The run's sample origin: written to the metadata, the configuration versions' ``k0`` from it."""
+        self.t0_ns = int(t0_ns)
+        self.rec.set_metadata({"t0_ns": self.t0_ns})
         for v in self.config_versions:
             v["k0"] = (v["stamp_ns"] - self.t0_ns) // self.period_ns
         if self.config_versions:
             self.rec.set_metadata({"config_versions": self.config_versions})
+
+    def _t0_from_marker(self, data: bytes) -> None:
+        """``t0_ns = stamp_ns − k0·dt`` of the trajectory's first experiment marker (the trajectory's own origin)."""
+        from rclpy.serialization import deserialize_message
+
+        d = json.loads(deserialize_message(data, String).data)
+        k0, stamp = d.get("k0"), d.get("stamp_ns")
+        if isinstance(k0, int) and isinstance(stamp, int) and not isinstance(k0, bool) and k0 >= 0 \
+                and stamp % self.period_ns == 0:
+            self._set_t0(stamp - k0 * self.period_ns)
 
     def _config_version(self, data: bytes) -> None:
         """A configuration version of the compensator (``~/config``): stored with the sample index where it took
@@ -228,6 +266,11 @@ class RecorderNode(Node):
         entry = {"version": d["version"], "stamp_ns": d["stamp_ns"],
                  "k0": None if self.t0_ns is None else (d["stamp_ns"] - self.t0_ns) // self.period_ns,
                  "config_yaml": d["config_yaml"], "parameters": d.get("parameters", {})}
+        if self.t0_ns is None and entry["version"] == 1 and isinstance(entry["stamp_ns"], int) \
+                and entry["stamp_ns"] % self.period_ns == 0:   # no parameter, no marker: the compensator's origin
+            self.t0_ns = int(entry["stamp_ns"])
+            self.rec.set_metadata({"t0_ns": self.t0_ns})
+            entry["k0"] = 0
         self.config_versions = [v for v in self.config_versions if v["version"] != entry["version"]] + [entry]
         self.config_versions.sort(key=lambda v: v["version"])
         meta: dict[str, Any] = {"config_versions": self.config_versions}
@@ -253,7 +296,9 @@ class RecorderNode(Node):
             if self.error is None:
                 size = self.rec.path.stat().st_size if self.rec.path.exists() else 0
                 print(f"recorder: wrote {self.rec.message_count} messages ({size} bytes) to {self.rec.path}: "
-                      + ", ".join(f"{t} {n}" for t, n in sorted(self.counts.items())), file=sys.stderr)
+                      + ", ".join(f"{t} {n}" for t, n in sorted(self.counts.items()))
+                      + (f"; {self.oversized} oversized block message(s) not recorded" if self.oversized else ""),
+                      file=sys.stderr)
         if self.error is not None:   # exit code 1 (run_node), one line: the recording is incomplete
             f = self.rec.failure
             raise RuntimeError(f"{self.error}; {self.dropped} message(s) received afterwards dropped"

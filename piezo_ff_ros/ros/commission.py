@@ -36,7 +36,7 @@ def driver_axes(client: Any, timeout: float = 2.0) -> tuple[str, ...] | None:
         if get.wait_for_service(timeout_sec=timeout):
             res = client.call(get, client.GetParameters.Request(names=["config_file", "variant"]), timeout=timeout)
             values = [parameter_value_to_python(v) for v in res.values]
-            if len(values) == 2 and all(isinstance(v, str) for v in values):
+            if len(values) == 2 and isinstance(values[0], str) and isinstance(values[1], str):
                 return tuple(load_config(values[0] or None, variant=values[1] or None).axes)
     finally:
         client.node.destroy_client(get)

@@ -316,7 +316,10 @@ def step_lifecycle(node: str, transitions: Iterable[str], domain_id: int | None 
 
     apply_ros_env_defaults(domain_id=domain_id)   # localhost discovery in this process too
     context = rclpy.Context()
-    rclpy.init(context=context, **({} if domain_id is None else {"domain_id": int(domain_id)}))
+    if domain_id is None:
+        rclpy.init(context=context)
+    else:
+        rclpy.init(context=context, domain_id=int(domain_id))
     try:
         client_node = rclpy.create_node("piezo_ff_lifecycle", context=context)
         executor = SingleThreadedExecutor(context=context)
@@ -333,8 +336,8 @@ def step_lifecycle(node: str, transitions: Iterable[str], domain_id: int | None 
                 executor.spin_once(timeout_sec=0.02)
             return fut.result()
 
-        change = client_node.create_client(ChangeState, f"{node}/change_state")
-        get = client_node.create_client(GetState, f"{node}/get_state")
+        change: Any = client_node.create_client(ChangeState, f"{node}/change_state")
+        get: Any = client_node.create_client(GetState, f"{node}/get_state")
         for label in transitions:
             req = ChangeState.Request()
             req.transition.label = label

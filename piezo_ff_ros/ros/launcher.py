@@ -1,6 +1,6 @@
 """Python launcher for the node graph (``ros2 launch`` is not available from pip; see launch/piezo_ff.launch.py).
 
-Starts driver, compensator, trajectory and recorder as subprocesses (``python -m piezo_ff_ros.nodes.<name>``) with
+Starts driver, compensator, trajectory, plotter and recorder as subprocesses (``python -m piezo_ff_ros.nodes.<name>``) with
 the safe ROS environment (:func:`piezo_ff_ros.ros.env.apply_ros_env_defaults`: localhost discovery, own domain,
 logs in a temp dir), waits until each node has logged that it is ready, and stops them with SIGINT (trajectory
 first, recorder last, so that the recording holds everything).  No ROS import in :class:`GraphLauncher`; the
@@ -10,6 +10,9 @@ command (:func:`main`) starts the trajectory once the recorder and every block w
 Command line::
 
     python -m piezo_ff_ros.ros.launcher [--out DIR] [--mode realtime|lockstep] [--duration S] [--trajectory SPEC]
+                                        [--params-file FILE] [--plot-rate HZ]
+
+The managed driver is started unconfigured and stepped to active (configure, activate) once every node is ready.
 """
 from __future__ import annotations
 
@@ -25,10 +28,10 @@ from typing import Any, Mapping, Sequence
 
 from .env import apply_ros_env_defaults
 
-NODES = ("driver", "compensator", "trajectory", "recorder")
+NODES = ("driver", "compensator", "trajectory", "plotter", "recorder")
 READY_MARKERS = {"driver": "driver ready", "compensator": "compensator ready", "trajectory": "trajectory ready",
-                 "recorder": "recording "}
-STOP_ORDER = ("trajectory", "compensator", "driver", "recorder")
+                 "plotter": "plotter ready", "recorder": "recording "}
+STOP_ORDER = ("trajectory", "compensator", "driver", "plotter", "recorder")
 #: managed (lifecycle) nodes: started unconfigured (``autostart:=false`` unless the caller sets it), then stepped
 #: through these transitions once every node is ready — what a launch file or a supervisor does
 MANAGED = {"driver": ("configure", "activate")}
@@ -172,6 +175,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: on Ctrl-C)")
     ap.add_argument("--trajectory", default="", help="trajectory spec (JSON/YAML), default: the node's circle")
     ap.add_argument("--params-file", default="", help="compensator params file")
+    ap.add_argument("--plot-rate", type=float, default=200.0,
+                    help="rate of the plotter's plot_* topics [Hz] (Foxglove/PlotJuggler; recorded too)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -181,7 +186,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         traj += ["-p", f"trajectory:='{args.trajectory}'"]  # quoted: a YAML string, not a mapping
     comp = ["--params-file", args.params_file] if args.params_file else []
     g = GraphLauncher({"recorder": ["-p", f"output:={out / 'run.mcap'}"], "driver": [], "compensator": comp,
-                       "trajectory": traj}, log_dir=out / "logs")
+                       "trajectory": traj, "plotter": ["-p", f"rate:={args.plot_rate}"]}, log_dir=out / "logs")
     g.start()
     print(f"graph running (ROS_DOMAIN_ID={g.env['ROS_DOMAIN_ID']}), logs in {g.log_dir}; Ctrl-C to stop")
     client = None

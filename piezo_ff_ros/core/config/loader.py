@@ -1,5 +1,12 @@
 """Config files: where the packaged default is, a YAML loader that refuses duplicate keys, flat dotted dicts.
 
+Every YAML text the package parses from a file, a parameter or a message goes through :func:`safe_yaml` (or
+:func:`load_config`, which uses it): a ``yaml.SafeLoader`` that refuses duplicate keys and, before any work is done on
+the document, a text larger than :data:`YAML_MAX_BYTES`, nesting deeper than :data:`YAML_MAX_DEPTH` levels and
+more than :data:`YAML_MAX_NODES` nodes once every alias is expanded (an "alias bomb" of a few hundred characters
+expands to billions) — each a one-line :class:`~.validation.ConfigError` naming the input, never a crash or a
+stall.
+
 :func:`load_config` reads a YAML file (default: :func:`default_config_path`, the paper's PT230.94 values, found in
 the source tree or in an installed ``share/piezo_ff_ros/config``) with :class:`UniqueKeyLoader` and hands it to
 :meth:`~.piezo.PiezoConfig.from_dict`; every failure is a :class:`~.validation.ConfigError` naming the file.
@@ -15,7 +22,15 @@ import yaml
 from .piezo import PiezoConfig
 from .validation import ConfigError
 
-__all__ = ["load_config", "default_config_path", "DuplicateKeyError", "UniqueKeyLoader", "flatten", "unflatten"]
+__all__ = ["load_config", "default_config_path", "DuplicateKeyError", "UniqueKeyLoader", "YamlLimitError",
+           "safe_yaml", "YAML_MAX_BYTES", "YAML_MAX_DEPTH", "YAML_MAX_NODES", "flatten", "unflatten"]
+
+#: the largest YAML text parsed [bytes of UTF-8]: a configuration is a few kB, the paper's about 4 kB
+YAML_MAX_BYTES = 1 << 20
+#: the deepest nesting of mappings/sequences accepted (a configuration nests 5 levels)
+YAML_MAX_DEPTH = 64
+#: the most nodes a document may have with every alias expanded (the paper's configuration: about 600)
+YAML_MAX_NODES = 100_000
 
 
 def default_config_path() -> Path:
@@ -64,6 +79,92 @@ class UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+class YamlLimitError(yaml.YAMLError):
+    """A YAML document beyond :data:`YAML_MAX_DEPTH` or :data:`YAML_MAX_NODES` (the text says which)."""
+
+
+class _LimitedLoader(UniqueKeyLoader):
+    """:class:`UniqueKeyLoader` that counts, while composing, the nesting depth and the nodes with every alias
+    expanded, and stops at the limits (before anything is constructed: an alias bomb costs nothing)."""
+
+    max_depth = YAML_MAX_DEPTH
+    max_nodes = YAML_MAX_NODES
+
+    def __init__(self, stream: Any) -> None:
+        super().__init__(stream)
+        self._depth = 0
+        self._expanded = 0
+        self._sizes: dict[int, int] = {}
+
+    def compose_node(self, parent: Any, index: Any) -> Any:  # noqa: D102 - PyYAML's composer hook
+        from yaml.events import AliasEvent
+
+        if self.check_event(AliasEvent):
+            event = self.peek_event()  # type: ignore[no-untyped-call]  # PyYAML ships no annotations
+            target = self.anchors.get(event.anchor)
+            self._expanded += self._sizes.get(id(target), 1)
+            self._check_nodes(event)
+            return super().compose_node(parent, index)
+        self._depth += 1
+        if self._depth > self.max_depth:
+            mark = self.peek_event().start_mark  # type: ignore[no-untyped-call]  # PyYAML ships no annotations
+            raise YamlLimitError(f"nested deeper than {self.max_depth} levels (line {mark.line + 1})")
+        before = self._expanded
+        self._expanded += 1
+        self._check_nodes(self.peek_event())  # type: ignore[no-untyped-call]  # PyYAML ships no annotations
+        try:
+            node = super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+        self._sizes[id(node)] = self._expanded - before
+        return node
+
+    def _check_nodes(self, event: Any) -> None:
+        if self._expanded > self.max_nodes:
+            raise YamlLimitError(f"more than {self.max_nodes} nodes with its aliases expanded (line "
+                                 f"{event.start_mark.line + 1}): an alias bomb?")
+
+
+def safe_yaml(text: str | bytes, name: str, max_bytes: int = YAML_MAX_BYTES) -> Any:
+    """Parse one YAML document safely: size, depth and alias-expansion limits first, duplicate keys refused.
+
+    Parameters
+    ----------
+    text : str or bytes
+        The YAML text.
+    name : str
+        What it is (a parameter's or a file's name): every refusal starts with it.
+    max_bytes : int
+        Largest text accepted [bytes], checked before parsing.
+
+    Returns
+    -------
+    Any
+        The document (None for an empty one).
+
+    Raises
+    ------
+    ConfigError
+        ``<name>: …`` one line: too large, too deep, too many nodes, a duplicate key, not YAML.
+    """
+    size = len(text.encode("utf-8", "surrogatepass")) if isinstance(text, str) else len(text)
+    if size > max_bytes:
+        raise ConfigError(name, f"{size} bytes of YAML, more than the {max_bytes} accepted")
+    try:
+        return yaml.load(text, Loader=_LimitedLoader)  # noqa: S506 - a SafeLoader subclass
+    except DuplicateKeyError as exc:
+        raise ConfigError(name, f"line {exc.line}: duplicate key {exc.key!r} (YAML would silently keep the "
+                                "last value)") from None
+    except YamlLimitError as exc:
+        raise ConfigError(name, f"YAML {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(name, f"not a text (YAML) file ({exc.reason} at byte {exc.start})") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(name, f"not valid YAML ({' '.join(str(exc).split())[:300]})") from None
+    except RecursionError:   # a construct the limits above did not foresee: still one line, never a crash
+        raise ConfigError(name, "YAML nested too deeply") from None
+
+
 def load_config(path: str | Path | None = None, variant: str | None = None) -> PiezoConfig:
     """Load and validate a positioner config (default: the paper's PT230.94 values as printed)."""
     p = Path(path) if path is not None else default_config_path()
@@ -71,15 +172,14 @@ def load_config(path: str | Path | None = None, variant: str | None = None) -> P
         raise ConfigError(str(p), "is a directory, not a YAML config file")
     if not p.is_file():
         raise FileNotFoundError(f"{p}: no such config file")
+    size = p.stat().st_size
+    if size > YAML_MAX_BYTES:   # before reading it
+        raise ConfigError(str(p), f"{size} bytes, more than the {YAML_MAX_BYTES} a config file may have")
     try:
-        data = yaml.load(p.read_text(), Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
-    except DuplicateKeyError as exc:
-        raise ConfigError(str(p), f"line {exc.line}: duplicate key {exc.key!r} (YAML would silently keep the "
-                                  "last value)") from None
+        text = p.read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ConfigError(str(p), f"not a text (YAML) file ({exc.reason} at byte {exc.start})") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(str(p), f"not valid YAML ({exc})") from None
+    data = safe_yaml(text, str(p))
     if not isinstance(data, Mapping):
         raise ConfigError(str(p), "top level must be a mapping")
     return PiezoConfig.from_dict(data, variant=variant)

@@ -32,6 +32,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..config import ConfigError, LimitsConfig
+from ..recording.blocks import BlockFormatError, check_stamp, sample_period_ns
 from ..safety import BlockRejected, SafeRampConfig, VoltageGuard, limit_block
 from ..status import ERROR, OK, WARN
 from .contract import FAULT_KINDS, DeviceFault, Disconnect, StreamingBackend
@@ -185,7 +186,7 @@ class DriverCore:
                                          f"the config at {self.s.sample_rate} Hz")
         self.now = now
         self.sleep = sleep     # how close() waits for the device to play its ramp (injectable with ``now``)
-        self.period_ns = int(round(1e9 / self.s.sample_rate))
+        self.period_ns = sample_period_ns(self.s.sample_rate)
         self.guard = VoltageGuard(self.s.limits, self.s.n_axes, self.s.sample_rate, max_block=self.s.max_block)
         self.book = StreamBook(self.period_ns, self.s.samples(self.s.max_gap))
         self.safe = np.full(self.s.n_axes, float(self.s.limits.safe_voltage))
@@ -313,6 +314,12 @@ class DriverCore:
         if self.state == "fault":
             em.log.append((ERROR, f"block at {stamp} ignored: device fault ({self.last_error})"))
             return em
+        try:   # a stamp off the grid cannot be placed (and must never anchor the stream): refused, counted
+            check_stamp(stamp, self.period_ns)
+        except BlockFormatError as exc:
+            self.guard.counters.rejected_blocks += 1
+            self._err(em, f"voltage block rejected ({exc}); nothing applied")
+            return em
         u: np.ndarray | None = None
         if reject is not None:
             self.guard.counters.rejected_blocks += 1
@@ -343,9 +350,20 @@ class DriverCore:
             if not self.book.started:
                 self._feed(em)
         self._sync()
+        if self.state == "safe" and self.book.started:
+            # after a safe ramp the stream re-anchors on the next valid block beyond max_gap ahead: a new stream
+            # starts right away, without waiting for a second block to confirm the jump (a nearer one is a gap,
+            # held as before, so that the stamps of voltage_applied stay contiguous)
+            nxt = self.book.stamp_of(self._w)
+            if nxt is not None and stamp - nxt > self.book.max_gap * self.period_ns:
+                self.book.candidate = None
+                self.book.rebase(self._w, int(stamp))
+                self.book.counters.rebases += 1
+                em.log.append((WARN, f"stream re-anchored on the block at {stamp} after the safe state"))
         try:
             d = self.book.classify(int(stamp), n, self._w, payload=u)
         except ValueError as exc:
+            self.guard.counters.rejected_blocks += 1
             self._err(em, f"voltage block dropped: {exc}")
             return em
         if d.kind == "pending":

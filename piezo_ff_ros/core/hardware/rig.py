@@ -1,5 +1,5 @@
 """A rig as the commissioning code sees it: a streaming ``process(u [N, axes] V) -> y [N, axes] m`` / ``reset()``
-system — the interface ``core.characterisation.run_open_loop`` and ``identification.pipeline.commission_sim`` already
+system — the interface ``core.characterisation.run_open_loop`` and ``commissioning.commission_sim`` already
 drive — backed by any :class:`~.contract.StreamingBackend` through the :class:`~.driver_core.DriverCore`.
 
 So the same characterisation/identification code runs on the simulator, the clocked simulator or hardware, always

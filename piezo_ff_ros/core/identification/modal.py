@@ -208,9 +208,12 @@ def fit_row(y_records: Sequence[np.ndarray], u_records: Sequence[Sequence[np.nda
     if th0.size:
         # keep poles within a sane band: |p| from pole_min to 1e3/dt
         lo, hi = np.log(pole_min), np.log(1e3 / dt)
-        # lsmr trust-region steps: no SVD of the tall Jacobian per iteration (dominant cost otherwise)
+        # lsmr trust-region steps: no SVD of the tall Jacobian per iteration (dominant cost otherwise); a single
+        # unknown (one real pole: a single-axis creep of order 1) needs the exact solver — scipy's bounded trf
+        # takes a 2-D subspace step with lsmr and fails with an IndexError on one variable
         sol = least_squares(resid, np.clip(th0, lo + 1e-6, hi - 1e-6), bounds=(lo, hi), method="trf",
-                            x_scale=1.0, max_nfev=max_nfev, xtol=1e-10, ftol=1e-12, tr_solver="lsmr")
+                            x_scale=1.0, max_nfev=max_nfev, xtol=1e-10, ftol=1e-12,
+                            tr_solver="lsmr" if th0.size > 1 else "exact")
         th = sol.x
         cost = float(sol.cost)
     else:

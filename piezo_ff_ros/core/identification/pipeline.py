@@ -4,8 +4,10 @@
   plant} and ``meta['role']`` ∈ {fit, validation}; the characterisation and ``piezo-ff identify`` tag them).
   ``plant`` runs (voltages into S0, never fitted on) score the identified model of the *whole* plant,
   ``Plant(identified config)``, against the measured output: :func:`plant_fit`.
-- :func:`commission_sim` runs the characterisation stage by stage on a core sim plant (no ROS), each stage through
-  the compensators identified before it, and identifies as it goes.
+
+The characterisation sequence that produces such runs, stage by stage through the compensators identified before
+(and :func:`~piezo_ff_ros.core.commissioning.commission_sim` on a core sim plant), is the commissioning's
+(:mod:`piezo_ff_ros.core.commissioning`): this module only fits recorded runs.
 """
 from __future__ import annotations
 
@@ -23,20 +25,16 @@ from .creep import identify_creep
 from .dynamics import identify_dynamics
 
 if TYPE_CHECKING:
-    from ..characterisation import CharacterisationSettings
-    from ..commissioning import CommissionReport
     from ..config import CreepConfig
-    from ..stage import Processor
     from ..synthesis.hinf import HinfDesign
-    from ..trajectories import Trajectory
     from .bouc_wen import BoucWenFit
     from .creep import CreepFit
     from .dynamics import DynamicsFit
 
 Fits = dict[str, float | None]  #: fit [%] per axis/entry (None where not finite)
 
-__all__ = ["identify_all", "commission_sim", "split_runs", "build_config", "synthesize_for", "with_hinf_controller", "plant_fit",
-           "IdentificationReport"]
+__all__ = ["identify_all", "split_runs", "build_config", "fits_report", "synthesize_for", "with_hinf_controller",
+           "plant_fit", "simulate_plant", "refit_hysteresis_without_creep", "IdentificationReport", "REFIT_TAG"]
 
 STAGES = ("hysteresis", "creep", "dynamics")
 #: a run is fitted on or only scored on
@@ -63,8 +61,9 @@ class IdentificationReport(JsonResult):
         The H∞ design's facts (γ, orders …; absent from the JSON when not synthesised).
     design : HinfDesign or None
         The H∞ design itself (not in the JSON).
-    kept_from_base : list of str or None
-        Stages without runs, kept from the base config and switched off in the cascade (absent when None).
+    not_identified : dict or None
+        Stages without runs and what the config holds for them (absent when None): creep none (K = I, Cr = 0),
+        dynamics the base config's, both switched off in the cascade.
     """
 
     fit_percent: dict[str, dict[str, float | None]]
@@ -73,7 +72,7 @@ class IdentificationReport(JsonResult):
     hinf_note: str | None = field(default=None, metadata={"omit_none": True})
     hinf: dict[str, Any] | None = field(default=None, metadata={"omit_none": True})
     design: Any = field(default=None, metadata={"json": False})
-    kept_from_base: list[str] | None = field(default=None, metadata={"omit_none": True})
+    not_identified: dict[str, str] | None = field(default=None, metadata={"omit_none": True})
 
 
 def split_runs(runs: Sequence[RunData]) -> dict[str, dict[str, list[RunData]]]:
@@ -112,21 +111,47 @@ def split_runs(runs: Sequence[RunData]) -> dict[str, dict[str, list[RunData]]]:
 
 def build_config(base: PiezoConfig, hyst: BoucWenFit, creep: CreepFit | None, dyn: DynamicsFit | None,
                  sample_rate: float, axes: Sequence[str]) -> PiezoConfig:
-    """A complete config from identified stages (weights, cascade and limits kept from ``base``); a stage given as
-    None keeps ``base``'s parameters and is switched off in the cascade (with the dynamics, the vibration stage)."""
+    """A complete config from identified stages (weights, cascade and limits kept from ``base``).  Creep given as
+    None is none (K = I, Cr = 0) and dynamics given as None keeps ``base``'s G_L; each is switched off in the
+    cascade (without the dynamics, the vibration stage too)."""
     cascade = base.cascade
+    notes = []
     if creep is None:
         cascade = replace(cascade, creep=False)
+        notes.append("no creep identified (K = I, Cr = 0)")
     if dyn is None:
         cascade = replace(cascade, vibration=False)
-    kept = [n for n, f in (("creep", creep), ("dynamics", dyn)) if f is None]
+        notes.append(f"dynamics kept from {base.name} (not identified)")
     return replace(base, name=f"{base.name}_identified", axes=tuple(axes), sample_rate=float(sample_rate),
-                   hysteresis=hyst.config, creep=creep.config if creep else base.creep,
+                   hysteresis=hyst.config, creep=creep.config if creep else _no_creep(len(axes)),
                    dynamics=dyn.config if dyn else base.dynamics, cascade=cascade,
                    vibration=replace(base.vibration, controller=None),
                    source="identified by piezo-ff identify (Habineza et al. 2018 procedure)"
-                          + (f"; {', '.join(kept)} kept from {base.name} (not identified, switched off)" if kept
-                             else ""), variant="printed").validate()
+                          + "".join(f"; {n}" for n in notes) + ("; switched off" if notes else ""),
+                   variant="printed").validate()
+
+
+def _no_creep(n: int) -> CreepConfig:
+    """Creep that is none: ``Y = I·Y_H`` (K = I, every Cr entry zero)."""
+    from ..config import CreepConfig
+    from ..lti import FactoredTF, TFMatrix
+
+    zero = FactoredTF(0.0)   # as the config reads an absent entry
+    return CreepConfig(K=tuple(tuple(float(i == j) for j in range(n)) for i in range(n)),
+                       Cr=TFMatrix(tuple(tuple(zero for _ in range(n)) for _ in range(n))))
+
+
+def _with_sl_input(run: RunData, hyst: BoucWenFit, creep: CreepFit | None) -> RunData:
+    """``run`` with its reference the input of S_L: as recorded, or — a voltage record without one — the identified
+    hysteresis (and creep) models' output for its voltages (from rest)."""
+    if run.reference is not None:
+        return run
+    from ..models.bouc_wen import BoucWenModel
+    from ..models.creep import CreepModel
+
+    y_h = BoucWenModel(hyst.config).process(np.asarray(run.u, float))
+    y_l = CreepModel(creep.config, 1.0 / run.sample_rate).process(y_h) if creep is not None else y_h
+    return replace(run, reference=y_l)
 
 
 def fits_report(hf: BoucWenFit, cf: CreepFit | None, df: DynamicsFit | None, axes: Sequence[str]
@@ -146,7 +171,8 @@ def fits_report(hf: BoucWenFit, cf: CreepFit | None, df: DynamicsFit | None, axe
     return out
 
 
-def _simulate_plant(cfg: PiezoConfig, u: np.ndarray, fs: float) -> np.ndarray:
+def simulate_plant(cfg: PiezoConfig, u: np.ndarray, fs: float) -> np.ndarray:
+    """The identified whole plant ``Plant(cfg)`` (noise-free, from rest) driven by ``u`` [V] at ``fs`` [Hz]."""
     from ..models.plant import Plant
 
     pcfg = cfg if abs(cfg.sample_rate - fs) <= 1e-9 * fs else cfg.with_sample_rate(fs)
@@ -166,7 +192,7 @@ def plant_fit(cfg: PiezoConfig, runs: Sequence[RunData], reference_outputs: Sequ
     ys, yh = [], []
     for i, r in enumerate(runs):
         ys.append(r.y if reference_outputs is None else reference_outputs[i])
-        yh.append(_simulate_plant(cfg, r.u, r.sample_rate))
+        yh.append(simulate_plant(cfg, r.u, r.sample_rate))
     f = fit_percent(np.vstack(ys), np.vstack(yh))
     return {a: (None if not np.isfinite(v) else round(float(v), 3)) for a, v in zip(runs[0].axes, f)}
 
@@ -178,9 +204,12 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
                  ) -> tuple[PiezoConfig, IdentificationReport]:
     """Identify every stage the runs characterise; returns the complete config and a report (held-out fits, timings).
 
-    The stages are identified in the paper's order from the runs tagged with them; hysteresis alone (a single-stage
-    record, e.g. a voltage/displacement loop) or hysteresis and creep are enough: a stage without runs keeps
-    ``base``'s parameters and is switched off in the cascade (the report lists it under ``kept_from_base``).
+    The stages are identified in the paper's order from the runs tagged with them; hysteresis is required, creep and
+    dynamics are optional (a single-stage record, e.g. a voltage/displacement loop; voltage records of a stage
+    without creep): without creep runs the config has none (K = I, Cr = 0), without dynamics runs it keeps
+    ``base``'s G_L; either is switched off in the cascade (the report's ``not_identified``).  A dynamics run without a
+    recorded reference (a voltage record of S0) is fitted from the identified hysteresis and creep models' output,
+    the input of G_L.
     The H∞ compensator is synthesised from the identified G_L (``core.synthesis.hinf``) and stored in the config
     (``vibration.controller``) so the compensator node loads it without re-synthesising.  With
     ``refine_hysteresis`` the Bouc-Wen is refitted once creep is known (:func:`refit_hysteresis_without_creep`),
@@ -193,16 +222,15 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
     Raises
     ------
     ValueError
-        No hysteresis fitting run, a later stage without the one before it, runs of several axis sets, or a
-        ``base`` whose axes differ from the runs' (one line naming both).
+        No hysteresis fitting run, runs of several axis sets, or a ``base`` whose axes differ from the runs' (one line
+        naming both).
     """
     say = progress or (lambda s: None)
     base = base or load_config()
     groups = split_runs(runs)
     present = tuple(st for st in STAGES if groups[st]["fit"])
-    if not present or present != STAGES[:len(present)]:
-        missing = next(st for st in STAGES if not groups[st]["fit"])
-        raise ValueError(f"no '{missing}' fitting run among the data, and the stages are identified in order "
+    if "hysteresis" not in present:
+        raise ValueError("no 'hysteresis' fitting run among the data: every identification starts with it "
                          f"({' → '.join(STAGES)}; tag runs with meta stage/role, or --stage)")
     axes = groups["hysteresis"]["fit"][0].axes
     other = sorted({tuple(r.axes) for r in runs} - {tuple(axes)})
@@ -213,7 +241,7 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
                          "give a base config of the runs' axes (--base)")
     fs = groups["hysteresis"]["fit"][0].sample_rate
     timing = {}
-    bw = {"fit_offset": fit_offset, "delay": int(delay), "skip": float(skip)}
+    bw: dict[str, Any] = {"fit_offset": fit_offset, "delay": int(delay), "skip": float(skip)}
     t0 = time.perf_counter()
     hf = identify_bouc_wen(groups["hysteresis"]["fit"], groups["hysteresis"]["validation"], generalized=generalized,
                            progress=say, **bw)
@@ -235,15 +263,19 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
             timing["hysteresis_refit"] = time.perf_counter() - t0
     if "dynamics" in present:
         t0 = time.perf_counter()
-        df = identify_dynamics(groups["dynamics"]["fit"], groups["dynamics"]["validation"], order=dynamics_order,
-                               axes=axes, progress=say)
+        dyn = {role: [_with_sl_input(r, hf, cf) for r in groups["dynamics"][role]] for role in ROLES}
+        df = identify_dynamics(dyn["fit"], dyn["validation"], order=dynamics_order, axes=axes, progress=say)
         timing["dynamics"] = time.perf_counter() - t0
-    kept = [st for st in STAGES if st not in present]
-    if kept:
-        say(f"{', '.join(kept)}: no runs; kept from the base config {base.name!r} and switched off in the cascade")
+    not_identified = {}
+    if cf is None:
+        not_identified["creep"] = "none (K = I, Cr = 0), switched off"
+    if df is None:
+        not_identified["dynamics"] = f"kept from {base.name}, switched off"
+    for st, what in not_identified.items():
+        say(f"{st}: no runs; {what}")
     cfg = build_config(base, hf, cf, df, fs, axes)
     fits = fits_report(hf, cf, df, axes)
-    if groups["plant"]["validation"] and not kept:
+    if groups["plant"]["validation"] and df is not None:
         t0 = time.perf_counter()
         say("plant: held-out fit of the identified whole-plant model")
         fits["plant"] = plant_fit(cfg, groups["plant"]["validation"])
@@ -258,7 +290,7 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
                                      orders={"creep": cf.orders if cf else None, "dynamics": df.orders if df else None},
                                      timing_s=timing, hinf_note=note or None,
                                      hinf=design.as_dict() if design is not None else None, design=design,
-                                     kept_from_base=kept or None)
+                                     not_identified=not_identified or None)
 
 
 def synthesize_for(cfg: PiezoConfig, say: Callable[[str], None] = lambda s: None) -> tuple[HinfDesign, str | None]:
@@ -309,25 +341,6 @@ def with_hinf_controller(cfg: PiezoConfig, say: Callable[[str], None] = lambda s
     return replace(cfg, vibration=vib).validate(), design, note
 
 
-def commission_sim(plant: Processor, fs: float, axes: Sequence[str] = ("x", "y"),
-                   settings: CharacterisationSettings | None = None, base: PiezoConfig | None = None,
-                   generalized: bool = False, creep_order: int | str = "auto", dynamics_order: int | str = "auto",
-                   refine_hysteresis: bool = True,
-                   progress: Callable[[str], None] | None = None) -> tuple[PiezoConfig, CommissionReport, list[RunData]]:
-    """Characterise and identify stage by stage on a sim plant (``process``/``reset``), as in Fig. 3.
-
-    The sequence of :func:`piezo_ff_ros.core.commissioning.commission` on a
-    :class:`~piezo_ff_ros.core.commissioning.SimRig`, without the H∞ synthesis.  Returns ``(config, report, runs)``;
-    ``runs`` are tagged so :func:`identify_all` can redo the identification.
-    """
-    from ..commissioning import SimRig, commission
-
-    res = commission(SimRig(plant, fs, axes), base=base, settings=settings, generalized=generalized,
-                     creep_order=creep_order, dynamics_order=dynamics_order, refine_hysteresis=refine_hysteresis,
-                     synthesize=False, progress=progress)
-    return res.config, res.report, res.runs
-
-
 def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg: CreepConfig, generalized: bool = False,
                                    init: BoucWenFit | None = None,
                                    progress: Callable[[str], None] | None = None, **bouc_wen: Any) -> BoucWenFit:
@@ -347,23 +360,3 @@ def refit_hysteresis_without_creep(hyst_runs: Sequence[RunData], creep_cfg: Cree
         out["validation" if r.meta.get("role") == "validation" else "fit"].append(replace(r, y=cc.process(r.y)))
     return identify_bouc_wen(out["fit"], out["validation"], generalized=generalized, init=init, progress=progress,
                              **bouc_wen)
-
-
-def part_fits(cfg: PiezoConfig, run: RunData, y_ref: np.ndarray, traj: Trajectory,
-              axes: Sequence[str]) -> dict[str, dict[str, float]]:
-    """Whole-plant fit on each part of the validation record (multisine: hysteresis loops and G_L in the band;
-    step pair: creep and the G_L transients), to see which stage limits the whole-record figure."""
-    from ..trajectories import Sequence as TrajSequence
-    from .metrics import fit_percent
-
-    if not isinstance(traj, TrajSequence):
-        raise ValueError(f"part_fits: the validation record must be a sequence of named parts, got {traj.kind}")
-    y_model = _simulate_plant(cfg, run.u, run.sample_rate)
-    segs = {seg.name: seg for seg in traj.segments(run.sample_rate)}
-    parts = {"multisine": (segs["multisine_full"].start, segs["multisine_half"].stop),
-             "step_pair": (segs["multisine_half"].stop, len(run))}
-    out = {}
-    for name, (k0, k1) in parts.items():
-        f = fit_percent(y_ref[k0:k1], y_model[k0:k1])
-        out[name] = {a: round(float(v), 3) for a, v in zip(axes, f)}
-    return out

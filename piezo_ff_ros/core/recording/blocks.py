@@ -16,7 +16,15 @@ This module never imports rclpy.  It offers:
   on the wire and in MCAP), via the ``rosbags`` type store, so that recordings can be written and read without ROS;
 - :func:`serialize_message` / :func:`deserialize_message`: the same for any standard message given as nested dicts
   (``std_msgs/msg/String``, ``diagnostic_msgs/msg/DiagnosticArray`` …);
-- stamp ↔ sample-index helpers (:func:`sample_period_ns`, :func:`stamp_for_index`, :func:`index_for_stamp`).
+- stamp ↔ sample-index helpers (:func:`sample_period_ns`, :func:`stamp_for_index`, :func:`index_for_stamp`,
+  :func:`check_stamp`).
+
+This is the one codec of the package: the nodes (``nodes/common.py`` delegates here), the recorder and the readers
+decode with :func:`decode_block` and get the same verdicts — a field ``count`` other than 1, fields whose offsets are
+not ``0, 8, …`` in their listed order, fields that do not name the expected axes, a width of 0 or more than
+:data:`MAX_BLOCK_SAMPLES` (checked before the data is touched) are refused; with ``period_ns`` a stamp off the
+absolute sample grid is refused, with ``finite`` a NaN/Inf value.  :func:`sample_period_ns` is the one sample-period
+function: a rate whose period is not a whole number of nanoseconds is refused.
 """
 from __future__ import annotations
 
@@ -32,19 +40,40 @@ if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
 __all__ = [
-    "BLOCK_TYPE", "FRAME_ID", "FLOAT64", "sample_period_ns", "stamp_for_index", "index_for_stamp",
+    "BLOCK_TYPE", "FRAME_ID", "FLOAT64", "MAX_BLOCK_SAMPLES", "BlockFormatError", "sample_period_ns", "check_stamp", "stamp_for_index", "index_for_stamp",
     "stamp_to_ns", "ns_to_stamp", "encode_block", "decode_block", "block_axes", "serialize_block",
-    "deserialize_block", "serialize_message", "deserialize_message", "typestore",
+    "deserialize_block", "serialize_message", "deserialize_message", "typestore", "peek_block_samples",
 ]
 
 BLOCK_TYPE = "sensor_msgs/msg/PointCloud2"  #: message type of the reference/voltage/displacement topics
 FRAME_ID = "piezo"  #: header.frame_id of every block
 FLOAT64 = 8  #: sensor_msgs/PointField.FLOAT64
 _NS = 1_000_000_000
+#: the most samples one block message may carry (docs/topics.md): 1 s at 20 kHz, 320 kB for 2 axes; a larger block
+#: is refused before its data is read (the driver's ``max_block`` default is the same)
+MAX_BLOCK_SAMPLES = 20_000
+
+
+class BlockFormatError(ValueError):
+    """A block message that does not follow the contract (the text starts with the field that is wrong)."""
 
 
 # ----------------------------------------------------------------------------------------------------------------
 # stamps ↔ sample indices (integer nanoseconds, exact)
+
+def check_stamp(stamp_ns: int, period_ns: int) -> int:
+    """``stamp_ns`` if it lies on the absolute sample grid (a whole multiple of ``period_ns``), else
+    :class:`BlockFormatError`.
+
+    Every stamp of the contract is ``t0 + k·dt_ns`` with ``t0`` itself on the grid (the trajectory node and the
+    held point floor their origin to it), so a stamp that is not a multiple of ``dt_ns`` cannot be placed.
+    """
+    r = int(stamp_ns) % int(period_ns)
+    if r:
+        raise BlockFormatError(f"block.header.stamp: {int(stamp_ns)} ns is off the {int(period_ns)} ns sample grid "
+                               f"(by {r} ns)")
+    return int(stamp_ns)
+
 
 def stamp_for_index(k: int, t0_ns: int, dt_ns: int) -> int:
     """Stamp [ns] of sample ``k``: ``t0_ns + k·dt_ns`` (exact integer arithmetic)."""
@@ -147,12 +176,35 @@ def _data_bytes(data: Any) -> bytes | bytearray | memoryview | np.ndarray:
         return bytes(data)
 
 
-def decode_block(msg: Any, axes: Sequence[str] | None = None) -> tuple[int, np.ndarray]:
+def decode_block(msg: Any, axes: Sequence[str] | None = None, *, period_ns: int | None = None,
+                 finite: bool = False, max_samples: int = MAX_BLOCK_SAMPLES) -> tuple[int, np.ndarray]:
     """PointCloud2 of the contract (dict or message-like) → ``(stamp_ns, block[N, axes])`` (float64, a copy).
 
-    ``axes``: wanted columns by field name, in that order (default: all fields in offset order).  Anything that
-    breaks the contract (not FLOAT64, big-endian, height ≠ 1, wrong strides, short data, unknown axis) raises
-    ``ValueError`` saying which field is wrong.
+    Parameters
+    ----------
+    msg : Mapping or message-like
+        The message (a dict of :func:`encode_block`, an rclpy, ``rosbags`` or ``mcap_ros2`` message).
+    axes : sequence of str, optional
+        Wanted columns by field name, in that order (default: all fields in offset order).  With ``axes`` the
+        fields must name exactly these axes (an unknown or missing one is refused).
+    period_ns : int, optional
+        The sample period: a stamp off the absolute grid is refused (:func:`check_stamp`).
+    finite : bool
+        Refuse a NaN/Inf value (what a node that applies the block needs).
+    max_samples : int
+        Largest width accepted; checked before the data is read.
+
+    Returns
+    -------
+    (int, numpy.ndarray)
+        The stamp of the first sample [ns] and the block.
+
+    Raises
+    ------
+    BlockFormatError
+        (a ``ValueError``) starting with the field that breaks the contract: not FLOAT64 with count 1, offsets not
+        ``0, 8, …`` in the listed order, big-endian, height ≠ 1, width 0 or above ``max_samples``, wrong strides,
+        short data, unknown or missing axis, off-grid stamp, NaN/Inf.
     """
     try:
         header = _get(msg, "header")
@@ -161,40 +213,75 @@ def decode_block(msg: Any, axes: Sequence[str] | None = None) -> tuple[int, np.n
         point_step, row_step = int(_get(msg, "point_step")), int(_get(msg, "row_step"))
         big = bool(_get(msg, "is_bigendian"))
         fields = list(_get(msg, "fields"))
-        data = _data_bytes(_get(msg, "data"))
     except (KeyError, AttributeError, TypeError) as exc:
-        raise ValueError(f"block: not a PointCloud2-like message ({exc})") from None
+        raise BlockFormatError(f"block: not a PointCloud2-like message ({exc})") from None
     if big:
-        raise ValueError("block.is_bigendian: must be false (little-endian float64)")
-    if height != 1 and width != 0:
-        raise ValueError(f"block.height: must be 1, got {height}")
-    offsets: dict[str, int] = {}
-    for f in fields:
+        raise BlockFormatError("block.is_bigendian: must be false (little-endian float64)")
+    if height != 1:
+        raise BlockFormatError(f"block.height: must be 1, got {height}")
+    if width < 1:
+        raise BlockFormatError(f"block.width: {width} samples (a block carries at least one)")
+    if width > max_samples:   # before the data is touched: an oversized block costs nothing
+        raise BlockFormatError(f"block.width: {width} samples > the {max_samples} a block may carry "
+                               "(docs/topics.md)")
+    if not fields:
+        raise BlockFormatError("block.fields: empty")
+    names: list[str] = []
+    for i, f in enumerate(fields):
         name, off, dtype, count = str(_get(f, "name")), int(_get(f, "offset")), int(_get(f, "datatype")), \
             int(_get(f, "count"))
         if dtype != FLOAT64 or count != 1:
-            raise ValueError(f"block.fields[{name}]: must be FLOAT64 (8) with count 1, got datatype {dtype}, "
-                             f"count {count}")
-        if off % 8 or off + 8 > point_step:
-            raise ValueError(f"block.fields[{name}].offset: {off} does not fit point_step {point_step}")
-        offsets[name] = off
-    if not offsets:
-        raise ValueError("block.fields: empty")
-    if point_step % 8 or point_step < 8 * len(offsets):
-        raise ValueError(f"block.point_step: {point_step} too small for {len(offsets)} float64 fields")
+            raise BlockFormatError(f"block.fields[{name}]: must be FLOAT64 (8) with count 1, got datatype {dtype}, "
+                                   f"count {count}")
+        if off != 8 * i:
+            raise BlockFormatError(f"block.fields[{name}].offset: {off}, expected {8 * i} (fields in offset order, "
+                                   "no padding)")
+        names.append(name)
+    if len(set(names)) != len(names):
+        raise BlockFormatError(f"block.fields: duplicate names {names}")
+    if point_step != 8 * len(names):
+        raise BlockFormatError(f"block.point_step: {point_step}, expected {8 * len(names)} for {len(names)} float64 "
+                               "fields")
     if row_step != point_step * width:
-        raise ValueError(f"block.row_step: {row_step} != point_step·width = {point_step * width}")
-    nbytes = len(data) if not isinstance(data, np.ndarray) else data.nbytes
-    if nbytes != row_step * max(height, 1) and not (width == 0 and nbytes == 0):
-        raise ValueError(f"block.data: {nbytes} bytes, expected row_step·height = {row_step * height}")
-    table = np.frombuffer(data, dtype="<f8").reshape(width, point_step // 8)
-    if axes is None:
-        axes = sorted(offsets, key=lambda name: offsets[name])
+        raise BlockFormatError(f"block.row_step: {row_step} != point_step·width = {point_step * width}")
+    if axes is not None and sorted(names) != sorted(axes):
+        raise BlockFormatError(f"block.fields: {names} do not name the axes {list(axes)} (missing "
+                               f"{sorted(set(axes) - set(names))}, unknown {sorted(set(names) - set(axes))})")
+    if period_ns is not None:
+        check_stamp(stamp_ns, period_ns)
     try:
-        cols = [offsets[a] // 8 for a in axes]
-    except KeyError as exc:
-        raise ValueError(f"block.fields: no field named {exc.args[0]!r} (fields: {sorted(offsets)})") from None
-    return stamp_ns, np.array(table[:, cols], dtype=np.float64)
+        data = _data_bytes(_get(msg, "data"))
+    except (KeyError, AttributeError, TypeError) as exc:
+        raise BlockFormatError(f"block: not a PointCloud2-like message ({exc})") from None
+    nbytes = len(data) if not isinstance(data, np.ndarray) else data.nbytes
+    if nbytes != row_step:
+        raise BlockFormatError(f"block.data: {nbytes} bytes, expected row_step·height = {row_step}")
+    table = np.frombuffer(data, dtype="<f8").reshape(width, len(names))
+    cols = list(range(len(names))) if axes is None else [names.index(a) for a in axes]
+    block = np.array(table[:, cols], dtype=np.float64)
+    if finite and not np.all(np.isfinite(block)):
+        raise BlockFormatError(f"block.data: {int(np.count_nonzero(~np.isfinite(block)))} NaN/Inf value(s)")
+    return stamp_ns, block
+
+
+def peek_block_samples(raw: bytes | bytearray | memoryview) -> int | None:
+    """``height·width`` of a CDR-serialised block message, read from its first bytes only (no decoding): what a
+    node checks against :data:`MAX_BLOCK_SAMPLES` before doing any work on a raw message; None if the bytes are
+    too short to say."""
+    import struct
+
+    buf = memoryview(raw)
+    if len(buf) < 4 + 8 + 4:
+        return None
+    endian = "<" if buf[1] == 1 else ">"   # encapsulation: CDR_LE = 00 01, CDR_BE = 00 00
+    try:
+        (n,) = struct.unpack_from(endian + "I", buf, 4 + 8)   # header.stamp (8 bytes), then frame_id's length
+        off = 4 + 8 + 4 + n
+        off = 4 + ((off - 4 + 3) & ~3)                        # uint32 alignment, relative to the payload
+        height, width = struct.unpack_from(endian + "II", buf, off)
+    except struct.error:
+        return None
+    return int(height) * int(width)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -271,9 +358,14 @@ def serialize_block(block: ArrayLike, stamp_ns: int, axes: Sequence[str] = ("x",
     return serialize_message(encode_block(block, stamp_ns, axes, frame_id), BLOCK_TYPE)
 
 
-def deserialize_block(raw: bytes, axes: Sequence[str] | None = None) -> tuple[int, np.ndarray, tuple[str, ...]]:
-    """CDR bytes of a block message → ``(stamp_ns, block[N, axes], axes)``; ``ValueError`` if malformed."""
+def deserialize_block(raw: bytes, axes: Sequence[str] | None = None, *, period_ns: int | None = None,
+                      finite: bool = False, max_samples: int = MAX_BLOCK_SAMPLES) -> tuple[int, np.ndarray,
+                                                                                          tuple[str, ...]]:
+    """CDR bytes of a block message → ``(stamp_ns, block[N, axes], axes)``; ``ValueError`` if malformed.
+
+    The same verdicts as :func:`decode_block` (same keywords): a reader and a node agree on what is a block.
+    """
     msg = deserialize_message(raw, BLOCK_TYPE)
     names = block_axes(msg) if axes is None else tuple(axes)
-    stamp_ns, block = decode_block(msg, names)
+    stamp_ns, block = decode_block(msg, names, period_ns=period_ns, finite=finite, max_samples=max_samples)
     return stamp_ns, block, names

@@ -6,6 +6,11 @@ missing columns, non-numeric cells, NaN/Inf, non-uniform or non-increasing time,
 magnitude says the unit is not the one the format promises (displacements in µm or mm instead of m, voltages in mV
 or kV-scale numbers instead of V).
 
+``.npy``: the layout of the nonlinear-benchmark periodic records (the CubeSpec fine steering mirror set): a pair of
+files ``u_<tag>.npy`` (V) and ``y_<tag>.npy`` (m) side by side, each ``[samples, channels, realizations, periods]``
+(or ``[samples, channels]``), with the sample rate given by the caller (the layout holds none):
+:func:`load_npy_realizations` gives one run per realization, its periods end to end.
+
 CSV: a header ``t,u_x,u_y,x,y`` (any number of axes: every ``u_<axis>`` needs a matching ``<axis>`` column; an
 optional ``r_<axis>`` column is read as the reference).  ``.mat``: variables ``t`` [N], ``u`` [N×axes], ``y``
 [N×axes] (optionally ``r`` [N×axes] and ``axes``, a cell/char array of axis names).
@@ -18,9 +23,9 @@ from typing import Any, NoReturn, Sequence
 
 import numpy as np
 
-from .run import RunData, canonical_axes
+from .run import AXIS_ORDER, RunData, canonical_axes
 
-__all__ = ["load_csv", "load_mat", "check_run_arrays", "MAX_DISPLACEMENT", "MAX_VOLTAGE",
+__all__ = ["load_csv", "load_mat", "load_npy_realizations", "check_run_arrays", "MAX_DISPLACEMENT", "MAX_VOLTAGE",
            "MIN_DRIVE_VOLTAGE", "MIN_SAMPLE_RATE", "MAX_SAMPLE_RATE", "UNIFORM_TOL"]
 
 #: largest plausible |displacement| of a piezo positioner [m]; above it the column is almost surely µm or mm
@@ -51,11 +56,13 @@ def _time_unit_hint(dt: float) -> str:
 
 def check_run_arrays(path: Any, t: np.ndarray, u: np.ndarray, y: np.ndarray, u_names: Sequence[str],
                      y_names: Sequence[str],
-                     row_offset: int = 0, ref: np.ndarray | None = None) -> None:
+                     row_offset: int = 0, ref: np.ndarray | None = None,
+                     min_drive_voltage: float = MIN_DRIVE_VOLTAGE) -> None:
     """Validate arrays of a run; raise ``ValueError`` saying what is wrong and where.
 
     ``row_offset`` maps array index 0 to the row number printed in messages (2 for a CSV with one header line,
-    1 for MATLAB's 1-based indexing).
+    1 for MATLAB's 1-based indexing).  ``min_drive_voltage``: below it a driven run's voltages are taken for kV
+    (0 for a layout whose unit is known to be V, e.g. an amplifier's input of a few hundred mV).
     """
     n = len(t)
     if n < 2:
@@ -99,7 +106,7 @@ def check_run_arrays(path: Any, t: np.ndarray, u: np.ndarray, y: np.ndarray, u_n
             _fail(path, f"reference: |r| up to {m:.6g} is not plausible in metres; it looks like µm — convert to m")
     u_max = float(np.max(np.abs(u))) if u.size else 0.0
     # below MAX_DISPLACEMENT the input is a length (the creep/dynamics stages are characterised from Y_H, Y_L in m)
-    if MAX_DISPLACEMENT < u_max < MIN_DRIVE_VOLTAGE:
+    if MAX_DISPLACEMENT < u_max < min_drive_voltage:
         i = int(np.argmax(np.max(np.abs(u), axis=0)))
         _fail(path, f"column {u_names[i]!r}: the largest drive voltage of the run is {u_max:.6g} — a piezo "
                     f"driven by < {MIN_DRIVE_VOLTAGE:g} V barely moves; the column looks like kV — convert to V")
@@ -286,3 +293,69 @@ def load_mat(path: str | Path, axes: Sequence[str] | None = None) -> RunData:
     ref = None if ref is None else ref[:, cols]
     return RunData(t=t, u=u[:, cols], y=y[:, cols], axes=tuple(axes), reference=ref,
                    meta={"source": str(p), "format": "mat", "file_axes": list(file_axes)})
+
+
+def load_npy_realizations(path: str | Path, sample_rate: float | None = None,
+                          axes: Sequence[str] | None = None) -> list[RunData]:
+    """Load the ``u_<tag>.npy`` / ``y_<tag>.npy`` pair of ``path`` (either file) as one run per realization.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``u_<tag>.npy`` or ``y_<tag>.npy``; its partner must sit beside it.  Arrays ``[N, channels, R, P]``
+        (N samples per period, R realizations, P periods: each run is the P periods end to end, so its first period
+        holds the transient) or ``[N, channels]`` (one run); ``u`` in V, ``y`` in m.
+    sample_rate : float
+        [Hz]; required (the layout holds none; the fine steering mirror set: 6400 Hz).
+    axes : sequence of str, optional
+        Channel names (default x, y, z for up to three channels, else ``ch0``, ``ch1`` …).
+
+    Returns
+    -------
+    list of RunData
+        ``meta``: ``source``, ``realization``, ``periods``, ``period_samples``.
+
+    Raises
+    ------
+    ValueError
+        No sample rate, no partner file, shapes that differ or are not of the layout, NaN/Inf, implausible units.
+    """
+    p = Path(path)
+    m = p.name[:2].lower()
+    if p.suffix.lower() != ".npy" or m not in ("u_", "y_"):
+        _fail(p, "expected a u_<tag>.npy or y_<tag>.npy file of a u/y pair")
+    if sample_rate is None or not (np.isfinite(sample_rate) and MIN_SAMPLE_RATE <= sample_rate <= MAX_SAMPLE_RATE):
+        _fail(p, f"a .npy record carries no sample rate: give it (--sample-rate, {MIN_SAMPLE_RATE:g} … "
+                 f"{MAX_SAMPLE_RATE:g} Hz), got {sample_rate!r}")
+    tag = p.name[2:]
+    files = {k: p.with_name(f"{k}_{tag}") for k in ("u", "y")}
+    arrays = {}
+    for k, f in files.items():
+        if not f.exists():
+            _fail(p, f"its partner {f.name} is not beside it")
+        a = np.load(f, allow_pickle=False)
+        if a.ndim == 2:
+            a = a[:, :, None, None]
+        if a.ndim != 4 or a.shape[0] < 2 or not np.issubdtype(a.dtype, np.number):
+            _fail(f, f"shape {a.shape} is not [samples, channels, realizations, periods] (or [samples, channels])")
+        arrays[k] = np.asarray(a, float)
+    u, y = arrays["u"], arrays["y"]
+    if u.shape != y.shape:
+        _fail(p, f"u {u.shape} and y {y.shape} differ in shape (one output per input channel expected)")
+    n, ch, n_real, n_per = u.shape
+    names = tuple(axes) if axes is not None else (AXIS_ORDER[:ch] if ch <= len(AXIS_ORDER)
+                                                  else tuple(f"ch{i}" for i in range(ch)))
+    if len(names) != ch:
+        _fail(p, f"{ch} channels but {len(names)} axis names {list(names)}")
+    runs = []
+    t = np.arange(n * n_per) / float(sample_rate)
+    for r in range(n_real):
+        ur = np.concatenate([u[:, :, r, k] for k in range(n_per)])
+        yr = np.concatenate([y[:, :, r, k] for k in range(n_per)])
+        check_run_arrays(f"{p} (realization {r})", t, ur, yr, [f"u_{a}" for a in names], list(names),
+                         min_drive_voltage=0.0)
+        runs.append(RunData(t=t.copy(), u=ur, y=yr, axes=names,
+                            meta={"source": str(p), "experiment": f"{p.stem[2:]}_r{r}", "realization": r,
+                                  "periods": n_per, "period_samples": n}))
+    return runs
+

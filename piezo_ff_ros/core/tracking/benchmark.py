@@ -11,7 +11,7 @@ Methods (each ends in the same amplifier: ±voltage and slew, applied by the cas
 Truths: ``nominal`` (model = plant), ``asymmetric`` (generalized Bouc-Wen truth, the compensators keep the printed
 symmetric model), ``noise_100nm`` (nominal plant, 100 nm RMS white sensor noise in the learning trials; the figures
 are of the true displacement), ``identified`` (the compensators built from a config identified on the simulated
-printed plant, :func:`~..identification.pipeline.commission_sim`; the truth is the printed plant).
+printed plant, :func:`~..commissioning.commission_sim`; the truth is the printed plant).
 
 Every reference starts with a 0.1 s smooth lead-in from rest to its first sample.  Errors are the Euclidean
 distance ``|y − r|`` (over every axis) read on a window: the last revolution of a circle, a helix or a sine, the lines
@@ -74,7 +74,7 @@ def benchmark_cases(quick: bool = False, axes: Sequence[str] = ("x", "y")) -> li
     """Circles 20/30 µm at 1, 10, 50 Hz; raster 20 µm at 10 and 50 Hz lines; a 20 µm spiral at 10 Hz.
 
     On a stage of three axes or more they run in the plane of the first two, and two cases move the third: a helix
-    (the 20 µm circle at 10 Hz over a 10 µm ramp) and a raster over a 10 µm ramp (``raster_ramp``).  A single axis
+    (the 20 µm circle at 10 Hz over a 10 µm ramp) and a raster over a 10 µm ramp (``raster_z``).  A single axis
     tracks sines of the circles' amplitudes and frequencies instead."""
     um = 1e-6
     axes = tuple(axes)
@@ -96,11 +96,11 @@ def benchmark_cases(quick: bool = False, axes: Sequence[str] = ("x", "y")) -> li
     cases.append(Case("spiral", 20, 10, on_stage(Spiral(radius=20 * um, frequency=10, revolutions=5), axes)))
     if len(axes) >= 3:
         rest = [Hold(value=0.0, duration=0.1, axes=axes[3:])] if len(axes) > 3 else []
-        h = helix(20 * um, 10, 4, 10 * um, axes=axes[:3])
+        h = helix(20 * um, 10, 4, 10 * um, axes=(axes[0], axes[1], axes[2]))
         cases.append(Case("helix", 20, 10, PerAxis(list(h.parts) + rest, axes=axes)))
         ras = Raster(width=20 * um, lines=6, line_rate=10, axes=axes[:2], fast_axis=axes[0])
         ramp = Ramp(start=0.0, end=10 * um, duration=ras.duration, axes=axes[2:3])
-        cases.append(Case("raster_ramp", 20, 10, PerAxis([ras, ramp] + rest, axes=axes)))
+        cases.append(Case("raster_z", 20, 10, PerAxis([ras, ramp] + rest, axes=axes)))
     return cases
 
 
@@ -127,7 +127,7 @@ def evaluation_window(case: Case, r: np.ndarray, n_lead: int, fs: float) -> np.n
     mask = np.zeros(n, bool)
     if case.trajectory in ("circle", "sine", "helix"):
         mask[n - int(round(fs / case.frequency_hz)):] = True
-    elif case.trajectory in ("raster", "raster_ramp"):
+    elif case.trajectory in ("raster", "raster_z"):
         fast = r[:, case.traj.axes.index(_raster(case.traj).fast_axis)]
         acc = np.abs(np.gradient(np.gradient(fast)))
         mask[n_lead + int(round(fs / case.frequency_hz)):] = True

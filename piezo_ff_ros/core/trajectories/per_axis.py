@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -62,11 +62,7 @@ class PerAxis(Trajectory):
     def __init__(self, parts: Any, axes: Any = None) -> None:
         built: list[Trajectory] = []
         for i, p in enumerate(parts):
-            if isinstance(p, Mapping):
-                from .spec import from_dict   # spec builds per-axis trajectories: imported on use
-
-                p = from_dict(p, prefix=f"parts[{i}]")
-            if not isinstance(p, Trajectory):
+            if not isinstance(p, Trajectory):   # specs (dicts) are built by spec.from_dict, not here
                 raise ConfigError(f"parts[{i}]", f"expected a trajectory, got {type(p).__name__}")
             built.append(p)
         if not built:

@@ -1,4 +1,7 @@
-"""Named segments played one after the other (:class:`Sequence`), and which segment a sample belongs to."""
+"""Named segments played one after the other (:class:`TrajectorySequence`), and which segment a sample belongs to.
+
+``Sequence`` is the old name of the class (it shadowed ``typing.Sequence`` wherever both were imported); it stays an
+alias until no module uses it."""
 from __future__ import annotations
 
 import dataclasses
@@ -12,12 +15,12 @@ from numpy.typing import ArrayLike
 from ..config import ConfigError
 from .base import Trajectory, _axes, _finite, _plain
 
-__all__ = ["Segment", "Sequence"]
+__all__ = ["Segment", "TrajectorySequence", "Sequence"]
 
 
 @dataclass(frozen=True)
 class Segment:
-    """A named part of a :class:`Sequence`: samples ``[start, stop)`` at a given rate."""
+    """A named part of a :class:`TrajectorySequence`: samples ``[start, stop)`` at a given rate."""
 
     index: int
     name: str
@@ -27,8 +30,8 @@ class Segment:
     stop: float | int
 
 
-class Sequence(Trajectory):
-    """Named segments played one after the other: ``Sequence([(name, trajectory, meta), ...])``.
+class TrajectorySequence(Trajectory):
+    """Named segments played one after the other: ``TrajectorySequence([(name, trajectory, meta), ...])``.
 
     Segment ``i`` occupies samples ``[start_i, start_i + n_samples_i(fs))``; inside it the segment's own
     trajectory is evaluated at its local index ``k − start_i`` (each segment starts at its own t = 0).  Only the
@@ -75,13 +78,13 @@ class Sequence(Trajectory):
         raise dataclasses.FrozenInstanceError(f"cannot assign to field {name!r}")
 
     def __eq__(self, other: object) -> bool:
-        return isinstance(other, Sequence) and self.axes == other.axes and self.segments_ == other.segments_
+        return isinstance(other, TrajectorySequence) and self.axes == other.axes and self.segments_ == other.segments_
 
     def __hash__(self) -> int:
         return hash(("sequence", self.axes, tuple(n for n, _, _ in self.segments_)))
 
     def __repr__(self) -> str:
-        return f"Sequence({[n for n, _, _ in self.segments_]})"
+        return f"TrajectorySequence({[n for n, _, _ in self.segments_]})"
 
     @property
     def names(self) -> list[str]:
@@ -176,3 +179,7 @@ def _plain_meta(m: Any) -> Any:
     if isinstance(m, (list, tuple)):
         return [_plain_meta(v) for v in m]
     return _plain(m)
+
+
+#: the old name (shadowed ``typing.Sequence``); use :class:`TrajectorySequence`
+Sequence = TrajectorySequence

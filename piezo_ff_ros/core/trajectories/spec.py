@@ -10,7 +10,7 @@ from ..units import length_scale
 from .base import Trajectory
 from .excitation import Chirp, Multisine, PRBS
 from .per_axis import PerAxis, Ramp
-from .sequence import Sequence
+from .sequence import TrajectorySequence
 from .shapes import Circle, Hold, Raster, Sine, Spiral, Staircase, Step
 from .tables import Table
 
@@ -51,7 +51,7 @@ def from_dict(spec: Mapping[str, Any], prefix: str = "trajectory") -> Trajectory
         except TypeError:
             raise ConfigError(f"{prefix}.segments", "expected a list of segments") from None
         try:
-            return Sequence(segs, axes=d.get("axes"))
+            return TrajectorySequence(segs, axes=d.get("axes"))
         except ConfigError as exc:
             raise ConfigError(f"{prefix}.{exc.field}", exc.reason) from None
     if kind == "per_axis":
@@ -62,7 +62,8 @@ def from_dict(spec: Mapping[str, Any], prefix: str = "trajectory") -> Trajectory
         if not isinstance(parts, (list, tuple)):
             raise ConfigError(f"{prefix}.parts", "expected a list of trajectories, each with its own axes")
         try:
-            return PerAxis(parts, axes=d.get("axes"))
+            return PerAxis([from_dict(q, prefix=f"{prefix}.parts[{i}]") if isinstance(q, Mapping) else q
+                            for i, q in enumerate(parts)], axes=d.get("axes"))
         except ConfigError as exc:
             raise ConfigError(f"{prefix}.{exc.field}", exc.reason) from None
     if kind not in TRAJECTORY_TYPES:

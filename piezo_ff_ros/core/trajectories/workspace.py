@@ -1,4 +1,5 @@
-"""Peak values of a trajectory and the workspace check (:func:`check_workspace`)."""
+"""Peak values of a trajectory, the workspace check (:func:`check_workspace`) and the stage's reachable range
+(:func:`reachable_range`, the compensator's default ``reference_limit``)."""
 from __future__ import annotations
 
 import math
@@ -10,7 +11,40 @@ from ..config import ConfigError
 from .base import Trajectory
 from .sequence import Sequence
 
-__all__ = ["check_workspace", "peak"]
+__all__ = ["check_workspace", "peak", "reachable_range", "REACH_MARGIN"]
+
+#: the default reference limit is this many times the stage's static reach at the voltage limit: a reference beyond
+#: it cannot be a position of this stage (a unit mistake, a corrupt sample), while every reachable one passes with
+#: room for the hysteresis loop and model error
+REACH_MARGIN = 2.0
+
+
+def reachable_range(cfg: Any, margin: float = REACH_MARGIN) -> tuple[float, ...]:
+    """The stage's reachable displacement per axis with a margin, flat ``[min_x, max_x, min_y, max_y, …]`` [m].
+
+    The static gain from the voltages to the displacement, ``(K + Cr(0))·Dp`` (creep over the hysteresis' linear
+    part), driven anywhere within ``±limits.voltage``: axis ``i`` reaches ``±Σ_j |G0_ij|·V``; the range is that
+    widened by ``margin`` around its centre.
+
+    Parameters
+    ----------
+    cfg : PiezoConfig
+        The configuration (hysteresis ``Dp`` [m/V], creep ``K`` and ``Cr``, ``limits.voltage`` [V]).
+    margin : float
+        Factor on the half-width (≥ 1).
+
+    Returns
+    -------
+    tuple of float
+        ``[min, max]`` per axis [m], finite, ``min < max``.
+    """
+    dp = np.asarray(cfg.hysteresis.Dp, float)
+    g0 = (np.asarray(cfg.creep.K, float) + np.asarray(cfg.creep.Cr.dc_gain(), float)) @ dp
+    v = float(cfg.limits.voltage)
+    centre = g0 @ np.full(dp.shape[1], float(cfg.limits.safe_voltage))
+    half = np.abs(g0) @ np.full(dp.shape[1], v)
+    half = np.maximum(half, 1e-12) * float(margin)
+    return tuple(float(x) for c, h in zip(centre, half) for x in (c - h, c + h))
 
 
 def peak(traj: Trajectory, fs: float = 20000.0, max_samples: int = 4_000_000) -> tuple[float, ...]:

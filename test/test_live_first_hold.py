@@ -1,0 +1,70 @@
+"""Start-up on this 2-core machine: the first point held with ``reference_point`` right after the graph is up, and
+its first blocks, never trip the driver's stale-input ramp (kernels are warm before the driver expects blocks).
+
+compensator → driver on the clocked simulator (wall-clock paced, with its default write-ahead and stale timeout),
+as separate processes; this probe holds a point the moment both nodes say they are ready.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+
+from test_driver_node import _io  # noqa: E402
+from test_nodes_integration import Probe, start_node, stop_node  # noqa: E402
+
+
+@pytest.fixture()
+def probe():
+    p = Probe("first_hold_probe")
+    yield p
+    p.close()
+
+
+def _ready(proc, marker: str) -> bool:
+    return marker in proc.log_path.read_text(errors="replace")
+
+
+def test_first_held_point_after_start_does_not_trip_the_stale_ramp(tmp_path, probe):
+    """With the driver's defaults (write-ahead, stale timeout) and warm kernels: no ramp, no late block, no WARN."""
+    log, diags = _hold_right_after_start(tmp_path, probe, [])
+    assert "no voltage block for" not in log, log[-2000:]
+    assert "late block dropped" not in log and "underrun" not in log, log[-2000:]
+    assert not any(d[2].get("state") == "safe" for d in diags), [d[1] for d in diags][-5:]
+    assert diags and diags[-1][0] == 0, diags[-1][:2]    # /diagnostics OK, not WARN from then on
+
+
+def test_a_write_ahead_too_short_for_the_host_is_named_in_the_log(tmp_path, probe):
+    """A driver starved by a 2 ms write-ahead: its log names the setting that fixes it."""
+    log, _ = _hold_right_after_start(tmp_path, probe, ["-p", "write_ahead:=0.002", "-p", "low_water:=0.001"])
+    assert "underrun" in log or "late block dropped" in log
+    hint = next(ln for ln in log.splitlines() if "hint:" in ln)
+    assert "write_ahead" in hint and "now 0.002 s" in hint, hint
+
+
+def _hold_right_after_start(tmp_path, probe, driver_args):
+    from geometry_msgs.msg import PointStamped
+
+    got, diags, _ = _io(probe, publisher=False)
+    pub = probe.node.create_publisher(PointStamped, "reference_point", 10)
+    procs = [start_node("driver", "-p", "sim.mode:=clocked", "-p", "diagnostics_period:=0.2", *driver_args,
+                        log_dir=tmp_path),
+             start_node("compensator", "-p", "cascade.vibration:=false", log_dir=tmp_path)]
+    try:
+        probe.spin_until(lambda: _ready(procs[0], "driver ready") and _ready(procs[1], "compensator ready"), 90,
+                         "both nodes ready")
+        probe.spin_until(lambda: pub.get_subscription_count() > 0, 30, "the compensator's reference_point reader")
+        msg = PointStamped()
+        msg.point.x = 5e-6
+        pub.publish(msg)
+        probe.spin_until(lambda: got["voltage_applied"] and max(np.max(np.abs(b)) for b in
+                                                                  got["voltage_applied"].values()) > 1.0,
+                         30, "the held point's voltage applied")
+        probe.spin_for(2.0)
+        log = procs[0].log_path.read_text(errors="replace")    # before anything stops (then the input stops)
+        n_diags = len(diags)
+    finally:
+        codes = [stop_node(p) for p in procs]                   # the driver first: it must not starve
+    assert codes == [0, 0]
+    return log, diags[:n_diags]
