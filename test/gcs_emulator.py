@@ -53,10 +53,15 @@ class GCSEmulator:
         Data recorder: total points (``0x16000200``) shared by ``record_tables`` tables (``0x16000300``, ``TNR?``).
     servo_rate : float
         Servo cycles per second (time base of ``WTR`` and ``RTR``).
+    clock : callable, optional
+        The controller's time [s] (default ``time.monotonic``): a test that runs the host on a manual clock gives
+        the same one here, so that the recorded set points carry the host's time (the host waits for each answer,
+        so its clock stands still while a command is handled).
     """
 
     def __init__(self, axes=("1", "2"), plant=None, vmin=-200.0, vmax=200.0, wave_points=65536,
-                 record_points=262144, record_tables=4, servo_rate=20000.0, output=None):
+                 record_points=262144, record_tables=4, servo_rate=20000.0, output=None, clock=time.monotonic):
+        self.clock = clock
         self.axes = list(axes)
         self.plant = plant or (lambda u: 0.1 * u)
         self.vmin, self.vmax = float(vmin), float(vmax)
@@ -102,18 +107,18 @@ class GCSEmulator:
         """``(t [s], volts [n, axes])`` of every value that reached the output, in time order (played wave points
         included up to now)."""
         with self.lock:
-            self._advance(time.monotonic())
+            self._advance(self.clock())
             ev = sorted(self.events, key=lambda e: e[0])
         return (np.array([e[0] for e in ev]), np.array([e[1] for e in ev], dtype=float).reshape(len(ev), -1))
 
     def generator_running(self) -> bool:
         with self.lock:
-            return time.monotonic() < self._gen_until
+            return self.clock() < self._gen_until
 
     # -- commands ----------------------------------------------------------------------------------------------------
     def handle(self, line: str) -> tuple[str | None, bool]:
         """Execute one command; ``(reply or None, drop the connection)``."""
-        now = time.monotonic()
+        now = self.clock()
         with self.lock:
             self._advance(now)
             self.log.append(line)

@@ -160,34 +160,107 @@ def test_the_drivers_stale_input_ramp_reaches_the_controller_as_a_paced_staircas
         core.close()
 
 
-def test_a_controller_error_is_a_named_fault_and_the_output_ramps_to_safe_from_the_last_accepted_value():
+def test_blocks_fed_at_the_nominal_rate_never_trip_the_stale_input_ramp():
+    """A set point write lasts its block's duration: blocks as long as the stale timeout (and longer), each sent as
+    soon as the previous one has played, with a tick in between (as the node's timer does), keep the driver active;
+    the stale ramp still comes once the input really stops."""
+    cfg = config(slew=1000.0)
+    stale = cfg.limits.stale_timeout
+    with GCSServer() as srv:
+        be = PISetpointBackend(cfg, params(srv))
+        core = DriverCore(DriverSettings(sample_rate=cfg.sample_rate, n_axes=2, limits=cfg.limits), be)
+        log = list(core.start().log)
+        n = int(round(1.25 * stale * cfg.sample_rate))
+        stamp = 0
+        for i in range(4):
+            u = np.tile([[5.0 + i, -2.0]], (n, 1))
+            log += core.on_block(stamp, u).log
+            log += core.tick().log
+            assert core.state == "active", (i, log)
+            stamp += n * core.period_ns
+        assert not any("no voltage block" in m for _, m in log), log
+        t_stop = time.monotonic()
+        wait_until(lambda: core.tick() is not None and core.state == "safe", timeout=5)
+        assert time.monotonic() - t_stop >= stale * 0.9
+        core.close()
+
+
+def test_a_controller_error_is_a_named_fault_and_the_driver_ramps_to_safe_from_the_last_accepted_value():
+    """A GCS error on a set point (302) reaches the driver core as a named ``limit`` fault, not a lost link: the core
+    ramps from the last value the controller accepted to safe as a paced staircase (≤ 1 V per set point, no faster
+    than the safe ramp), ``/diagnostics`` names the code and text, and the next block is accepted again."""
     cfg = config(slew=1000.0)
     emu = GCSEmulator()
     with GCSServer(emu) as srv:
         be = PISetpointBackend(cfg, params(srv))
         core = DriverCore(DriverSettings(sample_rate=cfg.sample_rate, n_axes=2, limits=cfg.limits), be)
-        core.start()
+        applied = []
+        log = []
+
+        def take(em):
+            applied.extend(em.applied)
+            log.extend(m for _, m in em.log)
+
+        take(core.start())
         ramp_up = np.column_stack([np.linspace(0, 30, 2000), np.linspace(0, -15, 2000)])   # 300 V/s
-        core.on_block(0, ramp_up[:1000])
-        emu.inject_error("SVA", 302)
-        before = time.monotonic()
-        core.on_block(1000 * 50_000, ramp_up[1000:])
-        held = np.array(emu.events[-1][1]) if emu.events else None
-        em = core.tick()
-        text = " | ".join(m for _, m in em.log)
+        take(core.on_block(0, ramp_up[:1000]))
+        emu.inject_error("SVA", 302, after=10)                      # the 11th set point of the next block fails
+        take(core.on_block(1000 * 50_000, ramp_up[1000:]))
+        wait_until(lambda: take(core.tick()) is None and core.state == "safe" and emu.output == [0.0, 0.0])
+        text = " | ".join(log)
         assert "controller error 302 (Voltage out of limits)" in text, text
-        assert "lost" not in text
-        assert core.faults.get("limit") == 1
-        v = assert_paced(emu, 300.0 * 1.02, since=before - 1.0)       # the stream's and the ramp's pace
-        np.testing.assert_allclose(v[-1], [0.0, 0.0])                # ramped to safe …
-        assert held is not None
-        with pytest.raises(Disconnect, match="held at the safe voltage"):     # … and held there
-            be.write(be.write_index, np.full((10, 2), 5.0))
+        assert "lost" not in text and "output stopped" not in text, text
+        assert core.faults["limit"] == 1 and core.state == "safe"
+        t, v = emu.output_events()
+        # the last accepted value: the highest point of the staircase; the ramp starts from it, paced
+        top = int(np.argmax(v[:, 0]))
+        assert 10.0 < v[top, 0] < 30.0
+        after = v[top:]
+        assert np.abs(np.diff(after, axis=0)).max() <= 1.0 + 1e-9
+        assert_paced(emu, v[top, 0] / 0.05 * 1.02, since=t[top])   # the safe ramp: 50 ms from the top
+        assert t[-1] - t[top] >= 0.05 * 0.95                        # the safe ramp's duration, in time
+        st = core.status()
+        assert "302" in st["last_fault"] and "Voltage out of limits" in st["last_fault"], st
+        level, msg = core.health()
+        assert "controller error 302 (Voltage out of limits)" in msg, msg
+        # every sample of the stream applied exactly once, the ramp included, ending at safe
+        k = [s // 50_000 for s, _ in applied]
+        n = [a.shape[0] for _, a in applied]
+        assert k[0] == 0 and all(k[i + 1] == k[i] + n[i] for i in range(len(k) - 1)), list(zip(k, n))
+        whole = np.vstack([a for _, a in applied])
+        np.testing.assert_allclose(whole[-1], [0.0, 0.0])
+        # input resumes after the safe state: the next block is played, not ignored
+        log.clear()
+        take(core.on_block(core.next_stamp, np.tile([[2.0, 1.0]], (400, 1))))
+        assert not any("ignored" in m for m in log), log
+        assert core.state == "active" and emu.output == [2.0, 1.0]
         core.close()
         assert emu.output == [0.0, 0.0]
+        wait_until(lambda: srv.open_connections == 0)
 
 
-def test_after_a_controller_error_the_applied_voltage_covers_every_sample_once_ramp_included():
+def test_a_controller_error_during_the_start_ramp_still_ends_at_safe_by_a_paced_ramp():
+    """The output holds 20 V at start; a set point of the start ramp is refused: the driver ramps on from the value
+    the controller holds to safe, paced, instead of leaving the output mid-way."""
+    cfg = config(slew=1000.0)
+    emu = GCSEmulator(output=[20.0, -10.0])
+    emu.inject_error("SVA", 302, after=5)
+    with GCSServer(emu) as srv:
+        be = PISetpointBackend(cfg, params(srv))
+        core = DriverCore(DriverSettings(sample_rate=cfg.sample_rate, n_axes=2, limits=cfg.limits), be)
+        log = [m for _, m in core.start().log]
+        wait_until(lambda: log.extend(m for _, m in core.tick().log) is None and emu.output == [0.0, 0.0],
+                   timeout=3)
+        assert any("controller error 302" in m for m in log), log
+        assert core.faults["limit"] == 1 and core.state == "safe"
+        assert_paced(emu, 20.0 / 0.05 * 1.02, start=np.array([20.0, -10.0]))
+        core.close()
+
+
+def test_a_controller_error_holds_the_last_accepted_set_point_and_names_it_in_the_fault():
+    """At the backend: a refused set point fills the rest of the block with the last accepted value (every sample
+    reported once), the fault (kind ``limit``, code 302, its text) carries that value as ``held``, and the link
+    stays usable: the next write is played (the driver's safe ramp goes through it)."""
     cfg = config(slew=1000.0)
     emu = GCSEmulator()
     with GCSServer(emu) as srv:
@@ -195,21 +268,22 @@ def test_after_a_controller_error_the_applied_voltage_covers_every_sample_once_r
         be.start(np.zeros(2))
         be.write(0, np.column_stack([np.linspace(0, 10, 1000), np.zeros(1000)]))
         emu.inject_error("SVA", 302)
-        be.write(1000, np.full((100, 2), [10.0, 0.0]) + np.linspace(0, 0.05, 100)[:, None])   # shorter than the ramp
+        be.write(1000, np.full((100, 2), [10.0, 0.0]) + np.linspace(0, 0.5, 100)[:, None])
         with pytest.raises(GCSFault, match=r"controller error 302 \(Voltage out of limits\)") as exc:
             be.poll()
         assert exc.value.kind == "limit" and exc.value.code == 302
+        np.testing.assert_allclose(exc.value.held, emu.output)
         blocks = be.take_applied()
         k = 0
         for k0, a in blocks:
             assert k0 == k
             k += a.shape[0]
-        assert k == be.write_index > 1100                             # the ramp ran on past the failed block
-        applied = np.vstack([a for _, a in blocks])
-        assert np.abs(np.diff(applied, axis=0)).max() <= 1.0 + 1e-9
-        np.testing.assert_allclose(applied[-1], [0.0, 0.0])
-        np.testing.assert_allclose(emu.output, [0.0, 0.0])
+        assert k == be.write_index == 1100
+        np.testing.assert_allclose(blocks[-1][1][-1], exc.value.held)
+        be.write(1100, np.tile(exc.value.held, (10, 1)) * 0.9)
+        np.testing.assert_allclose(emu.output, exc.value.held * 0.9)
         be.close()
+        np.testing.assert_allclose(emu.output, [0.0, 0.0])
 
 
 def test_ctrl_c_in_the_middle_of_a_block_then_close_ramps_from_the_last_accepted_set_point():

@@ -167,8 +167,36 @@ def test_rig_check_reports_an_underflow_as_underruns_not_a_device_failure(ni_car
     wa = rep["checks"]["write_ahead"]
     assert wa["ok"] is False and wa["underruns"] + wa["underruns_before_streaming"] == 1 and "write_ahead" in wa["remedy"]
     assert rep["underruns_total"] == 1 and rep["checks"]["faults"] == {"ok": False, "underrun": 1, "overrun": 0,
-                                                                       "disconnect": 0, "limit": 0}
+                                                                       "disconnect": 0, "limit": 0, "controller": 0}
     assert rep["checks"]["safe_ramp"]["ok"] and rep["checks"]["slew_limit"]["ok"]
     assert any("underflow (-200290)" in e for e in rep["errors"])
     assert all(t.cleared for t in ni_card.tasks.values())
     assert abs(ni_card.ao_value["Dev1/ao0"]) < 1e-12 and abs(ni_card.ao_value["Dev1/ao1"]) < 1e-12
+
+
+def test_rig_check_on_pi_gcs_through_the_tcp_emulator_judges_the_staircase_per_elapsed_time(tmp_path, capsys):
+    """pi_gcs (pipython's PISocket against the GCS emulator on TCP): what does not apply (no hardware sample clock →
+    sample clock and write-ahead; no sensor stream → latency) is skipped with the reason; the safe ramp, played as a
+    paced staircase of set points, passes when judged per elapsed time between them although each stair is larger
+    than one sample's allowed step; no fault."""
+    pytest.importorskip("pipython")
+    from gcs_emulator import GCSEmulator, GCSServer
+
+    out = tmp_path / "pi.json"
+    with GCSServer(GCSEmulator(), lifetime=120) as srv:
+        code = main(["rig-check", "--backend", "pi_gcs", "--param", "address=127.0.0.1", "--param",
+                     f"port={srv.port}", "--param", "servo_rate=20000", "--duration", "0.3", "--test-voltage", "5",
+                     "--ramp-slew", "200", "--json", str(out)])
+        assert any(line.startswith("SVA") for line in srv.emu.log)
+    rep = json.loads(out.read_text())
+    c = rep["checks"]
+    assert c["sample_clock"]["ok"] is None and "sample clock" in c["sample_clock"]["skipped"]
+    assert c["write_ahead"]["ok"] is None and "FIFO" in c["write_ahead"]["skipped"]
+    assert c["latency"]["ok"] is None and "sensor" in c["latency"]["skipped"]
+    ramp = c["safe_ramp"]
+    assert ramp["ok"] is True and ramp["judged"] == "per elapsed time between set points", ramp
+    assert ramp["setpoint_max_step_v"] > ramp["allowed_v"] >= ramp["max_step_v"] > 0, ramp   # stairs, paced
+    assert ramp["samples"] >= ramp["min_samples"] and ramp["ends_at_safe"] is True
+    assert c["slew_limit"]["ok"] is True and c["slew_limit"]["target_reached"] is True
+    assert c["faults"]["ok"] is True and "controller" in c["faults"]
+    assert code == 0 and rep["ok"] is True, rep

@@ -20,8 +20,10 @@ Two modes:
   between two set points the voltage changes by no more than the driver's slew limit allows for the time elapsed.
   ``start`` reads the voltage the output holds (``VOL?``) and ramps from there to the safe voltage; ``close`` ramps to
   safe, then closes the connection.  A controller error (e.g. 302, voltage out of limits) is a named fault
-  (:class:`GCSFault`, code and text): the output is ramped to safe from the last accepted set point and held there.
-  No sensor stream (use table mode to record); ``clocked`` is False.
+  (:class:`GCSFault`, code and text, kind ``limit`` or ``controller``) carrying the last accepted set point
+  (``held``): the rest of the block holds it, and the driver core's fault path ramps to safe from there (through
+  the same paced staircase); the link stays usable.  A lost link is a :class:`Disconnect`.
+  No sensor stream (use table mode to record); ``clocked`` is False, ``holds_setpoints`` True.
 - **table mode** (:class:`PITablePlayer`) — the paper's setting for a controller that cannot be streamed at 20 kHz:
   a voltage table (``piezo-ff feedforward``) is checked against the controller's range, the slew limit and the
   wave/record capacities, the output is ramped from what it holds to the table's first value, the table uploaded
@@ -40,8 +42,8 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from ..core.hardware.contract import ContractError, DeviceFault, DeviceInfo, Disconnect, StreamingBackend, \
-    WriteCursorClock
+from ..core.hardware.contract import ContractError, ControllerFault, DeviceFault, DeviceInfo, Disconnect, \
+    StreamingBackend, WriteCursorClock
 from ..core.safety import SafeRampConfig, safe_ramp
 from .base import BackendError, BackendSpec, Param, float_range, int_range, one_of
 
@@ -52,17 +54,19 @@ if TYPE_CHECKING:
 LIMIT_CODES = frozenset({302, 18, 7})
 
 
-class GCSFault(DeviceFault):
+class GCSFault(ControllerFault):
     """A GCS error reported by the controller (``code`` > 0, ``text`` from pipython's table): a named fault.
 
-    ``kind`` is ``limit`` for a refused value (302 voltage out of limits, 7 position out of limits, 18 invalid
-    value) and ``controller`` otherwise.
+    ``kind`` (of the contract's ``FAULT_KINDS``) is ``limit`` for a refused value (302 voltage out of limits, 7
+    position out of limits, 18 invalid value) and ``controller`` otherwise; ``held`` is the last set point the
+    controller accepted (what its output holds).
     """
 
-    def __init__(self, code: int, text: str, where: str, k: int | None = None) -> None:
-        self.code, self.text, self.where = int(code), str(text), str(where)
-        self.kind = "limit" if self.code in LIMIT_CODES else "controller"
-        super().__init__(f"pi_gcs: controller error {self.code} ({self.text}) on {where}", k)
+    def __init__(self, code: int, text: str, where: str, k: int | None = None, held: np.ndarray | None = None) -> None:
+        self.text, self.where = str(text), str(where)
+        self.kind = "limit" if int(code) in LIMIT_CODES else "controller"
+        super().__init__(f"pi_gcs: controller error {int(code)} ({self.text}) on {where}", k, code=int(code),
+                         held=held)
 
 
 class TableError(BackendError):
@@ -334,7 +338,8 @@ class Staircase:
                 nsub = int(math.ceil(float(dev[0]) / self.step_max - 1e-12))
                 for q in range(1, nsub + 1):
                     pos.append(j0 + q / nsub)
-                    val.append(prev + (u[j0] - prev) * (q / nsub))
+                    # the last one is the sample itself (prev + (u - prev)·1 may differ from it in the last bit)
+                    val.append(u[j0].copy() if q == nsub else prev + (u[j0] - prev) * (q / nsub))
                 prev = u[j0]
                 j0 += 1
                 continue
@@ -413,8 +418,10 @@ class Staircase:
 class PISetpointBackend(WriteCursorClock, StreamingBackend):
     """Set-point mode behind the streaming contract (see the module docstring)."""
 
-    def __init__(self, cfg: PiezoConfig, p: dict[str, Any], ramp: SafeRampConfig | None = None) -> None:
+    def __init__(self, cfg: PiezoConfig, p: dict[str, Any], ramp: SafeRampConfig | None = None,
+                 now: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> None:
         self.p = p
+        self._now, self._sleep = now, sleep      # the staircase's pacing clock (injectable for tests)
         self.axes = _axes(p["axes"])
         if len(self.axes) != cfg.n_axes:
             raise BackendError(f"pi_gcs.axes: {len(self.axes)} controller axes for {cfg.n_axes} axes "
@@ -425,12 +432,11 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
         self.link: GCSLink | None = None
         self.stairs: Staircase | None = None
         self.info = DeviceInfo(name="pi_gcs", sample_rate_hz=self.fs, n_axes=cfg.n_axes,
-                               fifo_depth=1 << 30, has_sensor=False, clocked=False)
+                               fifo_depth=1 << 30, has_sensor=False, clocked=False, holds_setpoints=True)
         self._k = 0
         self._applied: list = []
         self._pending: DeviceFault | None = None
-        self._latched = ""          # why the output is held at the safe voltage for good
-        self._extra: np.ndarray | None = None   # samples a fault ramp held beyond the block that failed
+        self._latched = ""          # why nothing can be written any more (the link is lost)
         self.ramps = 0
 
     # -- helpers -----------------------------------------------------------------------------------------------------
@@ -443,40 +449,27 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
         return safe_ramp(u_from, lim.safe_voltage, self.fs, self.ramp, lim.slew)
 
     def _play(self, u: np.ndarray, where: str) -> np.ndarray:
-        """Play ``u`` as a staircase; a GCS error → named fault, ramp to safe from the last accepted value, latch."""
+        """Play ``u`` as a staircase; on an error the rest of the block holds the last accepted set point and the
+        fault waits for :meth:`poll`: a GCS error is a named :class:`GCSFault` (the driver ramps to safe from
+        ``held``), anything else a lost link (latched: nothing more is written)."""
         assert self.stairs is not None
         applied = np.empty_like(u)
         try:
             return self.stairs.play(u, applied)
         except Exception as exc:  # noqa: BLE001 - sorted below: controller error vs lost link
-            done = self._done_rows(applied, u.shape[0])
+            done = min(u.shape[0], self.stairs.rows_done)
             fault = self._classify(exc, where)
-            self._pending = fault
+            self._pending = self._pending or fault
             if isinstance(fault, Disconnect):
                 self._latched = str(fault)
-                rest = np.tile(self.stairs.sent, (u.shape[0] - done, 1))
-                applied[done:] = rest
-                return applied
-            self._latched = f"{fault} (output ramped to the safe voltage and held there; restart to resume)"
-            ramp = self._safe_ramp_now()
-            tail = np.vstack([ramp, np.tile(self.stairs.sent, (max(0, u.shape[0] - done - ramp.shape[0]), 1))])
-            applied[done:] = tail[: u.shape[0] - done]
-            if tail.shape[0] > u.shape[0] - done:              # the ramp outlasted the block: the clock ran on
-                self._record_extra(tail[u.shape[0] - done:])
+            applied[done:] = self.stairs.sent
             return applied
-
-    def _done_rows(self, applied: np.ndarray, n: int) -> int:
-        """Rows of the block the staircase had played before it failed (the rest is filled by the caller)."""
-        assert self.stairs is not None
-        return min(n, self.stairs.rows_done)
-
-    def _record_extra(self, rows: np.ndarray) -> None:
-        self._extra = rows
 
     def _classify(self, exc: BaseException, where: str) -> DeviceFault:
         err = _gcs_error(exc)
         if err is not None and err[0] > 0:
-            return GCSFault(err[0], err[1], where, self._k)
+            assert self.stairs is not None
+            return GCSFault(err[0], err[1], where, self._k, held=self.stairs.sent.copy())
         return Disconnect(f"pi_gcs: link to the controller lost during {where} ({_first_line(exc)}); the output "
                           f"holds its last set point {self.stairs.sent.tolist() if self.stairs else '?'} V", self._k)
 
@@ -509,7 +502,8 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
             raise BackendError(f"pi_gcs: start failed on {self.link.info.idn}: {_first_line(exc)}") from None
         self.held_at_start = held.copy()
         self.stairs = Staircase(self._send, self.fs, float(self.p["setpoint_step"]),
-                                int(round(self.fs / float(self.p["setpoint_rate"]))), held)
+                                int(round(self.fs / float(self.p["setpoint_rate"]))), held, sleep=self._sleep,
+                                clock=self._now)
         r = safe_ramp(held, float(np.asarray(safe_voltage).flat[0]), self.fs, self.ramp, self.cfg.limits.slew)
         if r.shape[0]:
             self._append(self._k, self._play(r, "the start ramp"))
@@ -526,17 +520,13 @@ class PISetpointBackend(WriteCursorClock, StreamingBackend):
         if not u.shape[0]:
             return
         if self._latched:
-            raise Disconnect(f"pi_gcs: output held at the safe voltage: {self._latched}", self._k)
+            raise Disconnect(f"pi_gcs: nothing written: {self._latched}", self._k)
         self._append(k0, self._play(u, f"SVA at sample {k0}"))
 
     def _append(self, k0: int, applied: np.ndarray) -> None:
-        """Report ``applied`` from sample ``k0`` (and what a fault ramp held beyond it: the clock ran on)."""
+        """Report ``applied`` from sample ``k0``."""
         self._applied.append((k0, applied))
         self._k = k0 + applied.shape[0]
-        if self._extra is not None:
-            self._applied.append((self._k, self._extra))
-            self._k += self._extra.shape[0]
-            self._extra = None
 
     def poll(self) -> None:
         fault, self._pending = self._pending, None

@@ -15,9 +15,12 @@ sample they answer:
 - ``take_applied()`` returns ``(k0, voltage[N, axes])`` of what the device *actually output* (holds during an
   underrun included), in order, each sample exactly once — the driver publishes it as ``voltage_applied``;
 - ``latency_samples``: the input→output latency the device measured or was configured with (samples);
-- faults are typed (:class:`Underrun`, :class:`Overrun`, :class:`Disconnect`, :class:`LimitFault`), raised from
-  any call (``write``, ``write_space``, ``clock``, ``poll``, ``read``, ``take_applied``); the driver turns every one
-  into its fault path (counted, ``/diagnostics``, the safe ramp while a stream runs; a disconnect stops writing);
+- faults are typed (:class:`Underrun`, :class:`Overrun`, :class:`Disconnect`, :class:`LimitFault`,
+  :class:`ControllerFault`; their ``kind`` is one of :data:`FAULT_KINDS`, the one vocabulary of backends, driver and
+  rig-check), raised from any call (``write``, ``write_space``, ``clock``, ``poll``, ``read``, ``take_applied``);
+  the driver turns every one into its fault path (counted, ``/diagnostics`` with the device's own code and text,
+  the safe ramp — from the voltage the output holds, ``held``, when the device knows it — while a stream runs; a
+  disconnect stops writing);
 - ``close()`` releases the device, after bringing the output to the safe voltage **by a ramp, in time**, where it
   can (the driver core ramps first and waits until the device has output it; a backend closed on its own, e.g.
   after a crash, ramps from what its output holds).
@@ -34,7 +37,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["DeviceInfo", "StreamingBackend", "WriteCursorClock", "ContractError", "DeviceFault", "Underrun", "Overrun", "Disconnect",
-           "LimitFault", "FAULT_KINDS"]
+           "LimitFault", "ControllerFault", "FAULT_KINDS"]
 
 
 class ContractError(ValueError):
@@ -42,13 +45,30 @@ class ContractError(ValueError):
 
 
 class DeviceFault(RuntimeError):
-    """A device fault; ``kind`` names it (``underrun``, ``overrun``, ``disconnect``, ``limit``)."""
+    """A device fault; ``kind`` names it (one of :data:`FAULT_KINDS`).
+
+    Parameters
+    ----------
+    message : str
+        One line for the log and ``/diagnostics`` (a controller's own code and text included).
+    k : int, optional
+        Device sample index where it happened, if known.
+    code : int, optional
+        The device's own error code (e.g. a GCS error number), if it gave one.
+    held : array, optional
+        The voltage the output holds after the fault [V per axis], when the device knows it (a set-and-hold
+        controller: its last accepted set point): the driver's safe ramp starts from there, not from what it had
+        committed.
+    """
 
     kind = "fault"
 
-    def __init__(self, message: str, k: int | None = None):
+    def __init__(self, message: str, k: int | None = None, *, code: int | None = None,
+                 held: "np.ndarray | None" = None):
         super().__init__(message)
         self.k = k  #: device sample index where it happened, if known
+        self.code = code
+        self.held = None if held is None else np.array(held, dtype=float)
 
 
 class Underrun(DeviceFault):
@@ -75,7 +95,16 @@ class LimitFault(DeviceFault):
     kind = "limit"
 
 
-FAULT_KINDS = ("underrun", "overrun", "disconnect", "limit")
+class ControllerFault(DeviceFault):
+    """The device's controller reported an error of its own (``code`` and its text in the message) that is neither a
+    refused value (:class:`LimitFault`) nor a lost link: the link still works, the command was not applied."""
+
+    kind = "controller"
+
+
+#: every fault kind a backend may raise (``DeviceFault.kind``): the driver counts each (``<kind>_faults`` in its
+#: status) and rig-check reports each
+FAULT_KINDS = ("underrun", "overrun", "disconnect", "limit", "controller")
 
 
 @dataclass(frozen=True)
@@ -92,6 +121,11 @@ class DeviceInfo:
     #: stream paces it, no time passes between blocks, so a host stall is not stale input.  A real non-clocked
     #: device (set-and-hold, e.g. a PI controller) holds its voltage in wall time: False.
     time_follows_samples: bool = False
+    #: True for a set-and-hold device (a PI controller in set-point mode): each written value is applied at once and
+    #: held, and ``write`` plays a block in wall time (it returns when the block's time has passed).  Its output
+    #: moves as a paced staircase: the safety invariant is judged per elapsed time between set points, not per
+    #: sample, and a block's input is "fresh" until its write returns.
+    holds_setpoints: bool = False
 
 
 class StreamingBackend(abc.ABC):

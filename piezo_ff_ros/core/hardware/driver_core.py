@@ -35,7 +35,7 @@ from ..config import ConfigError, LimitsConfig
 from ..recording.blocks import BlockFormatError, check_stamp, sample_period_ns
 from ..safety import BlockRejected, SafeRampConfig, VoltageGuard, limit_block
 from ..status import ERROR, OK, WARN
-from .contract import DeviceFault, Disconnect, StreamingBackend
+from .contract import FAULT_KINDS, DeviceFault, Disconnect, StreamingBackend
 from .stream import StreamBook
 
 __all__ = ["DriverSettings", "DriverCore", "Emit", "OK", "WARN", "ERROR", "lockstep_pacing"]
@@ -191,7 +191,9 @@ class DriverCore:
         self.book = StreamBook(self.period_ns, self.s.samples(self.s.max_gap))
         self.safe = np.full(self.s.n_axes, float(self.s.limits.safe_voltage))
         self.state = "idle"
-        self.faults = {"underrun": 0, "overrun": 0, "disconnect": 0, "limit": 0}
+        self.faults = dict.fromkeys(FAULT_KINDS, 0)
+        self.last_fault = ""                        # the last device fault, as the device named it (diagnostics)
+        self.last_fault_code: int | None = None
         self.starved_samples = 0
         self.resumes = 0
         self.last_error = ""
@@ -237,6 +239,7 @@ class DriverCore:
         for c in self._chunks:
             c.clear()
         self.state, self.last_block_wall, self.last_error = "idle", None, ""
+        self.last_fault, self.last_fault_code = "", None
         self.starved_samples = self.resumes = 0
         self.faults = dict.fromkeys(self.faults, 0)
         self._warm_kernels()
@@ -388,7 +391,11 @@ class DriverCore:
                                  f"{self.guard.u_last.tolist()} V (see voltage_applied)"))
         self.state = "active"
         self._commit_block(u, n, skip=d.skip)
-        return em.extend(self._collect())
+        em.extend(self._collect())
+        if self.info.holds_setpoints and self.state == "active":
+            # the write played the block in wall time: the input is stale only ``stale_timeout`` after its end
+            self.last_block_wall = self.now()
+        return em
 
     def _commit_block(self, u: np.ndarray | None, n: int, skip: int = 0) -> None:
         if u is None:
@@ -481,7 +488,11 @@ class DriverCore:
 
     def _fault(self, em: Emit, exc: DeviceFault) -> None:
         """A device fault from any call: a disconnect stops the output (nothing can be written); anything else
-        (underrun, overrun, limit) is counted and, while a stream runs, ramps to the safe voltage."""
+        (underrun, overrun, limit, controller) is counted and, while a stream runs, ramps to the safe voltage — from
+        the voltage the output holds when the device says so (``exc.held``: a set-and-hold controller that refused
+        a set point holds its last accepted one), also when the fault interrupted the safe ramp itself."""
+        self.last_fault = str(exc)
+        self.last_fault_code = getattr(exc, "code", None)
         if isinstance(exc, Disconnect):
             self.faults["disconnect"] += 1
             self.state = "fault"
@@ -489,6 +500,12 @@ class DriverCore:
             return
         self.faults[exc.kind] = self.faults.get(exc.kind, 0) + 1
         self._window["lost"] += 1
+        held = getattr(exc, "held", None)
+        if held is not None and not self._queued and np.shape(held) == self.guard.u_last.shape:
+            # the output stopped short of what was committed: the stream goes on from where it really is
+            self.guard.u_last[:] = held
+            if self.state in ("idle", "safe") and not self.guard.at_safe:
+                self.state = "active"        # a ramp to safe (the start's, the safe ramp) was cut short: ramp again
         hint = ""
         if exc.kind == "underrun" and self.info.clocked:
             hint = (f" (the host fell more than the write-ahead behind the device: raise the driver's write_ahead, "
@@ -504,7 +521,12 @@ class DriverCore:
         measured: list[tuple[int, np.ndarray]] = []
         for _attempt in range(3):   # a fault queues the safe ramp; the next attempt writes it (a DAQ restarts)
             try:
+                had = bool(self._queue)
                 self._write_queue()
+                if had and self.info.holds_setpoints:
+                    # a set-and-hold device reports a refused set point after the write: ramp from it now, not a
+                    # tick later
+                    self.backend.poll()
                 break
             except DeviceFault as exc:
                 self._fault(em, exc)
@@ -556,7 +578,8 @@ class DriverCore:
               **{f"{k}_faults": v for k, v in self.faults.items()},
               "applied_voltage": self.guard.u_last.tolist(),
               "next_stamp_ns": self.book.stamp_of(self._w) if self.book.started else None,
-              "latency_samples": self.backend.latency_samples, "last_error": self.last_error}
+              "latency_samples": self.backend.latency_samples, "last_error": self.last_error,
+              "last_fault": self.last_fault, "last_fault_code": self.last_fault_code}
         if self.info.clocked and self.state != "fault":
             try:
                 st["write_ahead_samples"] = self._w - self.backend.clock()
@@ -591,7 +614,8 @@ class DriverCore:
         if window_lost and window_lost >= 0.1 * window_total:
             return ERROR, f"{self.state}; {window_lost} of {window_total} samples lost since the last report; {losses}"
         if lost_now or faults or st["rejected_blocks"] or st["saturated_samples"] or c.out_of_sequence_blocks:
-            return WARN, f"{self.state}; {losses}; {faults} device fault(s); {st['rejected_blocks']} rejected"
+            last = f" (last: {self.last_fault})" if self.last_fault else ""
+            return WARN, f"{self.state}; {losses}; {faults} device fault(s){last}; {st['rejected_blocks']} rejected"
         return OK, self.state
 
     # -- managed (lifecycle) transitions -------------------------------------------------------------------------

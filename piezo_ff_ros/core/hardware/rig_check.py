@@ -21,7 +21,16 @@ Checks, in order (``piezo-ff rig-check`` is the command; :func:`rig_check` the f
 5. **slew limit** — a step request: the largest applied step must be ≤ ``limits.slew / fs``;
 6. **safe ramp** — input stopped: the ramp to the safe voltage, its largest step (≤ ``safe_ramp.slew / fs``) and
    duration (≥ ``safe_ramp.duration``);
-7. **faults** — no device fault (underrun, overrun, disconnect, limit) during the whole check.
+7. **faults** — no device fault (any of the contract's ``FAULT_KINDS``) during the whole check.
+
+On a set-and-hold device (``info.holds_setpoints``: a PI controller in set-point mode) the output moves as a paced
+staircase, so checks 5 and 6 judge each change of the applied stream against the samples elapsed since the previous
+change: ``|Δv| ≤ min(step · elapsed samples, max(SETPOINT_STEP_MAX, step))`` (the safety invariant of
+docs/hardware.md: set points no more than 1 V apart, paced); their ``max_step_v`` is then the largest change per
+elapsed sample period, ``setpoint_max_step_v`` the largest change between two changes.  The applied stream has one
+value per sample, so a sample's own step larger than 1 V (allowed only when ``step`` is) is split into set points
+the record cannot show: the backend's tests check those on the controller's wire.  The ramp's duration counts its
+first stair as long as the others.
 
 Every check is ``{"ok": true|false|null, ...}``; a check that does not apply is ``ok: null`` with ``skipped``
 (the reason).  The report has at least ``ok``, ``sample_rate_hz``, ``latency_samples``, ``underruns`` (device
@@ -38,13 +47,44 @@ import numpy as np
 
 from ..config import PiezoConfig
 from ..safety import SafeRampConfig
-from .contract import StreamingBackend
+from .contract import FAULT_KINDS, StreamingBackend
 from .driver_core import DriverCore, DriverSettings, Emit
 
 __all__ = ["rig_check", "markdown", "DEFAULT_WRITE_AHEAD"]
 
 #: the write-ahead rig-check uses unless told otherwise: the driver's default (``DriverSettings.write_ahead``)
 DEFAULT_WRITE_AHEAD = DriverSettings.write_ahead
+#: a set-and-hold device: the largest change between two consecutive set points [V] (unless one sample's step is
+#: larger: the backend then splits it within the sample)
+SETPOINT_STEP_MAX = 1.0
+
+
+def _judge_steps(u: np.ndarray, step: float, holds: bool, judge_from: int = 0) -> dict[str, Any]:
+    """The largest change in the applied stream ``u [N, axes]`` (row 0: the value before) against ``step`` V per
+    sample: per sample for a device that outputs each sample; per elapsed sample period between consecutive
+    changes for a set-and-hold device.  Returns ``{"ok", "max_step_v", ...}`` (``max_step_v`` per sample period,
+    comparable with ``step``; for a set-and-hold device also ``setpoint_max_step_v``, ``setpoints`` and
+    ``stair_samples``, the median number of samples between changes).  Only the changes after row ``judge_from``
+    are judged; the rows before count for the time a set point was held."""
+    d = np.abs(np.diff(u, axis=0)).max(axis=1) if u.shape[0] > 1 and u.shape[1] else np.zeros(0)
+    if not holds:
+        worst = float(d[judge_from:].max()) if d[judge_from:].size else 0.0
+        return {"ok": worst <= step * (1 + 1e-9), "max_step_v": worst}
+    rows = np.flatnonzero(d > 0)
+    elapsed_all = np.diff(np.concatenate([[-1], rows])).astype(float)   # samples since the previous change
+    keep = rows >= judge_from
+    rows = rows[keep]
+    if not rows.size:
+        return {"ok": True, "max_step_v": 0.0, "setpoint_max_step_v": 0.0, "setpoints": 0, "stair_samples": 0,
+                "judged": "per elapsed time between set points"}
+    elapsed = elapsed_all[keep]
+    change = d[rows]
+    allowed = np.minimum(step * elapsed, max(SETPOINT_STEP_MAX, step))
+    ok = bool(np.all(change <= allowed * (1 + 1e-9) + 1e-12))
+    return {"ok": ok, "max_step_v": float(np.max(change / elapsed)), "setpoint_max_step_v": float(change.max()),
+            "setpoints": int(rows.size), "stair_samples": int(np.median(elapsed[1:])) if rows.size > 1 else 1,
+            "setpoint_step_allowed_v": max(SETPOINT_STEP_MAX, step),
+            "judged": "per elapsed time between set points"}
 
 
 class _Run:
@@ -233,8 +273,7 @@ class _Checks:
         self.safe_ramp(rec, self.slew_limit(rec))
         st = self.link.core.status()
         self.report.rep["underruns_total"] = st["underrun_faults"]
-        faults = self.report.rep["faults"] = {k: st[f"{k}_faults"] for k in ("underrun", "overrun", "disconnect",
-                                                                             "limit")}
+        faults = self.report.rep["faults"] = {k: st.get(f"{k}_faults", 0) for k in FAULT_KINDS}
         self.report.check("faults", not any(faults.values()), **faults)
 
     def sample_clock(self) -> None:
@@ -416,29 +455,37 @@ class _Checks:
         at_target = np.flatnonzero(np.all(u_app == rec.step[0], axis=1))
         reached = at_target.size > 0
         i_ramp = int(at_target[-1]) if reached else 0
-        d = np.abs(np.diff(u_app[:i_ramp + 1], axis=0))
-        max_step = float(d.max()) if d.size else 0.0
         allowed = lim.slew / fs
-        self.report.check("slew_limit", max_step <= allowed * (1 + 1e-9) and reached, max_step_v=round(max_step, 6),
+        j = _judge_steps(u_app[:i_ramp + 1], allowed, self.link.backend.info.holds_setpoints)
+        ok = j.pop("ok")
+        self.report.check("slew_limit", ok and reached, max_step_v=round(j.pop("max_step_v"), 6),
                           allowed_v=allowed, limits_slew_v_per_s=lim.slew,
-                          requested_step_v=float(np.max(np.abs(rec.step[0] - rec.u_from))), target_reached=reached)
+                          requested_step_v=float(np.max(np.abs(rec.step[0] - rec.u_from))), target_reached=reached,
+                          **j)
         return i_ramp
 
     def safe_ramp(self, rec: _StepRecord, i_ramp: int) -> None:
         """Check 6: from row ``i_ramp`` on, steps of at most ``min(ramp.slew, limits.slew) / fs`` lasting at least
         ``ramp.duration``, ending at the safe voltage with the driver ``safe``; sets ``safe_ramp_max_step_v``."""
         lim, ramp, fs = self.plan.cfg.limits, self.plan.ramp, self.plan.cfg.sample_rate
-        r = np.abs(np.diff(rec.u_app[i_ramp:], axis=0))
+        holds = self.link.backend.info.holds_setpoints
+        seg = rec.u_app[i_ramp:]
+        r = np.abs(np.diff(seg, axis=0))
         moving = np.flatnonzero(np.any(r > 0, axis=1))
-        ramp_step = float(r.max()) if r.size else 0.0
-        ramp_len = int(moving[-1] - moving[0] + 1) if moving.size else 0
-        self.report.rep["safe_ramp_max_step_v"] = ramp_step
         ramp_allowed = min(ramp.slew, lim.slew) / fs
+        # judged from the ramp's start; the hold at the target before it counts for the first stair's time
+        j = _judge_steps(rec.u_app, ramp_allowed, holds, judge_from=i_ramp)
+        steps_ok, ramp_step = j.pop("ok"), j.pop("max_step_v")
+        ramp_len = int(moving[-1] - moving[0] + 1) if moving.size else 0
+        if holds and moving.size:
+            # a staircase's first set point ends the ramp's first stair: count that stair as long as the others
+            ramp_len += max(0, int(j["stair_samples"]) - 1)
+        self.report.rep["safe_ramp_max_step_v"] = ramp_step
         at_safe = bool(np.all(rec.u_app[-1] == lim.safe_voltage))
         self.report.check("safe_ramp", self.link.core.state == "safe" and at_safe
-                          and 0 < ramp_step <= ramp_allowed * (1 + 1e-9) and ramp_len >= math.floor(ramp.duration * fs),
+                          and steps_ok and ramp_step > 0 and ramp_len >= math.floor(ramp.duration * fs),
                           max_step_v=round(ramp_step, 6), allowed_v=ramp_allowed, samples=ramp_len,
-                          min_samples=math.ceil(ramp.duration * fs), ends_at_safe=at_safe)
+                          min_samples=math.ceil(ramp.duration * fs), ends_at_safe=at_safe, **j)
 
 
 def _longest_run(mask: np.ndarray) -> tuple[int, int]:
