@@ -18,7 +18,7 @@ from ..config import PiezoConfig
 from ..models.effects import EFFECTS, build_plant
 from ..recording.run import RunData
 from .candidates import CANDIDATES
-from .replay import (Windows, check_run, input_period, model_for_run, noise_floor, noise_floor_periodic, residual,
+from .replay import (Windows, check_run, check_scale, input_period, model_for_run, noise_floor, noise_floor_periodic, residual,
                      simulate)
 from .residual_signatures import signatures
 from .results import DiagnosisOptions
@@ -141,6 +141,9 @@ def _replay(s: _Setup, log: Callable[[str], None], t_start: float) -> _Replay:
     y_ext_nom = simulate(cfg, s.test_ext.u, [])
     y_test_nom = y_ext_nom[H:]
     y_train_nom = y_ext_nom[:H] if s.history_is_train else simulate(cfg, train.u, [])
+    # a measured scale the model cannot have (µm stored as m) is refused before any fit tries to explain it
+    check_scale(train, y_train_nom, "train")
+    check_scale(test, y_test_nom, "test")
     r_test = residual(test.y, y_test_nom)
     period = input_period(test.u)
     # periodic excitation: the noise is what differs between periods; else the residual's second difference

@@ -7,6 +7,7 @@ exactly the same samples.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
@@ -17,7 +18,8 @@ from ..models.effects import build_plant
 from ..models.plant import Plant
 from ..recording.run import RunData
 
-__all__ = ["nrmse_percent", "noise_floor", "noise_floor_periodic", "input_period", "Windows", "simulate", "residual", "check_run", "model_for_run"]
+__all__ = ["nrmse_percent", "noise_floor", "noise_floor_periodic", "input_period", "Windows", "simulate", "residual", "check_run", "check_excitation",
+           "check_sample_rate_metadata", "model_for_run", "check_scale"]
 
 
 def nrmse_percent(y: np.ndarray, y_hat: np.ndarray, axis: int | None = None) -> float | np.ndarray:
@@ -106,6 +108,46 @@ def check_run(run: RunData, name: str) -> None:
     dt = np.diff(run.t)
     if np.any(dt <= 0) or np.ptp(dt) > 1e-3 * np.median(dt):
         raise ValueError(f"{name}: time is not uniformly increasing (dt from {dt.min():g} to {dt.max():g} s)")
+    check_sample_rate_metadata(run, name)
+    check_excitation(run, name)
+
+
+def _constant(x: np.ndarray) -> np.ndarray:
+    """Per column: whether it does not move (its span is at most 1e-9 of its largest magnitude: rounding only)."""
+    span = np.ptp(x, axis=0)
+    return np.asarray(span <= 1e-9 * np.max(np.abs(x), axis=0), bool)
+
+
+def check_excitation(run: RunData, name: str) -> None:
+    """Raise ``ValueError`` when the run excites nothing: every voltage constant (all-zero included), or a displacement
+    that never moves (a sensor not connected or not recorded).  A diagnosis of such a run can only say "none", which
+    would read as "the model is right"."""
+    u_const, y_const = _constant(run.u), _constant(run.y)
+    if u_const.all():
+        levels = ", ".join(f"{a}: {v:.4g} V" for a, v in zip(run.axes, run.u[0]))
+        raise ValueError(f"{name}: no excitation: the voltage is constant on every axis ({levels}); a diagnosis "
+                         "needs a voltage that moves")
+    if y_const.any():
+        dead = [a for a, c in zip(run.axes, y_const) if c]
+        raise ValueError(f"{name}: no excitation seen: the displacement of axis {', '.join(dead)} is constant "
+                         f"({run.y[0, y_const][0]:.4g} m) while the voltage moves; sensor not connected or not "
+                         "recorded?")
+
+
+def check_sample_rate_metadata(run: RunData, name: str) -> None:
+    """Raise ``ValueError`` when a recording's metadata states a sample rate its block stamps contradict: which one is
+    right cannot be told from the file, and every time constant fitted would be off by their ratio."""
+    md = run.meta.get("metadata") if isinstance(run.meta, dict) else None
+    if not isinstance(md, dict) or "sample_rate" not in md:
+        return
+    try:
+        stated = float(md["sample_rate"])
+    except (TypeError, ValueError):
+        return
+    fs = run.sample_rate
+    if math.isfinite(stated) and stated > 0 and abs(stated - fs) > 1e-6 * fs:
+        raise ValueError(f"{name}: the recording's metadata states a sample rate of {stated:g} Hz but its block "
+                         f"stamps are {fs:g} Hz apart; fix the recording or state the rate with --sample-rate")
 
 
 def model_for_run(cfg: PiezoConfig, run: RunData) -> PiezoConfig:
@@ -208,3 +250,40 @@ def residual(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
     r = np.asarray(y, float) - y_hat
     out: np.ndarray = r - r.mean(axis=0)
     return out
+
+
+#: a measured displacement this many times larger (or smaller) than the model's replay is a unit mistake, not a gap
+#: a diagnosis could explain (the widest gain error of the benchmark is ±10 %; a factor 30 is 3000 %)
+SCALE_FACTOR_LIMIT = 30.0
+_UNIT_HINTS = {3: "mm stored as m", 6: "µm stored as m", 9: "nm stored as m",
+               -3: "m stored where mm are expected", -6: "m stored where µm are expected"}
+
+
+def check_scale(run: RunData, y_model: np.ndarray, name: str) -> None:
+    """Raise ``ValueError`` when the measured displacement's scale is implausible for the model: on an axis where the
+    model moves, the measured RMS (offset removed) is more than :data:`SCALE_FACTOR_LIMIT` times the model's, or less
+    than its inverse (µm stored as m, a sensor gain in V instead of m …).
+
+    Parameters
+    ----------
+    run : RunData
+        The measured run.
+    y_model : ndarray [N, axes]
+        The nominal model's replay of ``run.u`` [m].
+    name : str
+        The run's name in the message.
+    """
+    y = np.asarray(run.y, float)
+    rms_y = np.sqrt(np.mean((y - y.mean(axis=0)) ** 2, axis=0))
+    rms_m = np.sqrt(np.mean((y_model - y_model.mean(axis=0)) ** 2, axis=0))
+    for a, ry, rm in zip(run.axes, rms_y, rms_m):
+        if not (rm > 0 and ry > 0):
+            continue
+        ratio = float(ry / rm)
+        if 1 / SCALE_FACTOR_LIMIT <= ratio <= SCALE_FACTOR_LIMIT:
+            continue
+        k = int(round(math.log10(ratio) / 3)) * 3
+        hint = _UNIT_HINTS.get(k, "a unit mistake")
+        raise ValueError(f"{name}: the displacement of axis {a} has a scale implausible for the model: {ratio:.3g}× "
+                         f"what the model predicts for these voltages (RMS {ry:.3g} m vs {rm:.3g} m; {hint}?); "
+                         f"give displacements in metres (scale 1e{k:+d} off)")
