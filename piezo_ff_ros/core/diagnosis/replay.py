@@ -154,7 +154,8 @@ def model_for_run(cfg: PiezoConfig, run: RunData) -> PiezoConfig:
     """The model config at the run's sample rate, after checking the axes agree."""
     if run.u.shape[1] != cfg.n_axes or run.y.shape[1] != cfg.n_axes:
         raise ValueError(f"model '{cfg.name}' has {cfg.n_axes} axes {list(cfg.axes)} but the run has "
-                         f"{run.u.shape[1]} input(s) and {run.y.shape[1]} output(s)")
+                         f"{run.u.shape[1]} input(s) and {run.y.shape[1]} output(s) {list(run.axes)}; give --model "
+                         "a config with the run's axes (docs/diagnosis.md: a single-axis, hysteresis-only model)")
     fs = run.sample_rate
     if abs(fs - cfg.sample_rate) > 1e-6 * fs:
         cfg = cfg.with_sample_rate(fs)
