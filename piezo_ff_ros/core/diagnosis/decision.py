@@ -175,17 +175,24 @@ def _judge(scored: list[_Scored], flex: "_Scored | None", held: _Held, sigma2: f
                      or rich.sse_after > (1 - RICHER_MIN_GAIN) * simple.sse_after):
                 scored[i], scored[j] = simple, rich
     # parsimony: a generic filter family above an accepted physical candidate that leaves it < GENERIC_MIN_EXTRA
-    # of the gap above the floor absorbs that candidate; it does not name a different effect
+    # of the gap above the floor absorbs that candidate; it does not name a different effect.  Nor does it when it
+    # does not beat the physical candidate significantly on the held-out run (paired z < TIE_Z): with fewer
+    # parameters and a held-out fit the noise cannot tell apart, the physical form is the better model (Occam on
+    # held-out data — a held-out score already charges every parameter its variance, so equal scores favour the
+    # smaller model)
     top = next((s for s in scored if s.accepted), None)
     if top is not None and top.fit.effect in GENERIC:
         for s in scored:
             if s.accepted and s.fit.effect not in GENERIC and \
-                    top.extra["excess_shrink"] - s.extra["excess_shrink"] < GENERIC_MIN_EXTRA:
+                    (top.extra["excess_shrink"] - s.extra["excess_shrink"] < GENERIC_MIN_EXTRA
+                     or (s.fit.n_params < top.fit.n_params
+                         and stats.paired_z(top.extra["r_after"], s.extra["r_after"], psd) < TIE_Z)):
                 scored.remove(s)
                 scored.insert(scored.index(top), s)
                 for g in scored:
                     if g.fit.effect in GENERIC and g.accepted:
                         g.extra["absorbs"] = s.fit.effect
+                        g.extra["absorb_paired_z"] = stats.paired_z(g.extra["r_after"], s.extra["r_after"], psd)
                 break
     return psd
 

@@ -174,8 +174,9 @@ def _pole_matched(cutoff: float, order: int, damping: float, dt: float) -> tuple
 
 
 class AmplifierBandwidth:
-    """Amplifier roll-off on the voltage: first order ``1/(s/ωc + 1)`` or second order
-    ``ωc²/(s² + 2ζωc·s + ωc²)`` (``order=2``, damping ``ζ``), with a cutoff per axis or shared.
+    """Amplifier roll-off on the voltage: first order ``1/(s/ωc + 1)``, second order ``ωc²/(s² + 2ζωc·s + ωc²)``
+    (``order=2``, damping ``ζ``) or third order, the product of the two (``order=3``; ζ = 0.5 is Butterworth), with
+    a cutoff per axis or shared.
 
     Pole-matched, unit DC gain, started settled at the first voltage it sees.  Unlike a pure delay it attenuates
     (≈ (f/fc)²/2 at order 1) and rounds steps instead of shifting them.
@@ -186,13 +187,15 @@ class AmplifierBandwidth:
         c = _per_axis(cutoff, n_axes, "amplifier_bandwidth.cutoff")
         if not np.all(c > 0):
             raise ValueError(f"amplifier_bandwidth.cutoff: must be > 0 Hz, got {cutoff!r}")
-        if int(order) not in (1, 2):
-            raise ValueError(f"amplifier_bandwidth.order: must be 1 or 2, got {order!r}")
+        if int(order) not in (1, 2, 3):
+            raise ValueError(f"amplifier_bandwidth.order: must be 1, 2 or 3, got {order!r}")
         if not (math.isfinite(damping) and damping > 0):
             raise ValueError(f"amplifier_bandwidth.damping: must be > 0, got {damping!r}")
         self.cutoff, self.dt, self.n = c, float(dt), n_axes
         self.order, self.damping = int(order), float(damping)
-        co = np.array([_pole_matched(float(f), self.order, self.damping, self.dt) for f in c])
+        # order 3: a first-order section then a second-order one at the same cutoff (ζ = 0.5: Butterworth)
+        self._first = AmplifierBandwidth(c, dt, n_axes, 1) if self.order == 3 else None
+        co = np.array([_pole_matched(float(f), min(self.order, 2), self.damping, self.dt) for f in c])
         self._g, self._a1, self._a2 = (np.ascontiguousarray(co[:, i]) for i in range(3))
         self.reset()
 
@@ -200,10 +203,14 @@ class AmplifierBandwidth:
         """All states back to rest."""
         self._state = np.zeros((2, self.n))
         self._started = np.zeros(1, np.bool_)
+        if self._first is not None:
+            self._first.reset()
 
     def process(self, u: np.ndarray) -> np.ndarray:
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         u = _block(u, self.n)
+        if self._first is not None:
+            u = self._first.process(u)
         out = np.empty_like(u)
         _ap2_run(u, self._state, self._started, self._g, self._a1, self._a2, out)
         return out
