@@ -105,33 +105,35 @@ def fit_amplifier_saturation(ctx: FitContext) -> FitResult:
 
 
 def fit_amplifier_bandwidth(ctx: FitContext) -> FitResult:
-    """Shared cutoff for a 1st- and a 2nd-order (ζ = 0.707) roll-off, the better order kept, then one cutoff per
-    axis refined from there (amplifier channels differ)."""
+    """Shared cutoff for a 1st-order roll-off, then a 2nd order (its damping fitted) and a 3rd order (1st × 2nd),
+    each kept when it earns its parameters on TRAIN (:data:`DAMPING_MIN_GAIN`), then one cutoff per axis refined
+    from there (amplifier channels differ).  The stage is the continuous filter on the DAC's staircase (interval-
+    averaged), replayed at the intersample rate of :func:`~.replay.simulate`."""
     fs = 1.0 / ctx.dt
     n = ctx.cfg.n_axes
-    # up to 10·fs, where the pole-matched filter is the identity to 1e-27: "no bandwidth limit" is on the grid
+    # up to 10·fs, where the filter is the identity to 1/(2π·10) of one sample's step: "no bandwidth limit" is
+    # (nearly) on the grid
     grid = np.linspace(math.log(fs / 2000.0), math.log(10.0 * fs), 14)
     f1 = _fit_scalar(ctx, "amplifier_bandwidth", "cutoff", lambda z: {"cutoff": math.exp(z), "order": 1}, grid,
                      math.exp, math.exp)
-    fits = [(f1.train_rms, 1, f1)]
+    fits = [(f1.train_rms, 1, f1, 2 ** -0.5)]
     c1 = math.log(f1.params["cutoff"])
     if c1 < math.log(fs):  # a finite roll-off was found: try the 2nd order around it (a 2nd-order corner lies
-        # above the 1st-order one that mimics it), on a short grid
+        # above the 1st-order one that mimics it), on a short grid, then its damping
         grid2 = np.linspace(c1 - 0.5, c1 + 2.0, 6)
         f2 = _fit_scalar(ctx, "amplifier_bandwidth", "cutoff", lambda z: {"cutoff": math.exp(z), "order": 2},
                          grid2, math.exp, math.exp)
-        fits.append((f2.train_rms, 2, f2))
+        f2, z2 = _fit_damping(ctx, f2, 2, 2 ** -0.5)
+        fits.append((f2.train_rms, 2, f2, z2))
         if f2.train_rms < f1.train_rms:   # steeper still: a third order (1st × 2nd, Butterworth) around it
             c2 = math.log(f2.params["cutoff"])
             f3 = _fit_scalar(ctx, "amplifier_bandwidth", "cutoff",
                              lambda z: {"cutoff": math.exp(z), "order": 3, "damping": 0.5},
                              np.linspace(c2 - 0.5, c2 + 1.0, 5), math.exp, math.exp)
+            f3, z3 = _fit_damping(ctx, f3, 3, 0.5)
             if f3.train_rms ** 2 < (1 - DAMPING_MIN_GAIN) * f2.train_rms ** 2:
-                fits.append((f3.train_rms, 3, f3))
-    _, order, best = min(fits, key=lambda t: t[0])
-    zeta = 2 ** -0.5 if order < 3 else 0.5
-    if order >= 2:
-        best, zeta = _fit_damping(ctx, best, order, zeta)
+                fits.append((f3.train_rms, 3, f3, z3))
+    _, order, best, zeta = min(fits, key=lambda t: t[0])
     c0 = math.log(best.params["cutoff"])
     if n > 1 and c0 < math.log(fs):
         unit = max(_rms(residual(ctx.target, ctx.y_base_win)), 1e-15)
