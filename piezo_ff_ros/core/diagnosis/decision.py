@@ -37,7 +37,7 @@ from .flexible import fit_flexible
 from .replay import Windows, residual, simulate
 from .results import DiagnosisOptions
 
-__all__ = ["MIN_SHARE", "RICHER_MIN_GAIN", "MIN_EXCESS_SHRINK", "HIGH_EXCESS_SHRINK", "MIN_DROP", "TIE_Z",
+__all__ = ["RATE_AMPLITUDE", "CONFOUND_RHO", "excitation_rate_amplitude_correlation", "MIN_SHARE", "RICHER_MIN_GAIN", "MIN_EXCESS_SHRINK", "HIGH_EXCESS_SHRINK", "MIN_DROP", "TIE_Z",
            "HIGH_Z_MARGIN", "HIGH_SHARE", "HIGH_PAIRED_Z", "GENERIC", "GENERIC_MIN_EXTRA", "RICHER", "NESTED"]
 
 #: an accepted candidate removes at least this share of the explainable held-out gap
@@ -360,10 +360,15 @@ def _choose(s: _Setup, rep: _Replay, j: _Judged, log: Callable[[str], None]) -> 
     if verdict is None:
         return _Choice(None, None, None, [], bool(significant), None)
     runner, tie_z, ties = _ties(verdict, j)
+    confound = _rate_amplitude_confounded(s, verdict, j)
+    if confound is not None:
+        ties = ties + [confound[0]]
     if not ties:
         return _Choice(verdict, runner, tie_z, ties, bool(significant), None)
     discrimination: dict[str, Any] = {"ambiguous_between": [verdict.fit.effect] + [x.fit.effect for x in ties],
-                                      "paired_z": {x.fit.effect: x.extra["paired_z"] for x in ties}}
+                                      "paired_z": {x.fit.effect: x.extra.get("paired_z") for x in ties}}
+    if confound is not None:
+        discrimination["confounded"] = confound[1]
     if s.discriminate is not None:
         pick = disc.decide_on_run(s.cfg, [verdict] + ties, s.discriminate)
         discrimination["decided_on_run"] = pick
@@ -377,6 +382,64 @@ def _choose(s: _Setup, rep: _Replay, j: _Judged, log: Callable[[str], None]) -> 
     except (ValueError, np.linalg.LinAlgError) as exc:  # the proposal is advice: never fail the diagnosis
         discrimination["experiment"] = {"error": str(exc)}
     return _Choice(verdict, runner, tie_z, ties, bool(significant), discrimination)
+
+
+#: rate and amplitude dependence of the hysteresis/dynamics: told apart only by an excitation whose rate and amplitude
+#: vary independently
+RATE_AMPLITUDE = ("hysteresis_rate_dependence", "amplitude_dependent_dynamics")
+#: the excitation confounds them when, over stretches of both runs, the log peak rate and the log amplitude of the
+#: voltage correlate at least this much (the rate explains ≥ 81 % of the amplitude's variance): then neither verdict
+#: can be told from the other by these runs, whatever the held-out scores say
+CONFOUND_RHO = 0.9
+#: stretches per run for that measure
+CONFOUND_STRETCHES = 8
+
+
+def excitation_rate_amplitude_correlation(runs: Sequence[RunData]) -> float:
+    """Correlation of log amplitude (largest deviation from the run's mean) and log peak rate (95th percentile of
+    |dU/dt|) of the voltage over
+    :data:`CONFOUND_STRETCHES` stretches of each run and each axis (stretches with < 1 % of the largest amplitude
+    left out); NaN with fewer than 4 stretches."""
+    amps, rates = [], []
+    for run in runs:
+        u = np.asarray(run.u, float)
+        u = u - u.mean(axis=0)
+        n = len(u) // CONFOUND_STRETCHES
+        if n < 8:
+            continue
+        for k in range(CONFOUND_STRETCHES):
+            seg = u[k * n:(k + 1) * n]
+            amps.append(np.max(np.abs(seg), axis=0))
+            rates.append(np.quantile(np.abs(np.diff(seg, axis=0)), 0.95, axis=0) / run.dt)
+    if not amps:
+        return float("nan")
+    A, R = np.concatenate(amps), np.concatenate(rates)
+    keep = (A > 0.01 * A.max()) & (R > 0)
+    if keep.sum() < 4:
+        return float("nan")
+    la, lr = np.log(A[keep]), np.log(R[keep])
+    if np.std(la) == 0 or np.std(lr) == 0:
+        return 1.0   # one amplitude (or one rate) throughout: nothing to tell them apart
+    return float(np.corrcoef(la, lr)[0, 1])
+
+
+def _rate_amplitude_confounded(s: _Setup, verdict: _Scored, j: _Judged) -> tuple[_Scored, dict[str, Any]] | None:
+    """The rival of a rate- or amplitude-dependence verdict, when it is significant too and the runs' excitation
+    cannot tell the two apart (:data:`CONFOUND_RHO`): ``(rival, report)``; else None."""
+    if verdict.fit.effect not in RATE_AMPLITUDE:
+        return None
+    other = next((x for x in j.scored if x.fit.effect in RATE_AMPLITUDE and x.fit.effect != verdict.fit.effect), None)
+    if other is None or not _significant(other, j.zc):
+        return None
+    rho = excitation_rate_amplitude_correlation([s.train, s.test])
+    if not (rho >= CONFOUND_RHO):
+        return None
+    other.extra.setdefault("paired_z", stats.paired_z(verdict.extra["r_after"], other.extra["r_after"], j.psd))
+    return other, {"between": [verdict.fit.effect, other.fit.effect], "rate_amplitude_correlation": rho,
+                   "threshold": CONFOUND_RHO,
+                   "why": "the voltage's rate and amplitude vary together in these runs (log-correlation "
+                          f"{rho:.3g} ≥ {CONFOUND_RHO:g}): a rate-dependent loop and an amplitude-dependent one "
+                          "predict the same here; the proposed experiment varies them apart"}
 
 
 def _ties(verdict: _Scored, j: _Judged) -> tuple[_Scored | None, float | None, list[_Scored]]:
