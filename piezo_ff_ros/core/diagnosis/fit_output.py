@@ -113,26 +113,39 @@ def _creep_at(r0: np.ndarray, S1: np.ndarray, S2: np.ndarray) -> tuple[np.ndarra
     return c[0], beta, res, Sb
 
 
+def _lin_sse(y: np.ndarray, regs: list[np.ndarray]) -> float:
+    """The residual energy of :func:`~.fit_common._lin_per_axis` (per axis, columns centred) without its standard
+    errors: what a parameter search needs."""
+    total = 0.0
+    for i in range(y.shape[1]):
+        X = np.column_stack([g[:, i] - g[:, i].mean() for g in regs])
+        t = y[:, i] - y[:, i].mean()
+        c, *_ = np.linalg.lstsq(X, t, rcond=None)
+        r = t - X @ c
+        total += float(r @ r)
+    return total
+
+
 def _creep_spectrum(r0: np.ndarray, O1: np.ndarray, O2: np.ndarray,
                     O3: np.ndarray) -> tuple[np.ndarray, tuple[float, float], np.ndarray, np.ndarray]:
     """The Prony-series creep: a weight per decade and axis on the bank of F = Ŷ + β·Ŷ|Ŷ|/Y_ref + β_e·Ŷ²/Y_ref, β and
-    β_e shared by the axes (the weights are linear given them: a 7×7 grid over ±3 — the creep's relative growth at
+    β_e shared by the axes (the weights are linear given them: a 5×5 grid over ±3 — the creep's relative growth at
     10 µm — then a simplex refinement).  Returns ``(weights [m, n], (β, β_e), residual, Jacobian)``."""
     m = O1.shape[0]
     q = max(1, -(-len(r0) // _DRIFT_SEARCH_ROWS))   # the level terms' search on a thinned copy (smooth in β)
-    rq, O1q, O2q, O3q = r0[::q], O1[:, ::q], O2[:, ::q], O3[:, ::q]
+    rq = np.ascontiguousarray(r0[::q])
+    O1q, O2q, O3q = (np.ascontiguousarray(O[:, ::q]) for O in (O1, O2, O3))
 
     def bank(b: np.ndarray, A: np.ndarray = O1, B: np.ndarray = O2, C: np.ndarray = O3) -> list[np.ndarray]:
         return [A[d] + b[0] * B[d] + b[1] * C[d] for d in range(m)]
 
     def sse(b: np.ndarray) -> float:
-        _, r, _ = _lin_per_axis(rq, bank(b, O1q, O2q, O3q))
-        return float(np.sum(r ** 2))
+        return _lin_sse(rq, bank(b, O1q, O2q, O3q))
 
-    grid = np.linspace(-3.0, 3.0, 7)
+    grid = np.linspace(-3.0, 3.0, 5)
     b0 = min(((x, y) for x in grid for y in grid), key=lambda b: sse(np.array(b)))
     sol = optimize.minimize(sse, np.array(b0), method="Nelder-Mead",
-                            options={"xatol": 1e-3, "fatol": 0.0, "maxfev": 60, "initial_simplex":
+                            options={"xatol": 1e-3, "fatol": 0.0, "maxfev": 40, "initial_simplex":
                                      np.array([b0, (b0[0] + 0.5, b0[1]), (b0[0], b0[1] + 0.5)])})
     b = np.clip(sol.x if sol.fun <= sse(np.array(b0)) else np.array(b0), -50.0, 50.0)
     F = bank(b)
@@ -266,8 +279,7 @@ def _two_body_drift(r0: np.ndarray, y_base: np.ndarray, tk: np.ndarray, T: float
     rs, ts, ys = r0[::q], tk[::q], y_base[::q]
 
     def sse(z1: float, z2: float) -> float:
-        _, r, _ = _lin_per_axis(rs, regs(ts, ys, math.exp(z1), math.exp(z2)))
-        return float(np.sum(r ** 2))
+        return _lin_sse(rs, regs(ts, ys, math.exp(z1), math.exp(z2)))
 
     grid = np.log(T) + np.linspace(math.log(0.02), math.log(20.0), 10)
     pairs = [(z1, z2) for i, z1 in enumerate(grid) for z2 in grid[i + 1:]]
