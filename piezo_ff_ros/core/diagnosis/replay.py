@@ -229,9 +229,29 @@ INTERSAMPLE_RATE = 20_000.0
 MAX_INTERSAMPLE_FACTOR = 8
 
 
+def lowest_resonance_hz(cfg: PiezoConfig) -> float:
+    """The lowest natural frequency [Hz] of the complex pole pairs of the dynamics ``G_L`` (inf without any)."""
+    low = math.inf
+    G = cfg.dynamics.G_L
+    rows, cols = G.shape
+    for i in range(rows):
+        for j in range(cols):
+            for f in G[i, j].den:
+                if len(f) == 3 and f[1] ** 2 < 4 * f[0] * f[2] and f[0] != 0:
+                    low = min(low, math.sqrt(f[2] / f[0]) / (2 * math.pi))
+    return low
+
+
 def intersample_factor(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[str, Any]]]) -> int:
-    """How many internal steps per record sample the replay with ``effects`` takes (1: none)."""
+    """How many internal steps per record sample the replay with ``effects`` takes (1: none).
+
+    Only when the record resolves the plant's resonances (the lowest below its Nyquist frequency): above it, the
+    plant is quasi-static within the record's band, the filter's interval average is all that reaches it, and
+    finer steps would only change the hysteresis' discretisation against the nominal replay's.
+    """
     if not any(name in INTERSAMPLE_EFFECTS for name, _ in effects):
+        return 1
+    if not lowest_resonance_hz(cfg) < cfg.sample_rate / 2:
         return 1
     return int(min(MAX_INTERSAMPLE_FACTOR, max(1, round(INTERSAMPLE_RATE / cfg.sample_rate))))
 
