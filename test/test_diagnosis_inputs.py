@@ -193,3 +193,12 @@ def test_single_axis_hysteresis_only_record_through_the_cli(tmp_path, capsys):
     # the default (two-axis) model on a one-axis record: one line saying what to give
     assert cli_main(["diagnose", "--data", str(path), "--quiet"]) == 2
     _one_line_error(capsys, "1 input", "--model")
+
+
+def test_a_stated_sample_rate_settles_the_disagreement(runs, tmp_path):
+    train, _ = runs
+    path = _record(tmp_path / "rate.mcap", train.u, train.y, FS, metadata_rate=2 * FS)
+    out = tmp_path / "out.json"
+    assert cli_main(["diagnose", "--data", str(path), "--sample-rate", str(FS), "--json", str(out), "--quiet",
+                     "--candidates", ",".join(FAST)]) == 0
+    assert json.loads(out.read_text())["model"]["sample_rate"] == FS

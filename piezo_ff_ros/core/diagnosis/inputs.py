@@ -56,10 +56,8 @@ def load_for_diagnosis(path: str | Path, sample_rate: float | None = None) -> Ru
         if applied is not None:
             run = RunData(run.t, applied, run.y, run.axes, run.reference, dict(run.meta))
             run.meta["voltage"] = APPLIED_TOPIC
-            if sample_rate is not None:   # the rate was stated: the metadata's is not checked again
-                run.meta.pop("metadata", None)
-    elif sample_rate is not None:
-        run.meta.pop("metadata", None)
+    if sample_rate is not None:   # the rate was stated: the metadata's is not checked against the stamps again
+        run.meta["metadata_sample_rate_overridden"] = run.meta.pop("metadata", None)
     return run
 
 
