@@ -7,7 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 from scipy import optimize
@@ -131,10 +131,9 @@ def fit_amplifier_bandwidth(ctx: FitContext) -> FitResult:
         fits.append((f2.train_rms, 2, f2, z2))
         if f2.train_rms ** 2 < (1 - DAMPING_MIN_GAIN) * f1.train_rms ** 2:
             c2 = math.log(f2.params["cutoff"])
-            f3 = _fit_scalar(ctx, "amplifier_bandwidth", "cutoff",
-                             lambda z: {"cutoff": math.exp(z), "order": 3, "damping": 0.5},
-                             np.linspace(c2 - 0.5, c2 + 1.0, 5), math.exp, math.exp)
-            f3, z3 = _fit_damping(ctx, f3, 3, 0.5)
+            z3c, e3 = _grid_parabola(ctx, lambda z: {"cutoff": math.exp(z), "order": 3, "damping": 0.5},
+                                     np.linspace(c2 - 0.5, c2 + 1.0, 5))
+            f3, z3 = _fit_damping(ctx, _as_fit(ctx, f2, math.exp(z3c), e3), 3, 0.5)
             if f3.train_rms ** 2 < (1 - DAMPING_MIN_GAIN) * f2.train_rms ** 2:
                 fits.append((f3.train_rms, 3, f3, z3))
     _, order, best, zeta = min(fits, key=lambda t: t[0])
@@ -170,20 +169,45 @@ def fit_amplifier_bandwidth(ctx: FitContext) -> FitResult:
 DAMPING_MIN_GAIN = 0.02
 
 
+def _grid_parabola(ctx: FitContext, make: Callable[[float], dict[str, Any]], grid: np.ndarray) -> tuple[float, float]:
+    """A lean 1-D search for the richer roll-off forms: the grid, then the vertex of the parabola through the best
+    point and its neighbours (one more simulation).  Returns ``(z, training residual energy)``."""
+    vals = [float(np.sum(ctx.sim_residual([("amplifier_bandwidth", make(float(z)))]) ** 2)) for z in grid]
+    k = int(np.argmin(vals))
+    z, e = float(grid[k]), vals[k]
+    if 0 < k < len(grid) - 1:
+        x0, x1, x2 = grid[k - 1:k + 2]
+        y0, y1, y2 = vals[k - 1:k + 2]
+        den = (x0 - x1) * (x0 - x2) * (x1 - x2)
+        a = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / den
+        b = (x2 * x2 * (y0 - y1) + x1 * x1 * (y2 - y0) + x0 * x0 * (y1 - y2)) / den
+        if a > 0:
+            zv = float(np.clip(-b / (2 * a), x0, x2))
+            ev = float(np.sum(ctx.sim_residual([("amplifier_bandwidth", make(zv))]) ** 2))
+            if ev < e:
+                z, e = zv, ev
+    return z, e
+
+
+def _as_fit(ctx: FitContext, best: FitResult, cutoff: float, energy: float) -> FitResult:
+    """``best`` with another shared cutoff and training residual energy (its standard error kept)."""
+    return dataclasses.replace(best, params={"cutoff": cutoff}, stderr={"cutoff": best.stderr["cutoff"]},
+                               train_rms=math.sqrt(energy / max(ctx.target.size, 1)))
+
+
 def _fit_damping(ctx: FitContext, best: FitResult, order: int, zeta0: float) -> tuple[FitResult, float]:
     """The damping of a 2nd-order section (0.3 … 1.5: a resonant amplifier to an over-damped, Bessel-like one) at
-    the shared cutoff found, then the cutoff again at that damping; kept when it earns its parameter on TRAIN."""
+    the shared cutoff found, then the cutoff again at that damping (lean grid + parabola searches); kept when it
+    earns its parameter on TRAIN."""
     cut = float(best.params["cutoff"])
-    zf = _fit_scalar(ctx, "amplifier_bandwidth", "damping",
-                     lambda z: {"cutoff": cut, "order": order, "damping": math.exp(z)},
-                     np.linspace(math.log(0.3), math.log(1.5), 5), math.exp, math.exp)
-    zeta = float(zf.params["damping"])
-    if zf.train_rms ** 2 >= (1 - DAMPING_MIN_GAIN) * best.train_rms ** 2:
+    z, e = _grid_parabola(ctx, lambda z: {"cutoff": cut, "order": order, "damping": math.exp(z)},
+                          np.linspace(math.log(0.3), math.log(1.5), 5))
+    zeta = math.exp(z)
+    if e >= (1 - DAMPING_MIN_GAIN) * best.train_rms ** 2 * ctx.target.size:
         return best, zeta0
     c = math.log(cut)
-    cf = _fit_scalar(ctx, "amplifier_bandwidth", "cutoff",
-                     lambda z: {"cutoff": math.exp(z), "order": order, "damping": zeta},
-                     np.linspace(c - 0.3, c + 0.3, 3), math.exp, math.exp)
-    if cf.train_rms < zf.train_rms:
-        return cf, zeta
-    return dataclasses.replace(zf, params={"cutoff": cut}, stderr={"cutoff": best.stderr["cutoff"]}), zeta
+    zc, ec = _grid_parabola(ctx, lambda x: {"cutoff": math.exp(x), "order": order, "damping": zeta},
+                            np.array([c - 0.3, c, c + 0.3]))
+    if ec < e:
+        return _as_fit(ctx, best, math.exp(zc), ec), zeta
+    return _as_fit(ctx, best, cut, e), zeta
