@@ -16,7 +16,7 @@
    and scored on the test run.
 
     PYTHONPATH=. PIEZO_FF_SHARED_DATA=/work/shared/data .venv/bin/python bench/diagnose_real_data.py \
-        [--only fsm|dbo] [--json out.json] [--report DIR]
+        [--only fsm|fsm-nllfr|dbo] [--json out.json] [--report DIR]
 
 Prints the findings (the figures docs/diagnosis.md quotes).
 """
@@ -280,6 +280,96 @@ def fsm_cases(n_pairs: int, report: Path | None) -> dict:
 
 
 # ----------------------------------------------------------------------------------------------------------------
+# FSM against the published nonlinear model (NL-LFR), and the withheld-amplitude check
+# ----------------------------------------------------------------------------------------------------------------
+
+#: NL-LFR (FFNN in the feedback path, trained on all amplitudes): test NRMSE [%] per level (SOURCE.md)
+NLLFR_PERCENT = {100: 6.37, 200: 4.84, 300: 4.19}
+FSM_PERIOD = 8192
+
+
+def _official_nrmse(cfg, effects, runs) -> float:
+    """The data set's metric: RMSE over the steady-state (second) period, all channels and realizations, over the
+    RMS of the measured output there [%] (each channel's offset removed)."""
+    from piezo_ff_ros.core.diagnosis.replay import simulate
+
+    num = den = 0.0
+    for r in runs:
+        y_hat = simulate(cfg, r.u, effects)
+        e = (r.y - y_hat)[FSM_PERIOD:]
+        y = r.y[FSM_PERIOD:]
+        num += float(np.sum((e - e.mean(0)) ** 2))
+        den += float(np.sum((y - y.mean(0)) ** 2))
+    return 100 * math.sqrt(num / den)
+
+
+def _joined(runs) -> RunData:
+    """Runs one after the other as one record (each starts from its own transient period)."""
+    u = np.vstack([r.u for r in runs])
+    y = np.vstack([r.y for r in runs])
+    return RunData(np.arange(len(u)) / FSM_FS, u, y, runs[0].axes)
+
+
+def fsm_vs_nllfr(n_pairs: int) -> dict:
+    """Per level: diagnose (TRAIN = training realization 0 of the level, TEST = test realization 0), then the
+    nominal + the stacked effects scored on all 3 test realizations with the data set's metric, next to NL-LFR.
+    Withheld amplitude: TRAIN = training realization 0 of the two other levels one after the other, TEST = test
+    realization 0 of the withheld level (verdict, shrink), scored the same way on its 3 test realizations."""
+    from piezo_ff_ros.bench.datasets import load_fsm
+
+    cfg, info = fsm_nominal(n_pairs)
+    print(f"fsm nominal: the 100 mV BLA as {info['poles']} common poles; built in {info['seconds']:.0f} s")
+    data = {L: (load_fsm(L).runs("train"), load_fsm(L).runs("test")) for L in (100, 200, 300)}
+    out: dict = {"nominal": info, "per_level": {}, "withheld": {}}
+    rows = []
+    for L in (100, 200, 300):
+        trains, tests = data[L]
+        t0 = time.perf_counter()
+        res = diagnose(cfg, trains[0], tests[0], DiagnosisOptions())
+        eff = list(res.arrays.stack_effects)
+        row = {"level_mV": L, "verdict": res["verdict"], "confidence": res["confidence"],
+               "stack": [e for e, _ in eff], "nominal_percent": _official_nrmse(cfg, [], tests),
+               "with_effects_percent": _official_nrmse(cfg, eff, tests), "nllfr_percent": NLLFR_PERCENT[L],
+               "heldout": dict(res["heldout"]), "seconds": time.perf_counter() - t0}
+        rows.append(row)
+        print(f"fsm {L} mV (train {L} mV): verdict {row['verdict']} ({row['confidence']}), stack "
+              f"{', '.join(row['stack']) or '-'}; test NRMSE nominal {row['nominal_percent']:.2f} % -> with the "
+              f"effects {row['with_effects_percent']:.2f} % (NL-LFR {NLLFR_PERCENT[L]:.2f} %)")
+        out["per_level"][L] = row
+    for L in (100, 200, 300):
+        others = [k for k in (100, 200, 300) if k != L]
+        train = _joined([data[k][0][0] for k in others])
+        tests = data[L][1]
+        t0 = time.perf_counter()
+        res = diagnose(cfg, train, tests[0], DiagnosisOptions())
+        eff = list(res.arrays.stack_effects)
+        h = res["heldout"]
+        row = {"withheld_mV": L, "trained_on_mV": others, "verdict": res["verdict"],
+               "confidence": res["confidence"], "stack": [e for e, _ in eff],
+               "shrink_percent": 100 * (1 - h["stacked_after_nrmse_percent"] / h["before_nrmse_percent"]),
+               "heldout": dict(h), "nominal_percent": _official_nrmse(cfg, [], tests),
+               "with_effects_percent": _official_nrmse(cfg, eff, tests), "nllfr_percent": NLLFR_PERCENT[L],
+               "seconds": time.perf_counter() - t0}
+        print(f"fsm withheld {L} mV (train {others}): verdict {row['verdict']} ({row['confidence']}), shrink "
+              f"{row['shrink_percent']:.0f} % ({h['before_nrmse_percent']:.2f} % -> "
+              f"{h['stacked_after_nrmse_percent']:.2f} %); test NRMSE {row['nominal_percent']:.2f} % -> "
+              f"{row['with_effects_percent']:.2f} % (NL-LFR, trained on all levels, {NLLFR_PERCENT[L]:.2f} %)")
+        out["withheld"][L] = row
+    print("\n| level | nominal (100 mV BLA) | + diagnosed effects, trained at the level | NL-LFR | verdict |")
+    print("|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['level_mV']} mV | {r['nominal_percent']:.2f} % | {r['with_effects_percent']:.2f} % | "
+              f"{r['nllfr_percent']:.2f} % | `{r['verdict']}` ({', '.join(r['stack']) or '-'}) |")
+    print("\n| withheld | trained on | verdict | held-out shrink | test NRMSE nominal → with effects | NL-LFR |")
+    print("|---|---|---|---|---|---|")
+    for L, r in out["withheld"].items():
+        print(f"| {L} mV | {' + '.join(str(k) for k in r['trained_on_mV'])} mV | `{r['verdict']}` | "
+              f"{r['shrink_percent']:.0f} % | {r['nominal_percent']:.2f} % → {r['with_effects_percent']:.2f} % | "
+              f"{r['nllfr_percent']:.2f} % |")
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------------------
 # DBO micromanipulator: start-up settling vs thermal drift
 # ----------------------------------------------------------------------------------------------------------------
 
@@ -384,7 +474,8 @@ def dbo_case(report: Path | None) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=["dbo", "fsm"])
+    ap.add_argument("--only", choices=["dbo", "fsm", "fsm-nllfr"],
+                    help="fsm-nllfr: the FSM levels against NL-LFR and the withheld-amplitude check")
     ap.add_argument("--json", help="write the findings")
     ap.add_argument("--report", help="write the diagnosis reports (Markdown + PNG) into DIR")
     ap.add_argument("--fsm-pairs", type=int, default=30, help="pole pairs of the FSM's vector fit (default 30)")
@@ -394,6 +485,8 @@ def main(argv=None) -> int:
     try:
         if a.only in (None, "fsm"):
             out["fsm"] = fsm_cases(a.fsm_pairs, report)
+        if a.only in (None, "fsm-nllfr"):
+            out["fsm_nllfr"] = fsm_vs_nllfr(a.fsm_pairs)
         if a.only in (None, "dbo"):
             out["dbo"] = dbo_case(report)
     except FileNotFoundError as exc:

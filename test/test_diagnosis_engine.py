@@ -189,16 +189,20 @@ def test_second_order_rolloff_with_a_cutoff_per_axis(cfg):
 # Discriminate, don't guess
 # ----------------------------------------------------------------------------------------------------------------
 
-def test_delay_vs_rolloff_ambiguity_is_said_and_the_proposed_experiment_decides(cfg, tmp_path):
-    """A 400 Hz first-order amplifier roll-off (scipy filter) seen through slow excitations looks like a delay.
-    The diagnosis must say it is ambiguous, propose a playable trajectory, and get it right on that experiment."""
-    b, a = scipy.signal.bilinear([1.0], [1 / (2 * np.pi * 400.0), 1.0], fs=FS)
-    nominal = build_plant(cfg, [])
+def test_delay_vs_rolloff_is_named_or_said_ambiguous_and_the_proposed_experiment_decides(cfg, tmp_path):
+    """A 400 Hz first-order amplifier roll-off (a continuous filter on the DAC's staircase, simulated at 10× the
+    record's rate) seen through slow excitations looks almost like a delay.  The diagnosis must name the roll-off, or
+    say it is ambiguous, propose a playable trajectory, and get it right on that experiment."""
+    over = 10
+    bd, a, _ = scipy.signal.cont2discrete(([1.0], [1 / (2 * np.pi * 400.0), 1.0]), 1 / (over * FS), method="zoh")
+    b = np.ravel(bd)
+    nominal = build_plant(cfg.with_sample_rate(over * FS), [])
 
     def truth(u, seed):
-        uf = scipy.signal.lfilter(b, a, u, axis=0, zi=scipy.signal.lfilter_zi(b, a)[:, None] * u[:1])[0]
+        uo = np.repeat(u, over, axis=0)
+        uf = scipy.signal.lfilter(b, a, uo, axis=0, zi=scipy.signal.lfilter_zi(b, a)[:, None] * uo[:1])[0]
         nominal.reset()
-        y = nominal.process(uf)
+        y = nominal.process(uf)[::over]
         return y + 50e-9 * np.random.default_rng(seed).standard_normal(y.shape)
 
     def slow(f, seed):
@@ -211,7 +215,10 @@ def test_delay_vs_rolloff_ambiguity_is_said_and_the_proposed_experiment_decides(
     opts = DiagnosisOptions(candidates=("input_delay", "amplifier_bandwidth", "gain_mismatch"), max_stack=1)
     res = diagnose(cfg, train, test, opts)
     d = res["discrimination"]
-    assert d is not None and set(d["ambiguous_between"]) == {"input_delay", "amplifier_bandwidth"}
+    if d is None:
+        assert res["verdict"] == "amplifier_bandwidth", res["confidence_reason"]
+        return
+    assert set(d["ambiguous_between"]) == {"input_delay", "amplifier_bandwidth"}
     assert res["confidence"] == "low"
     exp = d["experiment"]
     assert exp["expected_z"] > 5 and exp["duration_s"] <= 600
@@ -309,7 +316,9 @@ def test_dac_latency_is_named_a_delay_not_absorbed_by_the_generic_mode_family(tm
     delay = next(r for r in res["ranking"] if r["effect"] == "input_delay")
     assert delay["params"]["delay"]["value"] == pytest.approx(1.017 / case.fs, rel=0.1)
     generic = [r for r in res["ranking"] if r["effect"] in ("unmodelled_mode", "amplitude_dependent_dynamics")]
-    # the invariant behind the rule: whenever a generic candidate was demoted it was accepted and took < 5 pp more
+    # the invariant behind the rules: whenever a generic candidate was demoted it was accepted and took < 5 pp more,
+    # or, with more parameters, it did not beat the physical candidate significantly on the held-out run
     for r in generic:
         if r["absorbs"] is not None:
-            assert r["accepted"] and r["excess_shrink_percent"] - delay["excess_shrink_percent"] < 5.0
+            assert r["accepted"] and (r["excess_shrink_percent"] - delay["excess_shrink_percent"] < 5.0
+                                      or r["n_params"] > delay["n_params"])

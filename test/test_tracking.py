@@ -197,10 +197,10 @@ def test_learning_converges_on_a_mismatched_truth_and_beats_the_cascade_5x(setup
 
 def test_learning_condition_and_the_guard_when_it_is_violated(setup, paper_config):
     """An unmodelled 1 ms delay violates |1 − γT̂⁻¹T| < 1 above ≈ 167 Hz; a wide Q lets it diverge, the guard stops it."""
-    from piezo_ff_ros.core.tracking.benchmark import Case, _Model, evaluation_window, reference_with_lead_in, violation_demo
+    from piezo_ff_ros.core.tracking.benchmark import Case, TrackingModel, evaluation_window, reference_with_lead_in, violation_demo
 
     cfg = paper_config
-    m = _Model.build(cfg, PreviewConfig())
+    m = TrackingModel.build(cfg, PreviewConfig())
     case = Case("circle", 20, 10, Circle(radius=20e-6, frequency=10, revolutions=2))
     r, n_lead = reference_with_lead_in(case, cfg.sample_rate)
     out = violation_demo(m, cfg, ILCConfig(), r, evaluation_window(case, r, n_lead, cfg.sample_rate), quick=True)

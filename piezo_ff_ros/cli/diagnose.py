@@ -36,6 +36,9 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     p.add_argument("--test", metavar="TEST", help="held-out run, other excitation")
     p.add_argument("--data", metavar="FILE", help="one run, split into a training and a held-out part")
     p.add_argument("--split", type=float, default=0.5, help="fraction of --data used for training (default 0.5)")
+    p.add_argument("--sample-rate", type=float, metavar="HZ",
+                   help="MCAP only: the sample rate to read the recording at, when its metadata and its block "
+                        "stamps disagree (refused otherwise)")
     p.add_argument("--json", metavar="OUT.json", help="write the machine-readable result")
     p.add_argument("--report", metavar="DIR", help="write report.md and PNG plots into DIR")
     p.add_argument("--apply", metavar="OUT.yaml", help="write the config corrected where the cascade can compensate")
@@ -49,19 +52,27 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     return p
 
 
-def _load_inputs(args: argparse.Namespace) -> tuple[RunData, RunData]:
-    from ..core.recording import load_run
+def _load_inputs(args: argparse.Namespace) -> tuple[RunData, RunData, RunData | None, dict[str, Any]]:
+    """TRAIN, TEST, TEST's history (or None) and the report's ``input`` (which voltage, which stretches)."""
+    from ..core.diagnosis.inputs import load_for_diagnosis, split_record
 
+    rate = getattr(args, "sample_rate", None)
     if args.data and (args.train or args.test):
         raise ValueError("give either --data FILE or --train TRAIN --test TEST, not both")
     if args.data:
         if not 0.1 <= args.split <= 0.9:
             raise ValueError(f"--split must be within [0.1, 0.9], got {args.split}")
-        run = load_run(args.data)
-        return run.split(args.split)
+        run = load_for_diagnosis(args.data, rate)
+        parts = split_record(run, args.split)
+        info = {"voltage": run.meta.get("voltage", "voltage"), "segments": parts.notes or None,
+                "warnings": list(parts.warnings)}
+        return parts.train, parts.test, parts.history, info
     if not (args.train and args.test):
         raise ValueError("need --train TRAIN and --test TEST (or --data FILE)")
-    return load_run(args.train), load_run(args.test)
+    train, test = load_for_diagnosis(args.train, rate), load_for_diagnosis(args.test, rate)
+    info = {"voltage": {"train": train.meta.get("voltage"), "test": test.meta.get("voltage")},
+            "segments": None, "warnings": []}
+    return train, test, None, info
 
 
 def run(args: argparse.Namespace) -> int:
@@ -69,10 +80,10 @@ def run(args: argparse.Namespace) -> int:
     from ..core.diagnosis import DiagnosisOptions, diagnose, json_ready
     from ..core.diagnosis.report import tracking_comparison, write_apply, write_report
     from ..core.models.effects import EFFECT_NAMES
-    from ..core.recording import load_run
+    from ..core.diagnosis.inputs import load_for_diagnosis
 
     cfg = load_config(args.model, args.variant)
-    train, test = _load_inputs(args)
+    train, test, history, input_info = _load_inputs(args)
     opts = DiagnosisOptions(verbose=not args.quiet)
     if args.candidates:
         names = tuple(c.strip() for c in args.candidates.split(",") if c.strip())
@@ -81,11 +92,15 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--candidates: unknown effect(s) {bad}; known: {', '.join(EFFECT_NAMES)}")
         opts.candidates = names
     # a held-out part split from one file is replayed after the training part (its start state is not at rest)
-    disc_run = load_run(args.discriminate) if args.discriminate else None
-    res = diagnose(cfg, train, test, opts, test_history=train if args.data else None, discriminate=disc_run)
+    disc_run = load_for_diagnosis(args.discriminate, getattr(args, "sample_rate", None)) if args.discriminate \
+        else None
+    res = diagnose(cfg, train, test, opts, test_history=history, discriminate=disc_run)
     proposal = _write_proposal(res, args)
     A = res.arrays
-    out = res.to_json()          # the JSON written by --json: the report, plus "apply" below
+    out = res.to_json()          # the JSON written by --json: the report, plus "input" and "apply" below
+    out["input"] = json_ready(input_info)
+    for w in input_info["warnings"] + list(res.get("warnings", [])):
+        print(f"warning: {w}", file=sys.stderr)
     apply_notes, tracking = None, None
     if args.apply:
         effects = A.stack_effects

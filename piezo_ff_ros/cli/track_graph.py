@@ -237,10 +237,10 @@ def _recorded_segment(mcap: Path, n: int, strict: bool = False,
 
 
 def _row(run: GraphRun, method: str, truth: str, r: np.ndarray, mask: np.ndarray) -> dict:
-    from ..core.tracking.benchmark import _metrics
+    from ..core.tracking.benchmark import tracking_metrics
 
     return {"trajectory": "circle", "size_um": 20, "frequency_hz": 10.0, "method": method, "truth": truth,
-            "graph": True, **_metrics(run.y, r, run.u, mask, 20000.0), "mcap": str(run.mcap),
+            "graph": True, **tracking_metrics(run.y, r, run.u, mask, 20000.0), "mcap": str(run.mcap),
             "preview_s": run.preview_s, "window_samples": int(mask.sum())}
 
 
@@ -281,7 +281,7 @@ def run_graph_learning(out_dir: Path, truth: str = "asymmetric", iterations: int
         ``correction_file``.
     """
     from ..core.config import load_config
-    from ..core.tracking.benchmark import _Model
+    from ..core.tracking.benchmark import TrackingModel
     from ..core.tracking.ilc import ILCConfig, IterativeLearning, save_correction
     from ..core.tracking.preview import PreviewConfig
 
@@ -292,7 +292,7 @@ def run_graph_learning(out_dir: Path, truth: str = "asymmetric", iterations: int
     truth_file = truth_config_file(truth, out_dir)
     printed = load_config(None, None)
     say("graph learning: build the model's compensated stage (the learning operator T̂⁻¹)")
-    model = _Model.build(printed, PreviewConfig())
+    model = TrackingModel.build(printed, PreviewConfig())
     spec = {"trajectory": case.traj.to_dict(), "lead_in_s": 0.1}
     trials: list[tuple[np.ndarray, GraphRun]] = []
 

@@ -18,7 +18,7 @@ from ..config import PiezoConfig
 from ..models.effects import EFFECTS, build_plant
 from ..recording.run import RunData
 from .candidates import CANDIDATES
-from .replay import (Windows, check_run, input_period, model_for_run, noise_floor, noise_floor_periodic, residual,
+from .replay import (Windows, check_run, check_scale, input_period, model_for_run, noise_floor, noise_floor_periodic, residual,
                      simulate)
 from .residual_signatures import signatures
 from .results import DiagnosisOptions
@@ -57,6 +57,8 @@ class _Setup:
         Whether a run is longer than ``opts.long_run_samples``.
     discriminate : RunData or None
         The run that decides between tied candidates.
+    warnings : tuple of str
+        What the diagnosis had to assume (a run that does not start at rest …): the report's ``warnings``.
     """
 
     cfg: PiezoConfig
@@ -68,6 +70,23 @@ class _Setup:
     opts: DiagnosisOptions
     long_run: bool
     discriminate: RunData | None
+    warnings: tuple[str, ...] = ()
+
+
+#: a run "starts at rest" when its first voltage is within this share of its largest voltage magnitude (of 0 V)
+REST_SHARE = 0.02
+
+
+def _not_at_rest(run: RunData, name: str) -> list[str]:
+    """A warning when ``run`` starts away from 0 V: the model starts it from rest, the plant did not."""
+    u0 = np.abs(run.u[0])
+    scale = float(np.max(np.abs(run.u)))
+    if scale > 0 and float(np.max(u0)) > REST_SHARE * scale:
+        return [f"{name} starts at {np.round(run.u[0], 3).tolist()} V, not at rest: the model starts it from 0 V, "
+                "so its first part holds a start-up transient (hysteresis, creep) the plant did not have; record "
+                "from rest, or give the record that precedes it (diagnose --data splits one record and replays "
+                "the training part first)"]
+    return []
 
 
 def _check(cfg: PiezoConfig, train: RunData, test: RunData, opts: DiagnosisOptions, test_history: RunData | None,
@@ -102,7 +121,9 @@ def _check(cfg: PiezoConfig, train: RunData, test: RunData, opts: DiagnosisOptio
         H = len(test_history)
         test_ext = RunData(np.arange(H + len(test)) * cfg.dt, np.vstack([test_history.u, test.u]),
                            np.vstack([test_history.y, test.y]), test.axes)
-    return _Setup(cfg, train, test, test_ext, H, test_history is train, opts, long_run, discriminate)
+    warnings = _not_at_rest(train, "train") + (_not_at_rest(test, "test") if test_history is None else [])
+    return _Setup(cfg, train, test, test_ext, H, test_history is train, opts, long_run, discriminate,
+                  tuple(warnings))
 
 
 @dataclass(frozen=True)
@@ -141,6 +162,9 @@ def _replay(s: _Setup, log: Callable[[str], None], t_start: float) -> _Replay:
     y_ext_nom = simulate(cfg, s.test_ext.u, [])
     y_test_nom = y_ext_nom[H:]
     y_train_nom = y_ext_nom[:H] if s.history_is_train else simulate(cfg, train.u, [])
+    # a measured scale the model cannot have (µm stored as m) is refused before any fit tries to explain it
+    check_scale(train, y_train_nom, "train")
+    check_scale(test, y_test_nom, "test")
     r_test = residual(test.y, y_test_nom)
     period = input_period(test.u)
     # periodic excitation: the noise is what differs between periods; else the residual's second difference

@@ -36,8 +36,9 @@ from .candidates import FitContext, FitResult, fit_candidate, n_eff_ratio
 from .flexible import fit_flexible
 from .replay import Windows, residual, simulate
 from .results import DiagnosisOptions
+from .scored import Scored
 
-__all__ = ["MIN_SHARE", "RICHER_MIN_GAIN", "MIN_EXCESS_SHRINK", "HIGH_EXCESS_SHRINK", "MIN_DROP", "TIE_Z",
+__all__ = ["RATE_AMPLITUDE", "CONFOUND_RHO", "excitation_rate_amplitude_correlation", "MIN_SHARE", "RICHER_MIN_GAIN", "MIN_EXCESS_SHRINK", "HIGH_EXCESS_SHRINK", "MIN_DROP", "TIE_Z",
            "HIGH_Z_MARGIN", "HIGH_SHARE", "HIGH_PAIRED_Z", "GENERIC", "GENERIC_MIN_EXTRA", "RICHER", "NESTED"]
 
 #: an accepted candidate removes at least this share of the explainable held-out gap
@@ -72,40 +73,6 @@ RICHER = {("amplitude_dependent_dynamics", "unmodelled_mode")}
 NESTED = {frozenset(p) for p in RICHER}
 
 
-@dataclass
-class _Scored:
-    """One model fitted on TRAIN and scored on TEST (mutable: judging fills ``penalty``, ``accepted`` and ``extra``).
-
-    Attributes
-    ----------
-    fit : FitResult
-        The fit on TRAIN.
-    sse_before, sse_after : float
-        Held-out residual energy under the base model, and with the fitted effect added [m²].
-    penalty : float
-        Complexity penalty added to ``sse_after`` for the ranking.
-    before_nrmse, after_nrmse : float
-        The same as NRMSE [%].
-    accepted : bool
-        Significant, and takes enough of the explainable gap and of the gap above the white-noise floor.
-    seconds : float
-        Wall-clock time of the fit and its scoring [s].
-    extra : dict
-        ``r_after`` (the held-out residual), then ``delta``, ``sd``, ``z``, ``share``, ``excess_shrink``,
-        ``paired_z``, ``absorbs`` as judging sets them.
-    """
-
-    fit: FitResult
-    sse_before: float
-    sse_after: float
-    penalty: float
-    before_nrmse: float
-    after_nrmse: float
-    accepted: bool
-    seconds: float
-    extra: dict[str, Any] = field(default_factory=dict)
-
-
 class _Held:
     """The held-out run on its scoring windows, with the base model's output."""
 
@@ -136,15 +103,15 @@ class _Held:
         return residual(self.target, simulate(self.cfg, self.run.u, self.base + list(effects), self.windows))
 
 
-def _evaluate(fit: FitResult, held: _Held, t0: float) -> _Scored:
+def _evaluate(fit: FitResult, held: _Held, t0: float) -> Scored:
     r_after = held.score(fit.effects)
     sse_b = float(np.sum(held.r_before ** 2))
     sse_a = float(np.sum(r_after ** 2))
-    return _Scored(fit, sse_b, sse_a, 0.0, held.nrmse(held.r_before), held.nrmse(r_after), False,
+    return Scored(fit, sse_b, sse_a, 0.0, held.nrmse(held.r_before), held.nrmse(r_after), False,
                    time.perf_counter() - t0, {"r_after": r_after})
 
 
-def _judge(scored: list[_Scored], flex: "_Scored | None", held: _Held, sigma2: float, zc: float) -> "stats.NoisePSD":
+def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: float, zc: float) -> "stats.NoisePSD":
     """z of every held-out improvement (noise spectrum from the best residual), share of the explainable gap,
     acceptance; sorts ``scored`` best first.  Returns the noise spectrum used."""
     pool = list(scored) + ([flex] if flex is not None else [])
@@ -175,22 +142,29 @@ def _judge(scored: list[_Scored], flex: "_Scored | None", held: _Held, sigma2: f
                      or rich.sse_after > (1 - RICHER_MIN_GAIN) * simple.sse_after):
                 scored[i], scored[j] = simple, rich
     # parsimony: a generic filter family above an accepted physical candidate that leaves it < GENERIC_MIN_EXTRA
-    # of the gap above the floor absorbs that candidate; it does not name a different effect
+    # of the gap above the floor absorbs that candidate; it does not name a different effect.  Nor does it when it
+    # does not beat the physical candidate significantly on the held-out run (paired z < TIE_Z): with fewer
+    # parameters and a held-out fit the noise cannot tell apart, the physical form is the better model (Occam on
+    # held-out data — a held-out score already charges every parameter its variance, so equal scores favour the
+    # smaller model)
     top = next((s for s in scored if s.accepted), None)
     if top is not None and top.fit.effect in GENERIC:
         for s in scored:
             if s.accepted and s.fit.effect not in GENERIC and \
-                    top.extra["excess_shrink"] - s.extra["excess_shrink"] < GENERIC_MIN_EXTRA:
+                    (top.extra["excess_shrink"] - s.extra["excess_shrink"] < GENERIC_MIN_EXTRA
+                     or (s.fit.n_params < top.fit.n_params
+                         and stats.paired_z(top.extra["r_after"], s.extra["r_after"], psd) < TIE_Z)):
                 scored.remove(s)
                 scored.insert(scored.index(top), s)
                 for g in scored:
                     if g.fit.effect in GENERIC and g.accepted:
                         g.extra["absorbs"] = s.fit.effect
+                        g.extra["absorb_paired_z"] = stats.paired_z(g.extra["r_after"], s.extra["r_after"], psd)
                 break
     return psd
 
 
-def _significant(s: _Scored, zc: float) -> bool:
+def _significant(s: Scored, zc: float) -> bool:
     """Statistically (z above the threshold) *and* practically (removes ≥ MIN_DROP of the held-out residual
     energy) significant: a tiny but 'significant' drop is what structured noise — coarse quantisation is a
     deterministic function of the signal — gives a model correlated with the signal."""
@@ -203,7 +177,7 @@ def _fit_windows(train: RunData, opts: DiagnosisOptions) -> Windows:
 
 
 def _fit_all(cfg: PiezoConfig, train: RunData, y_base_train: np.ndarray, base: _Effects, names: Sequence[str],
-             held: _Held, opts: DiagnosisOptions, log: Callable[[str], None]) -> list[_Scored]:
+             held: _Held, opts: DiagnosisOptions, log: Callable[[str], None]) -> list[Scored]:
     ctx = FitContext(cfg, list(base), train.u, train.y, y_base_train, _fit_windows(train, opts))
     scored = []
     for name in names:
@@ -220,7 +194,7 @@ def _fit_all(cfg: PiezoConfig, train: RunData, y_base_train: np.ndarray, base: _
 
 
 def _fit_flexible(cfg: PiezoConfig, train: RunData, y_train_nom: np.ndarray, held: _Held, test_ext: RunData,
-                  y_ext_nom: np.ndarray, opts: DiagnosisOptions, log: Callable[[str], None]) -> _Scored | None:
+                  y_ext_nom: np.ndarray, opts: DiagnosisOptions, log: Callable[[str], None]) -> Scored | None:
     """The flexible reference model on TRAIN, scored on TEST like a candidate (``None`` if it cannot be fitted)."""
     t0 = time.perf_counter()
     try:
@@ -231,7 +205,7 @@ def _fit_flexible(cfg: PiezoConfig, train: RunData, y_train_nom: np.ndarray, hel
         return None
     r_after = residual(held.r_before, d)
     fit = FitResult("flexible", {}, {}, [], fm.n_features * cfg.n_axes, float("nan"))
-    s = _Scored(fit, float(np.sum(held.r_before ** 2)), float(np.sum(r_after ** 2)), 0.0,
+    s = Scored(fit, float(np.sum(held.r_before ** 2)), float(np.sum(r_after ** 2)), 0.0,
                 held.nrmse(held.r_before), held.nrmse(r_after), False, time.perf_counter() - t0,
                 {"r_after": r_after, "ridge": fm.ridge})
     log(f"  {'(flexible reference model)':28s} held-out {s.before_nrmse:7.3f} % -> {s.after_nrmse:7.3f} %  "
@@ -239,7 +213,7 @@ def _fit_flexible(cfg: PiezoConfig, train: RunData, y_train_nom: np.ndarray, hel
     return s
 
 
-def _confidence(best: _Scored, runner: "_Scored | None", tie_z: float | None, zc: float) -> tuple[str, str]:
+def _confidence(best: Scored, runner: "Scored | None", tie_z: float | None, zc: float) -> tuple[str, str]:
     """high / medium / low from how clearly the verdict beats noise, how much of the explainable gap it takes and
     how clearly it beats the runner-up on the held-out run (paired z)."""
     z, share = best.extra["z"], best.extra["share"]
@@ -278,9 +252,9 @@ class _Judged:
     ----------
     held : _Held
         The held-out run on its scoring windows, under the nominal model.
-    scored : list of _Scored
+    scored : list of Scored
         The candidates that could be fitted, best first (:func:`_judge`).
-    flex : _Scored or None
+    flex : Scored or None
         The flexible reference model (``None``: not asked for, or its fit failed).
     n_tests : int
         How many models were tested: the Bonferroni family.
@@ -291,8 +265,8 @@ class _Judged:
     """
 
     held: _Held
-    scored: list[_Scored]
-    flex: _Scored | None
+    scored: list[Scored]
+    flex: Scored | None
     n_tests: int
     zc: float
     psd: stats.NoisePSD
@@ -321,14 +295,14 @@ class _Choice:
 
     Attributes
     ----------
-    verdict : _Scored or None
+    verdict : Scored or None
         The best accepted candidate (after a discrimination run, the one it named); ``None``: nothing accepted.
-    runner : _Scored or None
+    runner : Scored or None
         The runner-up on the held-out run (``None`` after a discrimination run).
     tie_z : float or None
         The paired z by which the verdict beats the runner-up (or, after a discrimination run, its winner the
         next best there).
-    ties : list of _Scored
+    ties : list of Scored
         Significant rivals within :data:`TIE_Z` of the verdict, neither nesting the other.
     any_significant : bool
         Whether any model (a candidate or the flexible one) is significant.
@@ -336,10 +310,10 @@ class _Choice:
         The report's ``discrimination`` (``None``: no ties).
     """
 
-    verdict: _Scored | None
-    runner: _Scored | None
+    verdict: Scored | None
+    runner: Scored | None
     tie_z: float | None
-    ties: list[_Scored]
+    ties: list[Scored]
     any_significant: bool
     discrimination: dict[str, Any] | None
 
@@ -353,10 +327,15 @@ def _choose(s: _Setup, rep: _Replay, j: _Judged, log: Callable[[str], None]) -> 
     if verdict is None:
         return _Choice(None, None, None, [], bool(significant), None)
     runner, tie_z, ties = _ties(verdict, j)
+    confound = _rate_amplitude_confounded(s, verdict, j)
+    if confound is not None:
+        ties = ties + [confound[0]]
     if not ties:
         return _Choice(verdict, runner, tie_z, ties, bool(significant), None)
     discrimination: dict[str, Any] = {"ambiguous_between": [verdict.fit.effect] + [x.fit.effect for x in ties],
-                                      "paired_z": {x.fit.effect: x.extra["paired_z"] for x in ties}}
+                                      "paired_z": {x.fit.effect: x.extra.get("paired_z") for x in ties}}
+    if confound is not None:
+        discrimination["confounded"] = confound[1]
     if s.discriminate is not None:
         pick = disc.decide_on_run(s.cfg, [verdict] + ties, s.discriminate)
         discrimination["decided_on_run"] = pick
@@ -372,7 +351,65 @@ def _choose(s: _Setup, rep: _Replay, j: _Judged, log: Callable[[str], None]) -> 
     return _Choice(verdict, runner, tie_z, ties, bool(significant), discrimination)
 
 
-def _ties(verdict: _Scored, j: _Judged) -> tuple[_Scored | None, float | None, list[_Scored]]:
+#: rate and amplitude dependence of the hysteresis/dynamics: told apart only by an excitation whose rate and amplitude
+#: vary independently
+RATE_AMPLITUDE = ("hysteresis_rate_dependence", "amplitude_dependent_dynamics")
+#: the excitation confounds them when, over stretches of both runs, the log peak rate and the log amplitude of the
+#: voltage correlate at least this much (the rate explains ≥ 81 % of the amplitude's variance): then neither verdict
+#: can be told from the other by these runs, whatever the held-out scores say
+CONFOUND_RHO = 0.9
+#: stretches per run for that measure
+CONFOUND_STRETCHES = 8
+
+
+def excitation_rate_amplitude_correlation(runs: Sequence[RunData]) -> float:
+    """Correlation of log amplitude (largest deviation from the run's mean) and log peak rate (95th percentile of
+    |dU/dt|) of the voltage over
+    :data:`CONFOUND_STRETCHES` stretches of each run and each axis (stretches with < 1 % of the largest amplitude
+    left out); NaN with fewer than 4 stretches."""
+    amps, rates = [], []
+    for run in runs:
+        u = np.asarray(run.u, float)
+        u = u - u.mean(axis=0)
+        n = len(u) // CONFOUND_STRETCHES
+        if n < 8:
+            continue
+        for k in range(CONFOUND_STRETCHES):
+            seg = u[k * n:(k + 1) * n]
+            amps.append(np.max(np.abs(seg), axis=0))
+            rates.append(np.quantile(np.abs(np.diff(seg, axis=0)), 0.95, axis=0) / run.dt)
+    if not amps:
+        return float("nan")
+    A, R = np.concatenate(amps), np.concatenate(rates)
+    keep = (A > 0.01 * A.max()) & (R > 0)
+    if keep.sum() < 4:
+        return float("nan")
+    la, lr = np.log(A[keep]), np.log(R[keep])
+    if np.std(la) == 0 or np.std(lr) == 0:
+        return 1.0   # one amplitude (or one rate) throughout: nothing to tell them apart
+    return float(np.corrcoef(la, lr)[0, 1])
+
+
+def _rate_amplitude_confounded(s: _Setup, verdict: Scored, j: _Judged) -> tuple[Scored, dict[str, Any]] | None:
+    """The rival of a rate- or amplitude-dependence verdict, when it is significant too and the runs' excitation
+    cannot tell the two apart (:data:`CONFOUND_RHO`): ``(rival, report)``; else None."""
+    if verdict.fit.effect not in RATE_AMPLITUDE:
+        return None
+    other = next((x for x in j.scored if x.fit.effect in RATE_AMPLITUDE and x.fit.effect != verdict.fit.effect), None)
+    if other is None or not _significant(other, j.zc):
+        return None
+    rho = excitation_rate_amplitude_correlation([s.train, s.test])
+    if not (rho >= CONFOUND_RHO):
+        return None
+    other.extra.setdefault("paired_z", stats.paired_z(verdict.extra["r_after"], other.extra["r_after"], j.psd))
+    return other, {"between": [verdict.fit.effect, other.fit.effect], "rate_amplitude_correlation": rho,
+                   "threshold": CONFOUND_RHO,
+                   "why": "the voltage's rate and amplitude vary together in these runs (log-correlation "
+                          f"{rho:.3g} ≥ {CONFOUND_RHO:g}): a rate-dependent loop and an amplitude-dependent one "
+                          "predict the same here; the proposed experiment varies them apart"}
+
+
+def _ties(verdict: Scored, j: _Judged) -> tuple[Scored | None, float | None, list[Scored]]:
     """Near ties: other effects that explain the held-out run about as well (paired test).  Returns the runner-up,
     the paired z by which the verdict beats it, and the ties; sets every rival's ``paired_z``."""
     runner, tie_z = None, None

@@ -22,9 +22,9 @@ from ..trajectories import from_dict
 from . import stats
 from .replay import residual, simulate
 
-if TYPE_CHECKING:   # annotations only (decision imports this module)
+if TYPE_CHECKING:
     from .candidates import FitResult
-    from .decision import _Scored
+    from .scored import Scored
 
 __all__ = ["designs", "propose", "decide_on_run", "TARGET_Z", "MAX_SECONDS"]
 
@@ -40,6 +40,7 @@ def designs(cfg: PiezoConfig, u_max: float) -> dict[str, tuple[dict[str, Any], s
     axes = list(cfg.axes)
     a = float(u_max)
     f_hi = float(min(0.4 * fs, 5000.0))
+    f_ra = float(min(5.0, 0.01 * fs))   # rate vs amplitude: 5 Hz and 20 Hz (slower on a slow record)
 
     def seq(*segs: tuple[str, dict[str, Any]]) -> dict[str, Any]:
         return {"type": "sequence", "axes": axes,
@@ -64,6 +65,14 @@ def designs(cfg: PiezoConfig, u_max: float) -> dict[str, tuple[dict[str, Any], s
         "large_slow": (seq(*[(f"sine_{ax}", {"type": "sine", "amplitude": 0.98 * a, "frequency": 0.5,
                                              "duration": 8.0, "axis": ax}) for ax in axes]),
                        "large slow sine on each axis: saturation, asymmetry and level-dependent effects"),
+        "rate_vs_amplitude": (seq(*[(f"{name}_{ax}", {"type": "sine", "amplitude": amp * a, "frequency": f,
+                                                       "duration": 2.0, "axis": ax})
+                                    for ax in axes
+                                    for name, amp, f in (("a_f", 0.7, f_ra), ("a_4f", 0.7, 4 * f_ra),
+                                                         ("quarter_a_4f", 0.175, 4 * f_ra))]),
+                              "sines on each axis: one amplitude at two rates, then a quarter of it at the higher "
+                              "frequency (the first rate again): rate dependence moves with the rate at a fixed "
+                              "amplitude, amplitude dependence with the amplitude at a fixed rate"),
     }
     return out
 
@@ -127,8 +136,8 @@ def propose(cfg: PiezoConfig, best: FitResult, rivals: list[FitResult], psd: "st
     }
 
 
-def decide_on_run(cfg: PiezoConfig, scored: Iterable[_Scored], run: RunData) -> dict[str, Any]:
-    """Which of the tied candidates (``_Scored`` with fits from TRAIN) explains the discrimination run best."""
+def decide_on_run(cfg: PiezoConfig, scored: Iterable[Scored], run: RunData) -> dict[str, Any]:
+    """Which of the tied candidates (``Scored`` with fits from TRAIN) explains the discrimination run best."""
     res: dict[str, np.ndarray] = {}
     for s in scored:
         res[s.fit.effect] = residual(run.y, simulate(cfg, run.u, s.fit.effects))

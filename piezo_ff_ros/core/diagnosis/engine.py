@@ -161,6 +161,7 @@ def _report(s: _Setup, rep: _Replay, loc: _Localised, j: _Judged, c: _Choice, st
         "model": {"name": cfg.name, "axes": list(cfg.axes), "sample_rate": cfg.sample_rate},
         "data": {"train_samples": len(train), "test_samples": len(test),
                  "train_source": str(train.meta.get("source", "")), "test_source": str(test.meta.get("source", ""))},
+        "warnings": list(s.warnings),
         "seconds": time.perf_counter() - t_start,
     }
     arrays = DiagnosisArrays(cfg=cfg, test=test, train=train, y_test_nom=rep.y_test_nom, y_test_final=fin.y_final,

@@ -58,6 +58,32 @@ def _creep_bank2(y: np.ndarray, a: np.ndarray, yref: float, S1: np.ndarray,
             S2[t, j] = acc2
 
 
+@njit
+def _creep_bank_decades(y: np.ndarray, a: np.ndarray, yref: float, k: int, O1: np.ndarray, O2: np.ndarray,
+                        O3: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Each relaxation of the creep bank apart, on y, on y|y|/yref and on y²/yref, kept every k-th row:
+    ``O[m, N/k, n]``."""
+    N, n = y.shape
+    m = a.shape[0]
+    for j in range(n):
+        s1 = np.zeros(m)
+        s2 = np.zeros(m)
+        s3 = np.zeros(m)
+        for t in range(N):
+            x = y[t, j]
+            q = x * abs(x) / yref
+            e = x * x / yref
+            keep = t % k == 0
+            for i in range(m):
+                s1[i] = a[i] * s1[i] + (1.0 - a[i]) * x
+                s2[i] = a[i] * s2[i] + (1.0 - a[i]) * q
+                s3[i] = a[i] * s3[i] + (1.0 - a[i]) * e
+                if keep:
+                    O1[i, t // k, j] = s1[i]
+                    O2[i, t // k, j] = s2[i]
+                    O3[i, t // k, j] = s3[i]
+
+
 def _creep_regs(y_base: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """The creep candidate's two regressors: the log-time relaxation bank of :class:`~..models.effects.
     CreepNonlinearity` applied to Ŷ and to Ŷ|Ŷ|/Y_ref (what ``CreepNonlinearity(γ=1, β=0)`` adds to its input)."""
@@ -69,22 +95,103 @@ def _creep_regs(y_base: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     return S1, S2
 
 
-def fit_creep_nonlinearity(ctx: FitContext) -> FitResult:
-    """The level-dependent creep law: γ per axis and a shared β, by regression on the relaxation bank applied to
-    Ŷ and to Ŷ|Ŷ|/Y_ref."""
-    k = _stride(len(ctx.y))
-    r0 = residual(ctx.y[::k], ctx.y_base[::k])
-    S1, S2 = _creep_regs(ctx.y_base, ctx.dt)
-    S1, S2 = S1[::k], S2[::k]
+#: the creep law's relaxation spectrum (a free weight per decade and axis: a Prony series, any linear creep law over
+#: the bank's span) is kept when it lowers the training residual energy by this share below the log law's (the
+#: richer law must earn its parameters on TRAIN, like RAIL_MIN_GAIN; set from that definition, not tuned)
+CREEP_SPECTRUM_MIN_GAIN = 0.02
+
+
+def _creep_at(r0: np.ndarray, S1: np.ndarray, S2: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+    """γ per axis and the shared β of the level-dependent creep for the regressors S1, S2: ``(γ, β, residual, Sβ)``."""
     coef, _, _ = _lin_per_axis(r0, [S1, S2])
     g1, g2 = coef
     beta = float(np.sum(g1 * g2) / max(np.sum(g1 * g1), 1e-300))
     beta = float(np.clip(beta, -50.0, 50.0))
-    # γ per axis with β shared: regress on S1 + β S2, then the joint Jacobian for the uncertainties
+    # γ per axis with β shared: regress on S1 + β S2
     Sb = S1 + beta * S2
     c, res, _ = _lin_per_axis(r0, [Sb])
-    gamma = c[0]
+    return c[0], beta, res, Sb
+
+
+def _lin_sse(y: np.ndarray, regs: list[np.ndarray]) -> float:
+    """The residual energy of :func:`~.fit_common._lin_per_axis` (per axis, columns centred) without its standard
+    errors: what a parameter search needs."""
+    total = 0.0
+    for i in range(y.shape[1]):
+        X = np.column_stack([g[:, i] - g[:, i].mean() for g in regs])
+        t = y[:, i] - y[:, i].mean()
+        c, *_ = np.linalg.lstsq(X, t, rcond=None)
+        r = t - X @ c
+        total += float(r @ r)
+    return total
+
+
+def _creep_spectrum(r0: np.ndarray, O1: np.ndarray, O2: np.ndarray,
+                    O3: np.ndarray) -> tuple[np.ndarray, tuple[float, float], np.ndarray, np.ndarray]:
+    """The Prony-series creep: a weight per decade and axis on the bank of F = Ŷ + β·Ŷ|Ŷ|/Y_ref + β_e·Ŷ²/Y_ref, β and
+    β_e shared by the axes (the weights are linear given them: a 5×5 grid over ±3 — the creep's relative growth at
+    10 µm — then a simplex refinement).  Returns ``(weights [m, n], (β, β_e), residual, Jacobian)``."""
+    m = O1.shape[0]
+    q = max(1, -(-len(r0) // _DRIFT_SEARCH_ROWS))   # the level terms' search on a thinned copy (smooth in β)
+    rq = np.ascontiguousarray(r0[::q])
+    O1q, O2q, O3q = (np.ascontiguousarray(O[:, ::q]) for O in (O1, O2, O3))
+
+    def bank(b: np.ndarray, A: np.ndarray = O1, B: np.ndarray = O2, C: np.ndarray = O3) -> list[np.ndarray]:
+        return [A[d] + b[0] * B[d] + b[1] * C[d] for d in range(m)]
+
+    def sse(b: np.ndarray) -> float:
+        return _lin_sse(rq, bank(b, O1q, O2q, O3q))
+
+    grid = np.linspace(-3.0, 3.0, 5)
+    b0 = min(((x, y) for x in grid for y in grid), key=lambda b: sse(np.array(b)))
+    sol = optimize.minimize(sse, np.array(b0), method="Nelder-Mead",
+                            options={"xatol": 1e-3, "fatol": 0.0, "maxfev": 40, "initial_simplex":
+                                     np.array([b0, (b0[0] + 0.5, b0[1]), (b0[0], b0[1] + 0.5)])})
+    b = np.clip(sol.x if sol.fun <= sse(np.array(b0)) else np.array(b0), -50.0, 50.0)
+    F = bank(b)
+    w, res, _ = _lin_per_axis(r0, F)
+    n = r0.shape[1]
+    cols = []
+    for i in range(n):
+        for d in range(m):
+            col = np.zeros_like(r0)
+            col[:, i] = -(F[d][:, i] - F[d][:, i].mean())
+            cols.append(col.reshape(-1))
+    for O in (O2, O3):
+        dF = np.einsum("dn,dtn->tn", w, O)
+        cols.append((-(dF - dF.mean(axis=0))).reshape(-1))
+    return w, (float(b[0]), float(b[1])), res, np.column_stack(cols)
+
+
+def fit_creep_nonlinearity(ctx: FitContext) -> FitResult:
+    """The level-dependent creep law: γ per axis and a shared β, by regression on the relaxation bank applied to
+    Ŷ and to Ŷ|Ŷ|/Y_ref (the log-time law); then the relaxation spectrum (a weight per decade and axis, any linear
+    creep law), kept when it earns its parameters on TRAIN (:data:`CREEP_SPECTRUM_MIN_GAIN`)."""
+    k = _stride(len(ctx.y))
+    r0 = residual(ctx.y[::k], ctx.y_base[::k])
+    taus = np.asarray(fx.CREEP_TAUS, float)
+    a = np.exp(-ctx.dt / taus)
+    y = np.ascontiguousarray(ctx.y_base, dtype=float)
+    rows = -(-len(y) // k)
+    O1 = np.empty((len(taus), rows, y.shape[1]))
+    O2 = np.empty_like(O1)
+    O3 = np.empty_like(O1)
+    _creep_bank_decades(y, a, fx.CREEP_YREF, k, O1, O2, O3)
+    S1, S2 = O1.sum(axis=0), O2.sum(axis=0)
+    gamma, beta, res, Sb = _creep_at(r0, S1, S2)
     n = ctx.cfg.n_axes
+    sse_log = float(np.sum(res ** 2))
+    w, (beta_s, beta_e), res_s, jac_s = _creep_spectrum(r0, O1, O2, O3)
+    if float(np.sum(res_s ** 2)) < (1 - CREEP_SPECTRUM_MIN_GAIN) * sse_log:
+        # γ_i: the mean weight (the log law's γ when the spectrum is flat); the spectrum relative to it
+        g = w.mean(axis=0)
+        g = np.where(np.abs(g) > 1e-12, g, 1.0)
+        params = {"gamma": g.tolist(), "beta": beta_s, "beta_even": beta_e, "spectrum": (w / g).tolist()}
+        se = _stderr(jac_s, res_s)
+        stderr = {"gamma": None, "beta": float(se[-2]), "beta_even": float(se[-1]), "spectrum": None}
+        return FitResult("creep_nonlinearity", params, stderr, [("creep_nonlinearity", params)],
+                         w.size + 2, _rms(res_s),
+                         note="relaxation spectrum per decade " + ", ".join(f"{t:g} s" for t in taus))
     cols = []
     for i in range(n):
         col = np.zeros_like(r0)
@@ -141,5 +248,58 @@ def fit_thermal_drift(ctx: FitContext) -> FitResult:
     cols.append((-(dshape - dshape.mean())[:, None] * a).reshape(-1))
     se = _stderr(np.column_stack(cols), res)
     params = {"amplitudes": a.tolist(), "time_constant": tau}
-    return FitResult("thermal_drift", params, {"amplitudes": se[:n].tolist(), "time_constant": float(se[n] * tau)},
-                     [("thermal_drift", params)], n + 1, _rms(res))
+    simple = FitResult("thermal_drift", params, {"amplitudes": se[:n].tolist(), "time_constant": float(se[n] * tau)},
+                       [("thermal_drift", params)], n + 1, _rms(res))
+    two = _two_body_drift(r0, ctx.y_base[::_stride(len(ctx.y))], tk, T)
+    if two is not None and two.train_rms ** 2 < (1 - DRIFT_TWO_BODY_MIN_GAIN) * simple.train_rms ** 2:
+        return two
+    return simple
+
+
+#: the two-body thermal drift (two time constants, the gain following the temperature) is kept when it lowers the
+#: training residual energy by this share below the one-exponential offset drift's (the richer form must earn its
+#: parameters on TRAIN, like RAIL_MIN_GAIN; set from that definition, not tuned)
+DRIFT_TWO_BODY_MIN_GAIN = 0.02
+#: the time-constant search of the two-body drift runs on at most this many rows (the shapes are smooth)
+_DRIFT_SEARCH_ROWS = 20_000
+
+
+def _two_body_drift(r0: np.ndarray, y_base: np.ndarray, tk: np.ndarray, T: float) -> FitResult | None:
+    """Two first-order thermal responses to the switch-on (stack and mount), each moving the offset and the gain of
+    every axis: ``r_i ≈ a_i·s1 + b_i·s2 + (g_i·s1 + h_i·s2)·Ŷ_i``; τ1 < τ2 on a log grid (closed-form energy on a
+    thinned copy), refined one at a time, the coefficients by regression on every row."""
+    n = r0.shape[1]
+    q = max(1, -(-len(r0) // _DRIFT_SEARCH_ROWS))
+
+    def regs(t: np.ndarray, yb: np.ndarray, t1: float, t2: float) -> list[np.ndarray]:
+        s1 = -np.expm1(-t / t1)[:, None]
+        s2 = -np.expm1(-t / t2)[:, None]
+        return [np.repeat(s1, n, axis=1), np.repeat(s2, n, axis=1), s1 * yb, s2 * yb]
+
+    rs, ts, ys = r0[::q], tk[::q], y_base[::q]
+
+    def sse(z1: float, z2: float) -> float:
+        return _lin_sse(rs, regs(ts, ys, math.exp(z1), math.exp(z2)))
+
+    grid = np.log(T) + np.linspace(math.log(0.02), math.log(20.0), 10)
+    pairs = [(z1, z2) for i, z1 in enumerate(grid) for z2 in grid[i + 1:]]
+    z1, z2 = min(pairs, key=lambda p: sse(*p))
+    step = grid[1] - grid[0]
+    top = grid[-1]   # 20 T: beyond it every shape is a straight line over the run
+    for _ in range(2):  # coordinate refinement within one grid step
+        z1 = optimize.minimize_scalar(lambda z: sse(z, z2), bounds=(z1 - step, min(z1 + step, z2 - 1e-3)),
+                                      method="bounded", options={"xatol": 1e-3}).x
+        z2 = optimize.minimize_scalar(lambda z: sse(z1, z), bounds=(max(z2 - step, z1 + 1e-3), min(z2 + step, top)),
+                                      method="bounded", options={"xatol": 1e-3}).x
+    t1, t2 = math.exp(z1), math.exp(z2)
+    try:
+        coef, res, se = _lin_per_axis(r0, regs(tk, y_base, t1, t2))
+    except np.linalg.LinAlgError:
+        return None
+    a, b, g, h = coef
+    params = {"amplitudes": a.tolist(), "time_constant": t1, "amplitudes2": b.tolist(), "time_constant2": t2,
+              "gain_drift": g.tolist(), "gain_drift2": h.tolist()}
+    stderr = {"amplitudes": se[0].tolist(), "time_constant": None, "amplitudes2": se[1].tolist(),
+              "time_constant2": None, "gain_drift": se[2].tolist(), "gain_drift2": se[3].tolist()}
+    return FitResult("thermal_drift", params, stderr, [("thermal_drift", params)], 4 * n + 2, _rms(res),
+                     note="two-body drift: offset and gain follow two thermal time constants")

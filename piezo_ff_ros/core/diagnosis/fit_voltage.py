@@ -4,9 +4,10 @@ every trial value on :class:`~.replay.Windows` of the training run, a coarse gri
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 from scipy import optimize
@@ -104,29 +105,44 @@ def fit_amplifier_saturation(ctx: FitContext) -> FitResult:
 
 
 def fit_amplifier_bandwidth(ctx: FitContext) -> FitResult:
-    """Shared cutoff for a 1st- and a 2nd-order (ζ = 0.707) roll-off, the better order kept, then one cutoff per
-    axis refined from there (amplifier channels differ)."""
+    """Shared cutoff for a 1st-order roll-off, then a 2nd order (its damping fitted) and a 3rd order (1st × 2nd),
+    each kept when it earns its parameters on TRAIN (:data:`DAMPING_MIN_GAIN`), then one cutoff per axis refined
+    from there (amplifier channels differ).  The stage is the continuous filter on the DAC's staircase (interval-
+    averaged), replayed at the intersample rate of :func:`~.replay.simulate`."""
     fs = 1.0 / ctx.dt
     n = ctx.cfg.n_axes
-    # up to 10·fs, where the pole-matched filter is the identity to 1e-27: "no bandwidth limit" is on the grid
+    # up to 10·fs, where the filter is the identity to 1/(2π·10) of one sample's step: "no bandwidth limit" is
+    # (nearly) on the grid
     grid = np.linspace(math.log(fs / 2000.0), math.log(10.0 * fs), 14)
     f1 = _fit_scalar(ctx, "amplifier_bandwidth", "cutoff", lambda z: {"cutoff": math.exp(z), "order": 1}, grid,
                      math.exp, math.exp)
-    fits = [(f1.train_rms, 1, f1)]
+    fits = [(f1.train_rms, 1, f1, 2 ** -0.5)]
     c1 = math.log(f1.params["cutoff"])
     if c1 < math.log(fs):  # a finite roll-off was found: try the 2nd order around it (a 2nd-order corner lies
-        # above the 1st-order one that mimics it), on a short grid
+        # above the 1st-order one that mimics it), on a short grid, then its damping
         grid2 = np.linspace(c1 - 0.5, c1 + 2.0, 6)
         f2 = _fit_scalar(ctx, "amplifier_bandwidth", "cutoff", lambda z: {"cutoff": math.exp(z), "order": 2},
                          grid2, math.exp, math.exp)
-        fits.append((f2.train_rms, 2, f2))
-    _, order, best = min(fits, key=lambda t: t[0])
+        z2 = 2 ** -0.5
+        # its damping, and a steeper third order (1st × 2nd, Butterworth), only when the data says "not a first
+        # order" (the 2nd order earns its keep on TRAIN): a delay-like lag does not pay for these searches
+        if f2.train_rms ** 2 < (1 - DAMPING_MIN_GAIN) * f1.train_rms ** 2:
+            f2, z2 = _fit_damping(ctx, f2, 2, z2)
+        fits.append((f2.train_rms, 2, f2, z2))
+        if f2.train_rms ** 2 < (1 - DAMPING_MIN_GAIN) * f1.train_rms ** 2:
+            c2 = math.log(f2.params["cutoff"])
+            z3c, e3 = _grid_parabola(ctx, lambda z: {"cutoff": math.exp(z), "order": 3, "damping": 0.5},
+                                     np.linspace(c2 - 0.5, c2 + 1.0, 5))
+            f3, z3 = _fit_damping(ctx, _as_fit(ctx, f2, math.exp(z3c), e3), 3, 0.5)
+            if f3.train_rms ** 2 < (1 - DAMPING_MIN_GAIN) * f2.train_rms ** 2:
+                fits.append((f3.train_rms, 3, f3, z3))
+    _, order, best, zeta = min(fits, key=lambda t: t[0])
     c0 = math.log(best.params["cutoff"])
     if n > 1 and c0 < math.log(fs):
         unit = max(_rms(residual(ctx.target, ctx.y_base_win)), 1e-15)
 
         def resid(theta: np.ndarray) -> np.ndarray:
-            p = {"cutoff": np.exp(theta).tolist(), "order": order}
+            p = {"cutoff": np.exp(theta).tolist(), "order": order, "damping": zeta}
             return ctx.sim_residual([("amplifier_bandwidth", p)]).reshape(-1) / unit
 
         with warnings.catch_warnings():
@@ -137,9 +153,61 @@ def fit_amplifier_bandwidth(ctx: FitContext) -> FitResult:
         if _rms(r) < best.train_rms:
             cut = np.exp(sol.x)
             se = _stderr(sol.jac, r / unit) * cut
-            p = {"cutoff": cut.tolist(), "order": order}
-            return FitResult("amplifier_bandwidth", p, {"cutoff": se.tolist(), "order": None},
-                             [("amplifier_bandwidth", p)], n + 1, _rms(r), note=f"order {order}")
-    p = {"cutoff": [best.params["cutoff"]] * n, "order": order}
-    return FitResult("amplifier_bandwidth", p, {"cutoff": [best.stderr["cutoff"]] * n, "order": None},
-                     [("amplifier_bandwidth", p)], 2, best.train_rms, note=f"order {order}", extra=best.extra)
+            p = {"cutoff": cut.tolist(), "order": order, "damping": zeta}
+            return FitResult("amplifier_bandwidth", p, {"cutoff": se.tolist(), "order": None, "damping": None},
+                             [("amplifier_bandwidth", p)], n + 1 + (zeta not in (2 ** -0.5, 0.5)), _rms(r),
+                             note=f"order {order}, damping {zeta:.3g}")
+    p = {"cutoff": [best.params["cutoff"]] * n, "order": order, "damping": zeta}
+    return FitResult("amplifier_bandwidth", p, {"cutoff": [best.stderr["cutoff"]] * n, "order": None,
+                                                "damping": None},
+                     [("amplifier_bandwidth", p)], 2 + (zeta not in (2 ** -0.5, 0.5)), best.train_rms,
+                     note=f"order {order}, damping {zeta:.3g}", extra=best.extra)
+
+
+#: a 2nd-order roll-off's damping other than 0.707 (Butterworth) is kept when it lowers the training residual energy
+#: by this share (the richer form must earn its parameter on TRAIN, like RAIL_MIN_GAIN; set from that definition)
+DAMPING_MIN_GAIN = 0.02
+
+
+def _grid_parabola(ctx: FitContext, make: Callable[[float], dict[str, Any]], grid: np.ndarray) -> tuple[float, float]:
+    """A lean 1-D search for the richer roll-off forms: the grid, then the vertex of the parabola through the best
+    point and its neighbours (one more simulation).  Returns ``(z, training residual energy)``."""
+    vals = [float(np.sum(ctx.sim_residual([("amplifier_bandwidth", make(float(z)))]) ** 2)) for z in grid]
+    k = int(np.argmin(vals))
+    z, e = float(grid[k]), vals[k]
+    if 0 < k < len(grid) - 1:
+        x0, x1, x2 = grid[k - 1:k + 2]
+        y0, y1, y2 = vals[k - 1:k + 2]
+        den = (x0 - x1) * (x0 - x2) * (x1 - x2)
+        a = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / den
+        b = (x2 * x2 * (y0 - y1) + x1 * x1 * (y2 - y0) + x0 * x0 * (y1 - y2)) / den
+        if a > 0:
+            zv = float(np.clip(-b / (2 * a), x0, x2))
+            ev = float(np.sum(ctx.sim_residual([("amplifier_bandwidth", make(zv))]) ** 2))
+            if ev < e:
+                z, e = zv, ev
+    return z, e
+
+
+def _as_fit(ctx: FitContext, best: FitResult, cutoff: float, energy: float) -> FitResult:
+    """``best`` with another shared cutoff and training residual energy (its standard error kept)."""
+    return dataclasses.replace(best, params={"cutoff": cutoff}, stderr={"cutoff": best.stderr["cutoff"]},
+                               train_rms=math.sqrt(energy / max(ctx.target.size, 1)))
+
+
+def _fit_damping(ctx: FitContext, best: FitResult, order: int, zeta0: float) -> tuple[FitResult, float]:
+    """The damping of a 2nd-order section (0.3 … 1.5: a resonant amplifier to an over-damped, Bessel-like one) at
+    the shared cutoff found, then the cutoff again at that damping (lean grid + parabola searches); kept when it
+    earns its parameter on TRAIN."""
+    cut = float(best.params["cutoff"])
+    z, e = _grid_parabola(ctx, lambda z: {"cutoff": cut, "order": order, "damping": math.exp(z)},
+                          np.linspace(math.log(0.3), math.log(1.5), 5))
+    zeta = math.exp(z)
+    if e >= (1 - DAMPING_MIN_GAIN) * best.train_rms ** 2 * ctx.target.size:
+        return best, zeta0
+    c = math.log(cut)
+    zc, ec = _grid_parabola(ctx, lambda x: {"cutoff": math.exp(x), "order": order, "damping": zeta},
+                            np.array([c - 0.3, c, c + 0.3]))
+    if ec < e:
+        return _as_fit(ctx, best, math.exp(zc), ec), zeta
+    return _as_fit(ctx, best, cut, e), zeta

@@ -7,6 +7,8 @@ exactly the same samples.
 """
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
@@ -17,7 +19,8 @@ from ..models.effects import build_plant
 from ..models.plant import Plant
 from ..recording.run import RunData
 
-__all__ = ["nrmse_percent", "noise_floor", "noise_floor_periodic", "input_period", "Windows", "simulate", "residual", "check_run", "model_for_run"]
+__all__ = ["nrmse_percent", "noise_floor", "noise_floor_periodic", "input_period", "Windows", "simulate", "residual", "check_run", "check_excitation",
+           "check_sample_rate_metadata", "model_for_run", "check_scale"]
 
 
 def nrmse_percent(y: np.ndarray, y_hat: np.ndarray, axis: int | None = None) -> float | np.ndarray:
@@ -106,13 +109,54 @@ def check_run(run: RunData, name: str) -> None:
     dt = np.diff(run.t)
     if np.any(dt <= 0) or np.ptp(dt) > 1e-3 * np.median(dt):
         raise ValueError(f"{name}: time is not uniformly increasing (dt from {dt.min():g} to {dt.max():g} s)")
+    check_sample_rate_metadata(run, name)
+    check_excitation(run, name)
+
+
+def _constant(x: np.ndarray) -> np.ndarray:
+    """Per column: whether it does not move (its span is at most 1e-9 of its largest magnitude: rounding only)."""
+    span = np.ptp(x, axis=0)
+    return np.asarray(span <= 1e-9 * np.max(np.abs(x), axis=0), bool)
+
+
+def check_excitation(run: RunData, name: str) -> None:
+    """Raise ``ValueError`` when the run excites nothing: every voltage constant (all-zero included), or a displacement
+    that never moves (a sensor not connected or not recorded).  A diagnosis of such a run can only say "none", which
+    would read as "the model is right"."""
+    u_const, y_const = _constant(run.u), _constant(run.y)
+    if u_const.all():
+        levels = ", ".join(f"{a}: {v:.4g} V" for a, v in zip(run.axes, run.u[0]))
+        raise ValueError(f"{name}: no excitation: the voltage is constant on every axis ({levels}); a diagnosis "
+                         "needs a voltage that moves")
+    if y_const.any():
+        dead = [a for a, c in zip(run.axes, y_const) if c]
+        raise ValueError(f"{name}: no excitation seen: the displacement of axis {', '.join(dead)} is constant "
+                         f"({run.y[0, y_const][0]:.4g} m) while the voltage moves; sensor not connected or not "
+                         "recorded?")
+
+
+def check_sample_rate_metadata(run: RunData, name: str) -> None:
+    """Raise ``ValueError`` when a recording's metadata states a sample rate its block stamps contradict: which one is
+    right cannot be told from the file, and every time constant fitted would be off by their ratio."""
+    md = run.meta.get("metadata") if isinstance(run.meta, dict) else None
+    if not isinstance(md, dict) or "sample_rate" not in md:
+        return
+    try:
+        stated = float(md["sample_rate"])
+    except (TypeError, ValueError):
+        return
+    fs = run.sample_rate
+    if math.isfinite(stated) and stated > 0 and abs(stated - fs) > 1e-6 * fs:
+        raise ValueError(f"{name}: the recording's metadata states a sample rate of {stated:g} Hz but its block "
+                         f"stamps are {fs:g} Hz apart; fix the recording or state the rate with --sample-rate")
 
 
 def model_for_run(cfg: PiezoConfig, run: RunData) -> PiezoConfig:
     """The model config at the run's sample rate, after checking the axes agree."""
     if run.u.shape[1] != cfg.n_axes or run.y.shape[1] != cfg.n_axes:
         raise ValueError(f"model '{cfg.name}' has {cfg.n_axes} axes {list(cfg.axes)} but the run has "
-                         f"{run.u.shape[1]} input(s) and {run.y.shape[1]} output(s)")
+                         f"{run.u.shape[1]} input(s) and {run.y.shape[1]} output(s) {list(run.axes)}; give --model "
+                         "a config with the run's axes (docs/diagnosis.md: a single-axis, hysteresis-only model)")
     fs = run.sample_rate
     if abs(fs - cfg.sample_rate) > 1e-6 * fs:
         cfg = cfg.with_sample_rate(fs)
@@ -175,9 +219,64 @@ class Windows:
         return len(self.spans) == 1 and self.spans[0][0] == 0 and self.spans[0][1] == 0
 
 
+#: voltage-side effects that are continuous filters: the plant behind them sees a smooth voltage, not the DAC's
+#: staircase, so it is replayed at an internal rate of at least INTERSAMPLE_RATE (the voltage held over each record
+#: sample, the filter and the plant continuous in between) and sampled at the record's rate
+INTERSAMPLE_EFFECTS = ("amplifier_bandwidth",)
+#: the internal rate [Hz] for them: the rate the nominal model is defined at (20 kHz, 12× its highest resonance), at
+#: most MAX_INTERSAMPLE_FACTOR× the record's
+INTERSAMPLE_RATE = 20_000.0
+MAX_INTERSAMPLE_FACTOR = 8
+
+
+def lowest_resonance_hz(cfg: PiezoConfig) -> float:
+    """The lowest natural frequency [Hz] of the complex pole pairs of the dynamics ``G_L`` (inf without any)."""
+    low = math.inf
+    G = cfg.dynamics.G_L
+    rows, cols = G.shape
+    for i in range(rows):
+        for j in range(cols):
+            for f in G[i, j].den:
+                if len(f) == 3 and f[1] ** 2 < 4 * f[0] * f[2] and f[0] != 0:
+                    low = min(low, math.sqrt(f[2] / f[0]) / (2 * math.pi))
+    return low
+
+
+def intersample_factor(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[str, Any]]]) -> int:
+    """How many internal steps per record sample the replay with ``effects`` takes (1: none).
+
+    Only when the record resolves the plant's resonances (the lowest below its Nyquist frequency): above it, the
+    plant is quasi-static within the record's band, the filter's interval average is all that reaches it, and
+    finer steps would only change the hysteresis' discretisation against the nominal replay's.
+    """
+    if not any(name in INTERSAMPLE_EFFECTS for name, _ in effects):
+        return 1
+    if not lowest_resonance_hz(cfg) < cfg.sample_rate / 2:
+        return 1
+    return int(min(MAX_INTERSAMPLE_FACTOR, max(1, round(INTERSAMPLE_RATE / cfg.sample_rate))))
+
+
 def simulate(cfg: PiezoConfig, u: np.ndarray, effects: Sequence[tuple[str, Mapping[str, Any]]] = (),
              windows: Windows | None = None) -> np.ndarray:
-    """Model output for the voltages ``u`` on ``windows`` (default: the whole run), concatenated."""
+    """Model output for the voltages ``u`` on ``windows`` (default: the whole run), concatenated.
+
+    With a continuous voltage-side filter among ``effects`` and a record slower than :data:`INTERSAMPLE_RATE`, the
+    model runs ``k`` = :func:`intersample_factor` steps per sample, each voltage held over its sample (the DAC), and
+    is read at the record's samples: the plant's exact ZOH model at the finer rate sees the filtered voltage nearly
+    as smooth as it is.  The nominal model alone is unchanged by this (its input is the staircase either way).
+    """
+    k = intersample_factor(cfg, effects)
+    if k > 1:
+        fine = dataclasses.replace(cfg, sample_rate=cfg.sample_rate * k)
+        plant = build_plant(fine, effects)
+
+        def run(x: np.ndarray) -> np.ndarray:
+            out: np.ndarray = plant.process(np.repeat(x, k, axis=0))[::k]
+            return out
+
+        if windows is None or windows.is_whole:
+            return run(u)
+        return windows.apply(plant.reset, run, u)
     plant = build_plant(cfg, effects)
     if windows is None or windows.is_whole:
         return _process_blocks(plant, u)
@@ -208,3 +307,40 @@ def residual(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
     r = np.asarray(y, float) - y_hat
     out: np.ndarray = r - r.mean(axis=0)
     return out
+
+
+#: a measured displacement this many times larger (or smaller) than the model's replay is a unit mistake, not a gap
+#: a diagnosis could explain (the widest gain error of the benchmark is ±10 %; a factor 30 is 3000 %)
+SCALE_FACTOR_LIMIT = 30.0
+_UNIT_HINTS = {3: "mm stored as m", 6: "µm stored as m", 9: "nm stored as m",
+               -3: "m stored where mm are expected", -6: "m stored where µm are expected"}
+
+
+def check_scale(run: RunData, y_model: np.ndarray, name: str) -> None:
+    """Raise ``ValueError`` when the measured displacement's scale is implausible for the model: on an axis where the
+    model moves, the measured RMS (offset removed) is more than :data:`SCALE_FACTOR_LIMIT` times the model's, or less
+    than its inverse (µm stored as m, a sensor gain in V instead of m …).
+
+    Parameters
+    ----------
+    run : RunData
+        The measured run.
+    y_model : ndarray [N, axes]
+        The nominal model's replay of ``run.u`` [m].
+    name : str
+        The run's name in the message.
+    """
+    y = np.asarray(run.y, float)
+    rms_y = np.sqrt(np.mean((y - y.mean(axis=0)) ** 2, axis=0))
+    rms_m = np.sqrt(np.mean((y_model - y_model.mean(axis=0)) ** 2, axis=0))
+    for a, ry, rm in zip(run.axes, rms_y, rms_m):
+        if not (rm > 0 and ry > 0):
+            continue
+        ratio = float(ry / rm)
+        if 1 / SCALE_FACTOR_LIMIT <= ratio <= SCALE_FACTOR_LIMIT:
+            continue
+        k = int(round(math.log10(ratio) / 3)) * 3
+        hint = _UNIT_HINTS.get(k, "a unit mistake")
+        raise ValueError(f"{name}: the displacement of axis {a} has a scale implausible for the model: {ratio:.3g}× "
+                         f"what the model predicts for these voltages (RMS {ry:.3g} m vs {rm:.3g} m; {hint}?); "
+                         f"give displacements in metres (scale 1e{k:+d} off)")

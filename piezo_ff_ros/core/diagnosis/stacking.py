@@ -13,9 +13,10 @@ import numpy as np
 from . import stats
 from .baseline import _Effects, _Replay, _Setup
 from .candidates import FitContext, FitResult, fit_candidate
-from .decision import _fit_all, _fit_windows, _Held, _Judged, _nested, _Scored
+from .decision import _fit_all, _fit_windows, _Held, _Judged, _nested
 from .replay import simulate
 from .results import _fmt_params
+from .scored import Scored
 
 __all__ = ["STACK_STOP", "STACK_MIN_SHARE"]
 
@@ -41,7 +42,7 @@ class _Stack:
     effects: list[Any]
 
 
-def _stack(s: _Setup, rep: _Replay, j: _Judged, verdict: _Scored | None, log: Callable[[str], None]) -> _Stack:
+def _stack(s: _Setup, rep: _Replay, j: _Judged, verdict: Scored | None, log: Callable[[str], None]) -> _Stack:
     """Add effects greedily to the verdict, each followed by one backfitting pass over the earlier ones."""
     if verdict is None:
         return _Stack([], [])
@@ -71,7 +72,7 @@ def _stack(s: _Setup, rep: _Replay, j: _Judged, verdict: _Scored | None, log: Ca
 
 
 def _next_effect(s: _Setup, rep: _Replay, held: _Held, zc: float, base: _Effects, r_k: np.ndarray, pool: list[str],
-                 log: Callable[[str], None]) -> _Scored | None:
+                 log: Callable[[str], None]) -> Scored | None:
     """The best of ``pool`` fitted on TRAIN on top of ``base`` and significant on TEST (``None``: the rest ``r_k`` is
     at the white-noise floor, or nothing is significant)."""
     cfg, test_ext, sigma2 = s.cfg, s.test_ext, rep.sigma2

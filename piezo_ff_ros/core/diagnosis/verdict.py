@@ -6,8 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .decision import (GENERIC_MIN_EXTRA, HIGH_Z_MARGIN, MIN_DROP, MIN_EXCESS_SHRINK, MIN_SHARE, _Choice, _confidence,
-                       _Judged, _Scored)
+from .decision import (GENERIC_MIN_EXTRA, HIGH_Z_MARGIN, MIN_DROP, MIN_EXCESS_SHRINK, MIN_SHARE, TIE_Z, _Choice,
+                       _confidence,
+                       _Judged)
+from .scored import Scored
 
 __all__ = ["NOISE_MARGIN"]
 
@@ -43,7 +45,7 @@ def _verdict(j: _Judged, c: _Choice, sigma2: float) -> _Verdict:
     return _none(j, sigma2)
 
 
-def _named(j: _Judged, c: _Choice, verdict: _Scored) -> _Verdict:
+def _named(j: _Judged, c: _Choice, verdict: Scored) -> _Verdict:
     """An accepted candidate: confidence from :func:`~.decision._confidence`, at most medium when a generic family
     absorbs it, low while a tie is undecided."""
     name = verdict.fit.effect
@@ -51,11 +53,17 @@ def _named(j: _Judged, c: _Choice, verdict: _Scored) -> _Verdict:
     absorbing = [s for s in j.scored if s.extra.get("absorbs") == name]
     if absorbing:
         g = absorbing[0]
-        why += (f"; {g.fit.effect} ({g.fit.n_params} parameters) fits the held-out run slightly better "
-                f"({g.after_nrmse:.3g} % vs {verdict.after_nrmse:.3g} %) but takes only "
-                f"{100 * (g.extra['excess_shrink'] - verdict.extra['excess_shrink']):.1f} % more of the gap "
-                f"above the white-noise floor (< {100 * GENERIC_MIN_EXTRA:.0f} %): the generic family absorbs "
-                f"{name}, whose form is approximate")
+        extra = g.extra["excess_shrink"] - verdict.extra["excess_shrink"]
+        if extra < GENERIC_MIN_EXTRA:
+            why += (f"; {g.fit.effect} ({g.fit.n_params} parameters) fits the held-out run slightly better "
+                    f"({g.after_nrmse:.3g} % vs {verdict.after_nrmse:.3g} %) but takes only {100 * extra:.1f} % "
+                    f"more of the gap above the white-noise floor (< {100 * GENERIC_MIN_EXTRA:.0f} %): the generic "
+                    f"family absorbs {name}, whose form is approximate")
+        else:
+            why += (f"; {g.fit.effect} ({g.fit.n_params} parameters) fits the held-out run "
+                    f"({g.after_nrmse:.3g} % vs {verdict.after_nrmse:.3g} %) but not significantly better than "
+                    f"{name} ({verdict.fit.n_params} parameters): paired z = {g.extra.get('absorb_paired_z', 0):.3g} "
+                    f"< {TIE_Z:g}; with fewer parameters and an equal held-out fit, the physical form is the model")
         if conf == "high":
             conf = "medium"
     if c.discrimination is not None and "decided_on_run" not in c.discrimination:

@@ -37,7 +37,7 @@ from .ilc import ILCConfig, IterativeLearning, convergence_factor
 from .linear import CascadeReplica, CompensatedModel, controller_matrices
 from .preview import PreviewConfig, PreviewStage
 
-__all__ = ["Case", "benchmark_cases", "on_stage", "run_benchmark", "METHODS", "TRUTHS", "LEAD_IN_S"]
+__all__ = ["Case", "benchmark_cases", "on_stage", "run_benchmark", "METHODS", "TRUTHS", "LEAD_IN_S", "tracking_metrics", "TrackingModel"]
 
 METHODS = ("open", "cascade", "preview", "learning")
 TRUTHS = ("nominal", "asymmetric", "noise_100nm", "identified")
@@ -137,7 +137,9 @@ def evaluation_window(case: Case, r: np.ndarray, n_lead: int, fs: float) -> np.n
     return mask
 
 
-def _metrics(y: np.ndarray, r: np.ndarray, u: np.ndarray, mask: np.ndarray, fs: float) -> dict[str, float]:
+def tracking_metrics(y: np.ndarray, r: np.ndarray, u: np.ndarray, mask: np.ndarray, fs: float) -> dict[str, float]:
+    """Tracking figures of one run on the samples ``mask`` selects: RMS and max of the Euclidean error ``|y − r|``
+    [µm], peak voltage [V] and peak slew [V/s] of ``u`` sampled at ``fs``."""
     e = np.linalg.norm(y[mask] - r[mask], axis=1)
     du = np.abs(np.diff(u, axis=0)) * fs
     return {"rms_error_um": float(np.sqrt(np.mean(e ** 2)) * 1e6), "max_error_um": float(e.max() * 1e6),
@@ -145,7 +147,7 @@ def _metrics(y: np.ndarray, r: np.ndarray, u: np.ndarray, mask: np.ndarray, fs: 
 
 
 @dataclass
-class _Model:
+class TrackingModel:
     """Everything built from one model config (the compensators' view of the actuator)."""
 
     cfg: PiezoConfig
@@ -154,7 +156,9 @@ class _Model:
     preview: PreviewStage
 
     @staticmethod
-    def build(cfg: PiezoConfig, preview_cfg: PreviewConfig) -> "_Model":
+    def build(cfg: PiezoConfig, preview_cfg: PreviewConfig) -> "TrackingModel":
+        """The cascade (H∞ synthesised unless the config carries a controller), its compensated model and the
+        preview stage, all for ``cfg`` with the amplifier's limits respected."""
         from ..identification.pipeline import synthesize_for
 
         cfg = dataclasses.replace(cfg, cascade=dataclasses.replace(cfg.cascade, respect_limits=True))
@@ -162,7 +166,7 @@ class _Model:
         casc = CompensatorCascade(cfg, None if cfg.vibration.controller is not None else synthesize_for(cfg)[0])
         ctrl = controller_matrices(casc)
         comp = CompensatedModel.from_config(cfg, ctrl)
-        return _Model(cfg, casc, comp, PreviewStage(cfg, ctrl, preview_cfg, model=comp))
+        return TrackingModel(cfg, casc, comp, PreviewStage(cfg, ctrl, preview_cfg, model=comp))
 
     def shaped(self, r: np.ndarray, stage: PreviewStage | None = None) -> np.ndarray:
         """``r`` through the preview stage (fed ``preview_samples`` ahead, the tail held at the last sample)."""
@@ -213,11 +217,11 @@ def run_benchmark(printed: PiezoConfig, identified: PiezoConfig | None = None, q
     preview_cfg = preview_cfg or PreviewConfig()
     truths = tuple(t for t in truths if t != "identified" or identified is not None)
     say("build the compensators (printed model)")
-    models = {"printed": _Model.build(printed, preview_cfg)}
+    models = {"printed": TrackingModel.build(printed, preview_cfg)}
     if "identified" in truths:
         say("build the compensators (identified model)")
         assert identified is not None   # "identified" was dropped from truths without it
-        models["identified"] = _Model.build(identified, preview_cfg)
+        models["identified"] = TrackingModel.build(identified, preview_cfg)
     cases_out: list[dict[str, Any]] = []
     learning_out: dict[str, Any] = {}
     constrained_cfg = dataclasses.replace(preview_cfg, constrained=True)
@@ -237,11 +241,11 @@ def run_benchmark(printed: PiezoConfig, identified: PiezoConfig | None = None, q
             base = {"trajectory": case.trajectory, "size_um": case.size_um, "frequency_hz": case.frequency_hz,
                     "truth": truth, "window_samples": int(mask.sum())}
             u, y = m.open_loop(clean, r)
-            cases_out.append({**base, "method": "open", **_metrics(y, r, u, mask, fs)})
+            cases_out.append({**base, "method": "open", **tracking_metrics(y, r, u, mask, fs)})
             u, y = m.drive(clean, r)
-            cases_out.append({**base, "method": "cascade", **_metrics(y, r, u, mask, fs)})
+            cases_out.append({**base, "method": "cascade", **tracking_metrics(y, r, u, mask, fs)})
             u, y = m.drive(clean, yr)
-            row: dict[str, Any] = {**base, "method": "preview", **_metrics(y, r, u, mask, fs)}
+            row: dict[str, Any] = {**base, "method": "preview", **tracking_metrics(y, r, u, mask, fs)}
             u_ask, _ = CascadeReplica(m.cfg, controller_matrices(m.cascade)).process(yr)
             row["asked_peak_voltage_v"] = float(np.abs(u_ask).max())
             cases_out.append(row)
@@ -254,13 +258,13 @@ def run_benchmark(printed: PiezoConfig, identified: PiezoConfig | None = None, q
                 yr_c = m.shaped(r, constrained_stage)
                 u, y = m.drive(clean, yr_c)
                 cases_out.append({**base, "method": "preview", "variant": "constrained_ls",
-                                  **_metrics(y, r, u, mask, fs), "qp_solves": constrained_stage.qp_solves,
+                                  **tracking_metrics(y, r, u, mask, fs), "qp_solves": constrained_stage.qp_solves,
                                   "qp_unconverged": constrained_stage.qp_unconverged,
                                   "compute_s": time.perf_counter() - t0})
             # learning: trials on the truth with its sensor, then one sensorless trial
             trial = [0]
 
-            def run_trial(delta: np.ndarray, m: _Model = m, yr: np.ndarray = yr, truth: str = truth,
+            def run_trial(delta: np.ndarray, m: TrackingModel = m, yr: np.ndarray = yr, truth: str = truth,
                           noise: float = noise) -> np.ndarray:
                 trial[0] += 1
                 plant = _truth_plant(printed, truth, noise, seed=trial[0])
@@ -269,7 +273,7 @@ def run_benchmark(printed: PiezoConfig, identified: PiezoConfig | None = None, q
             learner = IterativeLearning(m.compensated, ilc)
             res = learner.learn(run_trial, r)
             u, y = m.drive(clean, yr + res.correction)
-            cases_out.append({**base, "method": "learning", **_metrics(y, r, u, mask, fs),
+            cases_out.append({**base, "method": "learning", **tracking_metrics(y, r, u, mask, fs),
                               "iterations": ilc.iterations, "learning": res.to_json()})
             learning_out[f"{case.label} / {truth}"] = res.to_json()
             if corrections_dir is not None:
@@ -296,7 +300,7 @@ def run_benchmark(printed: PiezoConfig, identified: PiezoConfig | None = None, q
                            "compute_s": time.perf_counter() - t_start}}
 
 
-def physical_limits(models: dict[str, _Model], printed: PiezoConfig, preview_cfg: PreviewConfig, ilc: ILCConfig,
+def physical_limits(models: dict[str, TrackingModel], printed: PiezoConfig, preview_cfg: PreviewConfig, ilc: ILCConfig,
                     quick: bool, say: Callable[[str], None]) -> dict[str, Any]:
     """Preview horizon needed (error vs horizon), the RHP zeros behind it, and the learning condition per truth."""
     m = models["printed"]
@@ -318,7 +322,7 @@ def physical_limits(models: dict[str, _Model], printed: PiezoConfig, preview_cfg
         pc = dataclasses.replace(preview_cfg, horizon_s=max(h, 1.0 / fs), constrained=False)
         st = PreviewStage(m.cfg, controller_matrices(m.cascade), pc, model=m.compensated)
         u, y = m.drive(Plant(m.cfg), m.shaped(r, st))
-        sweep.append({"horizon_s": pc.horizon_s, **_metrics(y, r, u, mask, fs)})
+        sweep.append({"horizon_s": pc.horizon_s, **tracking_metrics(y, r, u, mask, fs)})
     out["horizon_sweep_circle20um_10hz"] = sweep
     # learning condition: model vs truth compensated responses (linear parts)
     f, T_model = m.compensated.frequency_response()
@@ -334,7 +338,7 @@ def physical_limits(models: dict[str, _Model], printed: PiezoConfig, preview_cfg
     return out
 
 
-def violation_demo(m: _Model, printed: PiezoConfig, ilc: ILCConfig, r: np.ndarray, mask: np.ndarray,
+def violation_demo(m: TrackingModel, printed: PiezoConfig, ilc: ILCConfig, r: np.ndarray, mask: np.ndarray,
                    quick: bool, delay_s: float = 1e-3) -> dict[str, Any]:
     """The learning condition violated on purpose: a truth with an unmodelled 1 ms input delay (its phase error
     passes 60° at 1/(6·delay) ≈ 167 Hz, where ``|1 − γ·T̂⁻¹T| ≥ 1`` for γ = 1) and 100 nm sensor noise, learned

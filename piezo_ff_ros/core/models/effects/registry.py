@@ -50,10 +50,14 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
     EffectSpec("hysteresis_rate_dependence", "hysteresis", {"alpha": ("-", False), "relaxation": ("s", False)},
                f"loop width grows with the voltage rate (A·(1 + α·tanh(|dU/dt|/{RATE_REF:g} V/s)))",
                "loop-width error grows with frequency (error correlates with sign(dU/dt)·|dU/dt|)"),
-    EffectSpec("creep_nonlinearity", "post", {"gamma": ("-", True), "beta": ("-", False)},
-               "logarithmic-in-time creep growing with the level (γ per decade, β at 10 µm)",
+    EffectSpec("creep_nonlinearity", "post", {"gamma": ("-", True), "beta": ("-", False),
+                                              "beta_even": ("-", False), "spectrum": ("-", True)},
+               "creep growing with the level (γ per decade, β at 10 µm), logarithmic in time or, with a relaxation "
+               "spectrum (Prony series over the decades), any linear creep law",
                "slow residual after level changes, linear in log-time"),
-    EffectSpec("thermal_drift", "post", {"amplitudes": ("m", True), "time_constant": ("s", False)},
+    EffectSpec("thermal_drift", "post", {"amplitudes": ("m", True), "time_constant": ("s", False),
+                                        "amplitudes2": ("m", True), "time_constant2": ("s", False),
+                                        "gain_drift": ("-", True), "gain_drift2": ("-", True)},
                "thermal expansion after switch-on, a_i·(1 − exp(−t/τ))",
                "residual trend over the whole run, uncorrelated with the voltage"),
     EffectSpec("input_delay", "pre", {"delay": ("s", False)},
@@ -101,9 +105,11 @@ def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
     if name == "gain_mismatch":
         return GainMismatch(p["gains"], n, p.get("cross_gains"))
     if name == "thermal_drift":
-        return ThermalDrift(p["amplitudes"], p["time_constant"], dt, n)
+        return ThermalDrift(p["amplitudes"], p["time_constant"], dt, n, p.get("amplitudes2"), p.get("time_constant2"),
+                            p.get("gain_drift"), p.get("gain_drift2"))
     if name == "creep_nonlinearity":
-        return CreepNonlinearity(p["gamma"], p.get("beta", 0.0), dt, n)
+        return CreepNonlinearity(p["gamma"], p.get("beta", 0.0), dt, n, spectrum=p.get("spectrum"),
+                                 beta_even=float(p.get("beta_even", 0.0)))
     if name == "unmodelled_mode":
         return UnmodelledMode(p["freq"], p["damping"], p["gains"], dt, n, p.get("hp_gains"))
     if name == "amplitude_dependent_dynamics":

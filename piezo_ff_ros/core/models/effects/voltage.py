@@ -173,12 +173,84 @@ def _pole_matched(cutoff: float, order: int, damping: float, dt: float) -> tuple
     return 1.0 + a1 + a2, a1, a2
 
 
-class AmplifierBandwidth:
-    """Amplifier roll-off on the voltage: first order ``1/(s/ωc + 1)`` or second order
-    ``ωc²/(s² + 2ζωc·s + ωc²)`` (``order=2``, damping ``ζ``), with a cutoff per axis or shared.
+@njit
+def _ss_run(u: np.ndarray, state: np.ndarray, started: np.ndarray, phi: np.ndarray, gam: np.ndarray,
+            cpsi: np.ndarray, clam: np.ndarray, xss: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Per column j, a small state-space filter: ``y = cpsi_j·x + clam_j·u[k]``, ``x ← phi_j·x + gam_j·u[k]``; the
+    state ``[ns, n]`` started settled at the first input (``x = xss·u[0]``)."""
+    N, n = u.shape
+    ns = xss.shape[0]
+    tmp = np.empty(ns)
+    for t in range(N):
+        for j in range(n):
+            v = u[t, j]
+            if not started[0]:
+                for i in range(ns):
+                    state[i, j] = xss[i] * v
+            y = clam[j] * v
+            for i in range(ns):
+                y += cpsi[j, i] * state[i, j]
+            for i in range(ns):
+                acc = gam[j, i] * v
+                for q in range(ns):
+                    acc += phi[j, i, q] * state[q, j]
+                tmp[i] = acc
+            for i in range(ns):
+                state[i, j] = tmp[i]
+            out[t, j] = y
+        started[0] = True
 
-    Pole-matched, unit DC gain, started settled at the first voltage it sees.  Unlike a pure delay it attenuates
-    (≈ (f/fc)²/2 at order 1) and rounds steps instead of shifting them.
+
+def _lowpass_ss(cutoff: float, order: int, damping: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Continuous state space ``(A, B, C)`` of the unit-DC-gain low-pass of order 1, 2 or 3 (3 = 1st × 2nd)."""
+    w = 2.0 * math.pi * cutoff
+    z = damping
+    if order == 1:
+        return np.array([[-w]]), np.array([w]), np.array([1.0])
+    if order == 2:
+        return np.array([[0.0, 1.0], [-w * w, -2 * z * w]]), np.array([0.0, w * w]), np.array([1.0, 0.0])
+    A = np.array([[-w, 0.0, 0.0], [0.0, 0.0, 1.0], [w * w, -w * w, -2 * z * w]])
+    return A, np.array([w, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+
+
+def _interval_averaged(cutoff: float, order: int, damping: float,
+                       dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]:
+    """The continuous low-pass driven by the DAC's staircase (the voltage held over each sample interval), its output
+    averaged over each interval: ``(Φ, Γ, C·Ψ, C·Λ, x_ss)`` with ``x ← Φx + Γu`` and ``ȳ = CΨx + CΛu``.
+
+    The average over the interval is the staircase that, held in turn, carries the same mean voltage into the
+    plant's ZOH model: its DC group delay is the filter's own (a pole-matched or ZOH discretisation is half a sample
+    early or late, which a delay candidate then takes for the effect).  Exact, by one matrix exponential (Van Loan):
+    ``expm([[M, I], [0, 0]]·T)`` with ``M = [[A, B], [0, 0]]`` gives ``e^{MT}`` and ``∫₀ᵀ e^{Mσ} dσ``.  As the
+    cutoff goes far above the sample rate the filter tends to the identity ("no bandwidth limit" is a point of the
+    parameter space, not a disguised delay).
+    """
+    from scipy.linalg import expm
+
+    A, B, C = _lowpass_ss(cutoff, order, damping)
+    ns = A.shape[0]
+    M = np.zeros((ns + 1, ns + 1))
+    M[:ns, :ns], M[:ns, ns] = A, B
+    big = np.zeros((2 * (ns + 1), 2 * (ns + 1)))
+    big[:ns + 1, :ns + 1] = M * dt
+    big[:ns + 1, ns + 1:] = np.eye(ns + 1) * dt
+    E = expm(big)
+    phi, gam = E[:ns, :ns], E[:ns, ns]
+    integ = E[:ns + 1, ns + 1:] / dt
+    psi, lam = integ[:ns, :ns], integ[:ns, ns]
+    xss = -np.linalg.solve(A, B)
+    return phi, gam, C @ psi, float(C @ lam), xss
+
+
+class AmplifierBandwidth:
+    """Amplifier roll-off on the voltage: first order ``1/(s/ωc + 1)``, second order ``ωc²/(s² + 2ζωc·s + ωc²)``
+    (``order=2``, damping ``ζ``) or third order, the product of the two (``order=3``; ζ = 0.5 is Butterworth), with
+    a cutoff per axis or shared.
+
+    The continuous filter driven by the DAC's staircase, its output averaged over each sample interval
+    (:func:`_interval_averaged`): unit DC gain, the filter's own delay, the identity as the cutoff goes to
+    infinity; started settled at the first voltage it sees.  Unlike a pure delay it attenuates (≈ (f/fc)²/2 at
+    order 1) and rounds steps instead of shifting them.
     """
 
     def __init__(self, cutoff: ArrayLike, dt: float, n_axes: int = 2, order: int = 1,
@@ -186,24 +258,29 @@ class AmplifierBandwidth:
         c = _per_axis(cutoff, n_axes, "amplifier_bandwidth.cutoff")
         if not np.all(c > 0):
             raise ValueError(f"amplifier_bandwidth.cutoff: must be > 0 Hz, got {cutoff!r}")
-        if int(order) not in (1, 2):
-            raise ValueError(f"amplifier_bandwidth.order: must be 1 or 2, got {order!r}")
+        if int(order) not in (1, 2, 3):
+            raise ValueError(f"amplifier_bandwidth.order: must be 1, 2 or 3, got {order!r}")
         if not (math.isfinite(damping) and damping > 0):
             raise ValueError(f"amplifier_bandwidth.damping: must be > 0, got {damping!r}")
         self.cutoff, self.dt, self.n = c, float(dt), n_axes
         self.order, self.damping = int(order), float(damping)
-        co = np.array([_pole_matched(float(f), self.order, self.damping, self.dt) for f in c])
-        self._g, self._a1, self._a2 = (np.ascontiguousarray(co[:, i]) for i in range(3))
+        parts = [_interval_averaged(float(f), self.order, self.damping, self.dt) for f in c]
+        self._phi = np.ascontiguousarray(np.stack([p[0] for p in parts]))
+        self._gam = np.ascontiguousarray(np.stack([p[1] for p in parts]))
+        self._cpsi = np.ascontiguousarray(np.stack([p[2] for p in parts]))
+        self._clam = np.array([p[3] for p in parts])
+        self._xss = np.ascontiguousarray(parts[0][4])
         self.reset()
 
     def reset(self) -> None:
         """All states back to rest."""
-        self._state = np.zeros((2, self.n))
+        self._state = np.zeros((self.order, self.n))
         self._started = np.zeros(1, np.bool_)
 
     def process(self, u: np.ndarray) -> np.ndarray:
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         u = _block(u, self.n)
         out = np.empty_like(u)
-        _ap2_run(u, self._state, self._started, self._g, self._a1, self._a2, out)
+        _ss_run(u, self._state, self._started, self._phi, self._gam, self._cpsi, self._clam, self._xss, out)
         return out
+
