@@ -6,6 +6,7 @@ compensator, trajectory (lockstep) and recorder, with the driver and compensator
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any, Iterable, Mapping
