@@ -56,7 +56,6 @@ STRICT_FLOOR = {
     "piezo_ff_ros.core.reproduce",
     "piezo_ff_ros.core.trajectories",
     "piezo_ff_ros.core.hardware.contract",
-    "piezo_ff_ros.core.hardware.rig",
     "piezo_ff_ros.core.hardware.sim",
     "piezo_ff_ros.core.hardware.stream",
     "piezo_ff_ros.core.models.plant",
