@@ -115,7 +115,7 @@ def test_dynamics_with_100nm_noise_reproduces_the_plant(cfg):
     """100 nm white noise at 20 kHz on 20 µm steps: the identified G_L (as exported in the config and simulated by
     the core) reproduces the noise-free plant on the held-out steps with fit ≥ 95 %; against the noisy record it
     reaches the noise floor (the fit the true model itself gets there, ~92–94 %)."""
-    from piezo_ff_ros.core.identification.metrics import fit_percent
+    from piezo_ff_ros.core.identification.goodness_of_fit import fit_percent
     from piezo_ff_ros.core.models.dynamics import DynamicsModel
 
     fs = cfg.sample_rate

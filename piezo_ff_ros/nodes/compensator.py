@@ -66,8 +66,8 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from ..core.compensator_core import (SETTING_NAMES, CompensatorCore, CompensatorSettings, Emit, ParameterBook,
-                                     build_notice, parse_config_yaml, same_value)
+from ..core.compensator_core import (SETTING_NAMES, CompensatorCore, CompensatorOutput, CompensatorSettings,
+                                     ParameterBook, build_notice, parse_config_yaml, same_value)
 from ..core.config import load_config
 from ..core.param_map import config_to_params
 from ..core.tracking.front import FRONT_DEFAULTS
@@ -253,7 +253,7 @@ class CompensatorNode(Node):
         self._emit(em)
 
     # -- what the core returned ------------------------------------------------------------------------------------
-    def _emit(self, em: Emit) -> None:
+    def _emit(self, em: CompensatorOutput) -> None:
         """Publish, log and set what a core call returned (data path: called under the lock, so stamps leave in
         order)."""
         for vb in em.voltage:

@@ -44,7 +44,7 @@ from std_srvs.srv import Trigger
 
 from ..core.config import ConfigError, load_config
 from ..core.hardware import DriverCore, DriverSettings
-from ..core.hardware.driver_core import ERROR, Emit, lockstep_pacing
+from ..core.hardware.driver_core import ERROR, DriverOutput, lockstep_pacing
 from ..core.safety import SafeRampConfig
 from ..backends import get_spec
 from .common import (BLOCK_QOS, LATCHED_QOS, BlockFormatError, diag_values, log_lines, pack_block, run_node,
@@ -365,7 +365,7 @@ class DriverNode(LifecycleNode):
             return
         self._emit(self.core.tick() if self.core.started else self.core.start())
 
-    def _emit(self, em: Emit) -> None:
+    def _emit(self, em: DriverOutput) -> None:
         if not self.context.ok():   # stopping after SIGINT: the device still ramps, nothing can be published
             for _, text in em.log:
                 print(f"driver: {text}", file=sys.stderr)
@@ -380,7 +380,7 @@ class DriverNode(LifecycleNode):
         log_lines(self.get_logger(), em.log)
         self._hint(em)
 
-    def _hint(self, em: Emit) -> None:
+    def _hint(self, em: DriverOutput) -> None:
         """Name the setting that fixes a late/underrun/stale stream, once per kind."""
         if self.core is None or not em.log:
             return
