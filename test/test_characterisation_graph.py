@@ -1,4 +1,4 @@
-"""Characterisation presets made graph-playable (core/characterisation_graph.py), issue 11.4: a signal with no graph
+"""Characterisation presets made graph-playable (core/characterisation_graph.py): a signal with no graph
 type (the plant-validation multisine) travels as a .npy table and is played sample-exactly at the run's rate, after
 the round trip through the spec the trajectory node parses (``to_dict`` → JSON → ``from_dict``)."""
 import json

@@ -221,7 +221,7 @@ def test_identify_cli_errors(cfg, tmp_path, capsys):
 
 @pytest.mark.parametrize("noise_nm, target", [(0.0, 99.0), (100.0, 95.0)])
 def test_commissioned_plant_reproduces_the_truth_on_held_out_voltages(cfg, noise_nm, target):
-    """Issue 4 acceptance: stage-by-stage commissioning of the paper's sim plant (60 s creep steps), then the
+    """Stage-by-stage commissioning of the paper's sim plant (60 s creep steps), then the
     identified *whole* plant (Bouc-Wen → K + Cr → G_L, as exported) simulated from the held-out multisine + step
     pair record: fit ≥ 99 % noise-free, ≥ 95 % with 100 nm sensor noise scored against the noisy measurement."""
     from piezo_ff_ros.core.commissioning import commission_sim

@@ -1,4 +1,5 @@
-"""Live reconfiguration of the compensator node through the graph (issue 9 points 1, 3, 4, 5, 7; issue 10 item 2).
+"""Live reconfiguration of the compensator node through the graph: typed parameters, failed builds reverted,
+resynchronisation, workspace, input gaps, bumpless swaps.
 
 The compensator runs as its own process; this test talks to it through its parameter services, topics and
 /diagnostics, as ``ros2 param`` / ``ros2 service call`` / ``ros2 topic`` would.

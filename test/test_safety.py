@@ -57,8 +57,8 @@ def test_rejects_bad_blocks_and_keeps_state(bad, why):
 
 
 def test_ramp_to_safe_own_duration_and_slew_not_the_operating_limit():
-    """Issue 10.9: with the operating limit of the paper's config (1e7 V/s = 500 V per sample) the old ramp was a
-    single 78.6 V → 0 V step.  Now: a straight line of ≥ duration and ≤ the ramp's slew (and the operating one)."""
+    """The ramp to safe is a straight line of ≥ its own duration and ≤ its own slew (and the operating one); with the
+    operating limit of the paper's config (1e7 V/s = 500 V per sample) the old ramp was a single 78.6 V → 0 V step."""
     g = guard(voltage=200.0, slew=1.0e7, safe_voltage=0.0)
     g.apply(np.tile([[150.0, -37.0]], (40, 1)))
     ramp = SafeRampConfig(duration=0.05, slew=1.0e4)

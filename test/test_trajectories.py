@@ -176,7 +176,7 @@ def test_from_dict_units_and_errors():
         T.Sine(axis="z")
 
 
-# -- issue 11 item 4 / issue 10 item 2 (trajectory parts): tables played sample-exactly, workspace --------------
+# -- tables played sample-exactly, workspace ---------------------------------------------------------------------
 
 def test_table_is_sample_exact_at_its_rate_and_interpolates_at_another(tmp_path):
     vals = np.random.default_rng(0).normal(0, 1e-6, (1000, 2))

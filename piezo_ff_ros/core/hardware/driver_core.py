@@ -12,7 +12,7 @@
   ramps to safe after ``stale_timeout`` without input, and collects what was applied/measured;
 - ``set_stream_paced(on)`` — a lockstep trajectory paces the stream: on a device whose time follows the samples
   written (the lockstep simulator) the wall-clock stale watchdog is suspended meanwhile, since no device time passes
-  between blocks — a host stall then loses nothing (issue 10); ignored by every other device;
+  between blocks — a host stall then loses nothing; ignored by every other device;
 - ``close()`` — the safe ramp written while the device still runs, waited for on a clocked device, then the
   backend closed (SIGINT and crash paths end the same way: no step on the output);
 - device faults from any backend call (poll, write, clock, read) go through one fault path: counted, logged, the
