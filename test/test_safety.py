@@ -99,3 +99,25 @@ def test_slew_limit_matches_a_reference_loop_and_passes_reachable_targets_exactl
         ref[k] = u
     np.testing.assert_array_equal(out, ref)
     assert n == n_ref
+
+
+def test_the_driver_may_tighten_the_amplifiers_limits_never_widen_them():
+    """tightened_limits: the config's limits with the driver's values; a wider voltage or slew is refused naming the
+    field and the config's value, the stale timeout must be in [1 ms, 1 h], the config's workspace is kept."""
+    from piezo_ff_ros.core.config import ConfigError, LimitsConfig
+    from piezo_ff_ros.core.safety import tightened_limits
+
+    amp = LimitsConfig(voltage=200.0, slew=2.0e5, stale_timeout=0.2, safe_voltage=0.0, workspace=((-1e-4, 1e-4),))
+    got = tightened_limits(amp, voltage=150.0, slew=1.0e5, stale_timeout=1.0, safe_voltage=5.0)
+    assert got == LimitsConfig(voltage=150.0, slew=1.0e5, stale_timeout=1.0, safe_voltage=5.0,
+                               workspace=((-1e-4, 1e-4),))
+    assert tightened_limits(amp, 200.0, 2.0e5, 0.2, 0.0) == amp
+    for kw, field, text in [({"voltage": 250.0}, "limits.voltage", "250.0 exceeds the config's 200.0"),
+                            ({"slew": 3.0e5}, "limits.slew", "300000.0 exceeds the config's 200000.0"),
+                            ({"stale_timeout": 1e-4}, "limits.stale_timeout", "must be in [0.001, 3600] s"),
+                            ({"voltage": -1.0}, "limits.voltage", "must be a finite number > 0"),
+                            ({"safe_voltage": 300.0}, "limits.safe_voltage", "outside the voltage limit")]:
+        args = {"voltage": 200.0, "slew": 2.0e5, "stale_timeout": 0.2, "safe_voltage": 0.0, **kw}
+        with pytest.raises(ConfigError) as e:
+            tightened_limits(amp, **args)
+        assert str(e.value).startswith(f"{field}: ") and text in str(e.value), str(e.value)
