@@ -107,8 +107,9 @@ def test_trajectory_parameters_keep_their_types(tmp_path, probe):
 
 def test_compensator_refuses_a_wrongly_typed_parameter_in_one_line_and_keeps_the_old_value(tmp_path, probe):
     """A running compensator: a string for a double, a double for an integer and a bool for a double array are
-    refused in one line naming the parameter with the value kept, which `param get` still reads; an integer for a
-    double is taken as that double.  At start-up a wrongly typed override stops the node in one line."""
+    refused in one line naming the parameter with the value kept, which `param get` still reads and `param describe`
+    still types as declared; an integer for a double is taken as that double.  At start-up a wrongly typed override
+    stops the node in one line."""
     from rcl_interfaces.msg import Parameter as ParameterMsg
     from rcl_interfaces.msg import ParameterType, ParameterValue
     from rcl_interfaces.srv import GetParameters, SetParameters
@@ -136,6 +137,14 @@ def test_compensator_refuses_a_wrongly_typed_parameter_in_one_line_and_keeps_the
         assert (got[0].type, got[0].double_value) == (ParameterType.PARAMETER_DOUBLE, 0.2)       # kept
         assert (got[1].type, got[1].integer_value) == (ParameterType.PARAMETER_INTEGER, 200)     # kept
         assert (got[2].type, got[2].double_value) == (ParameterType.PARAMETER_DOUBLE, 1.0)       # taken as 1.0
+        from rcl_interfaces.srv import DescribeParameters
+
+        desc = probe.node.create_client(DescribeParameters, "/compensator/describe_parameters")
+        d = probe.call(desc, DescribeParameters.Request(names=["hold_timeout", "block_size", "workspace"])).descriptors
+        # the refused values did not retype the parameters either (rclpy retypes a dynamically typed descriptor)
+        assert [x.type for x in d] == [ParameterType.PARAMETER_DOUBLE, ParameterType.PARAMETER_INTEGER,
+                                       ParameterType.PARAMETER_DOUBLE_ARRAY]
+        assert d[0].floating_point_range and d[0].description
     finally:
         assert stop_node(proc) == 0
     r = _run("compensator", "-p", "block_size:=2.5")
