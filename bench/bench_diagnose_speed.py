@@ -1,4 +1,4 @@
-"""Time ``piezo-ff diagnose`` on a 10-minute 20 kHz record through the CLI (issue 8: target <= 20 s).
+"""Time ``piezo-ff diagnose`` on a 10-minute 20 kHz record through the CLI (target <= 20 s).
 
 One record (12 M samples) of the paper's nominal plant with a hidden 0.5 ms input delay and 100 nm white noise
 (the excitation of ``bench/bench_diagnosis.py``: growing loops / steps / multisine, then triangles / chirp / steps)

@@ -1,4 +1,4 @@
-"""Withheld-effect benchmark of ``piezo-ff diagnose`` (issue 5).
+"""Withheld-effect benchmark of ``piezo-ff diagnose``.
 
 Truth plants = the paper's nominal model + ONE hidden effect (each of the ten at a clear and a subtle magnitude)
 + 100 nm white sensor noise, plus four noise-only (null) cases.  TRAIN and TEST use different excitations

@@ -1,4 +1,4 @@
-"""Discriminate, don't guess (issue 8 §4): ambiguous cases, the proposed experiment, and the verdict it settles.
+"""Discriminate, don't guess: ambiguous cases, the proposed experiment, and the verdict it settles.
 
 Each scenario has a truth built here with scipy/numpy (not with the candidates' stages) and TRAIN/TEST runs whose
 excitation cannot separate two explanations.  The script diagnoses TRAIN/TEST, checks that the result says the

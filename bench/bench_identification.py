@@ -38,7 +38,7 @@ def bench_dbo(say) -> dict:
     from piezo_ff_ros.core.compensators.hysteresis import HysteresisCompensator
     from piezo_ff_ros.bench.datasets import load_dbo
     from piezo_ff_ros.core.identification.bouc_wen import identify_bouc_wen, simulate_bouc_wen
-    from piezo_ff_ros.core.identification.metrics import fit_percent, rmse
+    from piezo_ff_ros.core.identification.goodness_of_fit import fit_percent, rmse
 
     d = load_dbo()
     k0 = d.segments["model_cycle_start"]

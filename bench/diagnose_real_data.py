@@ -1,4 +1,4 @@
-"""``piezo-ff diagnose`` on measured data no one here wrote (``../shared/data``, ``$PIEZO_FF_SHARED_DATA``), issue 8.
+"""``piezo-ff diagnose`` on measured data no one here wrote (``../shared/data``, ``$PIEZO_FF_SHARED_DATA``).
 
 1. ``fsm_cubespec_piezo`` (3×3, 6400 Hz; Floren et al., ISMA-USD 2024, CC BY 4.0): the nominal is the
    identification pipeline's linear model of the 100 mV level — the MIMO BLA of ``bench/bench_identification.py``

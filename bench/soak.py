@@ -1,4 +1,4 @@
-"""Soak benchmark of the node graph (issue 10; a script, not a timed test).
+"""Soak benchmark of the node graph (a script, not a timed test).
 
 The four nodes (driver with the sim plant, compensator with the full default cascade — H∞ vibration compensation
 + creep⁻¹ + hysteresis⁻¹ —, trajectory, recorder) run as separate processes over DDS, as piezo_ff_ros.ros.launcher

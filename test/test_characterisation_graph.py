@@ -1,4 +1,4 @@
-"""Characterisation presets made graph-playable (core/characterisation_graph.py), issue 11.4: a signal with no graph
+"""Characterisation presets made graph-playable (core/characterisation_graph.py): a signal with no graph
 type (the plant-validation multisine) travels as a .npy table and is played sample-exactly at the run's rate, after
 the round trip through the spec the trajectory node parses (``to_dict`` → JSON → ``from_dict``)."""
 import json
@@ -27,11 +27,17 @@ def test_plant_validation_multisine_is_played_bit_exactly_as_a_table(tmp_path, f
     assert len(spec) < 10_000, len(spec)     # the samples are in the file, not in the spec
 
 
-def test_without_a_table_dir_the_multisine_is_only_held_at_2_khz():
-    """The old path, kept for callers without a directory: not the same samples (what the table fixes)."""
+def test_every_characterisation_run_plays_the_same_samples_through_the_graph_spec(tmp_path):
+    """Every run of the commissioning plan (sines, circles, creep and dynamics steps with their ramps, the multisine
+    table), through ``to_dict`` → JSON → ``from_dict``: the samples of the direct path (bit for bit; a circle, the
+    quarter-period sine pair, within rounding)."""
+    from piezo_ff_ros.core.commissioning import characterisation_plan
+
     fs = 20000.0
-    traj = plant_validation_trajectory(CharacterisationSettings())
-    held = graph_playable(traj, fs)
-    _, want = traj.sample(fs)
-    got = held.block(0, want.shape[0], fs)
-    assert np.max(np.abs(got - want)) > 1e-3 * np.max(np.abs(want))
+    plan = characterisation_plan(CharacterisationSettings(creep_duration=5.0), ("x", "y"))
+    for run in (r for runs in plan.values() for r in runs):
+        node_side = from_dict(json.loads(json.dumps(graph_playable(run.trajectory, fs, tmp_path).to_dict())))
+        _, want = run.trajectory.sample(fs)
+        assert node_side.n_samples(fs) == want.shape[0], run.name
+        np.testing.assert_allclose(node_side.block(0, want.shape[0], fs), want, rtol=0,
+                                   atol=1e-14 * np.max(np.abs(want)), err_msg=run.name)

@@ -39,7 +39,7 @@ def test_commission_ros_short(tmp_path):
     assert seg["info"]["stage"] == "plant" and seg["info"]["role"] == "validation"
     u, ref = run.u[seg["start"]:seg["stop"]], run.reference[seg["start"]:seg["stop"]]
     assert len(u) == 760080 and np.array_equal(u, ref) and 100 < np.abs(u).max() <= 200
-    # played sample-exactly at 20 kHz (a .npy table, issue 11.4), no longer a 2 kHz hold of the preset
+    # played sample-exactly at 20 kHz (a .npy table), no longer a 2 kHz hold of the preset
     from piezo_ff_ros.core.characterisation import CharacterisationSettings, plant_validation_trajectory
 
     _, want = plant_validation_trajectory(CharacterisationSettings()).sample(run.sample_rate)
@@ -58,7 +58,7 @@ def test_commission_ros_short(tmp_path):
 
 
 def test_commission_refuses_a_running_driver_without_sensor(tmp_path):
-    """Issue 12.8: a driver whose backend measures nothing (here the simulator with ``sim.sensor:=false``) publishes
+    """A driver whose backend measures nothing (here the simulator with ``sim.sensor:=false``) publishes
     no ``displacement``; commissioning against it stops with one line naming the cause, before moving the stage.
     (The driver used to create its displacement publisher whatever the backend: it passed for a sensor.)"""
     from test_nodes_integration import start_node, stop_node

@@ -22,7 +22,7 @@ def test_dbo_loader_units_and_attribution(shared_data):
 def test_dbo_bouc_wen_predicts_held_out_run(shared_data):
     from piezo_ff_ros.bench.datasets import load_dbo
     from piezo_ff_ros.core.identification.bouc_wen import identify_bouc_wen
-    from piezo_ff_ros.core.identification.metrics import fit_percent
+    from piezo_ff_ros.core.identification.goodness_of_fit import fit_percent
 
     d = load_dbo(shared_data)
     k0 = d.segments["model_cycle_start"]

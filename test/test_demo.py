@@ -35,7 +35,7 @@ def test_demo_short_subset(tmp_path):
 
 
 def test_demo_on_the_clocked_simulator(tmp_path):
-    """Issue 12: the demo through the clocked simulator (FIFO, write-ahead, sensor latency, underruns), its device
+    """The demo through the clocked simulator (FIFO, write-ahead, sensor latency, underruns), its device
     clock at 4× real time: every experiment segment complete and the same paper figures as in lockstep (the
     holds the device plays between experiments belong to no segment)."""
     env = dict(os.environ)

@@ -145,7 +145,8 @@ def test_cli_on_csv_writes_json_report_and_corrected_config(cfg, tmp_path, capsy
 
 
 def test_result_is_a_frozen_mapping_of_its_json_with_the_arrays_apart(cfg):
-    """Issue 11: the result used to be a dict carrying arrays under "_arrays" inside its "JSON-ready" report."""
+    """The result is a frozen mapping of its JSON with the arrays kept apart (it used to be a dict carrying arrays
+    under "_arrays" inside its "JSON-ready" report)."""
     from piezo_ff_ros.core.diagnosis import DiagnosisResult
 
     train, test = make_runs(cfg, _case("gain_mismatch", {"gains": [1.0, 1.06]}), duration=DUR)

@@ -1,4 +1,4 @@
-"""The independent diagnosis benchmark (bench/diagnosis, issue 8): its truth generator and a quick end-to-end run.
+"""The independent diagnosis benchmark (bench/diagnosis): its truth generator and a quick end-to-end run.
 
 The generator must be right on its own terms (a null case is the nominal plant + noise, the exact ZOH and the
 delayed ZOH agree with references it did not write, every withheld effect changes the output) and must stay apart

@@ -1,4 +1,4 @@
-"""The richer candidate forms of issue 8: asymmetric rails, a relaxing hysteretic state, play-operator loop-width
+"""The richer candidate forms: asymmetric rails, a relaxing hysteretic state, play-operator loop-width
 terms and a cubic (instantaneous) stiffness of the modes.
 
 Each one: the streaming stage is block-invariant; fitted on a training run of a plant that has it (the project's

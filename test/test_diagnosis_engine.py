@@ -1,4 +1,4 @@
-"""Issue 8: honest verdicts (the z-test on coloured/quantised noise, `none`, `unexplained`), the richer candidates
+"""Honest verdicts (the z-test on coloured/quantised noise, `none`, `unexplained`), the richer candidates
 (several modes per axis, amplitude-dependent dynamics, 2nd-order roll-off per axis), discrimination of near-tied
 candidates by a proposed experiment, and a slow-sample-rate record that the pre-fix ZOH turned into a false verdict.
 

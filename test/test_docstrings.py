@@ -1,4 +1,4 @@
-"""numpydoc gate (issue 11.5): every public member of the mypy-strict core modules has a docstring.
+"""numpydoc gate: every public member of the mypy-strict core modules has a docstring.
 
 The strict modules are read from setup.cfg (the section test/test_typing.py checks); the public members of a module
 are its ``__all__`` (or, without one, its names not starting with ``_`` that it defines itself), and for a public

@@ -89,7 +89,8 @@ def test_contiguous_stream_applied_exactly_and_published_once():
 
 
 def test_future_stamped_block_does_not_stall_the_stream():
-    """Issue 10.3 (reproduced on the node before the fix: every block after it was dropped as late)."""
+    """One block stamped far in the future costs only itself: the blocks after it are applied, not dropped as late
+    (reproduced on the node before the fix)."""
     core, L = lockstep(), Log()
     L.add(core.on_block(0, np.ones((200, 2))))
     L.add(core.on_block(10 ** 12, np.ones((200, 2))))   # ~16 min in the future
@@ -104,7 +105,7 @@ def test_future_stamped_block_does_not_stall_the_stream():
 
 
 def test_lost_blocks_are_flagged_with_counts():
-    """Issue 10.5: a burst that loses 92 % of the blocks must not leave /diagnostics OK."""
+    """A burst that loses 92 % of the blocks leaves /diagnostics at WARN or worse, with the lost counts."""
     core, L = lockstep(), Log()
     core.health()
     k = 0
@@ -123,7 +124,8 @@ def test_lost_blocks_are_flagged_with_counts():
 
 @pytest.mark.parametrize("u_from", [[200.0, -200.0], [148.0, 120.0], [-78.6, 0.0]])
 def test_safe_ramp_worst_step_is_bounded_by_its_own_slew_and_duration(u_from):
-    """Issue 10.9: the ramp to safe was a single step (78.6 V → 0 V) because it used the 1e7 V/s operating limit."""
+    """The ramp to safe moves by steps its own slew and duration bound (it was a single 78.6 V → 0 V step because it
+    used the 1e7 V/s operating limit)."""
     clock = FakeClock()
     ramp = SafeRampConfig(duration=0.05, slew=1.0e4)
     core, L = lockstep(clock, ramp=ramp), Log()
@@ -275,7 +277,7 @@ def test_clocked_stream_recovers_after_a_host_stall():
 
 
 def test_stream_paced_lockstep_sim_does_not_ramp_on_a_host_stall_and_loses_nothing():
-    """Issue 10 (soak): while a lockstep trajectory paces a lockstep simulator, the simulator's time follows the
+    """While a lockstep trajectory paces a lockstep simulator, the simulator's time follows the
     samples written, so a host stall longer than ``stale_timeout`` is no stale input: no ramp, and the blocks in flight
     are applied, none late.  Once the pacing ends (the run finished, failed or its source is gone) the wall-clock
     watchdog is back."""

@@ -1,5 +1,5 @@
-"""The driver node over real DDS: issue 10 items 3, 5, 9, 10 and issue 9.3 (voltage_applied), and the graph on the
-clocked simulator.  Each test starts its own nodes (isolated ROS_DOMAIN_ID from conftest)."""
+"""The driver node over real DDS: bad parameters, future-stamped blocks, lost-block counts, two drivers on one
+domain, voltage_applied, and the graph on the clocked simulator.  Each test starts its own nodes (isolated ROS_DOMAIN_ID from conftest)."""
 from __future__ import annotations
 
 import json
@@ -39,7 +39,8 @@ def probe():
     ("trajectory_state:=a b", "trajectory_state"),
 ])
 def test_bad_driver_parameters_refused_with_one_line_naming_the_field(arg, field):
-    """Issue 10.10: these were accepted (diagnostics_period 0 spun a core)."""
+    """Each bad driver parameter stops the node with exit 2 and one line naming the field (these were accepted;
+    diagnostics_period 0 spun a core)."""
     r = subprocess.run([sys.executable, "-m", "piezo_ff_ros.nodes.driver", "--ros-args", "-p", arg],
                        env=child_env(), capture_output=True, text=True, timeout=120)
     assert r.returncode == 2, r.stderr
@@ -72,8 +73,8 @@ def _stream(d):
 
 
 def test_future_block_gaps_and_applied_voltage_through_the_node(tmp_path, probe):
-    """Issue 10.3: one future-stamped block used to stall the graph (every later block dropped as late);
-    issue 10.5: lost blocks must show on /diagnostics with counts; issue 9.3: voltage_applied carries every applied
+    """One future-stamped block no longer stalls the graph (every later block was dropped as late); lost blocks
+    show on /diagnostics with counts; voltage_applied carries every applied
     sample exactly once (clamped, held and ramped ones included), and the displacement answers it."""
     from piezo_ff_ros.nodes.common import pack_block
 
@@ -124,7 +125,8 @@ def test_future_block_gaps_and_applied_voltage_through_the_node(tmp_path, probe)
 
 
 def test_two_drivers_on_one_domain_named_as_the_cause(tmp_path, probe):
-    """Issue 10.10: two graphs on one domain failed with messages that did not name the cause."""
+    """A second driver on the same domain is refused with a message naming the first as the cause (two graphs on
+    one domain used to fail with messages that did not name it)."""
     d1 = start_node("driver", "-p", "diagnostics_period:=0.2", log_dir=tmp_path)
     (tmp_path / "second").mkdir()
     d2 = start_node("driver", "-p", "diagnostics_period:=0.2", log_dir=tmp_path / "second")

@@ -15,7 +15,7 @@ import numpy as np
 from piezo_ff_ros.core._jit import HAVE_NUMBA
 from piezo_ff_ros.core.config import load_config
 from piezo_ff_ros.core.hardware import DriverCore, DriverSettings
-from piezo_ff_ros.core.hardware.sim import LockstepSim
+from piezo_ff_ros.core.hardware.simulated_device import LockstepSim
 from piezo_ff_ros.core.kernels.limits import limit_run
 
 cfg = load_config()

@@ -32,13 +32,13 @@ def _all_stages(cfg):
         fx.ThermalDrift([1e-6, -2e-6], 0.3, DT, n), fx.CreepNonlinearity([0.01, 0.02], 0.5, DT, n),
         fx.UnmodelledMode(400.0, 0.02, [0.1, 0.2], DT, n),
         fx.HysteresisStage(fx.asymmetric_hysteresis_config(cfg.hysteresis, [0.003, 0.002], [0.001, 0.0]), 0.4, DT),
-        # issue 8: 2nd-order roll-off per axis, several cross-coupled modes, amplitude-dependent dynamics, cross-talk
+        # richer forms: 2nd-order roll-off per axis, several cross-coupled modes, amplitude-dependent dynamics, cross-talk
         fx.AmplifierBandwidth([300.0, 700.0], DT, n, order=2, damping=0.6),
         fx.UnmodelledMode([150.0, 900.0], [0.02, 0.05], [[[0.2, 0.1], [0.0, 0.3]], [[0.1, 0.0], [0.05, 0.2]]], DT, n),
         fx.AmplitudeDependentDynamics([400.0], [0.03], [[0.1, 0.2]], [[0.5, -0.3]], DT, n),
         fx.GainMismatch([1.02, 0.98], n, [[0.0, 0.01], [-0.02, 0.0]]),
         fx.BranchEvenTerm([0.01, -0.02], [0.02, 0.01], DT, n),
-        # the richer candidates' stages (issue 8): each must stream like the others
+        # the richer candidates' stages: each must stream like the others
         fx.RelaxedHysteresisStage(fx.asymmetric_hysteresis_config(cfg.hysteresis, [0.003, 0.002], [0.001, 0.0]),
                                   0.4, DT, relaxation=2e-3),
         fx.AsymmetricSaturation(90.0, 60.0, n),

@@ -1,4 +1,4 @@
-"""Fault injection into the node graph (issue 10, "Deliver also"): each test injects one kind of fault into running
+"""Fault injection into the node graph: each test injects one kind of fault into running
 node processes over real DDS, then states — with numbers, asserted — what was lost and what the driver did, and
 checks that the recording stays readable (piezo-ff's reader, the ``mcap`` reader, ``rosbags``).
 

@@ -1,4 +1,4 @@
-"""The simulator behind the streaming backend contract (core/hardware/sim.py): lockstep and clocked modes."""
+"""The simulator behind the streaming backend contract (core/hardware/simulated_device.py): lockstep and clocked modes."""
 import numpy as np
 import pytest
 

@@ -32,8 +32,8 @@ def test_gap_is_filled_and_counted_late_is_dropped_or_trimmed():
 
 
 def test_one_future_stamped_block_costs_only_itself():
-    """Issue 10.3: a block stamped far in the future used to move the expected stamp there, so that every later
-    block was dropped as late until ~/reset."""
+    """A block stamped far in the future costs only itself (it used to move the expected stamp there, so that every
+    later block was dropped as late until ~/reset)."""
     b = book(max_gap=1000)
     b.classify(0, 100, w=0)
     assert b.classify(10 ** 9 * P, 100, w=100).kind == "pending"     # stray: held back, not applied

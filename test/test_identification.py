@@ -115,7 +115,7 @@ def test_dynamics_with_100nm_noise_reproduces_the_plant(cfg):
     """100 nm white noise at 20 kHz on 20 µm steps: the identified G_L (as exported in the config and simulated by
     the core) reproduces the noise-free plant on the held-out steps with fit ≥ 95 %; against the noisy record it
     reaches the noise floor (the fit the true model itself gets there, ~92–94 %)."""
-    from piezo_ff_ros.core.identification.metrics import fit_percent
+    from piezo_ff_ros.core.identification.goodness_of_fit import fit_percent
     from piezo_ff_ros.core.models.dynamics import DynamicsModel
 
     fs = cfg.sample_rate
@@ -221,7 +221,7 @@ def test_identify_cli_errors(cfg, tmp_path, capsys):
 
 @pytest.mark.parametrize("noise_nm, target", [(0.0, 99.0), (100.0, 95.0)])
 def test_commissioned_plant_reproduces_the_truth_on_held_out_voltages(cfg, noise_nm, target):
-    """Issue 4 acceptance: stage-by-stage commissioning of the paper's sim plant (60 s creep steps), then the
+    """Stage-by-stage commissioning of the paper's sim plant (60 s creep steps), then the
     identified *whole* plant (Bouc-Wen → K + Cr → G_L, as exported) simulated from the held-out multisine + step
     pair record: fit ≥ 99 % noise-free, ≥ 95 % with 100 nm sensor noise scored against the noisy measurement."""
     from piezo_ff_ros.core.commissioning import commission_sim

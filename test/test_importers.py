@@ -4,7 +4,7 @@ import pytest
 import scipy.io
 
 from piezo_ff_ros.core.recording.importers import load_csv, load_mat
-from piezo_ff_ros.core.identification.metrics import fit_percent
+from piezo_ff_ros.core.identification.goodness_of_fit import fit_percent
 
 
 def _write_csv(path, rows, header="t,u_x,u_y,x,y"):

@@ -1,4 +1,4 @@
-"""The documented commands work (issue 9 point 7): the trajectory quoting of docs/nodes.md through a real shell,
+"""The documented commands work: the trajectory quoting of docs/nodes.md through a real shell,
 the installed params file under the share directory, and the topic table's owners."""
 from __future__ import annotations
 

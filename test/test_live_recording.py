@@ -1,4 +1,4 @@
-"""The recording tells which configuration produced every sample (issue 9 point 7), through the graph.
+"""The recording tells which configuration produced every sample, through the graph.
 
 The recorder stores the compensator's ``~/config`` versions in the MCAP ``piezo_ff_ros`` metadata with the sample
 index where each took effect, plus ``t0_ns``, ``block_size`` and the node parameters.

@@ -1,4 +1,4 @@
-"""Re-synchronisation on the applied voltage, crossfade consistency and nested swaps (issue 9 point 3) — core only.
+"""Re-synchronisation on the applied voltage, crossfade consistency and nested swaps — core only.
 
 A fake driver (``VoltageGuard`` + a stall: safe ramp, held samples, late blocks dropped, then a slew-limited
 restart) applies what it can and reports it with a lag of a few blocks, as ``voltage_applied`` does; the plant

@@ -1,4 +1,4 @@
-"""Issue 9 point 3 through the node graph: a delivery stall must not leave the held point off target.
+"""Through the node graph: a delivery stall must not leave the held point off target.
 
 compensator → driver (simulated PT230.94, lockstep) as separate processes; this probe plays the trajectory node.
 The reference ramps to 10 µm and holds; then the stream stops (a stall): after ``limits.stale_timeout`` the driver

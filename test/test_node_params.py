@@ -1,7 +1,7 @@
 """Node parameters through real node processes: an override no node declares stops the node with one line naming it
 and the closest declared name (command line or parameter file, before any device or file is opened); the trajectory
-node's parameters keep their declared types (lossless integer → double taken, anything else refused naming the
-parameter)."""
+and compensator nodes' parameters keep their declared types (lossless integer → double taken, anything else refused
+naming the parameter)."""
 from __future__ import annotations
 
 import subprocess
@@ -103,3 +103,51 @@ def test_trajectory_parameters_keep_their_types(tmp_path, probe):
         assert (v[0].integer_value, v[1].string_value, v[2].integer_value) == (200, "realtime", 4)  # kept
     finally:
         assert stop_node(proc) == 0
+
+
+def test_compensator_refuses_a_wrongly_typed_parameter_in_one_line_and_keeps_the_old_value(tmp_path, probe):
+    """A running compensator: a string for a double, a double for an integer and a bool for a double array are
+    refused in one line naming the parameter with the value kept, which `param get` still reads and `param describe`
+    still types as declared; an integer for a double is taken as that double.  At start-up a wrongly typed override
+    stops the node in one line."""
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    from rcl_interfaces.msg import ParameterType, ParameterValue
+    from rcl_interfaces.srv import GetParameters, SetParameters
+
+    proc = start_node("compensator", "-p", "cascade.vibration:=false", "-p", "crossfade:=0", log_dir=tmp_path)
+    try:
+        getp = probe.node.create_client(GetParameters, "/compensator/get_parameters")
+        setp = probe.node.create_client(SetParameters, "/compensator/set_parameters")
+        got = probe.call(getp, GetParameters.Request(names=["crossfade", "block_size"]), 60).values
+        assert (got[0].type, got[0].double_value) == (ParameterType.PARAMETER_DOUBLE, 0.0)   # -p crossfade:=0
+
+        def set_(name, **value):
+            msg = ParameterMsg(name=name, value=ParameterValue(**value))
+            return probe.call(setp, SetParameters.Request(parameters=[msg])).results[0]
+        r = set_("hold_timeout", type=ParameterType.PARAMETER_STRING, string_value="long")
+        assert not r.successful and r.reason == "hold_timeout: expected a double, got a string 'long' (kept: 0.2)"
+        r = set_("block_size", type=ParameterType.PARAMETER_DOUBLE, double_value=2.5)
+        assert not r.successful and r.reason == "block_size: expected an integer, got a double 2.5 (kept: 200)"
+        r = set_("workspace", type=ParameterType.PARAMETER_BOOL, bool_value=True)
+        assert not r.successful and r.reason.startswith("workspace: expected a double array, got a bool True")
+        assert "\n" not in r.reason
+        r = set_("crossfade", type=ParameterType.PARAMETER_INTEGER, integer_value=1)
+        assert r.successful, r.reason
+        got = probe.call(getp, GetParameters.Request(names=["hold_timeout", "block_size", "crossfade"])).values
+        assert (got[0].type, got[0].double_value) == (ParameterType.PARAMETER_DOUBLE, 0.2)       # kept
+        assert (got[1].type, got[1].integer_value) == (ParameterType.PARAMETER_INTEGER, 200)     # kept
+        assert (got[2].type, got[2].double_value) == (ParameterType.PARAMETER_DOUBLE, 1.0)       # taken as 1.0
+        from rcl_interfaces.srv import DescribeParameters
+
+        desc = probe.node.create_client(DescribeParameters, "/compensator/describe_parameters")
+        d = probe.call(desc, DescribeParameters.Request(names=["hold_timeout", "block_size", "workspace"])).descriptors
+        # the refused values did not retype the parameters either (rclpy retypes a dynamically typed descriptor)
+        assert [x.type for x in d] == [ParameterType.PARAMETER_DOUBLE, ParameterType.PARAMETER_INTEGER,
+                                       ParameterType.PARAMETER_DOUBLE_ARRAY]
+        assert d[0].floating_point_range and d[0].description
+    finally:
+        assert stop_node(proc) == 0
+    r = _run("compensator", "-p", "block_size:=2.5")
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert (r.stdout + r.stderr).strip().splitlines()[-1] == \
+        "compensator: error: block_size: expected an integer, got a double 2.5"

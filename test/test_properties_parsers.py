@@ -1,4 +1,4 @@
-"""Property-based tests (Hypothesis) of every parser and boundary of the recording/config layer (issue 10).
+"""Property-based tests (Hypothesis) of every parser and boundary of the recording/config layer.
 
 The property, everywhere: a bad input gives a clear error (a ``ValueError`` naming the file, field or row) or a
 correct result — never another exception type (a traceback in the CLI), never a silently wrong result.

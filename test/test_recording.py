@@ -281,3 +281,30 @@ def test_recorder_api_errors(tmp_path):
     rec.close()
     with pytest.raises(ValueError, match="closed"):
         rec.write("/voltage", b"", 0)
+
+
+@pytest.mark.parametrize("strict", [True, False])
+def test_strict_chunks_stay_within_the_chunk_size(tmp_path, strict):
+    """strict_chunks (the recorder node's chunks): every chunk holds at most chunk_size bytes of uncompressed records
+    whatever the message sizes (a message larger than that alone in its chunk), and every message is read back in
+    order; without it the MCAP writer closes a chunk only once it is over, so some chunk is larger."""
+    from mcap.reader import make_reader
+
+    limit = 16 * 1024
+    rng = np.random.default_rng(3)
+    sizes = [int(s) for s in rng.integers(10, 6000, 300)] + [40_000, 100, 7000]
+    path = tmp_path / "chunks.mcap"
+    with McapRecorder(path, chunk_size=limit, flush_interval=None, strict_chunks=strict) as rec:
+        rec.register_topic("/t", "std_msgs/msg/String", [block_qos_profile()])
+        for i, n in enumerate(sizes):
+            rec.write("/t", bytes([i % 251]) * n, log_time_ns=1000 + i)
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        chunks = reader.get_summary().chunk_indexes
+        got = [len(m.data) for _, _, m in reader.iter_messages()]
+    assert got == sizes
+    over = [c.uncompressed_size for c in chunks if c.uncompressed_size > limit]
+    if strict:
+        assert over == [next(c.uncompressed_size for c in chunks if c.uncompressed_size > 40_000)], over
+    else:
+        assert len(over) > 1

@@ -1,4 +1,4 @@
-"""Issue 10: the bad-input catalogue of ``bench/bench_bad_inputs.py`` (179 hostile CLI inputs) stays all clear.
+"""The bad-input catalogue of ``bench/bench_bad_inputs.py`` (179 hostile CLI inputs) stays all clear.
 
 The benchmark prints the counts (tried / clear / tracebacks / silently wrong / unclear); this test fails on the
 first case that is not answered with a clear one-line error (or, for usable-but-damaged input, a warning), so a

@@ -1,4 +1,4 @@
-"""Issue 10, item 6: the commands that printed a traceback now print one line and exit non-zero.
+"""The commands that printed a traceback now print one line and exit non-zero.
 
 Each case was a traceback before (output path is a directory for ``analyze --json``, ``diagnose --json``,
 ``check --json`` and ``check DIR``; ``demo --out EXISTING_FILE``; an infeasible H∞ config accepted by ``check``,

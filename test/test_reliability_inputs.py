@@ -1,4 +1,4 @@
-"""Issue 10, items 4 and 7: columns read by name, unit and magnitude mistakes refused naming the field.
+"""Columns read by name, unit and magnitude mistakes refused naming the field.
 
 Each case was accepted before (silently wrong): CSV ``t,u_y,u_x,y,x`` taken with x/y swapped, a block with fields
 ``[y, x]`` applied swapped, voltages in kV, time in ms, ``units.voltage: kV`` ignored, misspelled and duplicate

@@ -57,8 +57,8 @@ def test_rejects_bad_blocks_and_keeps_state(bad, why):
 
 
 def test_ramp_to_safe_own_duration_and_slew_not_the_operating_limit():
-    """Issue 10.9: with the operating limit of the paper's config (1e7 V/s = 500 V per sample) the old ramp was a
-    single 78.6 V → 0 V step.  Now: a straight line of ≥ duration and ≤ the ramp's slew (and the operating one)."""
+    """The ramp to safe is a straight line of ≥ its own duration and ≤ its own slew (and the operating one); with the
+    operating limit of the paper's config (1e7 V/s = 500 V per sample) the old ramp was a single 78.6 V → 0 V step."""
     g = guard(voltage=200.0, slew=1.0e7, safe_voltage=0.0)
     g.apply(np.tile([[150.0, -37.0]], (40, 1)))
     ramp = SafeRampConfig(duration=0.05, slew=1.0e4)
@@ -99,3 +99,25 @@ def test_slew_limit_matches_a_reference_loop_and_passes_reachable_targets_exactl
         ref[k] = u
     np.testing.assert_array_equal(out, ref)
     assert n == n_ref
+
+
+def test_the_driver_may_tighten_the_amplifiers_limits_never_widen_them():
+    """tightened_limits: the config's limits with the driver's values; a wider voltage or slew is refused naming the
+    field and the config's value, the stale timeout must be in [1 ms, 1 h], the config's workspace is kept."""
+    from piezo_ff_ros.core.config import ConfigError, LimitsConfig
+    from piezo_ff_ros.core.safety import tightened_limits
+
+    amp = LimitsConfig(voltage=200.0, slew=2.0e5, stale_timeout=0.2, safe_voltage=0.0, workspace=((-1e-4, 1e-4),))
+    got = tightened_limits(amp, voltage=150.0, slew=1.0e5, stale_timeout=1.0, safe_voltage=5.0)
+    assert got == LimitsConfig(voltage=150.0, slew=1.0e5, stale_timeout=1.0, safe_voltage=5.0,
+                               workspace=((-1e-4, 1e-4),))
+    assert tightened_limits(amp, 200.0, 2.0e5, 0.2, 0.0) == amp
+    for kw, field, text in [({"voltage": 250.0}, "limits.voltage", "250.0 exceeds the config's 200.0"),
+                            ({"slew": 3.0e5}, "limits.slew", "300000.0 exceeds the config's 200000.0"),
+                            ({"stale_timeout": 1e-4}, "limits.stale_timeout", "must be in [0.001, 3600] s"),
+                            ({"voltage": -1.0}, "limits.voltage", "must be a finite number > 0"),
+                            ({"safe_voltage": 300.0}, "limits.safe_voltage", "outside the voltage limit")]:
+        args = {"voltage": 200.0, "slew": 2.0e5, "stale_timeout": 0.2, "safe_voltage": 0.0, **kw}
+        with pytest.raises(ConfigError) as e:
+            tightened_limits(amp, **args)
+        assert str(e.value).startswith(f"{field}: ") and text in str(e.value), str(e.value)

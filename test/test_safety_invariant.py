@@ -26,7 +26,7 @@ from wire_invariant import assert_safe
 
 from piezo_ff_ros.core.config import LimitsConfig, load_config
 from piezo_ff_ros.core.hardware import ClockedSim, DriverCore, DriverSettings, LockstepSim
-from piezo_ff_ros.core.hardware.sim import inject_fault
+from piezo_ff_ros.core.hardware.simulated_device import inject_fault
 from piezo_ff_ros.core.safety import SafeRampConfig
 
 FS = 20000.0

@@ -1,4 +1,4 @@
-"""Tracking beyond the paper (issue 13): preview inversion, constrained QP, iterative learning, `piezo-ff track`."""
+"""Tracking beyond the paper: preview inversion, constrained QP, iterative learning, `piezo-ff track`."""
 from __future__ import annotations
 
 import dataclasses

@@ -1,4 +1,4 @@
-"""Trajectory node parsing (issue 10 item 2, issue 11 item 4 — trajectory parts): workspace and table files."""
+"""Trajectory node parsing: the workspace check and table files."""
 import numpy as np
 import pytest
 

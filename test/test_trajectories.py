@@ -142,7 +142,7 @@ def test_chirp_frequency_sweep():
 
 
 def test_sequence_segments_and_lookup():
-    seq = T.Sequence([("rest", T.Hold(duration=0.1), {}),
+    seq = T.TrajectorySequence([("rest", T.Hold(duration=0.1), {}),
                       ("step", T.Step(amplitude=(1e-6, 0), t_step=0.0, hold=0.2), {"stages": ["hysteresis"]}),
                       ("circle", T.Circle(radius=1e-6, revolutions=1, frequency=10.0), {"metric": "tracking"})])
     assert seq.n_samples(FS) == 2000 + 4000 + 2000
@@ -176,7 +176,7 @@ def test_from_dict_units_and_errors():
         T.Sine(axis="z")
 
 
-# -- issue 11 item 4 / issue 10 item 2 (trajectory parts): tables played sample-exactly, workspace --------------
+# -- tables played sample-exactly, workspace ---------------------------------------------------------------------
 
 def test_table_is_sample_exact_at_its_rate_and_interpolates_at_another(tmp_path):
     vals = np.random.default_rng(0).normal(0, 1e-6, (1000, 2))
@@ -219,11 +219,11 @@ def test_bound_is_an_upper_bound(traj):
 
 def test_workspace_refuses_a_metre_circle_and_checks_voltage_segments_in_volts():
     with pytest.raises(ConfigError, match=r"^trajectory\.radius: reaches 1 on axis x, outside the workspace"):
-        T.check_workspace(T.from_dict({"type": "circle", "radius": 1.0}), 1e-4)
-    T.check_workspace(T.from_dict({"type": "circle", "radius": 20, "unit": "um"}), 1e-4)   # fine
-    T.check_workspace(T.from_dict({"type": "circle", "radius": 1.0}), 0.0)                 # 0: disabled
-    seq = T.Sequence([("hyst", T.Sine(amplitude=200.0, frequency=0.1, duration=10.0), {"input": "voltage"}),
+        T.check_trajectory_peaks(T.from_dict({"type": "circle", "radius": 1.0}), 1e-4)
+    T.check_trajectory_peaks(T.from_dict({"type": "circle", "radius": 20, "unit": "um"}), 1e-4)   # fine
+    T.check_trajectory_peaks(T.from_dict({"type": "circle", "radius": 1.0}), 0.0)                 # 0: disabled
+    seq = T.TrajectorySequence([("hyst", T.Sine(amplitude=200.0, frequency=0.1, duration=10.0), {"input": "voltage"}),
                       ("circle", T.Circle(radius=20e-6), {"input": "reference"})])
-    T.check_workspace(seq, 1e-4, voltage_limit=200.0)
+    T.check_trajectory_peaks(seq, 1e-4, voltage_limit=200.0)
     with pytest.raises(ConfigError, match=r"segments\[0\]\.trajectory\.amplitude"):
-        T.check_workspace(seq, 1e-4, voltage_limit=100.0)
+        T.check_trajectory_peaks(seq, 1e-4, voltage_limit=100.0)

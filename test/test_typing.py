@@ -56,8 +56,7 @@ STRICT_FLOOR = {
     "piezo_ff_ros.core.reproduce",
     "piezo_ff_ros.core.trajectories",
     "piezo_ff_ros.core.hardware.contract",
-    "piezo_ff_ros.core.hardware.rig",
-    "piezo_ff_ros.core.hardware.sim",
+    "piezo_ff_ros.core.hardware.simulated_device",
     "piezo_ff_ros.core.hardware.stream",
     "piezo_ff_ros.core.models.plant",
     "piezo_ff_ros.core.models.creep",
@@ -68,7 +67,7 @@ STRICT_FLOOR = {
     "piezo_ff_ros.core.compensators.creep",
     "piezo_ff_ros.core.compensators.vibration",
     "piezo_ff_ros.core.compensators.cascade",
-    "piezo_ff_ros.core.identification.metrics",
+    "piezo_ff_ros.core.identification.goodness_of_fit",
     "piezo_ff_ros.core.synthesis.reduction",
     "piezo_ff_ros.core.synthesis.hinf",
 }

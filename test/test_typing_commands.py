@@ -1,4 +1,4 @@
-"""Type checking gate for the command, node and ROS-process layers (issue 11.5): mypy's default check, configured
+"""Type checking gate for the command, node and ROS-process layers: mypy's default check, configured
 in setup.cfg, passes on ``piezo_ff_ros/cli``, ``piezo_ff_ros/ros`` and ``piezo_ff_ros/nodes`` (with its backends),
 and every function there is fully annotated.
 

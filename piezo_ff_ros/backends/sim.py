@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..core.hardware.sim import ClockedSim, LockstepSim
+from ..core.hardware.simulated_device import ClockedSim, LockstepSim
 from ..core.models.plant import Plant
 from .base import BackendSpec, Param, float_range, int_range, one_of
 

@@ -20,7 +20,7 @@ discrete form (plant and compensator alike) jump far outside the continuous mode
 compensator that is 1 % off lands microns away; a real amplifier cannot do it anyway.
 
 Every setting is a field of :class:`CharacterisationSettings` with the paper's value as default.  The signals are
-:mod:`~piezo_ff_ros.core.trajectories` objects (``Sine``, ``Hold``, ``Sequence``) plus two small ones defined here
+:mod:`~piezo_ff_ros.core.trajectories` objects (``Sine``, ``Hold``, ``TrajectorySequence``) plus two small ones defined here
 (:class:`Sum` of trajectories, here; :class:`~piezo_ff_ros.core.trajectories.Ramp`).  ``Sum`` is not in
 ``trajectories.TRAJECTORY_TYPES``: the node graph plays it through :mod:`.characterisation_graph`.
 """

@@ -6,12 +6,10 @@ trajectory node cannot parse from a parameter.  Here the same experiments are ex
 - a ``Ramp`` (slew-limited step edge) becomes a ``Staircase`` with one level per sample — the same samples;
 - the two-axis sine ``Sum`` with a quarter period between the axes is a ``Circle`` (the paper's circle is exactly
   that);
-- any other ``Sum`` (the plant-validation multisine: 7 lines per axis, different on x and y) has no graph type: with
-  a ``table_dir`` it is written there as a ``.npy`` table and played as a ``Table`` at the run's rate — the same
-  samples, bit for bit (the node reads the file once; a 30 s two-axis table at 20 kHz is 9.6 MB and loads in
-  milliseconds, where the same samples as a YAML spec took about a minute to parse).  Without a directory it is held
-  at ``SAMPLED_RATE`` (2 kHz, zero-order hold of the preset's samples, 9 significant digits) as ``Staircase``
-  chunks: not the same samples (the top line, 312 Hz, then has 6 levels per period);
+- any other ``Sum`` (the plant-validation multisine: 7 lines per axis, different on x and y) has no graph type: it
+  is written to ``table_dir`` as a ``.npy`` table and played as a ``Table`` at the run's rate — the same samples,
+  bit for bit (the node reads the file once; a 30 s two-axis table at 20 kHz is 9.6 MB and loads in milliseconds,
+  where the same samples as a YAML spec took about a minute to parse);
 - every run that would start away from 0 V gets a short ramp from rest first (the driver is reset to rest before
   each run; a one-sample jump of hundreds of volts is what the discrete Bouc-Wen form cannot represent).
 
@@ -38,28 +36,6 @@ def _ramp_staircase(start: ArrayLike, end: ArrayLike, n: int, fs: float, axes: t
     return Staircase(levels=levels, dwell=1.0 / fs, axes=axes)
 
 
-#: Hz, rate at which a ``Sum`` with no graph equivalent is held (see the module docstring)
-SAMPLED_RATE = 2000.0
-#: levels per ``Staircase`` chunk of a held ``Sum``: the node evaluates only the chunk a block falls in
-SAMPLED_CHUNK = 2000
-
-
-def _sampled(traj: Trajectory, fs: float) -> TrajectorySequence:
-    """``traj`` held at ≤ ``SAMPLED_RATE`` (its samples at rate ``fs``, every ``fs/SAMPLED_RATE``-th held) as
-    ``Staircase`` chunks, 9 significant digits; as long as ``traj`` rounded up to a whole hold."""
-    hold = max(1, int(round(fs / SAMPLED_RATE)))
-    _, v = traj.sample(fs)
-    v = v[::hold]
-    peak = float(np.max(np.abs(v))) if v.size else 0.0
-    decimals = 9 - int(math.ceil(math.log10(peak))) if peak > 0 else 0
-    v = np.round(v, decimals) + 0.0   # + 0.0: no "-0.0" in the spec
-    chunks = [(f"chunk_{i // SAMPLED_CHUNK}",
-               Staircase(levels=[tuple(r) for r in v[i:i + SAMPLED_CHUNK].tolist()], dwell=hold / fs,
-                         axes=traj.axes))
-              for i in range(0, len(v), SAMPLED_CHUNK)]
-    return TrajectorySequence(chunks, axes=traj.axes)
-
-
 def _table_file(traj: Trajectory, fs: float, table_dir: Path) -> Table:
     """``traj``'s samples at rate ``fs`` written to ``table_dir`` (``.npy``, named by their hash) as a ``Table``."""
     _, v = traj.sample(fs)
@@ -71,8 +47,8 @@ def _table_file(traj: Trajectory, fs: float, table_dir: Path) -> Table:
     return Table(file=str(path.resolve()), sample_rate=fs, axes=traj.axes)
 
 
-def graph_playable(traj: Trajectory, fs: float, table_dir: Path | str | None = None) -> Trajectory:
-    """(Nearly) the same samples at rate ``fs`` as a trajectory the trajectory node can build (``to_dict``/``from_dict``).
+def graph_playable(traj: Trajectory, fs: float, table_dir: Path | str) -> Trajectory:
+    """The same samples at rate ``fs`` as a trajectory the trajectory node can build (``to_dict``/``from_dict``).
 
     Parameters
     ----------
@@ -80,15 +56,14 @@ def graph_playable(traj: Trajectory, fs: float, table_dir: Path | str | None = N
         A characterisation preset (``Sum``, ``Ramp``, a ``TrajectorySequence`` of them, or any graph type).
     fs : float
         The rate the graph plays at [Hz].
-    table_dir : path or None
+    table_dir : path
         Where a ``Sum`` with no graph type is written as a ``.npy`` table (played sample-exactly as a ``Table``).
-        None: it is held at ``SAMPLED_RATE`` instead (*not* the same samples).
 
     Returns
     -------
     Trajectory
         A quarter-period two-axis sine ``Sum`` becomes a ``Circle``, a ``Ramp`` a one-level-per-sample
-        ``Staircase``, any other ``Sum`` a ``Table`` file (or the held ``Staircase`` chunks); graph types as they are.
+        ``Staircase``, any other ``Sum`` a ``Table`` file; graph types as they are.
 
     Raises
     ------
@@ -110,9 +85,7 @@ def graph_playable(traj: Trajectory, fs: float, table_dir: Path | str | None = N
             p = parts[0]
             return Circle(radius=p.amplitude, frequency=p.frequency, phase=p.phase,
                           revolutions=p.duration * p.frequency, axes=traj.axes)
-        if table_dir is not None:
-            return _table_file(traj, fs, Path(table_dir))
-        return _sampled(traj, fs)
+        return _table_file(traj, fs, Path(table_dir))
     if traj.kind in TRAJECTORY_TYPES:
         return traj
     raise ValueError(f"graph_playable: trajectory type {traj.kind!r} has no graph equivalent")

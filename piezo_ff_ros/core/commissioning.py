@@ -530,7 +530,7 @@ def part_fits(cfg: PiezoConfig, run: RunData, y_ref: np.ndarray, traj: Trajector
               axes: Sequence[str]) -> dict[str, dict[str, float]]:
     """Whole-plant fit on each part of the validation record (multisine: hysteresis loops and G_L in the band;
     step pair: creep and the G_L transients), to see which stage limits the whole-record figure."""
-    from .identification.metrics import fit_percent
+    from .identification.goodness_of_fit import fit_percent
     from .trajectories import TrajectorySequence
 
     if not isinstance(traj, TrajectorySequence):

@@ -5,7 +5,7 @@ re-synchronisation on the applied voltage), the tracking front (:class:`~.tracki
 held-point pacer (:class:`~.hold_pacer.HoldPacer`), the input-stream bookkeeping, the workspace clamp, the counters
 and the ``/diagnostics`` status; its :class:`~.parameter_book.ParameterBook` holds the stage parameters and runs the
 parameter transactions.  The compensator node only declares and types the ROS parameters, converts messages, and publishes,
-logs and sets what each call returns in an :class:`Emit`:
+logs and sets what each call returns in a :class:`CompensatorOutput`:
 
 - ``on_reference(stamp, block, now)`` — a reference block from the topic: NaN/Inf, an empty block, a stamp off the
   sample grid and a sample outside ``reference_limit`` refused (counted, one ERROR line a second at most,
@@ -44,14 +44,14 @@ from .config import PiezoConfig
 from .hold_pacer import HoldPacer
 from .hot_swap import CascadeFactory, HotSwapCascade
 from .param_map import needs_synthesis
-from .parameter_book import ParameterBook, Verdict, check_workspace, parse_config_yaml, same_value
+from .parameter_book import ParameterBook, Verdict, check_box_parameter, parse_config_yaml, same_value
 from .recording.blocks import BlockFormatError, check_stamp, sample_period_ns
 from .status import ERROR, OK, WARN
 from .tracking.front import TrackingFront
 from .tracking.linear import controller_matrices
 
-__all__ = ["CompensatorCore", "CompensatorSettings", "Emit", "ParameterBook", "SETTING_NAMES", "Verdict",
-           "VoltageBlock", "build_notice", "check_workspace", "parse_config_yaml", "same_value", "OK", "WARN",
+__all__ = ["CompensatorCore", "CompensatorSettings", "CompensatorOutput", "ParameterBook", "SETTING_NAMES", "Verdict",
+           "VoltageBlock", "build_notice", "check_box_parameter", "parse_config_yaml", "same_value", "OK", "WARN",
            "ERROR"]
 
 #: the node parameters that are not stage parameters and change the running core (:class:`CompensatorSettings`)
@@ -129,7 +129,7 @@ class CompensatorSettings:
     reference_limit: tuple[float, ...] = ()
 
     def validate(self, n_axes: int) -> "CompensatorSettings":
-        """Check the workspace against the number of axes (:func:`check_workspace`); returns self.
+        """Check the workspace boxes against the number of axes (:func:`check_box_parameter`); returns self.
 
         Parameters
         ----------
@@ -141,8 +141,8 @@ class CompensatorSettings:
         CompensatorSettings
             self.
         """
-        check_workspace(self.workspace, n_axes)
-        check_workspace(self.reference_limit, n_axes, "reference_limit")
+        check_box_parameter(self.workspace, n_axes)
+        check_box_parameter(self.reference_limit, n_axes, "reference_limit")
         return self
 
     def with_value(self, name: str, value: Any) -> "CompensatorSettings":
@@ -203,7 +203,7 @@ class VoltageBlock:
 
 
 @dataclass
-class Emit:
+class CompensatorOutput:
     """What a call produced, for the node to publish, log and set.
 
     Attributes
@@ -328,7 +328,7 @@ class CompensatorCore:
         self._last_refusal = {"reference": "", "voltage_applied": ""}
 
     # -- data path -------------------------------------------------------------------------------------------------
-    def on_reference(self, stamp: int, block: np.ndarray, now: float) -> Emit:
+    def on_reference(self, stamp: int, block: np.ndarray, now: float) -> CompensatorOutput:
         """A reference block from the topic.
 
         Parameters
@@ -343,7 +343,7 @@ class CompensatorCore:
 
         Returns
         -------
-        Emit
+        CompensatorOutput
             The voltage block (and a configuration announcement), or the rejection of a block with NaN/Inf.
         """
         if block.ndim != 2 or block.shape[0] < 1 or block.shape[1] != len(self.axes):
@@ -362,7 +362,7 @@ class CompensatorCore:
         self.pacer.note_block(now)
         return self.process(block, stamp, now, from_topic=True, restart=restart)
 
-    def reject(self, topic: Literal["reference", "voltage_applied"], reason: str) -> Emit:
+    def reject(self, topic: Literal["reference", "voltage_applied"], reason: str) -> CompensatorOutput:
         """A block of ``topic`` that cannot be used (malformed, NaN/Inf): counted and logged; a reference block's
         error is kept as the last error too.
 
@@ -375,7 +375,7 @@ class CompensatorCore:
 
         Returns
         -------
-        Emit
+        CompensatorOutput
             The error line (at most one a second per topic, with the count so far; every block is counted and
             ``/diagnostics`` is at ERROR until the next report).
         """
@@ -391,8 +391,8 @@ class CompensatorCore:
         self._last_refusal[topic] = text
         # one line a second at most: a flood of bad blocks must not flood the log (every one is counted)
         if self._reject_log[topic].due(time.monotonic()):
-            return Emit(log=[(ERROR, text + (f" ({total} so far)" if total > 1 else ""))])
-        return Emit()
+            return CompensatorOutput(log=[(ERROR, text + (f" ({total} so far)" if total > 1 else ""))])
+        return CompensatorOutput()
 
     def _outside_limit(self, block: np.ndarray) -> str:
         """Why ``block`` lies outside the reference limit (``reference_limit`` [m]; ``bypass``: ±limits.voltage
@@ -414,7 +414,7 @@ class CompensatorCore:
                 f"(e.g. {[float(f'{x:.6g}') for x in worst]}); adjust {name} if the stage really goes there")
 
     def process(self, block: np.ndarray, stamp: int | None, now: float, *, from_topic: bool = False,
-                restart: bool = False) -> Emit:
+                restart: bool = False) -> CompensatorOutput:
         """One block through the input bookkeeping, the workspace clamp, the front and the cascade.
 
         Parameters
@@ -433,11 +433,11 @@ class CompensatorCore:
 
         Returns
         -------
-        Emit
+        CompensatorOutput
             The voltage block, with the configuration to announce before it when a new version produced it first;
             WARN lines for a gap or a clamped reference.
         """
-        em = Emit()
+        em = CompensatorOutput()
         if stamp is None:   # held point: continue the sample stream (or start it on the wall clock)
             stamp = self._next_stamp if self._next_stamp is not None else \
                 self.wall_ns() // self.period_ns * self.period_ns
@@ -461,7 +461,7 @@ class CompensatorCore:
         em.voltage.append(VoltageBlock(stamp, u, config))
         return em
 
-    def _book_input(self, k0: int, n: int, stamp: int, restart: bool, em: Emit) -> None:
+    def _book_input(self, k0: int, n: int, stamp: int, restart: bool, em: CompensatorOutput) -> None:
         expected = self._expected_k
         if not restart and expected is not None and abs(k0 - expected) > _MAX_GAP_S * self.cfg.sample_rate:
             # a stray stamp or a new stream, not lost blocks: counted as a jump, never as gap samples
@@ -478,7 +478,7 @@ class CompensatorCore:
                 self.input["late_blocks"] += 1
         self._expected_k = k0 + n
 
-    def _clamp_to_workspace(self, block: np.ndarray, now: float, em: Emit) -> np.ndarray:
+    def _clamp_to_workspace(self, block: np.ndarray, now: float, em: CompensatorOutput) -> np.ndarray:
         ws = self.settings.workspace
         if not ws:
             return block
@@ -497,7 +497,7 @@ class CompensatorCore:
         """Whether ``voltage_applied`` blocks are used (``resync``): otherwise they are ignored unread."""
         return self.settings.resync
 
-    def on_applied(self, stamp: int, u: np.ndarray, now: float, foreign: str = "") -> Emit:
+    def on_applied(self, stamp: int, u: np.ndarray, now: float, foreign: str = "") -> CompensatorOutput:
         """The voltage the driver applied (same stamps as the voltage blocks): re-synchronise where it differs.
 
         Only what the paired driver could have applied is used: a block from another sender (``foreign``: who sent
@@ -517,7 +517,7 @@ class CompensatorCore:
 
         Returns
         -------
-        Emit
+        CompensatorOutput
             A WARN line when the states were re-synchronised, an ERROR line (at most once a second) for a refusal.
         """
         if foreign:
@@ -541,13 +541,13 @@ class CompensatorCore:
         if np.any(np.abs(u) > v * (1 + 1e-9)):
             return self.reject("voltage_applied", f"limits.voltage: {float(np.max(np.abs(u))):.6g} V beyond ±{v:g} V "
                                                   "(no driver applies that)")
-        em = Emit()
+        em = CompensatorOutput()
         if self.hs.applied(stamp // self.period_ns, u) == "resync" and self._resync_warn.due(now):
             em.log.append((WARN, "applied voltage differs from the command: hysteresis/creep states "
                                  f"re-synchronised ({self.hs.resyncs} so far)"))
         return em
 
-    def set_point(self, point: Sequence[float]) -> Emit:
+    def set_point(self, point: Sequence[float]) -> CompensatorOutput:
         """Hold ``point`` (one value per axis, [m]): played as blocks while no reference block comes.
 
         Parameters
@@ -557,20 +557,20 @@ class CompensatorCore:
 
         Returns
         -------
-        Emit
+        CompensatorOutput
             Start the hold timer, or an error line (NaN/Inf: refused, the previous point stays).
         """
         if not np.all(np.isfinite(point)):
-            return Emit(log=[(ERROR, "reference_point rejected: NaN/Inf")])
+            return CompensatorOutput(log=[(ERROR, "reference_point rejected: NaN/Inf")])
         outside = self._outside_limit(np.asarray(point, float)[None, :])
         if outside:
             self.rejected_blocks += 1
             self.last_error = f"reference_point rejected: {outside}"
             self._refused_now["reference"] += 1
             self._last_refusal["reference"] = self.last_error
-            return Emit(log=[(ERROR, self.last_error + "; the previous point stays")])
+            return CompensatorOutput(log=[(ERROR, self.last_error + "; the previous point stays")])
         self.pacer.set_point(point)
-        return Emit(hold_timer="start")
+        return CompensatorOutput(hold_timer="start")
 
     def reset(self) -> str:
         """All compensator states back to rest (a finished pending configuration is applied first), the held point
@@ -608,7 +608,7 @@ class CompensatorCore:
         """
         return self.book.propose(params, self._front_for)
 
-    def commit(self, params: Sequence[tuple[str, Any]]) -> Emit:
+    def commit(self, params: Sequence[tuple[str, Any]]) -> CompensatorOutput:
         """Apply an accepted change (the node's post-set): node settings, the new tracking front, the new
         configuration.
 
@@ -623,11 +623,11 @@ class CompensatorCore:
 
         Returns
         -------
-        Emit
+        CompensatorOutput
             Info lines, the read-back after ``config_yaml``, ``/diagnostics`` when a version was requested, the hold
             timer re-timed for a new block size.
         """
-        em = Emit()
+        em = CompensatorOutput()
         for name, value in params:
             if name not in SETTING_NAMES:
                 continue
@@ -662,7 +662,7 @@ class CompensatorCore:
         em.diagnostics = True
         return em
 
-    def poll(self) -> Emit:
+    def poll(self) -> CompensatorOutput:
         """Make a finished build active even when no block flows; report swaps and failed builds (including those
         the data path found first: :meth:`HotSwapCascade.process` polls too).
 
@@ -672,10 +672,10 @@ class CompensatorCore:
 
         Returns
         -------
-        Emit
+        CompensatorOutput
             Log lines, the parameters to revert, ``/diagnostics`` when something changed.
         """
-        em = Emit()
+        em = CompensatorOutput()
         hs = self.hs
         hs.poll()
         if hs.failed_builds != self._seen_failed:

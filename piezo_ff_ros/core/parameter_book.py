@@ -20,7 +20,8 @@ from .param_map import config_to_params, is_config_param, params_to_config
 from .status import ERROR
 from .tracking.front import FRONT_DEFAULTS, TrackingFront, front_settings, is_front_param
 
-__all__ = ["ParameterBook", "Verdict", "check_workspace", "parse_config_yaml", "same_value", "CONFIG_YAML_MAX_BYTES"]
+__all__ = ["ParameterBook", "Verdict", "check_box_parameter", "parse_config_yaml", "same_value",
+           "CONFIG_YAML_MAX_BYTES"]
 
 #: the largest ``config_yaml`` accepted [bytes] (every stage parameter of the paper's configuration: about 4 kB);
 #: checked before parsing, so that a huge string never blocks the node's executor
@@ -48,7 +49,7 @@ def same_value(a: Any, b: Any) -> bool:
     return bool(a == b) and type(a) is type(b)
 
 
-def check_workspace(flat: Sequence[float], n_axes: int, name: str = "workspace") -> None:
+def check_box_parameter(flat: Sequence[float], n_axes: int, name: str = "workspace") -> None:
     """Check a box parameter (``workspace``, ``reference_limit``): empty, or ``[min, max]`` per axis, finite,
     ``min < max``.
 
@@ -237,7 +238,7 @@ class ParameterBook:
                 from_yaml = True
             elif name in ("workspace", "reference_limit"):
                 try:
-                    check_workspace(list(value or []), len(self.base.axes), name)
+                    check_box_parameter(list(value or []), len(self.base.axes), name)
                 except ConfigError as exc:
                     return Verdict(False, str(exc))
             elif is_front_param(name) and not front_checked:   # all the front's parameters of the set at once

@@ -15,11 +15,14 @@
 :func:`limit_block` / :func:`slew_limit` run the one limiter of the package
 (:func:`~piezo_ff_ros.core.kernels.limits.limit_step`: clamp first, then at most ``step`` volts per sample), the
 same rule as the compensators' kernels and the amplifier slew-limit effect.
+
+:func:`tightened_limits` is the driver's limit policy: the configuration describes the amplifier, the driver's own
+values may tighten its voltage and slew limits, never widen them.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -27,7 +30,47 @@ from numpy.typing import ArrayLike
 from .kernels.limits import limit_run
 from .config import LimitsConfig
 
-__all__ = ["at_limit", "MIN_RAMP_DURATION", "MAX_RAMP_DURATION", "MAX_RAMP_SLEW", "VoltageGuard", "GuardCounters", "BlockRejected", "SafeRampConfig", "safe_ramp", "slew_limit", "limit_block"]
+__all__ = ["tightened_limits", "at_limit", "MIN_RAMP_DURATION", "MAX_RAMP_DURATION", "MAX_RAMP_SLEW", "VoltageGuard", "GuardCounters", "BlockRejected", "SafeRampConfig", "safe_ramp", "slew_limit", "limit_block"]
+
+
+def tightened_limits(config: LimitsConfig, voltage: float, slew: float, stale_timeout: float,
+                     safe_voltage: float) -> LimitsConfig:
+    """The limits a driver enforces: ``config``'s (the amplifier's) with the driver's own values.
+
+    Parameters
+    ----------
+    config : LimitsConfig
+        The configuration's limits: the amplifier's range (its ``workspace`` is kept).
+    voltage, slew : float
+        The driver's ±V and V/s; at most the configuration's (a driver may tighten them, never widen them).
+    stale_timeout : float
+        No block for this long ramps to the safe state [s], in [1 ms, 1 h].
+    safe_voltage : float
+        The safe state [V], within ``±voltage``.
+
+    Returns
+    -------
+    LimitsConfig
+        Validated.
+
+    Raises
+    ------
+    ConfigError
+        Naming the field (``limits.voltage``, …): a value that is not plausible, widens the configuration's or is out
+        of range.
+    """
+    from .config import ConfigError
+
+    limits = replace(config, voltage=voltage, slew=slew, stale_timeout=stale_timeout,
+                     safe_voltage=safe_voltage).validate()
+    for name in ("voltage", "slew"):
+        if getattr(limits, name) > getattr(config, name):
+            raise ConfigError(f"limits.{name}", f"{getattr(limits, name)!r} exceeds the config's "
+                                                f"{getattr(config, name)!r} (the amplifier's range: change the config "
+                                                "file to raise it)")
+    if not (math.isfinite(limits.stale_timeout) and 1e-3 <= limits.stale_timeout <= 3600.0):
+        raise ConfigError("limits.stale_timeout", f"must be in [0.001, 3600] s, got {limits.stale_timeout!r}")
+    return limits
 
 
 class BlockRejected(ValueError):

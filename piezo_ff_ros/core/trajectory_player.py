@@ -37,7 +37,7 @@ import numpy as np
 from .config import ConfigError
 from .config.loader import safe_yaml
 from .status import ERROR, OK, WARN
-from .trajectories import Table, Trajectory, check_workspace, from_dict
+from .trajectories import Table, Trajectory, check_trajectory_peaks, from_dict
 from .units import sample_period_ns
 
 __all__ = ["PLAY_MODES", "MAX_BLOCK_SIZE", "PlaySettings", "PlayerHost", "TrajectoryPlayer", "check_play_params",
@@ -121,7 +121,7 @@ def parse_trajectory(text: str = "", file: str = "", sample_rate: float = 20000.
         Naming the field (``trajectory``, ``trajectory_file``, ``trajectory.<key>``, ``workspace_m`` …).
     """
     traj = _parse(text, file, sample_rate)
-    check_workspace(traj, workspace_m, voltage_limit, fs=sample_rate)
+    check_trajectory_peaks(traj, workspace_m, voltage_limit, fs=sample_rate)
     return traj
 
 

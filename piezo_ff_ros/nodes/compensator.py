@@ -14,8 +14,9 @@ configuration (logged at ERROR, on ``/diagnostics``; the revert itself creates n
 parameters to the values that run (e.g. ``ros2 param load`` of a dump) creates no new version.  Parameters only
 valid together (``….den`` with ``….den_deg``) are set atomically: ``config_yaml`` (string: a YAML mapping of stage
 parameters, applied as one change; the stage parameters then read back the new values) or the node's standard
-``set_parameters_atomically`` service.  Every parameter is statically typed, with a description and, for
-numbers, a range.
+``set_parameters_atomically`` service.  Every parameter keeps the type it is declared with
+(:class:`~piezo_ff_ros.nodes.params.TypedParameters`: a value of another type is refused in one line naming the
+parameter, the old value kept; an integer for a double is taken), with a description and, for numbers, a range.
 
 Other parameters: ``config_file`` and ``variant`` (read-only: the base configuration), ``crossfade`` [s] (output
 crossfade at a swap), ``block_size`` (samples per block generated from a held ``reference_point``),
@@ -58,23 +59,22 @@ import numpy as np
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PointStamped
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType,
-                                SetParametersResult)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from ..core.compensator_core import (SETTING_NAMES, CompensatorCore, CompensatorSettings, Emit, ParameterBook,
-                                     build_notice, parse_config_yaml, same_value)
+from ..core.compensator_core import (SETTING_NAMES, CompensatorCore, CompensatorOutput, CompensatorSettings,
+                                     ParameterBook, build_notice, parse_config_yaml, same_value)
 from ..core.config import load_config
 from ..core.param_map import config_to_params
 from ..core.tracking.front import FRONT_DEFAULTS
 from ..core.trajectories.workspace import reachable_range
 from .common import (BLOCK_QOS, CONFIG_QOS, BlockFormatError, diag_values, log_lines, pack_block, run_node,
                      stamp_to_ns, unpack_block, writer_matches)
-from .params import refuse_unknown_parameters
+from .params import TypedParameters, refuse_unknown_parameters
 
 #: parse_config_yaml lives in the core now; importable from here as before
 __all__ = ["CompensatorNode", "main", "parse_config_yaml"]
@@ -106,67 +106,14 @@ _RANGES = {"vibration.t_r": (1e-6, 100.0), "vibration.eps_s": (0.0, 1.0), "vibra
            "hold_timeout": (0.0, 3600.0), "block_size": (1, 20000)}
 
 
-def _ptype(name: str, value: Any) -> int:
-    """The static ROS type of a parameter from its default value (empty arrays: from the name)."""
-    if isinstance(value, bool):
-        return ParameterType.PARAMETER_BOOL
-    if isinstance(value, int):
-        return ParameterType.PARAMETER_INTEGER
-    if isinstance(value, float):
-        return ParameterType.PARAMETER_DOUBLE
-    if isinstance(value, str):
-        return ParameterType.PARAMETER_STRING
+def _declared_type(name: str, value: Any) -> Parameter.Type:
+    """The fixed type of a parameter from its default value (arrays: ``…_deg`` and lists of integers are integer
+    arrays, other arrays, empty ones included, double arrays)."""
+    if not isinstance(value, list):
+        return Parameter.Type.from_parameter_value(value)
     if name.endswith("_deg") or (value and all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
-        return ParameterType.PARAMETER_INTEGER_ARRAY
-    return ParameterType.PARAMETER_DOUBLE_ARRAY
-
-
-_PY_TYPE = {ParameterType.PARAMETER_BOOL: Parameter.Type.BOOL, ParameterType.PARAMETER_INTEGER: Parameter.Type.INTEGER,
-            ParameterType.PARAMETER_DOUBLE: Parameter.Type.DOUBLE,
-            ParameterType.PARAMETER_STRING: Parameter.Type.STRING,
-            ParameterType.PARAMETER_INTEGER_ARRAY: Parameter.Type.INTEGER_ARRAY,
-            ParameterType.PARAMETER_DOUBLE_ARRAY: Parameter.Type.DOUBLE_ARRAY}
-
-
-_TYPE_NAMES = {ParameterType.PARAMETER_BOOL: "a bool", ParameterType.PARAMETER_INTEGER: "an integer",
-               ParameterType.PARAMETER_DOUBLE: "a double", ParameterType.PARAMETER_STRING: "a string",
-               ParameterType.PARAMETER_INTEGER_ARRAY: "an integer array",
-               ParameterType.PARAMETER_DOUBLE_ARRAY: "a double array", ParameterType.PARAMETER_BYTE_ARRAY: "a byte array",
-               ParameterType.PARAMETER_BOOL_ARRAY: "a bool array",
-               ParameterType.PARAMETER_STRING_ARRAY: "a string array"}
-
-
-_ARRAY_TYPES = (Parameter.Type.BYTE_ARRAY, Parameter.Type.BOOL_ARRAY, Parameter.Type.INTEGER_ARRAY,
-                Parameter.Type.DOUBLE_ARRAY, Parameter.Type.STRING_ARRAY)
-
-
-def _coerce(parameter: Parameter, declared: int) -> None:
-    """Make ``parameter`` the declared type where that loses nothing: integer → double (``ros2 param set … 1``
-    stays a double), integer array → double array, an empty array of any type (rclpy types ``[]`` as bytes) →
-    the declared array type.  Anything else is left for rclpy to refuse."""
-    t, v = parameter.type_, parameter.value
-    new: tuple[Any, Any] | None = None
-    if declared == ParameterType.PARAMETER_DOUBLE and t == Parameter.Type.INTEGER and abs(v) < 2 ** 53:
-        new = (Parameter.Type.DOUBLE, float(v))
-    elif declared == ParameterType.PARAMETER_DOUBLE_ARRAY and t == Parameter.Type.INTEGER_ARRAY:
-        new = (Parameter.Type.DOUBLE_ARRAY, [float(x) for x in v])
-    elif declared in (ParameterType.PARAMETER_DOUBLE_ARRAY, ParameterType.PARAMETER_INTEGER_ARRAY) \
-            and t in _ARRAY_TYPES and len(v) == 0 and t != _PY_TYPE[declared]:
-        new = (_PY_TYPE[declared], [])
-    if new is not None:   # rclpy's Parameter has no public setter; the same object goes on to the callbacks
-        parameter._type_, parameter._value = new
-
-
-def _descriptor(name: str, value: Any, description: str = "", read_only: bool = False) -> ParameterDescriptor:
-    t = _ptype(name, value)
-    d = ParameterDescriptor(name=name, type=t, description=description or _describe(name), read_only=read_only)
-    if name in _RANGES:
-        lo, hi = _RANGES[name]
-        if t == ParameterType.PARAMETER_INTEGER:
-            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=0)]
-        else:
-            d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
-    return d
+        return Parameter.Type.INTEGER_ARRAY
+    return Parameter.Type.DOUBLE_ARRAY
 
 
 class CompensatorNode(Node):
@@ -177,13 +124,13 @@ class CompensatorNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("compensator", **kwargs)
-        self._types: dict[str, int] = {}
         self._internal = False        # the node sets its own parameters (revert, config_yaml read-back)
         self.book: ParameterBook | None = None   # None until the base configuration is loaded
         self._lock = threading.RLock()
         # on-set BEFORE the declarations, so that params-file and -p overrides are validated too
         self.add_on_set_parameters_callback(self._on_set)
         self.add_post_set_parameters_callback(self._post_set)
+        self.params = TypedParameters(self)   # after _on_set: the type check runs first
         cfg_file = self._declare("config_file", "", "base configuration file (YAML); empty = the packaged "
                                  "pt230_94.yaml", read_only=True)
         variant = self._declare("variant", "", "named variant of the base configuration", read_only=True)
@@ -250,47 +197,22 @@ class CompensatorNode(Node):
         return self.book is None or self.book.declaring
 
     def _declare(self, name: str, value: Any, description: str = "", read_only: bool = False) -> Any:
-        desc = _descriptor(name, value, description, read_only)
-        self._types[name] = desc.type
-        if isinstance(value, list) and not value:   # rclpy would type an empty list as a byte array
-            p: Any = self.declare_parameter(name, _PY_TYPE[desc.type], desc)   # uninitialised unless overridden
-            if p.type_ == Parameter.Type.NOT_SET:
-                self._set_own([self._typed(name, [])])
-            v = self.get_parameter(name).value
-        else:
-            v = self.declare_parameter(name, value, desc).value
-        return list(v) if isinstance(v, (list, tuple)) or hasattr(v, "typecode") else v
-
-    def _apply_descriptor(self, parameter: Parameter, descriptor: ParameterDescriptor | None = None,
-                          check_read_only: bool = True) -> SetParametersResult:
-        """rclpy's type/range check, after the lossless coercions (an integer where a double is declared, an empty
-        array of any type), with the parameter's name in front of a refusal (one line, field first)."""
-        t = getattr(self, "_types", {}).get(parameter.name)   # rclpy declares use_sim_time before __init__ runs
-        if t is not None:
-            _coerce(parameter, t)
-        result = super()._apply_descriptor(parameter, descriptor, check_read_only)
-        if not result.successful and not result.reason.startswith(parameter.name):
-            expected = _TYPE_NAMES.get(t, str(t))
-            reason = result.reason
-            if reason.startswith("Wrong parameter type"):
-                got = _TYPE_NAMES.get(int(parameter.type_), str(parameter.type_))
-                try:
-                    kept = f" (kept: {self.get_parameter(parameter.name).value!r})"
-                except Exception:  # noqa: BLE001 - not declared/initialised yet
-                    kept = ""
-                reason = f"expected {expected}, got {got} {parameter.value!r}{kept}"
-            result.reason = f"{parameter.name}: {reason}"
-        return result
+        """Declare ``name`` with the type of its default (:class:`~.params.TypedParameters`), its description and,
+        for the numbers of ``_RANGES``, its range; the value (override or default) as plain Python.  An override
+        refused raises :class:`~.params.ParameterRefused` (one line naming the parameter)."""
+        return self.params.declare(name, value, description or _describe(name), read_only=read_only,
+                                   type_=_declared_type(name, value), value_range=_RANGES.get(name))
 
     def _typed(self, name: str, value: Any) -> Parameter:
-        t = self._types[name]
-        if t == ParameterType.PARAMETER_DOUBLE:
+        """``value`` as a Parameter of the declared type of ``name`` (the node's own read-back and revert)."""
+        t = self.params.types[name]
+        if t == Parameter.Type.DOUBLE:
             value = float(value)
-        elif t == ParameterType.PARAMETER_DOUBLE_ARRAY:
+        elif t == Parameter.Type.DOUBLE_ARRAY:
             value = [float(v) for v in value]
-        elif t == ParameterType.PARAMETER_INTEGER_ARRAY:
+        elif t == Parameter.Type.INTEGER_ARRAY:
             value = [int(v) for v in value]
-        return Parameter(name, _PY_TYPE[t], value)
+        return Parameter(name, t, value)
 
     def _set_own(self, params: list[Parameter]) -> None:
         """Set parameters from the node itself: no validation round, no configuration version."""
@@ -331,7 +253,7 @@ class CompensatorNode(Node):
         self._emit(em)
 
     # -- what the core returned ------------------------------------------------------------------------------------
-    def _emit(self, em: Emit) -> None:
+    def _emit(self, em: CompensatorOutput) -> None:
         """Publish, log and set what a core call returned (data path: called under the lock, so stamps leave in
         order)."""
         for vb in em.voltage:

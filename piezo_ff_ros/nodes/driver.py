@@ -44,8 +44,8 @@ from std_srvs.srv import Trigger
 
 from ..core.config import ConfigError, load_config
 from ..core.hardware import DriverCore, DriverSettings
-from ..core.hardware.driver_core import ERROR, Emit, lockstep_pacing
-from ..core.safety import SafeRampConfig
+from ..core.hardware.driver_core import ERROR, DriverOutput, lockstep_pacing
+from ..core.safety import SafeRampConfig, tightened_limits
 from ..backends import get_spec
 from .common import (BLOCK_QOS, LATCHED_QOS, BlockFormatError, diag_values, log_lines, pack_block, run_node,
                      stamp_to_ns, unpack_block, writer_matches)
@@ -292,14 +292,7 @@ class DriverNode(LifecycleNode):
         lim = self.cfg.limits
         given = {k: float(self._param(f"limits.{k}", float(getattr(lim, k)))) for k in
                  ("voltage", "slew", "stale_timeout", "safe_voltage")}
-        limits = replace(lim, voltage=given["voltage"], slew=given["slew"], stale_timeout=given["stale_timeout"],
-                         safe_voltage=given["safe_voltage"]).validate()   # the config's workspace kept
-        # the config describes the amplifier: a parameter may tighten its limits, never widen them
-        for k in ("voltage", "slew"):
-            if getattr(limits, k) > getattr(lim, k):
-                raise ConfigError(f"limits.{k}", f"{getattr(limits, k)!r} exceeds the config's {getattr(lim, k)!r} "
-                                                 "(the amplifier's range: change the config file to raise it)")
-        _check("limits.stale_timeout", limits.stale_timeout, 1e-3, 3600.0, " s")
+        limits = tightened_limits(lim, **given)   # tighten the amplifier's limits, never widen them
         self.cfg = replace(self.cfg, limits=limits)
         ramp = SafeRampConfig(duration=float(self._param("safe_ramp.duration", 0.05, "minimum safe-ramp duration [s]")),
                               slew=float(self._param("safe_ramp.slew", 1.0e4, "maximum safe-ramp slew [V/s]")))
@@ -365,7 +358,7 @@ class DriverNode(LifecycleNode):
             return
         self._emit(self.core.tick() if self.core.started else self.core.start())
 
-    def _emit(self, em: Emit) -> None:
+    def _emit(self, em: DriverOutput) -> None:
         if not self.context.ok():   # stopping after SIGINT: the device still ramps, nothing can be published
             for _, text in em.log:
                 print(f"driver: {text}", file=sys.stderr)
@@ -380,7 +373,7 @@ class DriverNode(LifecycleNode):
         log_lines(self.get_logger(), em.log)
         self._hint(em)
 
-    def _hint(self, em: Emit) -> None:
+    def _hint(self, em: DriverOutput) -> None:
         """Name the setting that fixes a late/underrun/stale stream, once per kind."""
         if self.core is None or not em.log:
             return

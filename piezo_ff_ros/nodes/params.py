@@ -23,6 +23,7 @@ rclpy's :func:`rclpy.parameter.parameter_dict_from_yaml_file`.
 """
 from __future__ import annotations
 
+import copy
 import difflib
 import sys
 from typing import Any, Sequence
@@ -89,6 +90,9 @@ class TypedParameters:
     def __init__(self, node: Node) -> None:
         self.node = node
         self.types: dict[str, Parameter.Type] = {}
+        #: each parameter's descriptor as declared (rclpy retypes a dynamically typed descriptor to the type of any
+        #: value offered, refused or not: a refusal puts a copy of this one back)
+        self.descriptors: dict[str, ParameterDescriptor] = {}
         node.add_pre_set_parameters_callback(self._convert)
         node.add_on_set_parameters_callback(self._check_types)
 
@@ -133,6 +137,7 @@ class TypedParameters:
                 descriptor.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi),
                                                                       step=0.0)]
         self.types[name] = declared
+        self.descriptors[name] = copy.deepcopy(descriptor)
         try:
             param = self.node.declare_parameter(name, default, descriptor)
         except InvalidParameterValueException as exc:
@@ -169,9 +174,21 @@ class TypedParameters:
                 shown = "" if p.type_ == Parameter.Type.NOT_SET else f" {_as_python(p.value)!r}"
                 # a runtime change: say what stays (a declaration has no old value yet)
                 kept = f" (kept: {self.value(p.name)!r})" if self.node.has_parameter(p.name) else ""
+                self._retype(params)
                 return SetParametersResult(successful=False, reason=f"{p.name}: expected {_TYPE_NAMES[declared]}, "
                                                                     f"got {_TYPE_NAMES[p.type_]}{shown}{kept}")
         return SetParametersResult(successful=True)
+
+
+    def _retype(self, params: list[Parameter]) -> None:
+        """After a refusal: the declared descriptor back on every declared parameter of ``params`` whose offered
+        value had another type (rclpy's describe would report that type; the value itself is unchanged)."""
+        for p in params:
+            declared = self.types.get(p.name)
+            if declared is None or p.type_ == declared or not self.node.has_parameter(p.name) \
+                    or self.descriptors[p.name].read_only:
+                continue
+            self.node.set_descriptor(p.name, copy.deepcopy(self.descriptors[p.name]))
 
 
 def _ros_arg_sections(argv: Sequence[str]) -> list[list[str]]:

@@ -58,11 +58,8 @@ KNOWN_TYPES = {"reference": "sensor_msgs/msg/PointCloud2", "voltage": "sensor_ms
                                "geometry_msgs/msg/PointStamped")}
 #: the experiment markers are transient-local: a recorder started late still gets the current segment
 _LATCHED = {"experiment"}
-#: chunks hold at most this many bytes of uncompressed records (docs/topics.md): the recorder closes the open
-#: chunk before a message that would take it past (the MCAP writer itself only closes a chunk once it is over)
+#: chunks hold at most this many bytes of uncompressed records (docs/topics.md; McapRecorder's strict_chunks)
 CHUNK_LIMIT = 512 * 1024
-_RECORD_OVERHEAD = 64          # message record header in a chunk (31 bytes), with room to spare
-_CHUNK_MARGIN = 8 * 1024       # schema and channel records that may share the chunk
 _EVENTS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 
@@ -106,8 +103,7 @@ class RecorderNode(Node):
             raise ValueError(f"metadata: expected a JSON object ({exc})") from None
         cfg = load_config(cfg_file or None, variant or None)
         Path(out).parent.mkdir(parents=True, exist_ok=True)
-        self.rec = McapRecorder(out, flush_interval=flush, chunk_size=CHUNK_LIMIT)
-        self._chunk_bytes = 0
+        self.rec = McapRecorder(out, flush_interval=flush, chunk_size=CHUNK_LIMIT, strict_chunks=True)
         self.rec.set_metadata({"sample_rate": cfg.sample_rate, "axes": list(cfg.axes), "config_yaml": cfg.to_yaml(),
                                "config_name": cfg.name, "variant": cfg.variant, "git_rev": git_rev(),
                                "recorder": {"topics": topics, "started_ns": time.time_ns()},
@@ -220,12 +216,7 @@ class RecorderNode(Node):
             offered = [p.qos_profile for p in self.get_publishers_info_by_topic(topic)]
             self.rec.register_topic(topic, self.types[topic], offered)
         src = info.get("source_timestamp") if isinstance(info, dict) else getattr(info, "source_timestamp", None)
-        size = len(data) + _RECORD_OVERHEAD
-        if self._chunk_bytes and self._chunk_bytes + size > CHUNK_LIMIT - _CHUNK_MARGIN:
-            self.rec.flush()       # close the chunk now: it stays ≤ CHUNK_LIMIT
-            self._chunk_bytes = 0
         self.rec.write(topic, data, log_time_ns=now, publish_time_ns=src or now)
-        self._chunk_bytes += size
         self.counts[topic] += 1
         last = topic.rsplit("/", 1)[-1]
         try:

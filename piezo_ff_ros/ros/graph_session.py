@@ -220,11 +220,11 @@ class GraphClient:
 
     def play(self, name: str, trajectory: Trajectory, meta: Mapping[str, Any], timeout: float = 3600.0) -> float:
         """Reset driver and compensator to rest, play ``trajectory`` as segment ``name``; returns the wall time."""
-        from ..core.trajectories import Sequence
+        from ..core.trajectories import TrajectorySequence
 
         self.trigger(self.reset_drv)
         self.trigger(self.reset_comp)
-        seq = Sequence([(name, trajectory, meta)])
+        seq = TrajectorySequence([(name, trajectory, meta)])
         self.set_params(self.set_traj, {"trajectory": json.dumps(seq.to_dict())})
         n_before = len(self.states)
         t0 = time.perf_counter()

@@ -12,12 +12,12 @@
   ramps to safe after ``stale_timeout`` without input, and collects what was applied/measured;
 - ``set_stream_paced(on)`` — a lockstep trajectory paces the stream: on a device whose time follows the samples
   written (the lockstep simulator) the wall-clock stale watchdog is suspended meanwhile, since no device time passes
-  between blocks — a host stall then loses nothing (issue 10); ignored by every other device;
+  between blocks — a host stall then loses nothing; ignored by every other device;
 - ``close()`` — the safe ramp written while the device still runs, waited for on a clocked device, then the
   backend closed (SIGINT and crash paths end the same way: no step on the output);
 - device faults from any backend call (poll, write, clock, read) go through one fault path: counted, logged, the
   safe ramp while a stream runs; a disconnect stops writing;
-- each call returns an :class:`Emit`: ``applied`` and ``displacement`` blocks ``(stamp_ns, [N, axes])`` on the
+- each call returns a :class:`DriverOutput`: ``applied`` and ``displacement`` blocks ``(stamp_ns, [N, axes])`` on the
   topic grid (every applied sample exactly once, in order, holds and ramps included), and log lines.
 """
 from __future__ import annotations
@@ -38,7 +38,7 @@ from ..status import ERROR, OK, WARN
 from .contract import FAULT_KINDS, DeviceFault, Disconnect, StreamingBackend
 from .stream import StreamBook
 
-__all__ = ["DriverSettings", "DriverCore", "Emit", "OK", "WARN", "ERROR", "lockstep_pacing"]
+__all__ = ["DriverSettings", "DriverCore", "DriverOutput", "OK", "WARN", "ERROR", "lockstep_pacing"]
 
 
 def lockstep_pacing(state_json: str) -> tuple[bool, str]:
@@ -111,14 +111,14 @@ class DriverSettings:
 
 
 @dataclass
-class Emit:
+class DriverOutput:
     """What a call produced: blocks to publish and log lines ``(level, text)``."""
 
     applied: list[tuple[int, np.ndarray]] = field(default_factory=list)
     displacement: list[tuple[int, np.ndarray]] = field(default_factory=list)
     log: list[tuple[int, str]] = field(default_factory=list)
 
-    def extend(self, other: "Emit") -> "Emit":
+    def extend(self, other: "DriverOutput") -> "DriverOutput":
         """Append ``other``'s blocks and log lines to this one; returns self."""
         self.applied += other.applied
         self.displacement += other.displacement
@@ -216,12 +216,12 @@ class DriverCore:
         starts: loading one takes longer than the write-ahead (0.3-0.5 s from numba's disk cache)."""
         limit_block(np.zeros((2, self.s.n_axes)), np.zeros(self.s.n_axes), 1.0, 1.0)
 
-    def start(self) -> Emit:
+    def start(self) -> DriverOutput:
         """Start the device (its clock runs from here: call it where the periodic ``tick`` starts too)."""
         self._warm_kernels()
         self._w = self.backend.start(self.safe.copy(), self._prefill())
         self._started = True
-        em = Emit()
+        em = DriverOutput()
         if self.info.clocked and self.s.samples(self.s.write_ahead) > self.info.fifo_depth:
             em.log.append((WARN, f"write_ahead {self.s.write_ahead} s is more than {self.info.name}'s FIFO "
                                  f"({self.info.fifo_depth} samples): the margin is capped there (raise the "
@@ -257,11 +257,11 @@ class DriverCore:
         """True once the device stream has started."""
         return self._started
 
-    def close(self) -> Emit:
+    def close(self) -> DriverOutput:
         """Stop: ramp to the safe voltage **while the device still runs** (the safe ramp, in time), wait until it
         has output the ramp (a clocked device; bounded by the ramp's duration + 1 s), then close the backend — also
         when the ramp fails.  Returns what was emitted meanwhile."""
-        em = Emit()
+        em = DriverOutput()
         try:
             if self._started and self.state != "fault":
                 self._poll(em)
@@ -285,7 +285,7 @@ class DriverCore:
             self.backend.close()
         return em
 
-    def set_stream_paced(self, on: bool, why: str = "") -> Emit:
+    def set_stream_paced(self, on: bool, why: str = "") -> DriverOutput:
         """Tell the core whether a lockstep source paces the stream (``why``: for the log).
 
         On a device whose time follows the samples written (``info.time_follows_samples``, the lockstep simulator)
@@ -293,7 +293,7 @@ class DriverCore:
         waiting for a stalled host holds nothing and ramping would take the stamps of the blocks in flight (they
         would then be dropped as late).  Every other device ignores it (its time runs on its own).
         """
-        em = Emit()
+        em = DriverOutput()
         on = bool(on)
         if on and not self.info.time_follows_samples:
             if not self.stream_paced:
@@ -307,10 +307,11 @@ class DriverCore:
         return em
 
     # -- input ------------------------------------------------------------------------------------------------------
-    def on_block(self, stamp: int, block: Any = None, *, n: int | None = None, reject: str | None = None) -> Emit:
+    def on_block(self, stamp: int, block: Any = None, *, n: int | None = None,
+                 reject: str | None = None) -> DriverOutput:
         """A voltage block stamped ``stamp`` (first sample, ns); with ``reject`` (a reason) it is not applied and
         its ``n`` samples hold the last voltage (nothing if ``n`` is out of [1, max_block])."""
-        em = Emit()
+        em = DriverOutput()
         if self.state == "fault":
             em.log.append((ERROR, f"block at {stamp} ignored: device fault ({self.last_error})"))
             return em
@@ -421,9 +422,9 @@ class DriverCore:
         self._window["samples"] += u.shape[0]
 
     # -- time ------------------------------------------------------------------------------------------------------
-    def tick(self) -> Emit:
+    def tick(self) -> DriverOutput:
         """Poll the device, keep the FIFO fed, ramp on stale input; see the module docstring."""
-        em = Emit()
+        em = DriverOutput()
         if self.state == "fault":
             return em
         self._poll(em)
@@ -440,7 +441,7 @@ class DriverCore:
             self._feed(em)
         return em.extend(self._collect())
 
-    def _feed(self, em: Emit) -> None:
+    def _feed(self, em: DriverOutput) -> None:
         """Keep a clocked device's FIFO from running dry.  Before the first block: ``write_ahead`` of the safe
         voltage (the first block then lands that far ahead of the clock: the stream's margin).  Afterwards the
         driver's own holds stay close to the clock (below ``low_water``, up to 2·low_water), so that a stream
@@ -464,7 +465,7 @@ class DriverCore:
             self.starved_samples += want
         self._commit(self.guard.hold(want))
 
-    def _ramp(self, em: Emit, why: str) -> None:
+    def _ramp(self, em: DriverOutput, why: str) -> None:
         u_from = self.guard.u_last.tolist()
         r = self.guard.ramp_to_safe(self.s.ramp)
         em.log.append((WARN, f"{why}: ramping from {u_from} V to the safe state {self.s.limits.safe_voltage} V in "
@@ -472,13 +473,13 @@ class DriverCore:
         self._commit(r)
         self.state = "safe"
 
-    def _poll(self, em: Emit) -> None:
+    def _poll(self, em: DriverOutput) -> None:
         try:
             self.backend.poll()
         except DeviceFault as exc:
             self._fault(em, exc)
 
-    def _clock_or_fault(self, em: Emit) -> int:
+    def _clock_or_fault(self, em: DriverOutput) -> int:
         """The device clock; a fault reading it goes through :meth:`_fault` (then the write cursor is returned)."""
         try:
             return self.backend.clock()
@@ -486,7 +487,7 @@ class DriverCore:
             self._fault(em, exc)
             return self._w
 
-    def _fault(self, em: Emit, exc: DeviceFault) -> None:
+    def _fault(self, em: DriverOutput, exc: DeviceFault) -> None:
         """A device fault from any call: a disconnect stops the output (nothing can be written); anything else
         (underrun, overrun, limit, controller) is counted and, while a stream runs, ramps to the safe voltage — from
         the voltage the output holds when the device says so (``exc.held``: a set-and-hold controller that refused
@@ -514,9 +515,9 @@ class DriverCore:
         if self.state == "active":
             self._ramp(em, f"device {exc.kind}")
 
-    def _collect(self) -> Emit:
+    def _collect(self) -> DriverOutput:
         """Write what fits into the FIFO; map what the device applied and measured to stamps."""
-        em = Emit()
+        em = DriverOutput()
         applied: list[tuple[int, np.ndarray]] = []
         measured: list[tuple[int, np.ndarray]] = []
         for _attempt in range(3):   # a fault queues the safe ramp; the next attempt writes it (a DAQ restarts)
@@ -567,7 +568,7 @@ class DriverCore:
                 self._queue[0] = b[part.shape[0]:]
 
     # -- reporting ---------------------------------------------------------------------------------------------------
-    def _err(self, em: Emit, text: str, level: int = ERROR) -> None:
+    def _err(self, em: DriverOutput, text: str, level: int = ERROR) -> None:
         self.last_error = text
         em.log.append((level, text))
 
@@ -619,11 +620,11 @@ class DriverCore:
         return OK, self.state
 
     # -- managed (lifecycle) transitions -------------------------------------------------------------------------
-    def ramp_to_safe(self, why: str) -> Emit:
+    def ramp_to_safe(self, why: str) -> DriverOutput:
         """Commit the safe ramp now (a managed driver's deactivate/shutdown): the output goes from where it is to
         ``limits.safe_voltage`` along ``safe_ramp`` and holds there; later blocks restart from it.  Nothing on a
         device not started (it is at the safe voltage) or in fault (its output is stopped)."""
-        em = Emit()
+        em = DriverOutput()
         if not self._started or self.state == "fault":
             return em
         self._poll(em)

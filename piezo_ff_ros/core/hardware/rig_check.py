@@ -48,7 +48,7 @@ import numpy as np
 from ..config import PiezoConfig
 from ..safety import SafeRampConfig
 from .contract import FAULT_KINDS, StreamingBackend
-from .driver_core import DriverCore, DriverSettings, Emit
+from .driver_core import DriverCore, DriverSettings, DriverOutput
 
 __all__ = ["rig_check", "markdown", "DEFAULT_WRITE_AHEAD"]
 
@@ -98,13 +98,13 @@ class _Run:
         self.min_margin = math.inf
         self.read_delay = math.inf
 
-    def take(self, em: Emit) -> Emit:
+    def take(self, em: DriverOutput) -> DriverOutput:
         self.applied += em.applied
         self.measured += em.displacement
         self.log += em.log
         return em
 
-    def tick(self) -> Emit:
+    def tick(self) -> DriverOutput:
         em = self.take(self.core.tick())
         if self.core.info.clocked and self.core.state != "fault":
             clock = self.core.backend.clock()

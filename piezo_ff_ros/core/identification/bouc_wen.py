@@ -32,7 +32,7 @@ from ..config import BoucWenConfig
 from ..jsonable import JsonResult
 from ..models.bouc_wen import BoucWenModel
 from ..recording.run import RunData
-from .metrics import fit_percent
+from .goodness_of_fit import fit_percent
 
 __all__ = ["BoucWenFit", "identify_bouc_wen", "simulate_bouc_wen"]
 

@@ -28,7 +28,7 @@ import numpy as np
 from ..config import CreepConfig
 from ..lti import FactoredTF, TFMatrix
 from ..recording.run import RunData
-from .metrics import fit_percent, greedy_order_search
+from .goodness_of_fit import fit_percent, greedy_order_search
 from .modal import EntryModel, ModalFit, Structure, fit_row, simulate_row
 
 __all__ = ["CreepFit", "identify_creep", "step_events"]

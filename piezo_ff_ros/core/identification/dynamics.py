@@ -27,7 +27,7 @@ from ..config import DynamicsConfig
 from ..lti import FactoredTF, TFMatrix
 from ..recording.run import RunData
 from .creep import step_events
-from .metrics import fit_percent, greedy_order_search
+from .goodness_of_fit import fit_percent, greedy_order_search
 from .modal import EntryModel, ModalFit, Structure, era_poles, fit_row, poles_to_theta, simulate_row
 
 __all__ = ["DynamicsFit", "identify_dynamics"]

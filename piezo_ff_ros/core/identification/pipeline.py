@@ -187,7 +187,7 @@ def plant_fit(cfg: PiezoConfig, runs: Sequence[RunData], reference_outputs: Sequ
     output ``y`` (or with ``reference_outputs[i]``, e.g. the noise-free truth) as MATLAB ``compare`` does; several
     runs are scored as one record.  Nothing in ``runs`` may have been used for fitting.
     """
-    from .metrics import fit_percent
+    from .goodness_of_fit import fit_percent
 
     ys, yh = [], []
     for i, r in enumerate(runs):

@@ -22,6 +22,11 @@ from .schemas import METADATA_NAME, ros2msg_definition, type_hash
 
 __all__ = ["McapRecorder", "RecordingStopped"]
 
+#: strict_chunks: a message record's header in a chunk (31 bytes), with room to spare
+_RECORD_OVERHEAD = 64
+#: strict_chunks: room kept in a chunk for the schema and channel records that may share it
+_CHUNK_MARGIN = 8 * 1024
+
 
 class RecordingStopped(OSError):
     """Writing failed (disk full, file-size limit, I/O error): the recorder ended the file at its last durable
@@ -55,6 +60,10 @@ class McapRecorder:
         ``"zstd"`` (default), ``"lz4"`` or ``"none"``.
     metadata
         Optional initial run configuration, written at once as the ``piezo_ff_ros`` Metadata record.
+    strict_chunks
+        Chunks hold at most ``chunk_size`` bytes of uncompressed records: the open chunk is closed before a message
+        that would take it past (the MCAP writer itself closes a chunk only once it is over; a single larger message
+        gets a chunk of its own).  The recorder node's chunks (docs/topics.md).
 
     Examples
     --------
@@ -66,7 +75,8 @@ class McapRecorder:
 
     def __init__(self, path: str | os.PathLike[str], *, chunk_size: int = 512 * 1024,
                  flush_interval: float | None = 1.0, compression: str = "zstd",
-                 metadata: Mapping[str, Any] | None = None, library: str | None = None) -> None:
+                 metadata: Mapping[str, Any] | None = None, library: str | None = None,
+                 strict_chunks: bool = False) -> None:
         from mcap.writer import CompressionType, Writer
 
         comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
@@ -93,6 +103,9 @@ class McapRecorder:
         self._metadata: dict[str, str] = {}
         self._flush_interval = flush_interval
         self._unflushed_since: float | None = None
+        # strict_chunks: bytes of records in the open chunk (an upper bound) and what it may hold
+        self._chunk_limit = int(chunk_size) - _CHUNK_MARGIN if strict_chunks else None
+        self._chunk_bytes = 0
         self._last_pos = self._file.tell()
         self.message_count = 0
         self.bytes_in = 0
@@ -141,13 +154,18 @@ class McapRecorder:
                 raise ValueError(f"topic {topic}: not registered (call register_topic first)") from None
             self._sequence[cid] += 1
             data = bytes(raw_cdr)
+            size = len(data) + _RECORD_OVERHEAD
             try:
+                if self._chunk_limit is not None and self._chunk_bytes and \
+                        self._chunk_bytes + size > self._chunk_limit:
+                    self._close_chunk()       # before the message: the chunk stays within chunk_size
                 self._writer.add_message(channel_id=cid, log_time=int(log_time_ns), data=data,
                                          publish_time=int(log_time_ns if publish_time_ns is None
                                                           else publish_time_ns),
                                          sequence=self._sequence[cid] & 0xFFFFFFFF)
                 self.message_count += 1
                 self.bytes_in += len(data)
+                self._chunk_bytes += size
                 self._maybe_flush()
             except OSError as exc:
                 self._stop_on_error(exc)
@@ -175,12 +193,9 @@ class McapRecorder:
         with self._lock:
             if not self.closed:
                 try:
-                    self._writer.flush()  # type: ignore[no-untyped-call]  # mcap's Writer carries no annotations
-                    self._mark_durable()
+                    self._close_chunk()
                 except OSError as exc:
                     self._stop_on_error(exc)
-                self._unflushed_since = None
-                self._last_pos = self._file.tell()
 
     def close(self) -> None:
         """Finish the file (summary, Statistics, footer) and close it; idempotent."""
@@ -267,6 +282,14 @@ class McapRecorder:
         raise RecordingStopped(f"{self.path}: write failed ({reason}): {where}; "
                                f"{self.failure['lost_messages']} message(s) written after it lost", self.failure)
 
+    def _close_chunk(self) -> None:
+        """Close the open chunk and push the file to the OS (under the lock)."""
+        self._writer.flush()  # type: ignore[no-untyped-call]  # mcap's Writer carries no annotations
+        self._mark_durable()
+        self._last_pos = self._file.tell()
+        self._unflushed_since = None
+        self._chunk_bytes = 0
+
     def _maybe_flush(self) -> None:
         pos = self._file.tell()
         if pos != self._last_pos:  # the writer has just written a full chunk: push it to the OS now
@@ -274,15 +297,13 @@ class McapRecorder:
             self._mark_durable()
             self._last_pos = pos
             self._unflushed_since = None
+            self._chunk_bytes = 0
             return
         now = time.monotonic()
         if self._unflushed_since is None:
             self._unflushed_since = now
         if self._flush_interval is not None and now - self._unflushed_since >= self._flush_interval:
-            self._writer.flush()  # type: ignore[no-untyped-call]  # mcap's Writer carries no annotations
-            self._mark_durable()
-            self._last_pos = self._file.tell()
-            self._unflushed_since = None
+            self._close_chunk()
 
     def __enter__(self) -> "McapRecorder":
         return self

@@ -186,7 +186,7 @@ def generalized_plant(G_L: TFMatrix, cfg: HinfConfig) -> StateSpace:
 def lower_bound_dc(G_L: TFMatrix, cfg: HinfConfig | None = None) -> float:
     """A value the H∞ optimum cannot go below, from the response at ω = 0 alone.
 
-    Without ``cfg``: ``‖G_L(0)⁻¹‖₂`` — the bound for ``W2 = I`` in the limit ``eps_s → 0`` (as quoted in issue 2).
+    Without ``cfg``: ``‖G_L(0)⁻¹‖₂`` — the bound for ``W2 = I`` in the limit ``eps_s → 0``.
     With ``cfg``: the exact DC bound for those weights.  At ω = 0, ``Wr = 1`` and ``W1 = 1/eps_s``; with
     ``M = G_L(0)·W2⁻¹`` and ``D = W2·C(0)``, ``min_D ‖[D; (I − M D)/eps_s]‖ = 1/√(σ_min(M)² + eps_s²)`` (rotate by
     the SVD of M; each column is a scalar least-squares problem).  It is slightly below ``‖G_L(0)⁻¹‖``

@@ -1,4 +1,4 @@
-"""Tracking of known trajectories beyond the paper's model matching (issue 13).
+"""Tracking of known trajectories beyond the paper's model matching.
 
 - :mod:`.linear`: the compensated stage as a linear system (the cascade's ``C(s)`` then ``G_L``), its impulse and
   frequency responses, and a replica of the cascade that predicts the voltage a shaped reference will ask.

@@ -13,26 +13,28 @@ spec written by hand.
 Generators: :class:`Sine`, :class:`Step`, :class:`Staircase`, :class:`Circle` (paper Fig. 15), :class:`Raster`,
 :class:`PRBS`, :class:`Multisine`, :class:`Chirp`, :class:`Hold`, :class:`Spiral`, :class:`Ramp`, :class:`Table`
 (samples from an array or a file, played sample-exactly at their own rate); :class:`PerAxis` puts trajectories of
-some axes side by side on a stage of N axes (:func:`helix`: a circle over a z ramp); :class:`TrajectorySequence` concatenates named segments (``Sequence``, its old name, is an alias) and says
-which segment a sample belongs to.  :func:`check_workspace` refuses a trajectory that leaves the workspace.
+some axes side by side on a stage of N axes (:func:`helix`: a circle over a z ramp); :class:`TrajectorySequence`
+concatenates named segments and says which segment a sample belongs to.  :func:`check_trajectory_peaks` refuses a
+trajectory whose peak leaves ``±workspace_m`` on an axis.
 
 Layout: :mod:`.base` (the :class:`Trajectory` base), :mod:`.shapes`, :mod:`.tables`, :mod:`.excitation`,
-:mod:`.per_axis`, :mod:`.sequence`, :mod:`.spec` (:func:`from_dict`), :mod:`.workspace` (:func:`check_workspace`, :func:`peak`); every
-public name is re-exported here.
+:mod:`.per_axis`, :mod:`.sequence`, :mod:`.spec` (:func:`from_dict`), :mod:`.workspace`
+(:func:`check_trajectory_peaks`, :func:`peak`); every public name is re-exported here.
 """
 from __future__ import annotations
 
 from .base import Trajectory
 from .excitation import PRBS, Chirp, Multisine
 from .per_axis import PerAxis, Ramp, helix
-from .sequence import Segment, Sequence, TrajectorySequence
+from .sequence import Segment, TrajectorySequence
 from .shapes import Circle, Hold, Raster, Sine, Spiral, Staircase, Step
 from .spec import TRAJECTORY_TYPES, from_dict
 from .tables import Table
-from .workspace import check_workspace, peak
+from .workspace import check_trajectory_peaks, peak
 
 __all__ = [
     "Trajectory", "Sine", "Step", "Staircase", "Circle", "Raster", "PRBS", "Multisine", "Chirp", "Hold",
-    "TrajectorySequence", "Sequence", "Segment", "from_dict", "TRAJECTORY_TYPES", "Spiral", "Table", "check_workspace", "peak",
+    "TrajectorySequence", "Segment", "from_dict", "TRAJECTORY_TYPES", "Spiral", "Table", "check_trajectory_peaks",
+    "peak",
     "PerAxis", "Ramp", "helix",
 ]

@@ -1,7 +1,4 @@
-"""Named segments played one after the other (:class:`TrajectorySequence`), and which segment a sample belongs to.
-
-``Sequence`` is the old name of the class (it shadowed ``typing.Sequence`` wherever both were imported); it stays an
-alias until no module uses it."""
+"""Named segments played one after the other (:class:`TrajectorySequence`), and which segment a sample belongs to."""
 from __future__ import annotations
 
 import dataclasses
@@ -15,7 +12,7 @@ from numpy.typing import ArrayLike
 from ..config import ConfigError
 from .base import Trajectory, _axes, _finite, _plain
 
-__all__ = ["Segment", "TrajectorySequence", "Sequence"]
+__all__ = ["Segment", "TrajectorySequence"]
 
 
 @dataclass(frozen=True)
@@ -176,6 +173,3 @@ def _plain_meta(m: Any) -> Any:
         return [_plain_meta(v) for v in m]
     return _plain(m)
 
-
-#: the old name (shadowed ``typing.Sequence``); use :class:`TrajectorySequence`
-Sequence = TrajectorySequence

@@ -1,5 +1,7 @@
-"""Peak values of a trajectory, the workspace check (:func:`check_workspace`) and the stage's reachable range
-(:func:`reachable_range`, the compensator's default ``reference_limit``)."""
+"""Peak values of a trajectory, the check of its peaks against a symmetric workspace ``±workspace_m``
+(:func:`check_trajectory_peaks`) and the stage's reachable range (:func:`reachable_range`, the compensator's default
+``reference_limit``; the compensator checks its ``[min, max]`` per axis box with
+:func:`~piezo_ff_ros.core.parameter_book.check_box_parameter`)."""
 from __future__ import annotations
 
 import math
@@ -9,9 +11,9 @@ import numpy as np
 
 from ..config import ConfigError
 from .base import Trajectory
-from .sequence import Sequence
+from .sequence import TrajectorySequence
 
-__all__ = ["check_workspace", "peak", "reachable_range", "REACH_MARGIN"]
+__all__ = ["check_trajectory_peaks", "peak", "reachable_range", "REACH_MARGIN"]
 
 #: the default reference limit is this many times the stage's static reach at the voltage limit: a reference beyond
 #: it cannot be a position of this stage (a unit mistake, a corrupt sample), while every reachable one passes with
@@ -63,25 +65,25 @@ def _in_volts(meta: Mapping[str, Any]) -> bool:
     return meta.get("input") == "voltage" or meta.get("stage") in ("hysteresis", "plant")
 
 
-def check_workspace(traj: Trajectory, workspace_m: float, voltage_limit: float | None = None,
+def check_trajectory_peaks(traj: Trajectory, workspace_m: float, voltage_limit: float | None = None,
                     prefix: str = "trajectory", fs: float = 20000.0) -> None:
     """Refuse a trajectory that leaves ``±workspace_m`` on any axis (ConfigError naming the field).
 
-    Segments of a :class:`Sequence` whose meta says ``input: voltage`` (paper experiments on S0) or ``stage:
+    Segments of a :class:`TrajectorySequence` whose meta says ``input: voltage`` (paper experiments on S0) or ``stage:
     hysteresis|plant`` (the commissioning's characterisation of S0, played through a bypassed compensator) are in
     volts and checked against ``±voltage_limit`` instead (skipped when it is None).
     ``workspace_m <= 0`` disables the check.
     """
     if workspace_m <= 0:
         return
-    if isinstance(traj, Sequence):
+    if isinstance(traj, TrajectorySequence):
         for i, (name, t, meta) in enumerate(traj.segments_):
             limit = workspace_m
             if _in_volts(meta):
                 if voltage_limit is None:
                     continue
                 limit = voltage_limit
-            check_workspace(t, limit, None,
+            check_trajectory_peaks(t, limit, None,
                             prefix=f"{prefix}.segments[{i}].trajectory", fs=fs)
         return
     field_name = traj.length_fields[0] if traj.length_fields else "value"
