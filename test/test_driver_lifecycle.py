@@ -91,8 +91,10 @@ def probe():
 
 
 def _start(tmp_path, *args):
+    # a 0.1 s write-ahead (the default is 0.5 s): these checks stream blocks for fractions of a second and read
+    # what the device played, which a deeper write-ahead only delays
     return start_node("driver", "-p", "autostart:=false", "-p", "sim.mode:=clocked", "-p", "diagnostics_period:=0.2",
-                      *args, log_dir=tmp_path)
+                      "-p", "write_ahead:=0.1", *args, log_dir=tmp_path)
 
 
 def test_deactivate_at_100_volts_ramps_activate_resumes_shutdown_ends_safe(tmp_path, probe):

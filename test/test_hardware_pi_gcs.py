@@ -333,13 +333,13 @@ def test_an_unanswered_set_point_times_out_as_a_lost_link_without_spinning_a_cor
         be = PISetpointBackend(cfg, params(srv, timeout_ms=300))
         be.start(np.zeros(2))
         emu.mute("ERR?")                                             # pipython checks every command with ERR?
-        cpu0, t0 = time.process_time(), time.monotonic()
+        cpu0, t0 = time.thread_time(), time.monotonic()
         be.write(be.write_index, np.column_stack([np.linspace(0, 5, 1000), np.zeros(1000)]))
-        wall, cpu = time.monotonic() - t0, time.process_time() - cpu0
+        wall, cpu = time.monotonic() - t0, time.thread_time() - cpu0
         with pytest.raises(Disconnect, match="link to the controller lost"):
             be.poll()
         assert 0.3 <= wall < 2.0
-        assert cpu < 0.05 * wall + 0.02, f"{cpu:.2f} s of CPU in {wall:.2f} s"   # pipython alone spins
+        assert cpu < 0.05 * wall + 0.02, f"{cpu:.2f} s of CPU in {wall:.2f} s"   # pipython alone spins (this thread only: the emulator and other tests' threads share the process)
         be.close()
 
 
@@ -469,11 +469,11 @@ def test_an_unanswered_drr_query_times_out_without_spinning_a_core_and_ramps_to_
         query = player.link.dev.qDRR
 
         def timed_query(*args):                     # the CPU this process spends while the query stays unanswered
-            cpu0, t0 = time.process_time(), time.monotonic()
+            cpu0, t0 = time.thread_time(), time.monotonic()
             try:
                 return query(*args)
             finally:
-                spent.update(wall=time.monotonic() - t0, cpu=time.process_time() - cpu0)
+                spent.update(wall=time.monotonic() - t0, cpu=time.thread_time() - cpu0)
 
         player.link.dev.qDRR = timed_query
         with pytest.raises(TableError, match="no answer"):

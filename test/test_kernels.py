@@ -16,7 +16,7 @@ from piezo_ff_ros.core.kernels.limits import limit_run
 from piezo_ff_ros.core.lti import DiscreteModalSS, LTIFilter
 from piezo_ff_ros.core.models.bouc_wen import BoucWenModel, BoucWenState
 from piezo_ff_ros.core.models.effects import AmplifierSlewLimit
-from piezo_ff_ros.core.safety import VoltageGuard
+from piezo_ff_ros.core.safety import VoltageGuard, at_limit
 
 FS = 20000.0
 
@@ -129,7 +129,8 @@ def test_compensator_limited_like_the_driver_keeps_the_plants_state(paper_config
     guard.u_last[:] = u[0]
     applied = guard.apply(u)
     assert np.array_equal(applied, u)                     # the driver has nothing left to clip
-    assert guard.counters.saturated_samples == 0
+    # ... and still counts the samples the compensator held at the limit (the stage was saturated all the same)
+    assert guard.counters.saturated_samples == at_limit(u, limits.voltage) > 0
     h = BoucWenModel(paper_config.hysteresis).process_with_taps(applied)[1]["h"]
     assert np.array_equal(h[-1], comp.h)                  # the same voltage steps: the same h, bit for bit
 

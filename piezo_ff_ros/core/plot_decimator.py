@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .units import sample_period_ns
+
 __all__ = ["PlotDecimator", "StampDecimator", "STREAMS"]
 
 #: the streams a plot shows; ``error`` (reference − displacement) is formed from two of them
@@ -80,7 +82,7 @@ class PlotDecimator:
                 raise ValueError(f"{name}: expected a finite number > 0, got {v!r}")
         if self.rate > self.sample_rate:
             raise ValueError(f"rate: at most the sample rate {self.sample_rate:g} Hz, got {self.rate!r}")
-        self._pick = StampDecimator(int(round(1e9 / self.sample_rate)), max(1, int(round(self.sample_rate /
+        self._pick = StampDecimator(sample_period_ns(self.sample_rate), max(1, int(round(self.sample_rate /
                                                                                          self.rate))))
         self._waiting = {"reference": OrderedDict(), "displacement": OrderedDict()}
 
