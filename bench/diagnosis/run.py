@@ -1,4 +1,4 @@
-"""Independent withheld-effect benchmark of ``piezo-ff diagnose`` (issue 8): generate, diagnose through the CLI, score.
+"""Independent withheld-effect benchmark of ``piezo-ff diagnose``: generate, diagnose through the CLI, score.
 
 Each case: TRAIN and TEST records (``t,u_x,u_y,x,y`` CSV, SI units) of a truth plant made by ``truth.py`` (this
 benchmark's own simulator; nominal model read only through the public config) with a withheld effect in a form the

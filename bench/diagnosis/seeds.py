@@ -1,4 +1,4 @@
-"""Seed sets of the independent diagnosis benchmark (issue 8).
+"""Seed sets of the independent diagnosis benchmark.
 
 TUNING seeds may be looked at freely while the diagnosis engine is tuned.  HELD-OUT seeds were frozen on
 2026-11-23 (09:55 UTC), before any diagnosis was run on them, and are never looked at while tuning: report their
@@ -12,7 +12,7 @@ TUNING_SEEDS = (11, 12)
 HELDOUT_SEEDS = (90417, 90418)
 
 # frozen 2026-11-23 (14:25 UTC) by session 3, before any diagnosis ran on them: the seeds above (90417, 90418) were
-# looked at per case after the issue-8 engine work, so they no longer count as unseen.  The engine was frozen
+# looked at per case after the engine work that tuned on them, so they no longer count as unseen.  The engine was frozen
 # (GENERIC_MIN_EXTRA rule, tuned on seeds 11/12 only) before these were first run; run once, report, never tune on
 # them.
 FRESH_HELDOUT_SEEDS = (52609, 52610)

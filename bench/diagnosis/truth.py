@@ -1,4 +1,4 @@
-"""Truth simulator of the independent diagnosis benchmark (issue 8) — written apart from the code it judges.
+"""Truth simulator of the independent diagnosis benchmark — written apart from the code it judges.
 
 Nothing here imports ``piezo_ff_ros.core.models`` or ``piezo_ff_ros.core.diagnosis``: the nominal plant is read
 only through the public config (:func:`piezo_ff_ros.core.config.load_config`) and simulated by this module's own

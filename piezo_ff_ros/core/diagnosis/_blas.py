@@ -2,7 +2,7 @@
 
 The diagnosis multiplies many small Gram matrices and tall-thin products; multi-threaded OpenBLAS gains nothing on
 them and its worker threads busy-wait between calls, which on a 2-core machine cost ~7 s of CPU time (user and
-system) on a 10-minute 20 kHz record (issue 8).  :func:`single_threaded_blas` sets every OpenBLAS already loaded
+system) on a 10-minute 20 kHz record.  :func:`single_threaded_blas` sets every OpenBLAS already loaded
 in the process (numpy's and scipy's bundled copies) to one thread for the duration and restores the previous
 count; where the libraries cannot be found (another BLAS, another OS) it does nothing.  What threadpoolctl does,
 in the few lines this package needs.

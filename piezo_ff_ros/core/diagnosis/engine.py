@@ -64,7 +64,7 @@ __all__ = ["DiagnosisOptions", "DiagnosisResult", "DiagnosisArrays", "diagnose",
 def diagnose(cfg: PiezoConfig, train: RunData, test: RunData, options: DiagnosisOptions | None = None,
              log: Callable[[str], None] | None = None, test_history: RunData | None = None,
              discriminate: RunData | None = None) -> DiagnosisResult:
-    """Diagnose the gap between ``cfg`` and the measured runs (issue 5 §5, issue 8).
+    """Diagnose the gap between ``cfg`` and the measured runs.
 
     ``test_history``: the part of the same record that precedes ``test`` (``--data`` split: the training part).
     Its voltages drive the model before the held-out part so that the held-out part does not start from an

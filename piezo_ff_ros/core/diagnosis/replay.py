@@ -286,7 +286,7 @@ def simulate(cfg: PiezoConfig, u: np.ndarray, effects: Sequence[tuple[str, Mappi
 
 #: long runs are simulated in blocks of this many samples (the stages are block-invariant: the same output whatever
 #: the split), so that the stages' temporaries stay small and are reused instead of being mapped afresh from the
-#: system for every stage of a 12 M-sample run (page zeroing cost seconds of system time, issue 8)
+#: system for every stage of a 12 M-sample run (page zeroing cost seconds of system time)
 SIM_BLOCK = 1 << 20
 
 

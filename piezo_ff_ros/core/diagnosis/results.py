@@ -32,7 +32,7 @@ class DiagnosisOptions:
     fit_samples: int = 240_000
     score_samples: int = 480_000
     #: runs longer than this many samples (a 10-minute 20 kHz record has 12 M) fit on ``long_fit_samples`` and
-    #: score on ``long_score_samples``: a fixed time budget (issue 8: 10 minutes at 20 kHz in <= 20 s CPU), the
+    #: score on ``long_score_samples``: a fixed time budget (10 minutes at 20 kHz in <= 20 s CPU), the
     #: parameters of an effect that lasts the whole run are as well determined by 8 windows of 7.5 k samples as
     #: of 30 k (on the 10-minute benchmark record: delay 0.49968 ms vs 0.49977 ms, truth 0.5 ms)
     long_run_samples: int = 2_000_000

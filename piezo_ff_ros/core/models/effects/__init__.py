@@ -1,4 +1,4 @@
-"""Unmodelled effects as streaming stages: the vocabulary of the sim-to-real gap diagnosis (issue 5).
+"""Unmodelled effects as streaming stages: the vocabulary of the sim-to-real gap diagnosis.
 
 Each effect is a physically meaningful extension of the nominal chain with few parameters.  It is either a stage
 inserted before the chain on the voltage (``pre``: amplifier and timing effects), after it on the displacement
