@@ -66,7 +66,7 @@ def write_plots(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[E
         fig.suptitle(title)
         fig.tight_layout()
         path = out_dir / fname
-        fig.savefig(path, dpi=110)
+        fig.savefig(path, dpi=110, bbox_inches="tight")
         plt.close(fig)
         written.append(path)
 
@@ -91,11 +91,11 @@ def write_plots(recorded: Mapping[str, tuple[Any, ...]], experiments: Sequence[E
             ax.set_ylabel("y [µm]")
             ax.set_title(f"radius {r / UM:g} µm")
             ax.grid(True, lw=0.3)
-            ax.legend(fontsize=8, loc="upper right")
+            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
         fig.suptitle("Fig. 15 — circular trajectory tracking (last revolution)")
         fig.tight_layout()
         path = out_dir / "fig15_circles.png"
-        fig.savefig(path, dpi=110)
+        fig.savefig(path, dpi=110, bbox_inches="tight")
         plt.close(fig)
         written.append(path)
     return written

@@ -409,7 +409,7 @@ def plot_run(run: RunData, out_dir: str | Path, max_points: int = 20000) -> list
                 ax.plot(t, to_um(run.reference[sl, j]), "k--", lw=1, label="reference")
             ax.plot(t, to_um(run.y[sl, j]), lw=1, label="displacement")
             ax.set_ylabel(f"{axis} [µm]")
-            ax.legend(loc="best", fontsize=8)
+            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
             if run.reference is not None and np.isfinite(run.reference[sl, j]).any():
                 axs[1][j].plot(t, to_um(run.y[sl, j] - run.reference[sl, j]), lw=1, color="C3")
             else:   # an empty panel says why
@@ -424,7 +424,7 @@ def plot_run(run: RunData, out_dir: str | Path, max_points: int = 20000) -> list
         fig.tight_layout()
         safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
         path = out / f"{i:02d}_{safe}.png"
-        fig.savefig(path, dpi=90)
+        fig.savefig(path, dpi=90, bbox_inches="tight")
         plt.close(fig)
         written.append(path)
     return written
