@@ -116,7 +116,8 @@ def _excited(U: np.ndarray) -> np.ndarray:
 
 def _frf(U: np.ndarray, Y: np.ndarray, bins: np.ndarray) -> np.ndarray:
     """``G_k = Y_k U_k⁺`` on ``bins`` (least squares over realizations)."""
-    return Y[bins] @ np.linalg.pinv(U[bins])
+    G: np.ndarray = Y[bins] @ np.linalg.pinv(U[bins])
+    return G
 
 
 def _subspace(G: np.ndarray, w: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -134,7 +135,7 @@ def _subspace(G: np.ndarray, w: np.ndarray, n: int) -> tuple[np.ndarray, np.ndar
         Gb[i * p:(i + 1) * p] = (G * zi).transpose(1, 0, 2).reshape(p, M * m)
         Wb[i * m:(i + 1) * m] = (eye * zi).transpose(1, 0, 2).reshape(m, M * m)
     H = np.vstack([np.hstack([Wb.real, Wb.imag]), np.hstack([Gb.real, Gb.imag])])
-    R = np.linalg.qr(H.T, mode="r").T
+    R = np.asarray(scipy.linalg.qr(H.T, mode="r")[0]).T
     Us = np.linalg.svd(R[q * m:, q * m:])[0]
     O = Us[:, :n]
     A = np.linalg.lstsq(O[:-p], O[p:], rcond=None)[0]
@@ -180,9 +181,11 @@ def _input_matrix(A: np.ndarray, C: np.ndarray, G: np.ndarray, w: np.ndarray) ->
 
 
 def _response(A: np.ndarray, B: np.ndarray, C: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``C(z I − A)⁻¹B`` at ``z = e^{iw}``, ``[len(w), p, m]``."""
     lam, V = np.linalg.eig(A)
     z = np.exp(1j * w)
-    return ((C @ V)[None] / (z[:, None, None] - lam[None, None, :])) @ (np.linalg.inv(V) @ B)
+    G: np.ndarray = ((C @ V)[None] / (z[:, None, None] - lam[None, None, :])) @ (np.linalg.inv(V) @ B)
+    return G
 
 
 def _fit_order(U: np.ndarray, Y: np.ndarray, bins: np.ndarray, N: int, n: int
