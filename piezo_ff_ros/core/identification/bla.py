@@ -7,12 +7,13 @@ one linear system ``U [V] → Y [m]``:
 1. the nonparametric FRF ``G_k`` per frequency bin from the periodic steady state (last period) of every fitting
    realization, least squares over the realizations (``G_k = Y_k·U_k⁺``; the best linear approximation of a
    weakly nonlinear system under random-phase multisines);
-2. a discrete-time state space fitted to ``G_k`` on the excited bins by the frequency-domain subspace algorithm
-   (McKelvey, Akçay, Ljung, IEEE TAC 1996): ``A``, ``C`` from the shift structure of the extended observability
-   range, ``B`` by linear least squares (strictly proper: the config's G_L has no direct term); poles outside the
-   unit circle (the unexcited DC bin leaves slow poles free) are pulled back inside;
-3. the model in the config's form: the exact ZOH inverse of every mode (the core simulates a G_L entry with the
-   ZOH of its poles, so the discrete model is reproduced), ``Dp`` = the real part of its gain at the lowest excited
+2. the poles of a discrete-time state space fitted to ``G_k`` on the excited bins by the frequency-domain subspace
+   algorithm (McKelvey, Akçay, Ljung, IEEE TAC 1996: ``A`` from the shift structure of the extended observability
+   range); poles outside the unit circle are reflected in, poles far below the lowest excited bin (the DC bin is
+   not excited) and real poles at the Nyquist frequency are dropped; then, for those poles, every entry's residues
+   by linear least squares on ``G_k`` (strictly proper: the config's G_L has no direct term);
+3. the model in the config's form: continuous modes whose exact ZOH is the fitted discrete model (the core
+   simulates a G_L entry with the ZOH of its poles, so the fitted model is reproduced), ``Dp`` = the real part of its gain at the lowest excited
    bin (the static gain the feedforward inverts when hysteresis is off) and ``G_L(s) = G(s)·Dp⁻¹`` per entry as a
    factored transfer function (poles, invariant zeros, gain matched on the excited band).
 
@@ -168,32 +169,65 @@ def _real_modal(A: np.ndarray, C: np.ndarray, w_min: float) -> tuple[np.ndarray,
     return scipy.linalg.block_diag(*blocks), C @ np.hstack(cols)
 
 
-def _input_matrix(A: np.ndarray, C: np.ndarray, G: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """``B`` minimising ``Σ_k ‖G_k − C(z_k I − A)⁻¹B‖²`` (linear least squares)."""
-    lam, V = np.linalg.eig(A)
-    CV, Vi = C @ V, np.linalg.inv(V)
-    z = np.exp(1j * w)
-    Phi = (CV[None, :, :] / (z[:, None, None] - lam[None, None, :])) @ Vi      # [M, p, n]
-    X = Phi.reshape(-1, A.shape[0])
-    Yk = G.reshape(-1, G.shape[2])
-    B = np.linalg.lstsq(np.vstack([X.real, X.imag]), np.vstack([Yk.real, Yk.imag]), rcond=None)[0]
-    return np.asarray(B)
+def _poles(A: np.ndarray, dt: float) -> np.ndarray:
+    """Continuous poles of the discrete ``A`` (real block-diagonal: exact conjugate pairs) under the exact ZOH
+    inverse, ``p = log(λ)/dt``: the real ones and one of each pair (positive imaginary part)."""
+    lam = np.linalg.eigvals(A)
+    p = np.log(lam.astype(complex)) / dt
+    real = np.abs(p.imag) <= 1e-9 * np.maximum(1.0, np.abs(p))
+    return np.concatenate([p[real].real.astype(complex), p[~real & (p.imag > 0)]])
 
 
-def _response(A: np.ndarray, B: np.ndarray, C: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """``C(z I − A)⁻¹B`` at ``z = e^{iw}``, ``[len(w), p, m]``."""
-    lam, V = np.linalg.eig(A)
-    z = np.exp(1j * w)
-    G: np.ndarray = ((C @ V)[None] / (z[:, None, None] - lam[None, None, :])) @ (np.linalg.inv(V) @ B)
+def _basis(p: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
+    """Real-coefficient basis of the ZOH responses of the modes ``p`` at ``z = e^{iw}``, ``[len(w), n_states]``:
+    a real pole gives ``β/(z − λ)`` (``λ = e^{p·dt}``, ``β = (λ − 1)/p``), a pair gives the sum and i × the difference
+    of its two (so real coefficients are the real and imaginary part of the pair's residue)."""
+    z = np.exp(1j * w)[:, None]
+    cols = []
+    for pl in p:
+        lam = np.exp(pl * dt)
+        phi = ((lam - 1.0) / pl) / (z[:, 0] - lam)
+        if pl.imag == 0:
+            cols.append(phi)
+        else:
+            lc = np.conj(lam)
+            phic = ((lc - 1.0) / np.conj(pl)) / (z[:, 0] - lc)
+            cols += [phi + phic, 1j * (phi - phic)]
+    return np.column_stack(cols)
+
+
+def _residues(p: np.ndarray, coef: np.ndarray) -> np.ndarray:
+    """Complex residue matrices ``R [n_modes, out, in]`` of ``p`` from the basis coefficients of :func:`_basis`."""
+    out, i = [], 0
+    for pl in p:
+        if pl.imag == 0:
+            out.append(coef[i].astype(complex))
+            i += 1
+        else:   # r·φ + r̄·φ̄ = Re r·(φ + φ̄) + Im r·i(φ − φ̄)
+            out.append(coef[i] + 1j * coef[i + 1])
+            i += 2
+    return np.array(out)
+
+
+def _response(p: np.ndarray, coef: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
+    """The model's discrete (ZOH) frequency response at ``w``, ``[len(w), out, in]``."""
+    G: np.ndarray = np.einsum("kn,nij->kij", _basis(p, w, dt), coef)
     return G
 
 
-def _fit_order(U: np.ndarray, Y: np.ndarray, bins: np.ndarray, N: int, n: int
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _fit_order(U: np.ndarray, Y: np.ndarray, bins: np.ndarray, N: int, n: int, dt: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Poles (subspace, order ``n``) and, for them, every entry's residues by linear least squares on the FRF
+    (each entry its own residues: the config holds every entry with all the poles anyway; better than the
+    subspace's rank-one ``C·B``, e.g. 0.043 vs 0.056 relative test error at 300 mV, order 36)."""
     G = _frf(U, Y, bins)
     w = 2 * np.pi * bins / N
-    A, C = _subspace(G, w, n)
-    return A, _input_matrix(A, C, G, w), C
+    A, _ = _subspace(G, w, n)
+    p = _poles(A, dt)
+    X = _basis(p, w, dt)
+    T = G.reshape(len(w), -1)
+    coef = np.linalg.lstsq(np.vstack([X.real, X.imag]), np.vstack([T.real, T.imag]), rcond=None)[0]
+    return p, coef.reshape(X.shape[1], G.shape[1], G.shape[2])
 
 
 def _factored(p: np.ndarray, r: np.ndarray, s_band: np.ndarray) -> FactoredTF:
@@ -224,23 +258,27 @@ def _factored(p: np.ndarray, r: np.ndarray, s_band: np.ndarray) -> FactoredTF:
     return FactoredTF(k, num, den)
 
 
-def _to_config(A: np.ndarray, B: np.ndarray, C: np.ndarray, dt: float, w_band: np.ndarray, axes: Sequence[str]
+def _to_config(p: np.ndarray, coef: np.ndarray, dt: float, w_band: np.ndarray, axes: Sequence[str]
                ) -> tuple[BoucWenConfig, DynamicsConfig, dict[str, Any]]:
-    """``Dp`` and ``G_L = G·Dp⁻¹`` (continuous, exact ZOH inverse per mode) of the discrete model ``(A, B, C)``."""
-    lam, V = np.linalg.eig(A)
-    p = np.log(lam.astype(complex)) / dt
-    Bm = np.linalg.inv(V) @ B * (p / (lam - 1.0))[:, None]     # continuous input gains of the modes
-    Cm = C @ V
+    """``Dp`` and ``G_L = G·Dp⁻¹`` of the model (poles ``p``, basis coefficients ``coef``): continuous modes whose
+    exact ZOH is the fitted discrete model."""
+    R = _residues(p, coef)                                     # [modes, out, in]
+    pairs = p.imag != 0
+    pa = np.concatenate([p, np.conj(p[pairs])])               # conjugate-closed
+    Ra = np.concatenate([R, np.conj(R[pairs])])
     s_band = 1j * w_band / dt
-    G0 = (Cm[None] / (s_band[:1, None, None] - p[None, None, :])) @ Bm
-    Dp = np.real(G0[0])
-    Dp_inv = np.linalg.inv(Dp)
-    BL = Bm @ Dp_inv
-    n_ax = C.shape[0]
-    entries = [[_factored(p, Cm[i] * BL[:, j], s_band) for j in range(n_ax)] for i in range(n_ax)]
+
+    def cont(s: np.ndarray, Rm: np.ndarray) -> np.ndarray:
+        out: np.ndarray = np.einsum("kn,nij->kij", 1.0 / (s[:, None] - pa[None, :]), Rm)
+        return out
+
+    Dp = np.real(cont(s_band[:1], Ra)[0])
+    RL = Ra @ np.linalg.inv(Dp)
+    n_ax = R.shape[1]
+    entries = [[_factored(pa, RL[:, i, j], s_band) for j in range(n_ax)] for i in range(n_ax)]
     tfm = TFMatrix.from_nested(entries)
     # the conversion's error over the band, relative to each entry's largest response
-    modal = (Cm[None] / (s_band[:, None, None] - p[None, None, :])) @ BL
+    modal = cont(s_band, RL)
     err = max(float(np.max(np.abs(tfm[i, j].eval(s_band) - modal[:, i, j])) / np.max(np.abs(modal[:, i, j])))
               for i in range(n_ax) for j in range(n_ax))
     zero = tuple(tuple(0.0 for _ in range(n_ax)) for _ in range(n_ax))
@@ -318,8 +356,8 @@ def identify_linear_dynamics(runs: Sequence[RunData], validation: Sequence[RunDa
         Ufit, Yfit, Uho, Yho = U[:, :, :-1], Y[:, :, :-1], U[bins, :, -1], Y[bins, :, -1]
         w = 2 * np.pi * bins / N
         for n in ORDERS_AUTO:
-            A, B, C = _fit_order(Ufit, Yfit, bins, N, n)
-            E = Yho - np.einsum("kij,kj->ki", _response(A, B, C, w), Uho)
+            pn, cn = _fit_order(Ufit, Yfit, bins, N, n, dt)
+            E = Yho - np.einsum("kij,kj->ki", _response(pn, cn, w, dt), Uho)
             tried[str(n)] = float(np.linalg.norm(E) / np.linalg.norm(Yho))
             say(f"dynamics: linear order {n}: relative error on the held-out fitting realization {tried[str(n)]:.4f}")
         best = min(tried.values())
@@ -328,9 +366,9 @@ def identify_linear_dynamics(runs: Sequence[RunData], validation: Sequence[RunDa
         n_sel = int(order)
         if n_sel < 1:
             raise ValueError(f"--dynamics-order: expected an integer ≥ 1 or auto, got {order!r}")
-    A, B, C = _fit_order(U, Y, bins, N, n_sel)
+    poles, coef = _fit_order(U, Y, bins, N, n_sel, dt)
     w_band = 2 * np.pi * bins / N
-    hyst, dyn, facts = _to_config(A, B, C, dt, w_band, axes)
+    hyst, dyn, facts = _to_config(poles, coef, dt, w_band, axes)
     Dp = np.array(hyst.Dp, float)
 
     def simulate(u: np.ndarray) -> np.ndarray:
@@ -342,7 +380,7 @@ def identify_linear_dynamics(runs: Sequence[RunData], validation: Sequence[RunDa
         f"{fit_val or fit_tr} %")
     return LinearDynamicsFit(order=n_sel, fit_train=fit_tr, fit_validation=fit_val, orders_tried=tried,
                              info={"method": "nonparametric FRF (last period, LS over realizations) + "
-                                             "frequency-domain subspace (McKelvey 1996), exact ZOH inverse",
+                                             "frequency-domain subspace poles (McKelvey 1996) + per-entry residues by LS, exact ZOH modes",
                                    "bins": int(len(bins)), "realizations": int(U.shape[2]), **facts},
                              hysteresis=hyst, config=dyn)
 
