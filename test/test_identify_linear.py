@@ -146,3 +146,17 @@ def test_fsm_hysteresis_is_refused_in_one_line(shared_data, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1, err
     assert "broadband" in err[0] and "--stage dynamics" in err[0]
+
+
+def test_linear_dynamics_alone_need_periodic_records(tmp_path, capsys):
+    """A voltage record that says nothing of its periods (a CSV) tagged dynamics alone: one line saying what the
+    linear identification needs."""
+    t = np.arange(4000) / FS
+    u = np.column_stack([np.sin(2 * np.pi * 50 * t), np.cos(2 * np.pi * 70 * t)])
+    rows = np.column_stack([t, u, 1e-6 * u])
+    f = tmp_path / "dyn.csv"
+    np.savetxt(f, rows, delimiter=",", header="t,u_x,u_y,x,y", comments="")
+    code = cli_main(["identify", "--data", str(f), "--stage", "dynamics", "--quiet", "--out", str(tmp_path / "c.yaml")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "periodic records" in err[0]

@@ -363,6 +363,9 @@ def identify_linear_dynamics(runs: Sequence[RunData], validation: Sequence[RunDa
         best = min(tried.values())
         n_sel = min(int(k) for k, v in tried.items() if v <= 1.02 * best)
     else:
+        if isinstance(order, bool) or not isinstance(order, (int, np.integer)):
+            raise ValueError(f"--dynamics-order: linear dynamics take one order for the whole model (an integer ≥ 1 "
+                             f"or auto), got {order!r}")
         n_sel = int(order)
         if n_sel < 1:
             raise ValueError(f"--dynamics-order: expected an integer ≥ 1 or auto, got {order!r}")
