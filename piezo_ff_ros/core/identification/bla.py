@@ -136,8 +136,8 @@ def _subspace(G: np.ndarray, w: np.ndarray, n: int) -> tuple[np.ndarray, np.ndar
         Gb[i * p:(i + 1) * p] = (G * zi).transpose(1, 0, 2).reshape(p, M * m)
         Wb[i * m:(i + 1) * m] = (eye * zi).transpose(1, 0, 2).reshape(m, M * m)
     H = np.vstack([np.hstack([Wb.real, Wb.imag]), np.hstack([Gb.real, Gb.imag])])
-    R = np.asarray(scipy.linalg.qr(H.T, mode="r")[0]).T
-    Us = np.linalg.svd(R[q * m:, q * m:])[0]
+    R = np.asarray(scipy.linalg.qr(H.T, mode="economic")[1]).T     # the square triangular factor only
+    Us = np.linalg.svd(R[q * m:, q * m:], full_matrices=False)[0]
     O = Us[:, :n]
     A = np.linalg.lstsq(O[:-p], O[p:], rcond=None)[0]
     return _real_modal(A, O[:p], float(np.min(w)))
