@@ -160,3 +160,19 @@ def test_linear_dynamics_alone_need_periodic_records(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1, err
     assert "periodic records" in err[0]
+
+
+def test_check_does_not_refuse_a_config_without_vibration_stage(tmp_path, capsys):
+    """A config whose cascade has no vibration stage (as a linear-only identification writes) passes ``check``
+    whatever its H∞ weights would give: nothing is synthesised for a stage the compensator does not build."""
+    from dataclasses import replace
+
+    cfg = load_config()
+    off = replace(cfg, cascade=replace(cfg.cascade, vibration=False),
+                  vibration=replace(cfg.vibration, gamma_max=0.5)).validate()
+    path = tmp_path / "novib.yaml"
+    off.to_yaml(path)
+    code = cli_main(["check", str(path), "--json", str(tmp_path / "c.json")])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    assert json.loads((tmp_path / "c.json").read_text())["hinf"] == {"checked": False, "vibration": "off"}
