@@ -350,6 +350,6 @@ def run_graph_learning(out_dir: Path, truth: str = "asymmetric", iterations: int
         play = play_graph(out_dir / "play", r, True, learning_file=str(stored), truth_file=truth_file, say=say,
                           timeout=timeout, domain_id=domain_id, config_file=config_file)
     preview_row = _row(trials[0][1], "preview", truth, r, mask, case, printed)
-    learn_row = {**_row(play, "learning", truth, r, mask, case, printed), "correction_file": str(stored), "trials": len(trials),
-                 "iterations": iterations, "learning": res.to_json()}
+    learn_row = {**_row(play, "learning", truth, r, mask, case, printed), "correction_file": str(stored),
+                 "trials": len(trials), "iterations": iterations, "learning": res.to_json()}
     return [preview_row, learn_row]

@@ -13,9 +13,10 @@ one linear system ``U [V] → Y [m]``:
    not excited) and real poles at the Nyquist frequency are dropped; then, for those poles, every entry's residues
    by linear least squares on ``G_k`` (strictly proper: the config's G_L has no direct term);
 3. the model in the config's form: continuous modes whose exact ZOH is the fitted discrete model (the core
-   simulates a G_L entry with the ZOH of its poles, so the fitted model is reproduced), ``Dp`` = the real part of its gain at the lowest excited
-   bin (the static gain the feedforward inverts when hysteresis is off) and ``G_L(s) = G(s)·Dp⁻¹`` per entry as a
-   factored transfer function (poles, invariant zeros, gain matched on the excited band).
+   simulates a G_L entry with the ZOH of its poles, so the fitted model is reproduced), ``Dp`` = the real part of
+   its gain at the lowest excited bin (the static gain the feedforward inverts when hysteresis is off) and
+   ``G_L(s) = G(s)·Dp⁻¹`` per entry as a factored transfer function (poles, invariant zeros, gain matched on the
+   excited band).
 
 The order is given, or chosen (``auto``) on the fitting data alone: the last fitting realization is held out of
 the FRF and the smallest order whose prediction error on it is within 2 % of the best is kept, then the model is
@@ -383,7 +384,8 @@ def identify_linear_dynamics(runs: Sequence[RunData], validation: Sequence[RunDa
         f"{fit_val or fit_tr} %")
     return LinearDynamicsFit(order=n_sel, fit_train=fit_tr, fit_validation=fit_val, orders_tried=tried,
                              info={"method": "nonparametric FRF (last period, LS over realizations) + "
-                                             "frequency-domain subspace poles (McKelvey 1996) + per-entry residues by LS, exact ZOH modes",
+                                             "frequency-domain subspace poles (McKelvey 1996) + per-entry "
+                                             "residues by LS, exact ZOH modes",
                                    "bins": int(len(bins)), "realizations": int(U.shape[2]), **facts},
                              hysteresis=hyst, config=dyn)
 
