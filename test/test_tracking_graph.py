@@ -125,3 +125,36 @@ def test_the_graph_case_starts_only_once_the_recorder_and_every_block_writer_mat
     client = _SteppedClient([(_ALL_RECORDED, no_sensor)], _READERS)
     _play_when_recorded(_FakeGraph(), client, timeout=1.0)
     assert client.started_with is not None
+
+
+def test_the_graph_case_is_of_the_configured_stage():
+    """The reference the graph plays is built on the config's axes: a 20 µm, 10 Hz sine on a single stack, the
+    circle in the x-y plane (z at rest) on the XYZ tube, the paper's circle (bit for bit) on the paper's stage."""
+    from pathlib import Path
+
+    from piezo_ff_ros.cli.track_graph import graph_case
+    from piezo_ff_ros.core.config import load_config
+
+    cfgs = Path(__file__).resolve().parents[1] / "config"
+    case1, r1, m1 = graph_case(load_config(cfgs / "single_stack.yaml"))
+    assert case1.trajectory == "sine" and r1.shape[1] == 1 and m1.any()
+    assert np.max(np.abs(r1)) == pytest.approx(20e-6)
+    case3, r3, _ = graph_case(load_config(cfgs / "xyz_tube.yaml"))
+    assert case3.trajectory == "circle" and r3.shape[1] == 3 and not np.any(r3[:, 2])
+    case2, r2, _ = graph_case(load_config(None, None))
+    _, r_paper, _ = graph_case()
+    assert case2.trajectory == "circle" and np.array_equal(r2, r_paper)
+
+
+def test_a_single_axis_stage_through_the_graph(tmp_path):
+    """``track --graph`` with a 1-axis ``--config``: driver, compensator and recorder run that stage (not the
+    paper's), and the preview tracks its 10 Hz sine as closely as the paper's circle."""
+    pytest.importorskip("rclpy")
+    from pathlib import Path
+
+    from piezo_ff_ros.cli.track_graph import run_graph_case
+
+    cfg_file = str(Path(__file__).resolve().parents[1] / "config" / "single_stack.yaml")
+    row = run_graph_case(tmp_path, preview=True, domain_id=int(os.environ["ROS_DOMAIN_ID"]), config_file=cfg_file)
+    assert row["graph"] and row["trajectory"] == "sine" and row["axes"] == ["x"]
+    assert row["rms_error_um"] < 0.05 and row["peak_voltage_v"] <= 200.0

@@ -1,7 +1,7 @@
 """``piezo-ff check [CONFIG] [--variant NAME] [--json FILE] [--no-synthesis]``: validate a config and report on it.
 
 Prints every transfer function's facts (:mod:`piezo_ff_ros.core.checks`) and then synthesises the H∞ vibration
-compensator the config asks for (≈ 2 s), so that a config the compensator cannot build — γ_max below what any
+compensator the config asks for (≈ 2 s; none when its cascade has no vibration stage), so that a config the compensator cannot build — γ_max below what any
 controller reaches, a reduction order too low — is refused here, with exit code 2, and not later by ``reproduce``,
 ``demo`` or the compensator node.
 """
@@ -34,6 +34,9 @@ def run(args: argparse.Namespace) -> int:
     failure = None
     if args.no_synthesis:
         rep["hinf"] = {"checked": False}
+    elif not cfg.cascade.vibration:   # the compensator builds no vibration stage: nothing to synthesise
+        rep["hinf"] = {"checked": False, "vibration": "off"}
+        print("  H∞: vibration stage off in the cascade (not synthesised)")
     elif cfg.vibration.controller is not None:
         rep["hinf"] = {"checked": False, "controller": "given in the config"}
         print("  H∞: controller given in the config (not synthesised)")

@@ -42,7 +42,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
                    help="also run the constrained-least-squares preview on the cases where the limits bind "
                         "(nominal truth; ≈ 6 min more)")
     p.add_argument("--corrections", metavar="DIR", help="store each learned correction (.npz per trajectory/truth)")
-    p.add_argument("--graph", metavar="DIR", help="also play the 20 µm circle at 10 Hz through the ROS node graph, "
+    p.add_argument("--graph", metavar="DIR", help="also play the 20 µm circle at 10 Hz (the stage of --config: its "
+                   "20 µm, 10 Hz case, a sine on one axis) through the ROS node graph, "
                    "recorded to DIR/.../run.mcap and replayed: cascade and + preview on the nominal truth; cascade, "
                    "+ preview and + learning (learned through the graph from the measured displacement, stored to "
                    "DIR/learning_asymmetric/correction.npz, played by the compensator's learning.file) on the "
@@ -106,11 +107,19 @@ def run(args: argparse.Namespace) -> int:
         from .track_graph import run_graph_case, run_graph_learning
 
         g = Path(args.graph)
+        # the stage --config describes ('' = the packaged paper's); a variant is written out as the file the nodes load
+        stage_file = str(Path(args.config).resolve()) if args.config else ""
+        if args.variant:
+            g.mkdir(parents=True, exist_ok=True)
+            stage_file = str((g / "printed.yaml").resolve())
+            Path(stage_file).write_text(printed.to_yaml())
         for preview in (False, True):
-            result["cases"].append(run_graph_case(g / ("preview" if preview else "cascade"), preview, say))
-        result["cases"].append(run_graph_case(g / "cascade_asymmetric", False, say, truth="asymmetric"))
+            result["cases"].append(run_graph_case(g / ("preview" if preview else "cascade"), preview, say,
+                                                  config_file=stage_file))
+        result["cases"].append(run_graph_case(g / "cascade_asymmetric", False, say, truth="asymmetric",
+                                              config_file=stage_file))
         result["cases"].extend(run_graph_learning(g / "learning_asymmetric", "asymmetric", args.graph_iterations,
-                                                  say=say))
+                                                  say=say, config_file=stage_file))
     result["targets"] = check_targets(result)
     print(format_table(result))
     if args.json:

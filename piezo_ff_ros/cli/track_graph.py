@@ -1,6 +1,8 @@
 """The graph cases of ``piezo-ff track --graph``: the 20 µm circle at 10 Hz through the ROS node graph, recorded,
 replayed — cascade, + preview, and + a correction learned through the graph.
 
+The stage is the one ``--config`` describes (default the paper's; on another stage the benchmark's 20 µm, 10 Hz
+case of its axes: a sine on one axis, the circle in the plane of the first two with the others at rest).
 Driver (simulated positioner: the printed model for the ``nominal`` truth, or the ``asymmetric`` truth given to
 the driver as its own config file while the compensator keeps the printed model), compensator (cascade, the
 preview and the learned correction as runtime parameters ``preview.enabled`` / ``learning.file``), trajectory
@@ -32,6 +34,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 if TYPE_CHECKING:
+    from ..core.config import PiezoConfig
     from ..core.experiments import Recorded
     from ..core.tracking.benchmark import Case
     from ..ros.graph_session import GraphClient
@@ -52,22 +55,32 @@ class GraphRun:
     seconds: float
 
 
-def graph_case() -> tuple[Case, np.ndarray, np.ndarray]:
-    """The benchmark case played through the graph and its reference: ``(case, r [N, axes], mask [N])``."""
+def graph_case(cfg: PiezoConfig | None = None) -> tuple[Case, np.ndarray, np.ndarray]:
+    """The benchmark case played through the graph on the stage of ``cfg`` (default the paper's) and its reference:
+    ``(case, r [N, axes], mask [N])``.
+
+    On the paper's two axes the 20 µm circle at 10 Hz (as it always was, bit for bit); on other axes the benchmark's
+    20 µm, 10 Hz case of those axes (:func:`~piezo_ff_ros.core.tracking.benchmark.benchmark_cases`).
+    """
     from ..core.config import load_config
-    from ..core.tracking.benchmark import Case, evaluation_window, reference_with_lead_in
+    from ..core.tracking.benchmark import Case, benchmark_cases, evaluation_window, reference_with_lead_in
     from ..core.trajectories import Circle
 
-    fs = load_config(None, None).sample_rate
-    case = Case("circle", 20, 10.0, Circle(radius=20e-6, frequency=10.0, revolutions=4))
+    cfg = cfg if cfg is not None else load_config(None, None)
+    fs = cfg.sample_rate
+    if tuple(cfg.axes) == ("x", "y"):
+        case = Case("circle", 20, 10.0, Circle(radius=20e-6, frequency=10.0, revolutions=4))
+    else:
+        case = next(c for c in benchmark_cases(True, cfg.axes) if c.frequency_hz == 10 and c.size_um == 20)
     r, n_lead = reference_with_lead_in(case, fs)
     return case, r, evaluation_window(case, r, n_lead, fs)
 
 
-def truth_config_file(truth: str, out_dir: Path) -> str:
-    """The driver's config for ``truth``: '' (the packaged printed model) or a YAML file written to ``out_dir``."""
+def truth_config_file(truth: str, out_dir: Path, config_file: str = "") -> str:
+    """The driver's config for ``truth``: ``config_file`` for ``nominal`` ('' = the packaged printed model) or a
+    YAML file written to ``out_dir`` (the asymmetric truth of ``config_file``'s stage)."""
     if truth == "nominal":
-        return ""
+        return config_file
     if truth not in GRAPH_TRUTHS:
         raise ValueError(f"graph truth: unknown {truth!r}; use one of {', '.join(GRAPH_TRUTHS)}")
     from ..core.config import load_config
@@ -75,13 +88,13 @@ def truth_config_file(truth: str, out_dir: Path) -> str:
 
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / f"truth_{truth}.yaml"
-    path.write_text(truth_plant(load_config(None, None), truth).cfg.to_yaml())
+    path.write_text(truth_plant(load_config(config_file or None, None), truth).cfg.to_yaml())
     return str(path)
 
 
 def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str = "", truth_file: str = "",
                noise_std: float = 0.0, seed: int = 0, say: Callable[[str], None] = lambda s: None,
-               timeout: float = 300.0, domain_id: int | None = None) -> GraphRun:
+               timeout: float = 300.0, domain_id: int | None = None, config_file: str = "") -> GraphRun:
     """Play the table ``r`` [N, axes] once through driver, compensator, trajectory and recorder; read the MCAP back.
 
     Parameters
@@ -101,17 +114,22 @@ def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str =
         the play, the recording holding the whole segment.
     domain_id : int, optional
         ROS domain of the graph (default: derived by :func:`~piezo_ff_ros.ros.env.apply_ros_env_defaults`).
+    config_file : str
+        The stage's config ('' = the packaged paper's): the compensator's and the recorder's, and the driver's
+        unless ``truth_file`` is given; its sample rate is the graph's.
 
     Returns
     -------
     GraphRun
         Displacement and voltage on the compensator's stream index.
     """
+    from ..core.config import load_config
     from ..core.tracking.preview import PreviewConfig
     from ..ros.graph_session import GraphClient
     from ..ros.launcher import GraphLauncher
 
-    fs = 20000.0
+    stage_cfg = load_config(config_file or None, None)
+    fs = stage_cfg.sample_rate
     L = PreviewConfig().preview_samples(fs) if preview else 0
     preview_s = L / fs
     out_dir = Path(out_dir)
@@ -122,10 +140,12 @@ def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str =
     if mcap.exists():
         mcap.unlink()
     spec = {"type": "sequence", "segments": [{"name": SEGMENT, "meta": {"input": "reference"}, "trajectory": {
-        "type": "table", "file": str(table), "sample_rate": fs}}]}
+        "type": "table", "file": str(table), "sample_rate": fs,
+        **({"axes": list(stage_cfg.axes)} if config_file else {})}}]}
     comp = ["-p", f"preview.enabled:={'true' if preview else 'false'}"]
     if learning_file:
         comp += ["-p", f"learning.file:={learning_file}"]
+    stage = ["-p", f"config_file:={config_file}"] if config_file else []
     # no autostart: the trajectory starts once the recorder has matched every block publisher (below)
     traj = ["-p", "mode:=lockstep", "-p", "min_subscribers:=2", "-p", f"preview_s:={preview_s}",
             "-p", f"lockstep_timeout:={float(timeout)}", "-p", f"trajectory:='{json.dumps(spec)}'"]
@@ -133,9 +153,10 @@ def play_graph(out_dir: Path, r: np.ndarray, preview: bool, learning_file: str =
     # simulated driver must not take such a pause for a dead stream and ramp to its safe state in the middle of
     # the trial (its own samples would break the segment): the longest stale timeout the config allows
     drv = ["-p", "limits.stale_timeout:=60.0", "-p", f"noise_std:={float(noise_std)}", "-p", f"seed:={int(seed)}"]
-    if truth_file:
-        drv += ["-p", f"config_file:={truth_file}"]
-    g = GraphLauncher({"recorder": ["-p", f"output:={mcap}"], "driver": drv, "compensator": comp, "trajectory": traj},
+    if truth_file or config_file:
+        drv += ["-p", f"config_file:={truth_file or config_file}"]
+    g = GraphLauncher({"recorder": ["-p", f"output:={mcap}"] + stage, "driver": drv, "compensator": comp + stage,
+                       "trajectory": traj},
                       log_dir=out_dir / "logs", domain_id=domain_id)
     n = len(r)
     t0 = time.monotonic()
@@ -236,28 +257,38 @@ def _recorded_segment(mcap: Path, n: int, strict: bool = False,
     return seg
 
 
-def _row(run: GraphRun, method: str, truth: str, r: np.ndarray, mask: np.ndarray) -> dict:
+def _row(run: GraphRun, method: str, truth: str, r: np.ndarray, mask: np.ndarray, case: Case | None = None,
+         cfg: PiezoConfig | None = None) -> dict:
+    """A case row; ``case``/``cfg`` None: the paper's circle on the paper's stage (the row as it always was)."""
     from ..core.tracking.benchmark import tracking_metrics
 
-    return {"trajectory": "circle", "size_um": 20, "frequency_hz": 10.0, "method": method, "truth": truth,
-            "graph": True, **tracking_metrics(run.y, r, run.u, mask, 20000.0), "mcap": str(run.mcap),
+    head = ({"trajectory": "circle", "size_um": 20, "frequency_hz": 10.0} if case is None else
+            {"trajectory": case.trajectory, "size_um": case.size_um, "frequency_hz": float(case.frequency_hz)})
+    fs = 20000.0 if cfg is None else cfg.sample_rate
+    axes = {} if cfg is None or tuple(cfg.axes) == ("x", "y") else {"axes": list(cfg.axes)}
+    return {**head, "method": method, "truth": truth, "graph": True, **axes,
+            **tracking_metrics(run.y, r, run.u, mask, fs), "mcap": str(run.mcap),
             "preview_s": run.preview_s, "window_samples": int(mask.sum())}
 
 
+
 def run_graph_case(out_dir: Path, preview: bool, say: Callable[[str], None] = lambda s: None, timeout: float = 300.0,
-                   domain_id: int | None = None, truth: str = "nominal") -> dict:
-    """Play the 20 µm circle at 10 Hz through the graph, cascade alone or + preview; returns a case row
-    (``graph: true``)."""
-    _, r, mask = graph_case()
+                   domain_id: int | None = None, truth: str = "nominal", config_file: str = "") -> dict:
+    """Play the 20 µm case at 10 Hz of the stage of ``config_file`` ('' = the paper's circle) through the graph,
+    cascade alone or + preview; returns a case row (``graph: true``; ``axes`` when not the paper's)."""
+    from ..core.config import load_config
+
+    cfg = load_config(config_file or None, None)
+    case, r, mask = graph_case(cfg)
     out_dir = Path(out_dir)
-    run = play_graph(out_dir, r, preview, truth_file=truth_config_file(truth, out_dir), say=say, timeout=timeout,
-                     domain_id=domain_id)
-    return _row(run, "preview" if preview else "cascade", truth, r, mask)
+    run = play_graph(out_dir, r, preview, truth_file=truth_config_file(truth, out_dir, config_file), say=say,
+                     timeout=timeout, domain_id=domain_id, config_file=config_file)
+    return _row(run, "preview" if preview else "cascade", truth, r, mask, case, cfg)
 
 
 def run_graph_learning(out_dir: Path, truth: str = "asymmetric", iterations: int = 2, noise_std: float = 0.0,
                        say: Callable[[str], None] = lambda s: None, timeout: float = 300.0,
-                       domain_id: int | None = None) -> list[dict]:
+                       domain_id: int | None = None, config_file: str = "") -> list[dict]:
     """Learn a correction through the graph (trials measured by the driver's sensor) and play it from its file.
 
     Parameters
@@ -272,6 +303,8 @@ def run_graph_learning(out_dir: Path, truth: str = "asymmetric", iterations: int
     noise_std : float
         Sensor noise in the learning trials [m]; the final play is noise-free, so that its figures are of the
         true displacement.
+    config_file : str
+        The stage's config ('' = the paper's): the compensator's model and the truth's stage.
 
     Returns
     -------
@@ -288,9 +321,9 @@ def run_graph_learning(out_dir: Path, truth: str = "asymmetric", iterations: int
     if isinstance(iterations, bool) or not isinstance(iterations, int) or not 1 <= iterations <= 20:
         raise ValueError(f"graph learning iterations: expected an integer in 1…20, got {iterations!r}")
     out_dir = Path(out_dir)
-    case, r, mask = graph_case()
-    truth_file = truth_config_file(truth, out_dir)
-    printed = load_config(None, None)
+    printed = load_config(config_file or None, None)
+    case, r, mask = graph_case(printed)
+    truth_file = truth_config_file(truth, out_dir, config_file)
     say("graph learning: build the model's compensated stage (the learning operator T̂⁻¹)")
     model = TrackingModel.build(printed, PreviewConfig())
     spec = {"trajectory": case.traj.to_dict(), "lead_in_s": 0.1}
@@ -303,7 +336,7 @@ def run_graph_learning(out_dir: Path, truth: str = "asymmetric", iterations: int
         lf = "" if not np.any(delta) else str(save_correction(d / "correction.npz", delta, printed.sample_rate, spec,
                                                                  {"truth": truth, "trial": j, "source": "graph"}))
         run = play_graph(d, r, True, learning_file=lf, truth_file=truth_file, noise_std=noise_std, seed=j,
-                         say=say, timeout=timeout, domain_id=domain_id)
+                         say=say, timeout=timeout, domain_id=domain_id, config_file=config_file)
         trials.append((np.array(delta, float), run))
         return run.y
 
@@ -315,8 +348,8 @@ def run_graph_learning(out_dir: Path, truth: str = "asymmetric", iterations: int
                  and np.any(delta)), None)
     if play is None:   # noisy trials (or the best is Δ = 0): one more play, sensor noise off
         play = play_graph(out_dir / "play", r, True, learning_file=str(stored), truth_file=truth_file, say=say,
-                          timeout=timeout, domain_id=domain_id)
-    preview_row = _row(trials[0][1], "preview", truth, r, mask)
-    learn_row = {**_row(play, "learning", truth, r, mask), "correction_file": str(stored), "trials": len(trials),
-                 "iterations": iterations, "learning": res.to_json()}
+                          timeout=timeout, domain_id=domain_id, config_file=config_file)
+    preview_row = _row(trials[0][1], "preview", truth, r, mask, case, printed)
+    learn_row = {**_row(play, "learning", truth, r, mask, case, printed), "correction_file": str(stored),
+                 "trials": len(trials), "iterations": iterations, "learning": res.to_json()}
     return [preview_row, learn_row]

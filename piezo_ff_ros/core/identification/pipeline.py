@@ -34,7 +34,8 @@ if TYPE_CHECKING:
 Fits = dict[str, float | None]  #: fit [%] per axis/entry (None where not finite)
 
 __all__ = ["identify_all", "split_runs", "build_config", "fits_report", "synthesize_for", "with_hinf_controller",
-           "plant_fit", "simulate_plant", "refit_hysteresis_without_creep", "IdentificationReport", "REFIT_TAG"]
+           "plant_fit", "simulate_plant", "refit_hysteresis_without_creep", "IdentificationReport", "REFIT_TAG",
+           "identify_linear_only", "refuse_broadband_hysteresis"]
 
 STAGES = ("hysteresis", "creep", "dynamics")
 #: a run is fitted on or only scored on
@@ -64,6 +65,12 @@ class IdentificationReport(JsonResult):
     not_identified : dict or None
         Stages without runs and what the config holds for them (absent when None): creep none (K = I, Cr = 0),
         dynamics the base config's, both switched off in the cascade.
+    heldout_test : dict or None
+        Linear dynamics alone (:func:`identify_linear_only`): per held-out record set (its tag, e.g.
+        ``100mV_test``) the test figures in the metric of a published BLA — ``rmse_um``, ``rms_um``,
+        ``nrmse_percent`` (RMSE / RMS of y) over the last period of every realization (simulated from rest over
+        the first, the initialization window), all channels; ``realizations``; ``published_bla`` when the records
+        are of a set with published figures (absent when None).
     """
 
     fit_percent: dict[str, dict[str, float | None]]
@@ -73,6 +80,7 @@ class IdentificationReport(JsonResult):
     hinf: dict[str, Any] | None = field(default=None, metadata={"omit_none": True})
     design: Any = field(default=None, metadata={"json": False})
     not_identified: dict[str, str] | None = field(default=None, metadata={"omit_none": True})
+    heldout_test: dict[str, dict[str, Any]] | None = field(default=None, metadata={"omit_none": True})
 
 
 def split_runs(runs: Sequence[RunData]) -> dict[str, dict[str, list[RunData]]]:
@@ -229,16 +237,23 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
     base = base or load_config()
     groups = split_runs(runs)
     present = tuple(st for st in STAGES if groups[st]["fit"])
-    if "hysteresis" not in present:
+    linear_only = (present == ("dynamics",) and not groups["hysteresis"]["validation"]
+                   and all(r.reference is None for r in groups["dynamics"]["fit"]))
+    if "hysteresis" not in present and not linear_only:
         raise ValueError("no 'hysteresis' fitting run among the data: every identification starts with it "
-                         f"({' → '.join(STAGES)}; tag runs with meta stage/role, or --stage)")
-    axes = groups["hysteresis"]["fit"][0].axes
+                         f"({' → '.join(STAGES)}; tag runs with meta stage/role, or --stage), except linear dynamics "
+                         "alone from voltage records (--stage dynamics, runs without a reference)")
+    axes = groups["dynamics" if linear_only else "hysteresis"]["fit"][0].axes
     other = sorted({tuple(r.axes) for r in runs} - {tuple(axes)})
     if other:
         raise ValueError(f"the runs have different axes: {list(axes)} and {[list(a) for a in other]}")
     if tuple(base.axes) != tuple(axes):
         raise ValueError(f"the base config {base.name!r} has axes {list(base.axes)} but the runs have {list(axes)}: "
                          "give a base config of the runs' axes (--base)")
+    if linear_only:
+        return identify_linear_only(groups["dynamics"]["fit"], groups["dynamics"]["validation"], base,
+                                    order=dynamics_order, progress=say)
+    refuse_broadband_hysteresis(groups["hysteresis"]["fit"] + groups["hysteresis"]["validation"])
     fs = groups["hysteresis"]["fit"][0].sample_rate
     timing = {}
     bw: dict[str, Any] = {"fit_offset": fit_offset, "delay": int(delay), "skip": float(skip)}
@@ -291,6 +306,88 @@ def identify_all(runs: Sequence[RunData], base: PiezoConfig | None = None, gener
                                      timing_s=timing, hinf_note=note or None,
                                      hinf=design.as_dict() if design is not None else None, design=design,
                                      not_identified=not_identified or None)
+
+
+#: largest RMS(ΔU)/RMS(U) of a record the Bouc-Wen is fitted on (slow sines at the paper's rates: 1e-4 … 0.05)
+MAX_BROADBAND_FRACTION = 0.2
+
+
+def refuse_broadband_hysteresis(runs: Sequence[RunData]) -> None:
+    """Refuse, in one line, hysteresis runs whose voltage moves a large part of its range every sample.
+
+    The package's Bouc-Wen is an explicit discrete model: it stays the continuous one only while ``B·|ΔU|`` per
+    sample is small (the characterisation ramps its steps for this reason).  A multisine up to near the Nyquist
+    frequency moves by about its RMS every sample: the fit is then either refused for implausible parameters after
+    minutes or diverges.  Such records are identified as linear dynamics alone (``--stage dynamics``).
+
+    Raises
+    ------
+    ValueError
+        Naming the run, the measured fraction and ``--stage dynamics``.
+    """
+    from .bla import broadband_fraction
+
+    for r in runs:
+        frac = broadband_fraction(r.u)
+        if frac > MAX_BROADBAND_FRACTION:
+            raise ValueError(
+                f"hysteresis: run {r.meta.get('experiment', '?')} is a broadband record (the voltage moves by "
+                f"{100 * frac:.0f} % of its RMS every sample at {r.sample_rate:g} Hz; hysteresis loops need < "
+                f"{100 * MAX_BROADBAND_FRACTION:.0f} %): the discrete Bouc-Wen cannot be fitted on it — identify "
+                "its linear dynamics alone with --stage dynamics")
+
+
+def identify_linear_only(runs: Sequence[RunData], validation: Sequence[RunData], base: PiezoConfig,
+                         order: int | str = "auto", progress: Callable[[str], None] | None = None,
+                         ) -> tuple[PiezoConfig, IdentificationReport]:
+    """A config of linear dynamics alone from periodic voltage records (:mod:`.bla`): ``Y = G_L(s)·Dp·U``.
+
+    No hysteresis or creep stage: the Bouc-Wen has only ``Dp`` (A = B = Γ = 0) and is switched off (the
+    compensator inverts ``Dp``), creep is none (K = I, Cr = 0), and the vibration stage is off (no H∞ controller
+    is synthesised for such a model).  Held-out runs give the test figures of :func:`.bla.heldout_rmse` per record
+    set (``meta['experiment']`` up to its realization suffix), with the published BLA's when the importer knows
+    them (``meta['published_bla']``).
+    """
+    from .bla import heldout_rmse, identify_linear_dynamics
+
+    say = progress or (lambda s: None)
+    axes = tuple(runs[0].axes)
+    t0 = time.perf_counter()
+    lf = identify_linear_dynamics(runs, validation, order=order, axes=axes, progress=say)
+    timing = {"dynamics": time.perf_counter() - t0}
+    assert lf.hysteresis is not None and lf.config is not None
+    cascade = replace(base.cascade, hysteresis=False, creep=False, vibration=False)
+    cfg = replace(base, name=f"{base.name}_identified", axes=axes, sample_rate=float(runs[0].sample_rate),
+                  hysteresis=lf.hysteresis, creep=_no_creep(len(axes)), dynamics=lf.config, cascade=cascade,
+                  vibration=replace(base.vibration, controller=None),
+                  source=f"identified by piezo-ff identify: linear dynamics alone (order {lf.order}) from periodic "
+                         "voltage records; no hysteresis or creep stage (Dp only, K = I, Cr = 0); vibration off",
+                  variant="printed").validate()
+    sets: dict[str, list[RunData]] = {}
+    for r in validation:
+        tag = str(r.meta.get("experiment", "validation")).rsplit("_r", 1)[0]
+        sets.setdefault(tag, []).append(r)
+    heldout: dict[str, dict[str, Any]] = {}
+    dp = np.array(lf.hysteresis.Dp, float)
+    for tag, rs in sets.items():
+        e = heldout_rmse(lf.config, dp, rs, axes)
+        fig: dict[str, Any] = {"rmse_um": e["rmse"] * 1e6, "rms_um": e["rms"] * 1e6,
+                               "nrmse_percent": e["nrmse_percent"], "realizations": len(rs),
+                               "basis": "last period of each realization (the first, simulated from rest, is the "
+                                        "initialization window), all channels"}
+        pub = rs[0].meta.get("published_bla")
+        if pub:
+            fig["published_bla"] = dict(pub)
+        heldout[tag] = fig
+        say(f"dynamics: held-out {tag}: RMSE {fig['rmse_um']:.4f} µm, NRMSE {fig['nrmse_percent']:.2f} %")
+    timing["total"] = sum(timing.values())
+    not_identified = {"hysteresis": "none (linear dynamics alone: Y_H = Dp·U), switched off",
+                      "creep": "none (K = I, Cr = 0), switched off",
+                      "vibration": "no H∞ controller for a linear-only model, switched off"}
+    return cfg, IdentificationReport(
+        fit_percent={"dynamics": dict(lf.fit_validation or lf.fit_train)},
+        orders={"creep": None, "dynamics": {"model_order": lf.order, "auto_relative_error": lf.orders_tried or None}},
+        timing_s=timing, not_identified=not_identified, heldout_test=heldout or None)
 
 
 def synthesize_for(cfg: PiezoConfig, say: Callable[[str], None] = lambda s: None) -> tuple[HinfDesign, str | None]:

@@ -295,6 +295,27 @@ def load_mat(path: str | Path, axes: Sequence[str] | None = None) -> RunData:
                    meta={"source": str(p), "format": "mat", "file_axes": list(file_axes)})
 
 
+#: published test figures of the linear baseline (BLA, 28th-order state space trained at the same level) of the
+#: CubeSpec fine steering mirror set, per record tag: RMSE [µm] and NRMSE [%] over the test realizations (Floren et
+#: al., ISMA-USD 2024; upstream baseline_results/analyze_models.ipynb, as the set's SOURCE.md quotes them)
+FSM_PUBLISHED_BLA = {"100mV_test": {"rmse_um": 0.114, "nrmse_percent": 8.38},
+                     "200mV_test": {"rmse_um": 0.216, "nrmse_percent": 7.95},
+                     "300mV_test": {"rmse_um": 0.228, "nrmse_percent": 5.63}}
+
+
+def _published_bla(p: Path, tag: str) -> dict[str, Any] | None:
+    """The published BLA figures of ``tag`` when ``p`` sits in the fine steering mirror set (by its folder name or
+    its SOURCE.md), else None."""
+    src = p.parent / "SOURCE.md"
+    is_fsm = p.parent.name == "fsm_cubespec_piezo" or (src.is_file() and "fsm-benchmark-data" in src.read_text(
+        errors="replace"))
+    fig = FSM_PUBLISHED_BLA.get(tag) if is_fsm else None
+    if fig is None:
+        return None
+    return {**fig, "model": "BLA (28th-order state space) trained at the same level",
+            "dataset": "fsm_cubespec_piezo (Floren et al., ISMA-USD 2024, CC BY 4.0)"}
+
+
 def load_npy_realizations(path: str | Path, sample_rate: float | None = None,
                           axes: Sequence[str] | None = None) -> list[RunData]:
     """Load the ``u_<tag>.npy`` / ``y_<tag>.npy`` pair of ``path`` (either file) as one run per realization.
@@ -313,7 +334,9 @@ def load_npy_realizations(path: str | Path, sample_rate: float | None = None,
     Returns
     -------
     list of RunData
-        ``meta``: ``source``, ``realization``, ``periods``, ``period_samples``.
+        ``meta``: ``source``, ``experiment`` (``<tag>_r<realization>``), ``realization``, ``periods``,
+        ``period_samples``; ``published_bla`` for a test record of the fine steering mirror set (its published
+        BLA figures, :data:`FSM_PUBLISHED_BLA`).
 
     Raises
     ------
@@ -348,6 +371,7 @@ def load_npy_realizations(path: str | Path, sample_rate: float | None = None,
     if len(names) != ch:
         _fail(p, f"{ch} channels but {len(names)} axis names {list(names)}")
     runs = []
+    published = _published_bla(p, p.stem[2:])
     t = np.arange(n * n_per) / float(sample_rate)
     for r in range(n_real):
         ur = np.concatenate([u[:, :, r, k] for k in range(n_per)])
@@ -356,6 +380,7 @@ def load_npy_realizations(path: str | Path, sample_rate: float | None = None,
                          min_drive_voltage=0.0)
         runs.append(RunData(t=t.copy(), u=ur, y=yr, axes=names,
                             meta={"source": str(p), "experiment": f"{p.stem[2:]}_r{r}", "realization": r,
-                                  "periods": n_per, "period_samples": n}))
+                                  "periods": n_per, "period_samples": n,
+                                  **({"published_bla": published} if published else {})}))
     return runs
 
