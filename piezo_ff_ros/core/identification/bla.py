@@ -290,7 +290,7 @@ def _to_config(p: np.ndarray, coef: np.ndarray, dt: float, w_band: np.ndarray, a
 def _fit_percent_last_period(runs: Sequence[RunData], simulate: Callable[[np.ndarray], np.ndarray],
                              axes: Sequence[str]) -> tuple[dict[str, float], dict[str, float]]:
     """MATLAB fit [%] per output and ``{rmse, rms}`` [m] over the runs' last periods, simulated from rest."""
-    from .metrics import fit_percent
+    from .goodness_of_fit import fit_percent
 
     ys, yh = [], []
     for r in runs:
