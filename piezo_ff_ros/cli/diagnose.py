@@ -37,8 +37,11 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     p.add_argument("--data", metavar="FILE", help="one run, split into a training and a held-out part")
     p.add_argument("--split", type=float, default=0.5, help="fraction of --data used for training (default 0.5)")
     p.add_argument("--sample-rate", type=float, metavar="HZ",
-                   help="MCAP only: the sample rate to read the recording at, when its metadata and its block "
-                        "stamps disagree (refused otherwise)")
+                   help="MCAP: the sample rate to read the recording at, when its metadata and its block stamps "
+                        "disagree (refused otherwise); u_<tag>.npy/y_<tag>.npy records: their sample rate "
+                        "(required, the layout holds none)")
+    p.add_argument("--realization", type=int, default=0, metavar="K",
+                   help=".npy records of several realizations: which one is the run (default 0)")
     p.add_argument("--json", metavar="OUT.json", help="write the machine-readable result")
     p.add_argument("--report", metavar="DIR", help="write report.md and PNG plots into DIR")
     p.add_argument("--apply", metavar="OUT.yaml", help="write the config corrected where the cascade can compensate")
@@ -62,14 +65,15 @@ def _load_inputs(args: argparse.Namespace) -> tuple[RunData, RunData, RunData | 
     if args.data:
         if not 0.1 <= args.split <= 0.9:
             raise ValueError(f"--split must be within [0.1, 0.9], got {args.split}")
-        run = load_for_diagnosis(args.data, rate)
+        run = load_for_diagnosis(args.data, rate, args.realization)
         parts = split_record(run, args.split)
         info = {"voltage": run.meta.get("voltage", "voltage"), "segments": parts.notes or None,
                 "warnings": list(parts.warnings)}
         return parts.train, parts.test, parts.history, info
     if not (args.train and args.test):
         raise ValueError("need --train TRAIN and --test TEST (or --data FILE)")
-    train, test = load_for_diagnosis(args.train, rate), load_for_diagnosis(args.test, rate)
+    train = load_for_diagnosis(args.train, rate, args.realization)
+    test = load_for_diagnosis(args.test, rate, args.realization)
     info = {"voltage": {"train": train.meta.get("voltage"), "test": test.meta.get("voltage")},
             "segments": None, "warnings": []}
     return train, test, None, info

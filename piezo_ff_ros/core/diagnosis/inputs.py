@@ -28,16 +28,20 @@ APPLIED_TOPIC = "voltage_applied"
 MIN_STRETCH = 200
 
 
-def load_for_diagnosis(path: str | Path, sample_rate: float | None = None) -> RunData:
+def load_for_diagnosis(path: str | Path, sample_rate: float | None = None, realization: int = 0) -> RunData:
     """Load a run; from an MCAP with a ``voltage_applied`` topic, ``u`` is the applied voltage (NaN where it was not
     recorded) and ``meta['voltage']`` says so (``'voltage'`` otherwise).
 
     Parameters
     ----------
     path : str or Path
-        ``.mcap`` / rosbag2 directory, ``.csv`` or ``.mat``.
+        ``.mcap`` / rosbag2 directory, ``.csv``, ``.mat``, or one file of a ``u_<tag>.npy`` / ``y_<tag>.npy`` pair
+        (the periodic-record layout of the fine steering mirror set: one run per realization).
     sample_rate : float, optional
-        MCAP only: the sample rate [Hz] to place the blocks at (when the file's metadata and stamps disagree).
+        MCAP: the sample rate [Hz] to place the blocks at (when the file's metadata and stamps disagree); ``.npy``:
+        the record's sample rate (required: the layout holds none).
+    realization : int
+        ``.npy`` only: which realization of the record is the run (0 by default).
 
     Returns
     -------
@@ -46,6 +50,16 @@ def load_for_diagnosis(path: str | Path, sample_rate: float | None = None) -> Ru
     from ..recording import load_run
 
     p = Path(path)
+    if p.suffix.lower() == ".npy":
+        from ..recording.importers import load_npy_realizations
+
+        runs = load_npy_realizations(p, sample_rate=sample_rate)
+        if not 0 <= int(realization) < len(runs):
+            raise ValueError(f"{p.name}: realization {realization} asked, the record holds {len(runs)} (0 … "
+                             f"{len(runs) - 1})")
+        run = runs[int(realization)]
+        run.meta["voltage"] = "voltage"
+        return run
     is_mcap = p.suffix.lower() == ".mcap" or p.is_dir()
     if sample_rate is not None and not is_mcap:
         raise ValueError(f"--sample-rate applies to MCAP recordings only; {p.name} carries its own time column")
