@@ -230,3 +230,37 @@ def test_an_error_in_a_transition_goes_through_error_processing_to_safe():
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
+
+
+def test_a_shutdown_racing_the_final_ramp_is_a_clean_exit():
+    """SIGINT's handler shuts the context down on another thread; if that lands between the driver's "context ok?"
+    check and a publish of the final ramp's ``voltage_applied``, rclpy raises "publisher's context is invalid".  The
+    ramp has been handed to the device already: finishing must not fail (the node exited with code 1 before)."""
+    from rclpy.context import Context
+    from rclpy.lifecycle import TransitionCallbackReturn
+
+    from piezo_ff_ros.nodes.driver import DriverNode
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = DriverNode(context=ctx, namespace="/lifecycle_race_test",
+                      cli_args=["--ros-args", "-r", "__node:=driver_race_test"],
+                      parameter_overrides=[rclpy.parameter.Parameter("autostart", value=False)])
+    try:
+        assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+        node.on_tick()
+        node.core.on_block(0, np.full((400, 2), 100.0))
+        core, real_publish = node.core, node.pub_u.publish
+
+        def publish_as_the_signal_lands(msg):
+            if ctx.ok():
+                rclpy.try_shutdown(context=ctx)   # what the SIGINT handler does, between the check and the publish
+            real_publish(msg)                     # raises: the publisher's context is invalid
+
+        node.pub_u.publish = publish_as_the_signal_lands
+        node.finish()                             # must not raise
+        assert core.guard.u_last.tolist() == [0.0, 0.0] and core.guard.counters.safe_ramps >= 1
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)

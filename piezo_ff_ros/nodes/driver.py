@@ -190,9 +190,13 @@ class DriverNode(LifecycleNode):
             time.sleep(min(lim.low_water / 2, 0.002))
         self._emit(self.core.tick())   # what the device applied up to the end of the ramp
         if self.context.ok():           # the ramp reaches voltage_applied's readers before anything is torn down
-            for pub in (self.pub_u, self.pub_y):
-                if pub is not None:
-                    pub.wait_for_all_acked(Duration(seconds=1.0))
+            try:
+                for pub in (self.pub_u, self.pub_y):
+                    if pub is not None:
+                        pub.wait_for_all_acked(Duration(seconds=1.0))
+            except Exception:
+                if self.context.ok():   # not the shutdown racing this wait (see _emit): a real error
+                    raise
 
     def _close(self) -> None:
         """Safe ramp (if anything is applied), then close the backend and drop the configured entities."""
@@ -360,18 +364,30 @@ class DriverNode(LifecycleNode):
 
     def _emit(self, em: DriverOutput) -> None:
         if not self.context.ok():   # stopping after SIGINT: the device still ramps, nothing can be published
-            for _, text in em.log:
-                print(f"driver: {text}", file=sys.stderr)
+            self._log_to_stderr(em)
             return
-        for stamp, u in em.applied:
-            if self.pub_u is not None:
-                self.pub_u.publish(pack_block(u, self.axes, stamp))
-        for stamp, y in em.displacement:
-            if self.pub_y is not None:
-                self.pub_y.publish(pack_block(y, self.axes, stamp))
-                self._joint_states(y, stamp)
+        try:
+            for stamp, u in em.applied:
+                if self.pub_u is not None:
+                    self.pub_u.publish(pack_block(u, self.axes, stamp))
+            for stamp, y in em.displacement:
+                if self.pub_y is not None:
+                    self.pub_y.publish(pack_block(y, self.axes, stamp))
+                    self._joint_states(y, stamp)
+        except Exception:
+            # SIGINT/SIGTERM may shut the context down between the check above and a publish (the signal handler
+            # runs on another thread): the device has already been given the samples, only the report is lost
+            if self.context.ok():
+                raise
+            self._log_to_stderr(em)
+            return
         log_lines(self.get_logger(), em.log)
         self._hint(em)
+
+    @staticmethod
+    def _log_to_stderr(em: DriverOutput) -> None:
+        for _, text in em.log:
+            print(f"driver: {text}", file=sys.stderr)
 
     def _hint(self, em: DriverOutput) -> None:
         """Name the setting that fixes a late/underrun/stale stream, once per kind."""
