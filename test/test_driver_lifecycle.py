@@ -5,6 +5,7 @@ device applied on ``voltage_applied``: every sample, holds and ramps included.
 """
 from __future__ import annotations
 
+import contextlib
 import time
 
 import numpy as np
@@ -195,22 +196,9 @@ def test_sigint_while_active_at_100_volts_ramps_before_closing(tmp_path, probe):
 def test_an_error_in_a_transition_goes_through_error_processing_to_safe():
     """A transition that raises (here: deactivate, once) → ErrorProcessing → the output ramps to the safe voltage,
     the backend is closed, the driver is back unconfigured (and can be configured again)."""
-    from rclpy.context import Context
     from rclpy.lifecycle import TransitionCallbackReturn
 
-    from piezo_ff_ros.nodes.driver import DriverNode
-
-    ctx = Context()
-    rclpy.init(context=ctx)
-    # renamed and namespaced: no later test of this session may take it for a running driver (`/driver`, `/voltage`)
-    node = DriverNode(context=ctx, namespace="/lifecycle_error_test",
-                      cli_args=["--ros-args", "-r", "__node:=driver_error_test"],
-                      parameter_overrides=[rclpy.parameter.Parameter("autostart", value=False)])
-    try:
-        assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
-        assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
-        node.on_tick()
-        node.core.on_block(0, np.full((400, 2), 100.0))
+    with _in_process_driver_at_100_volts("error") as (_, node):
         assert node.core.guard.u_last.tolist() == [100.0, 100.0]
         core, real = node.core, node._to_safe
         calls = []
@@ -227,30 +215,13 @@ def test_an_error_in_a_transition_goes_through_error_processing_to_safe():
         assert core.guard.u_last.tolist() == [0.0, 0.0] and core.guard.counters.safe_ramps >= 1
         node._to_safe = real
         assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
 
 
 def test_a_shutdown_racing_the_final_ramp_is_a_clean_exit():
     """SIGINT's handler shuts the context down on another thread; if that lands between the driver's "context ok?"
     check and a publish of the final ramp's ``voltage_applied``, rclpy raises "publisher's context is invalid".  The
     ramp has been handed to the device already: finishing must not fail (the node exited with code 1 before)."""
-    from rclpy.context import Context
-    from rclpy.lifecycle import TransitionCallbackReturn
-
-    from piezo_ff_ros.nodes.driver import DriverNode
-
-    ctx = Context()
-    rclpy.init(context=ctx)
-    node = DriverNode(context=ctx, namespace="/lifecycle_race_test",
-                      cli_args=["--ros-args", "-r", "__node:=driver_race_test"],
-                      parameter_overrides=[rclpy.parameter.Parameter("autostart", value=False)])
-    try:
-        assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
-        assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
-        node.on_tick()
-        node.core.on_block(0, np.full((400, 2), 100.0))
+    with _in_process_driver_at_100_volts("race") as (ctx, node):
         core, real_publish = node.core, node.pub_u.publish
 
         def publish_as_the_signal_lands(msg):
@@ -261,6 +232,29 @@ def test_a_shutdown_racing_the_final_ramp_is_a_clean_exit():
         node.pub_u.publish = publish_as_the_signal_lands
         node.finish()                             # must not raise
         assert core.guard.u_last.tolist() == [0.0, 0.0] and core.guard.counters.safe_ramps >= 1
+
+
+@contextlib.contextmanager
+def _in_process_driver_at_100_volts(tag: str):
+    """A driver node in this process (own context), configured, active, with a 100 V block applied; ``(ctx, node)``.
+    Renamed and namespaced: no later test of this session may take it for a running driver (`/driver`,
+    `/voltage`)."""
+    from rclpy.context import Context
+    from rclpy.lifecycle import TransitionCallbackReturn
+
+    from piezo_ff_ros.nodes.driver import DriverNode
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = DriverNode(context=ctx, namespace=f"/lifecycle_{tag}_test",
+                      cli_args=["--ros-args", "-r", f"__node:=driver_{tag}_test"],
+                      parameter_overrides=[rclpy.parameter.Parameter("autostart", value=False)])
+    try:
+        assert node.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
+        node.on_tick()
+        node.core.on_block(0, np.full((400, 2), 100.0))
+        yield ctx, node
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
