@@ -22,5 +22,10 @@ FRESH_HELDOUT_SEEDS = (52609, 52610)
 # looked at per case since, so they no longer count as unseen.  Run once (``--split fresh2``), report, never tune.
 FRESH2_HELDOUT_SEEDS = (94129, 94130)
 
+# drawn at random (Python ``secrets``) and frozen 2026-11-27 13:55 UTC (session 6), before this round's diagnosis work
+# and before any diagnosis ran on them; fresh2 was run and looked at per case since.  Run once (``--split fresh3``)
+# at the end of the round, report, never tune.
+FRESH3_HELDOUT_SEEDS = (16403, 28254)
+
 #: the seeds of the in-family cases (the project's own generator) per split
-IN_FAMILY_SEED = {"tuning": 0, "heldout": 90417, "fresh": 52609, "fresh2": 94129}
+IN_FAMILY_SEED = {"tuning": 0, "heldout": 90417, "fresh": 52609, "fresh2": 94129, "fresh3": 16403}
