@@ -6,6 +6,9 @@ as separate processes; this probe holds a point the moment both nodes say they a
 """
 from __future__ import annotations
 
+import os
+import signal
+
 import numpy as np
 import pytest
 
@@ -47,7 +50,23 @@ def test_a_write_ahead_too_short_for_the_host_is_named_in_the_log(tmp_path, prob
     assert "write_ahead" in hint and "now 0.002 s" in hint, hint
 
 
-def _hold_right_after_start(tmp_path, probe, driver_args):
+def test_a_driver_that_stood_still_longer_than_the_stale_timeout_does_not_ramp(tmp_path, probe):
+    """The driver process stopped (SIGSTOP) for 0.35 s mid-hold — longer than its stale timeout (0.2 s), shorter than
+    its write-ahead (0.5 s): the blocks sent meanwhile wait in its reader, so no stale ramp and no late block."""
+    def stall(procs):
+        os.kill(procs[0].pid, signal.SIGSTOP)
+        try:
+            probe.spin_for(0.35)
+        finally:
+            os.kill(procs[0].pid, signal.SIGCONT)
+
+    log, diags = _hold_right_after_start(tmp_path, probe, [], during=stall)
+    assert "no voltage block for" not in log, log[-2000:]
+    assert "late block dropped" not in log and "underrun" not in log, log[-2000:]
+    assert not any(d[2].get("state") == "safe" for d in diags), [d[1] for d in diags][-5:]
+
+
+def _hold_right_after_start(tmp_path, probe, driver_args, during=None):
     from geometry_msgs.msg import PointStamped
 
     got, diags, _ = _io(probe, publisher=False)
@@ -65,6 +84,8 @@ def _hold_right_after_start(tmp_path, probe, driver_args):
         probe.spin_until(lambda: got["voltage_applied"] and max(np.max(np.abs(b)) for b in
                                                                   got["voltage_applied"].values()) > 1.0,
                          30, "the held point's voltage applied")
+        if during is not None:
+            during(procs)
         probe.spin_for(2.0)
         log = procs[0].log_path.read_text(errors="replace")    # before anything stops (then the input stops)
         n_diags = len(diags)

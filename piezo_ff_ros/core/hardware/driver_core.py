@@ -9,7 +9,8 @@
 - ``tick()`` — called periodically: polls the device (faults → safe ramp), keeps a clocked device's FIFO fed
   (safe voltage while idle/safe, the last voltage while a late stream is awaited — counted as starved samples —,
   close to the clock once a stream has started),
-  ramps to safe after ``stale_timeout`` without input, and collects what was applied/measured;
+  ramps to safe after ``stale_timeout`` without input (not counting the time the caller itself stood still: the
+  blocks sent meanwhile wait in its reader), and collects what was applied/measured;
 - ``set_stream_paced(on)`` — a lockstep trajectory paces the stream: on a device whose time follows the samples
   written (the lockstep simulator) the wall-clock stale watchdog is suspended meanwhile, since no device time passes
   between blocks — a host stall then loses nothing; ignored by every other device;
@@ -422,11 +423,22 @@ class DriverCore:
         self._window["samples"] += u.shape[0]
 
     # -- time ------------------------------------------------------------------------------------------------------
-    def tick(self) -> DriverOutput:
-        """Poll the device, keep the FIFO fed, ramp on stale input; see the module docstring."""
+    def tick(self, stalled: float = 0.0) -> DriverOutput:
+        """Poll the device, keep the FIFO fed, ramp on stale input; see the module docstring.
+
+        Parameters
+        ----------
+        stalled : float
+            How long the caller itself stood still before this tick [s] (its timer fired that much later than due:
+            a garbage collection, a host that did not schedule it).  Blocks sent meanwhile are waiting to be read,
+            so that time is not the input's silence: the stale watchdog does not count it (the caller reads them
+            next).  A source that really stopped is still found ``stale_timeout`` of running time later.
+        """
         em = DriverOutput()
         if self.state == "fault":
             return em
+        if stalled > 0 and self.last_block_wall is not None:
+            self.last_block_wall = min(self.now(), self.last_block_wall + float(stalled))
         self._poll(em)
         if self.state == "fault":
             return em
