@@ -16,7 +16,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["HoldPacer"]
+__all__ = ["HoldPacer", "HOLD_BLOCK_SIZE"]
+
+#: samples per block of a held point by default (50 ms at 20 kHz).  Each block costs a fixed overhead in every node
+#: it passes (publish, take, executor wake-ups: the compensator, the driver, its voltage_applied/displacement and
+#: every reader): with 200-sample blocks (100 blocks/s) a driver on a loaded 2-core host (two CPU-bound loaders,
+#: load average 11-19) fell behind its input by 1 s within a second of holding (late blocks); 1000-sample blocks
+#: use about a third of the CPU and kept up.  The hold's latency is the driver's write-ahead, not this.
+HOLD_BLOCK_SIZE = 1000
 
 
 def _check_number(value: object, name: str, integer: bool = False, allow_zero: bool = False) -> float:
@@ -53,7 +60,7 @@ class HoldPacer:
     """
 
     sample_rate: float
-    block_size: int = 200
+    block_size: int = HOLD_BLOCK_SIZE
     hold_timeout: float = 0.2
     max_late_s: float = 0.1
     point: np.ndarray | None = field(default=None, init=False)
