@@ -448,7 +448,7 @@ class DriverCore:
         if stale:
             if self.book.drop_candidate():
                 em.log.append((WARN, "a held-back out-of-sequence block was never confirmed: dropped"))
-            self._ramp(em, f"no voltage block for {self.s.limits.stale_timeout} s")
+            self._ramp(em, f"no voltage block for {self.s.limits.stale_timeout} s (limits.stale_timeout)")
         if self.info.clocked:
             self._feed(em)
         return em.extend(self._collect())
