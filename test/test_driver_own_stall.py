@@ -76,3 +76,32 @@ def test_a_source_that_stops_is_still_stale_after_the_timeout_of_running_time():
         assert ticks < 100
     assert any("no voltage block for 0.2 s" in t for _, t in em.log)
     assert 0.005 * ticks <= LIM.stale_timeout     # the stall counted at most half a timeout, the rest ran
+
+
+def test_a_source_that_pauses_while_its_blocks_still_play_loses_nothing():
+    """A clocked device with the default write-ahead (0.5 s): the source pauses 0.3 s (> stale_timeout, < write-ahead
+    − low_water) while the driver runs — the blocks already written still play, so no ramp, and the blocks that
+    follow are applied, none late."""
+    core, clock = _clocked()
+    stamp = _stream(core, clock, 0.1, core.next_stamp or 0)
+    for _ in range(60):                 # 0.3 s of ticks, no block
+        clock.t += 0.005
+        em = core.tick()
+        assert core.state == "active", em.log
+    _stream(core, clock, 0.1, stamp)
+    assert core.state == "active" and core.book.counters.late_blocks == 0 and core.starved_samples == 0
+
+
+def test_a_stopped_source_ramps_where_its_last_block_ends():
+    """The source stops: the ramp starts right after the last block's samples (no hold before it), once they have
+    played out within low_water, and no earlier than stale_timeout."""
+    core, clock = _clocked()
+    _stream(core, clock, 0.1, core.next_stamp or 0)
+    t_last = clock.t - 0.01
+    while core.state == "active":
+        clock.t += 0.005
+        em = core.tick()
+        assert clock.t - t_last < 1.0
+    assert clock.t - t_last >= LIM.stale_timeout
+    assert core.starved_samples == 0                   # nothing held between the last block and the ramp
+    assert any("no voltage block for 0.2 s" in t and "ramping from [20.0, 20.0] V" in t for _, t in em.log), em.log
