@@ -313,6 +313,6 @@ def test_stream_pacing_is_ignored_by_devices_whose_time_runs_on_its_own():
     em = L.add(core.set_stream_paced(True, "lockstep trajectory playing"))
     assert any("ignored" in m for _, m in em.log) and core.status()["stream_paced"] is False
     L.add(core.on_block(core.next_stamp or 0, np.full((200, 2), 10.0)))
-    clock.advance(int(0.25 * FS))
+    clock.advance(int(0.5 * FS))   # > stale_timeout, and the block (0.5 s write-ahead) has played out
     L.add(core.tick())
     assert core.state == "safe"

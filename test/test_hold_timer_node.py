@@ -29,7 +29,8 @@ def test_held_point_is_paced_by_an_executor_timer():
     from piezo_ff_ros.nodes.compensator import CompensatorNode
 
     ctx = Context()
-    rclpy.init(context=ctx, args=["--ros-args", "-p", "cascade.vibration:=false", "-p", "hold_timeout:=0.0"])
+    rclpy.init(context=ctx, args=["--ros-args", "-p", "cascade.vibration:=false", "-p", "hold_timeout:=0.0",
+                                   "-p", "block_size:=200"])
     threads_before = threading.active_count()
     node = CompensatorNode(context=ctx)
     ex = SingleThreadedExecutor(context=ctx)

@@ -41,7 +41,7 @@ def test_held_point_is_in_the_recording_and_analyze_reports_its_tracking_error(t
         msg = PointStamped()
         msg.point.x, msg.point.y = 5e-6, -2e-6
         pub.publish(msg)
-        probe.spin_until(lambda: len(refs) >= 100, 60, "100 held reference blocks")
+        probe.spin_until(lambda: sum(m.width for m in refs) >= 100 * 200, 60, "20000 held reference samples")
     finally:
         codes = [stop_node(p) for p in (procs[2], procs[1], procs[0])]
     assert codes == [0, 0, 0]

@@ -127,7 +127,7 @@ def test_compensator_refuses_a_wrongly_typed_parameter_in_one_line_and_keeps_the
         r = set_("hold_timeout", type=ParameterType.PARAMETER_STRING, string_value="long")
         assert not r.successful and r.reason == "hold_timeout: expected a double, got a string 'long' (kept: 0.2)"
         r = set_("block_size", type=ParameterType.PARAMETER_DOUBLE, double_value=2.5)
-        assert not r.successful and r.reason == "block_size: expected an integer, got a double 2.5 (kept: 200)"
+        assert not r.successful and r.reason == "block_size: expected an integer, got a double 2.5 (kept: 1000)"
         r = set_("workspace", type=ParameterType.PARAMETER_BOOL, bool_value=True)
         assert not r.successful and r.reason.startswith("workspace: expected a double array, got a bool True")
         assert "\n" not in r.reason
@@ -135,7 +135,7 @@ def test_compensator_refuses_a_wrongly_typed_parameter_in_one_line_and_keeps_the
         assert r.successful, r.reason
         got = probe.call(getp, GetParameters.Request(names=["hold_timeout", "block_size", "crossfade"])).values
         assert (got[0].type, got[0].double_value) == (ParameterType.PARAMETER_DOUBLE, 0.2)       # kept
-        assert (got[1].type, got[1].integer_value) == (ParameterType.PARAMETER_INTEGER, 200)     # kept
+        assert (got[1].type, got[1].integer_value) == (ParameterType.PARAMETER_INTEGER, 1000)    # kept
         assert (got[2].type, got[2].double_value) == (ParameterType.PARAMETER_DOUBLE, 1.0)       # taken as 1.0
         from rcl_interfaces.srv import DescribeParameters
 

@@ -410,7 +410,8 @@ def test_realtime_pacing_held_point_and_recorder_sigterm(tmp_path, probe):
     preview = 50  # samples: the trajectory plays 2.5 ms ahead (reference preview for an input delay)
     spec = {"type": "circle", "radius": 1e-5, "frequency": 4.0, "revolutions": 4}  # 1 s
     procs = {"recorder": start_node("recorder", "-p", f"output:={out}", log_dir=tmp_path),
-             "compensator": start_node("compensator", "-p", "cascade.vibration:=false", log_dir=tmp_path),
+             "compensator": start_node("compensator", "-p", "cascade.vibration:=false", "-p", "block_size:=200",
+                                       log_dir=tmp_path),
              "trajectory": start_node("trajectory", "-p", "mode:=realtime",
                                       "-p", "min_subscribers:=2", "-p", f"trajectory:='{json.dumps(spec)}'",
                                       "-p", "block_size:=200", "-p", f"preview_s:={preview / FS}",

@@ -41,7 +41,7 @@ from typing import Any, Callable, Literal, Mapping, Sequence
 import numpy as np
 
 from .config import PiezoConfig
-from .hold_pacer import HoldPacer
+from .hold_pacer import HOLD_BLOCK_SIZE, HoldPacer
 from .hot_swap import CascadeFactory, HotSwapCascade
 from .param_map import needs_synthesis
 from .parameter_book import ParameterBook, Verdict, check_box_parameter, parse_config_yaml, same_value
@@ -121,7 +121,7 @@ class CompensatorSettings:
     """
 
     crossfade: float = 0.01
-    block_size: int = 200
+    block_size: int = HOLD_BLOCK_SIZE
     hold_timeout: float = 0.2
     bypass: bool = False
     resync: bool = True

@@ -19,7 +19,8 @@ parameters, applied as one change; the stage parameters then read back the new v
 parameter, the old value kept; an integer for a double is taken), with a description and, for numbers, a range.
 
 Other parameters: ``config_file`` and ``variant`` (read-only: the base configuration), ``crossfade`` [s] (output
-crossfade at a swap), ``block_size`` (samples per block generated from a held ``reference_point``),
+crossfade at a swap), ``block_size`` (samples per block generated from a held ``reference_point``; default
+:data:`~piezo_ff_ros.core.hold_pacer.HOLD_BLOCK_SIZE`, 1000: fewer, larger blocks keep a loaded host up with the stream),
 ``hold_timeout`` [s] (the held point is played only while no ``reference`` block arrived for this long; played
 from one executor timer, paced by :class:`~piezo_ff_ros.core.hold_pacer.HoldPacer`; its blocks also go out on
 ``reference``, stamped like their voltage blocks, so that a recording and the plots hold what the stage was asked to
@@ -139,7 +140,8 @@ class CompensatorNode(Node):
         ws = base.limits.workspace
         settings = CompensatorSettings(
             crossfade=float(self._declare("crossfade", 0.01, "output crossfade at a configuration swap [s]")),
-            block_size=int(self._declare("block_size", 200, "samples per block played from a held reference_point")),
+            block_size=int(self._declare("block_size", CompensatorSettings.block_size,
+                                         "samples per block played from a held reference_point")),
             hold_timeout=float(self._declare("hold_timeout", 0.2, "the held point plays once no reference block "
                                              "came for this long [s]")),
             bypass=bool(self._declare("bypass", False, "forward reference blocks as voltages [V] (open loop)")),

@@ -270,6 +270,7 @@ class DriverNode(LifecycleNode):
                                                       f"({str(exc).splitlines()[0][:100]})") from None
         lim = settings.limits
         tick = min(settings.low_water / 2, 0.005) if backend.info.clocked else min(lim.stale_timeout / 4, 0.05)
+        self._last_tick: float | None = None
         # the device's clock starts with the first tick (not here: spinning may begin much later)
         self._configured("timer", self.create_timer(tick, self.on_tick))
         self._configured("timer", self.create_timer(p["diagnostics_period"], self.publish_diagnostics))
@@ -360,7 +361,14 @@ class DriverNode(LifecycleNode):
     def on_tick(self) -> None:
         if self.core is None:
             return
-        self._emit(self.core.tick() if self.core.started else self.core.start())
+        # a tick more than half the stale timeout after the previous one means this process stood still (a
+        # collection, a host that did not schedule it): the blocks sent meanwhile wait in the reader, read right
+        # after this tick — not stale input.  Shorter gaps (a loaded host's timer jitter) all count as silence.
+        now = time.monotonic()
+        half = self.core.s.limits.stale_timeout / 2
+        stalled = 0.0 if self._last_tick is None else max(0.0, now - self._last_tick - half)
+        self._last_tick = now
+        self._emit(self.core.tick(stalled) if self.core.started else self.core.start())
 
     def _emit(self, em: DriverOutput) -> None:
         if not self.context.ok():   # stopping after SIGINT: the device still ramps, nothing can be published

@@ -9,7 +9,9 @@
 - ``tick()`` — called periodically: polls the device (faults → safe ramp), keeps a clocked device's FIFO fed
   (safe voltage while idle/safe, the last voltage while a late stream is awaited — counted as starved samples —,
   close to the clock once a stream has started),
-  ramps to safe after ``stale_timeout`` without input, and collects what was applied/measured;
+  ramps to safe after ``stale_timeout`` without input (not counting the time the caller itself stood still: the
+  blocks sent meanwhile wait in its reader; on a clocked device once the blocks' own samples have played out too:
+  the ramp starts where they end either way), and collects what was applied/measured;
 - ``set_stream_paced(on)`` — a lockstep trajectory paces the stream: on a device whose time follows the samples
   written (the lockstep simulator) the wall-clock stale watchdog is suspended meanwhile, since no device time passes
   between blocks — a host stall then loses nothing; ignored by every other device;
@@ -198,6 +200,7 @@ class DriverCore:
         self.resumes = 0
         self.last_error = ""
         self.last_block_wall: float | None = None
+        self._block_end: int | None = None         # device index after the last block's samples (clocked devices)
         self.stream_paced = False                   # a lockstep source paces a time-follows-samples device
         self._queue: deque[np.ndarray] = deque()   # committed samples not yet in the device FIFO
         self._queued = 0
@@ -239,6 +242,7 @@ class DriverCore:
         for c in self._chunks:
             c.clear()
         self.state, self.last_block_wall, self.last_error = "idle", None, ""
+        self._block_end = None
         self.last_fault, self.last_fault_code = "", None
         self.starved_samples = self.resumes = 0
         self.faults = dict.fromkeys(self.faults, 0)
@@ -392,6 +396,7 @@ class DriverCore:
                                  f"{self.guard.u_last.tolist()} V (see voltage_applied)"))
         self.state = "active"
         self._commit_block(u, n, skip=d.skip)
+        self._block_end = self._w
         em.extend(self._collect())
         if self.info.holds_setpoints and self.state == "active":
             # the write played the block in wall time: the input is stale only ``stale_timeout`` after its end
@@ -422,24 +427,51 @@ class DriverCore:
         self._window["samples"] += u.shape[0]
 
     # -- time ------------------------------------------------------------------------------------------------------
-    def tick(self) -> DriverOutput:
-        """Poll the device, keep the FIFO fed, ramp on stale input; see the module docstring."""
+    def tick(self, stalled: float = 0.0) -> DriverOutput:
+        """Poll the device, keep the FIFO fed, ramp on stale input; see the module docstring.
+
+        Parameters
+        ----------
+        stalled : float
+            How long the caller itself stood still before this tick [s] (its timer fired that much later than due:
+            a garbage collection, a host that did not schedule it).  Blocks sent meanwhile are waiting to be read,
+            so that time is not the input's silence: the stale watchdog does not count it (the caller reads them
+            next).  A source that really stopped is still found ``stale_timeout`` of running time later.
+        """
         em = DriverOutput()
         if self.state == "fault":
             return em
+        if stalled > 0 and self.last_block_wall is not None:
+            self.last_block_wall = min(self.now(), self.last_block_wall + float(stalled))
         self._poll(em)
         if self.state == "fault":
             return em
         self._sync()
         stale = self.state == "active" and self.last_block_wall is not None and not self.stream_paced and \
-            self.now() - self.last_block_wall >= self.s.limits.stale_timeout
+            self.now() - self.last_block_wall >= self.s.limits.stale_timeout and not self._blocks_still_play()
         if stale:
             if self.book.drop_candidate():
                 em.log.append((WARN, "a held-back out-of-sequence block was never confirmed: dropped"))
-            self._ramp(em, f"no voltage block for {self.s.limits.stale_timeout} s")
+            self._ramp(em, f"no voltage block for {self.s.limits.stale_timeout} s (limits.stale_timeout)")
         if self.info.clocked:
             self._feed(em)
         return em.extend(self._collect())
+
+    def _blocks_still_play(self) -> bool:
+        """A clocked device still has more than ``low_water`` of the blocks' own samples ahead of its clock.
+
+        The safe ramp is written after what is already committed, so on a clocked device it starts where the last
+        block's samples end whenever it is decided; deciding it only when they run out (within ``low_water``)
+        leaves the output the same for a source that stopped, and applies the blocks of a source that only paused
+        (a loaded host's hiccup shorter than ``write_ahead − low_water``) instead of dropping them as late behind
+        the ramp."""
+        if not self.info.clocked or self._block_end is None:
+            return False
+        try:
+            clock = self.backend.clock()
+        except DeviceFault:   # the feed that follows reports it through the fault path
+            return False
+        return self._block_end - clock >= self.s.samples(self.s.low_water)
 
     def _feed(self, em: DriverOutput) -> None:
         """Keep a clocked device's FIFO from running dry.  Before the first block: ``write_ahead`` of the safe
