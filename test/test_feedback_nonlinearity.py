@@ -68,6 +68,20 @@ def test_a_known_static_cubic_in_feedback_is_recovered_in_simulation(data):
     assert ratio == pytest.approx(-K3, rel=0.02), ratio
 
 
+def test_the_small_signal_poles_are_the_truths_linear_mode(data):
+    """Linearised at rest, the identified loop has the truth's own mode (800 Hz, ζ 0.03) — not the shifted mode of
+    the pooled best linear approximation its banks start from — and is stable."""
+    (u_tr, y_tr), _ = data
+    nl = fnl.identify_feedback_nonlinearity(u_tr, y_tr, PERIOD, DT, order=2, features=("lin", "cube"))
+    z = nl.small_signal_poles()
+    s = np.log(z[z.imag > 0]) / DT
+    assert len(s) == 1 and np.all(np.abs(z) < 1)
+    assert abs(s[0]) / (2 * np.pi) == pytest.approx(F0, rel=1e-3)
+    assert -s[0].real / abs(s[0]) == pytest.approx(ZETA, rel=1e-2)
+    bla_mode = nl.poles[nl.poles.imag > 0][0]
+    assert abs(abs(bla_mode) / (2 * np.pi) - F0) > 2.0     # the banks' pooled mode is elsewhere
+
+
 @pytest.mark.parametrize("features", [("lin",), ("lin", "abs2")])
 def test_without_the_right_nonlinearity_the_fit_stays_off(features, data):
     """The linear loop alone, or with z·|z| instead of z³, leaves > 1 % NRMSE on the same records: the figure above

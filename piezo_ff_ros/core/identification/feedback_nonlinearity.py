@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+import scipy.linalg
 import scipy.signal
 
 from . import bla
@@ -139,6 +140,49 @@ class FeedbackNonlinearModel:
                 out.append(2 * (theta_s[i] + 1j * theta_s[i + 1]))
                 i += 2
         return np.array(out)
+
+    def small_signal_poles(self) -> np.ndarray:
+        """Discrete poles of the model linearised at rest (amplitude → 0): the input banks' modes and the closed
+        loop of the ``lin`` feature (every other feature has zero slope at 0).  A magnitude ≥ 1 means the model
+        diverges once the drive is small enough for the nonlinear terms to stop holding the loop.
+
+        Returns
+        -------
+        ndarray
+            Complex eigenvalues of the loop's state matrix (the input banks' own modes, ``exp(p·dt)``, are stable by
+            construction and not repeated).
+        """
+        if "lin" not in self.features:
+            return np.exp(self.poles * self.dt)
+        ns = _n_states(self.poles)
+        m, p = self.n_inputs, self.n_outputs
+        k0 = m + self.features.index("lin") * p          # the lin feature's first signal
+        blocks_a, blocks_b, blocks_c = [], [], []
+        for s in range(p):
+            theta_s = self.theta[(k0 + s) * ns:(k0 + s + 1) * ns]          # [ns, p]
+            i = 0
+            for pl in self.poles:
+                lam = np.exp(pl * self.dt)
+                beta = (lam - 1.0) / pl
+                if pl.imag == 0:
+                    blocks_a.append(np.array([[lam.real]]))
+                    blocks_b.append((np.array([[beta.real]]), s))
+                    blocks_c.append(theta_s[i:i + 1].T)
+                    i += 1
+                else:   # x = Re v, Im v;  y = 2a·Re v − 2b·Im v (the bank's column convention)
+                    blocks_a.append(np.array([[lam.real, -lam.imag], [lam.imag, lam.real]]))
+                    blocks_b.append((np.array([[beta.real], [beta.imag]]), s))
+                    blocks_c.append(np.column_stack([2 * theta_s[i], -2 * theta_s[i + 1]]))
+                    i += 2
+        A = scipy.linalg.block_diag(*blocks_a)
+        n = A.shape[0]
+        B = np.zeros((n, p))
+        C = np.hstack(blocks_c)                          # [p, n]
+        r = 0
+        for (b, s) in blocks_b:
+            B[r:r + len(b), s] = b[:, 0]
+            r += len(b)
+        return np.asarray(np.linalg.eigvals(A + B @ (C / self.z_scale[:, None])))
 
     def simulate(self, u_records: Sequence[np.ndarray], warmup: int = 0) -> list[np.ndarray]:
         """Pure simulation (the output is the model's own, never a measurement) of each record ``u [T, m]``.
