@@ -117,13 +117,17 @@ def fsm(orders) -> dict:
         e_nl, per_nl, sim = _score(nl, recs, L)
         e_lin, per_lin, _ = _score(lin, recs, L)
         u_te, y_te = recs[L]["test"]
-        row = {"linear_percent": e_lin, "linear_per_realization": per_lin, "model_percent": e_nl,
+        e_eq = fnl.benchmark_nrmse_percent(y_te, [nl.equation_error_output(u, y, warmup=PERIOD)
+                                                  for u, y in zip(u_te, y_te)], PERIOD)
+        row = {"equation_error_percent": e_eq, "linear_percent": e_lin, "linear_per_realization": per_lin,
+               "model_percent": e_nl,
                "model_per_realization": per_nl, "nllfr_percent": NLLFR_PERCENT[L],
                "bla_all_published_percent": BLA_ALL_PERCENT[L],
                "peaks_measured_hz": _peaks(u_te, y_te), "peaks_model_hz": _peaks(u_te, sim)}
         out["levels"][L] = row
         print(f"fsm {L} mV test: linear {e_lin:.2f} % -> with the feedback nonlinearity {e_nl:.2f} % "
-              f"(per realization {', '.join(f'{x:.2f}' for x in per_nl)}; NL-LFR {NLLFR_PERCENT[L]:.2f} %); "
+              f"(per realization {', '.join(f'{x:.2f}' for x in per_nl)}; equation error {e_eq:.2f} %; NL-LFR "
+              f"{NLLFR_PERCENT[L]:.2f} %); "
               f"resonances measured {row['peaks_measured_hz']} Hz, model {row['peaks_model_hz']} Hz", flush=True)
     # 3. withheld amplitude: train on two levels, test on the third
     for L in LEVELS:
@@ -155,7 +159,8 @@ def fsm(orders) -> dict:
         print(f"| {L} mV | {r['linear_percent']:.2f} % | **{r['model_percent']:.2f} %** | {r['nllfr_percent']:.2f} % | "
               f"{r['bla_all_published_percent']:.2f} % | {', '.join(f'{x:.0f}' for x in r['peaks_measured_hz'])} → "
               f"{', '.join(f'{x:.0f}' for x in r['peaks_model_hz'])} |")
-    print("\n| withheld | trained on | linear | + nonlinearity | shrink | verdict (better on all 3 test realizations) |")
+    print("\n| withheld | trained on | linear | + nonlinearity | shrink | "
+          "verdict (better on all 3 test realizations) |")
     print("|---|---|---|---|---|---|")
     for L, r in out["withheld"].items():
         sh = "—" if r["shrink_percent"] is None else f"{r['shrink_percent']:.0f} %"

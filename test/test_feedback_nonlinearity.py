@@ -103,6 +103,18 @@ def test_simulation_uses_only_the_input():
     np.testing.assert_allclose(together[1], alone, rtol=1e-12, atol=1e-15)
 
 
+def test_equation_error_output_is_the_fit_and_matches_the_simulation_of_an_exact_model(data):
+    """With the features from the measured output, the exact (in-class, noise-free) model reproduces the record as
+    its simulation does; a linear model's equation-error output is its simulation (no features)."""
+    (u_tr, y_tr), (u_te, y_te) = data
+    nl = fnl.identify_feedback_nonlinearity(u_tr, y_tr, PERIOD, DT, order=2, features=("lin", "cube"))
+    ee = nl.equation_error_output(u_te[0], y_te[0], warmup=PERIOD)
+    assert fnl.benchmark_nrmse_percent([y_te[0]], [ee], PERIOD) < 0.1
+    lin = fnl.identify_feedback_nonlinearity(u_tr, y_tr, PERIOD, DT, order=2, features=())
+    np.testing.assert_allclose(lin.equation_error_output(u_te[0], y_te[0] * 0, warmup=PERIOD),
+                               lin.simulate([u_te[0]], warmup=PERIOD)[0], rtol=1e-9, atol=1e-12)
+
+
 def test_benchmark_nrmse_is_error_rms_over_output_std_averaged():
     """Per channel and period: RMS(error)/std(y), then the mean — 10 % for a 10 % gain error on a zero-mean sine,
     and the offset of y does not enter the normaliser."""

@@ -184,6 +184,30 @@ class FeedbackNonlinearModel:
             r += len(b)
         return np.asarray(np.linalg.eigvals(A + B @ (C / self.z_scale[:, None])))
 
+    def equation_error_output(self, u: np.ndarray, y: np.ndarray, warmup: int = 0) -> np.ndarray:
+        """The model's output with the features taken from the *measured* output ``y`` (what the fit minimises;
+        not a simulation): the part of the simulation error that is not the loop amplifying model errors.
+
+        Parameters
+        ----------
+        u, y : ndarray
+            Input ``[T, n_inputs]`` and measured output ``[T, n_outputs]`` of one record.
+        warmup : int
+            As in :meth:`simulate` (the end of both records prepended).
+
+        Returns
+        -------
+        ndarray
+            ``[T, n_outputs]``.
+        """
+        u, y = np.asarray(u, float), np.asarray(y, float)
+        if warmup:
+            u, y = np.concatenate([u[-warmup:], u]), np.concatenate([y[-warmup:], y])
+        z = y / self.z_scale
+        v = np.diff(z, axis=0, prepend=z[:1]) / self.v_scale
+        out: np.ndarray = _modal_bank(self.poles, self.dt, np.hstack([u, _features(z, v, self.features)])) @ self.theta
+        return out[warmup:]
+
     def simulate(self, u_records: Sequence[np.ndarray], warmup: int = 0) -> list[np.ndarray]:
         """Pure simulation (the output is the model's own, never a measurement) of each record ``u [T, m]``.
 
