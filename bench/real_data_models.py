@@ -129,6 +129,16 @@ def fsm(orders) -> dict:
               f"(per realization {', '.join(f'{x:.2f}' for x in per_nl)}; equation error {e_eq:.2f} %; NL-LFR "
               f"{NLLFR_PERCENT[L]:.2f} %); "
               f"resonances measured {row['peaks_measured_hz']} Hz, model {row['peaks_model_hz']} Hz", flush=True)
+    out["effect"] = {
+        "effect": "amplitude_dependent_stiffness",
+        "model": "static nonlinearity of the output fed back through the pooled BLA's modes",
+        "features": list(FEATURES), "order": order,
+        "test_nrmse_percent": {L: {"linear": r["linear_percent"], "added": r["model_percent"],
+                                   "nllfr": r["nllfr_percent"]} for L, r in out["levels"].items()}}
+    print("fsm diagnosed effect: amplitude_dependent_stiffness (resonances soften with the level), added as a static "
+          f"nonlinearity of the output ({', '.join(FEATURES)}) fed back through the {order}-state pooled BLA's modes; "
+          "test NRMSE " + ", ".join(f"{L} mV {r['linear_percent']:.2f} -> {r['model_percent']:.2f} %"
+                                    for L, r in out["levels"].items()), flush=True)
     # 3. withheld amplitude: train on two levels, test on the third
     for L in LEVELS:
         others = tuple(k for k in LEVELS if k != L)
