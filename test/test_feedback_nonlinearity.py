@@ -92,6 +92,19 @@ def test_without_the_right_nonlinearity_the_fit_stays_off(features, data):
     assert e > 1.0, e
 
 
+def test_actuator_coordinates_keep_an_exact_fit_and_map_back_to_the_outputs(data):
+    """Features on the actuator coordinate G(0)⁻¹·y: the in-class truth is still reproduced (the cube of a scaled
+    coordinate is the same feature), the model reports outputs (not actuator volts), and its map is the static gain
+    (1 for this mode, within the multisine's lowest bins' resonance-free error)."""
+    (u_tr, y_tr), (u_te, y_te) = data
+    nl = fnl.identify_feedback_nonlinearity(u_tr, y_tr, PERIOD, DT, order=2, features=("lin", "cube"),
+                                            coordinates="actuators")
+    assert nl.output_map is not None and nl.output_map[0, 0] == pytest.approx(1.0, abs=0.05)
+    assert fnl.benchmark_nrmse_percent(y_te, nl.simulate(u_te, warmup=PERIOD), PERIOD) < 0.1
+    ee = nl.equation_error_output(u_te[0], y_te[0], warmup=PERIOD)
+    assert fnl.benchmark_nrmse_percent([y_te[0]], [ee], PERIOD) < 0.1
+
+
 def test_simulation_uses_only_the_input():
     """The simulated output of a model is the same whatever output records it is evaluated against, and the same
     for a record alone or in a batch (records are simulated independently)."""
@@ -129,10 +142,12 @@ def test_benchmark_nrmse_is_error_rms_over_output_std_averaged():
 @pytest.mark.parametrize("kwargs, message", [
     ({"features": ("quartic",)}, "feature 'quartic'"),
     ({"period": 1000}, "whole periods"),
+    ({"coordinates": "modal"}, "coordinates 'modal'"),
 ])
 def test_bad_input_is_a_one_line_error(kwargs, message):
     rng = np.random.default_rng(1)
     us, ys = _records(rng, (0.1,), 1)
-    args = {"period": PERIOD, "features": ("cube",), **kwargs}
+    args = {"period": PERIOD, "features": ("cube",), "coordinates": "outputs", **kwargs}
     with pytest.raises(ValueError, match=message):
-        fnl.identify_feedback_nonlinearity(us, ys, args["period"], DT, order=2, features=args["features"])
+        fnl.identify_feedback_nonlinearity(us, ys, args["period"], DT, order=2, features=args["features"],
+                                           coordinates=args["coordinates"])

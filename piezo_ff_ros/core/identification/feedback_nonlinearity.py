@@ -114,6 +114,9 @@ class FeedbackNonlinearModel:
         Output coefficients ``[(n_inputs + n_features·n_outputs)·n_states, n_outputs]``, grouped by signal.
     n_inputs : int
         Number of input channels.
+    output_map : ndarray, optional
+        ``[p, p]``: the model runs in coordinates ``y' = y·output_map⁻ᵀ`` (features on them) and reports
+        ``y = y'·output_mapᵀ``; None = the outputs themselves.
     """
 
     poles: np.ndarray
@@ -123,6 +126,7 @@ class FeedbackNonlinearModel:
     v_scale: np.ndarray
     theta: np.ndarray
     n_inputs: int
+    output_map: np.ndarray | None = None
 
     @property
     def n_outputs(self) -> int:
@@ -201,12 +205,17 @@ class FeedbackNonlinearModel:
             ``[T, n_outputs]``.
         """
         u, y = np.asarray(u, float), np.asarray(y, float)
+        if self.output_map is not None:
+            y = y @ np.linalg.inv(self.output_map).T
         if warmup:
             u, y = np.concatenate([u[-warmup:], u]), np.concatenate([y[-warmup:], y])
         z = y / self.z_scale
         v = np.diff(z, axis=0, prepend=z[:1]) / self.v_scale
         out: np.ndarray = _modal_bank(self.poles, self.dt, np.hstack([u, _features(z, v, self.features)])) @ self.theta
-        return out[warmup:]
+        return self._mapped(out[warmup:])
+
+    def _mapped(self, y: np.ndarray) -> np.ndarray:
+        return y if self.output_map is None else np.asarray(y @ self.output_map.T)
 
     def simulate(self, u_records: Sequence[np.ndarray], warmup: int = 0) -> list[np.ndarray]:
         """Pure simulation (the output is the model's own, never a measurement) of each record ``u [T, m]``.
@@ -236,7 +245,7 @@ class FeedbackNonlinearModel:
         c = np.array([self._complex_output(self.theta[(m + k) * ns:(m + k + 1) * ns]) for k in range(nf)]
                      ).reshape(nf, len(self.poles), p)
         if nf == 0:                                          # a linear model: no loop to run
-            return [o[warmup:] for o in y_lin]
+            return [self._mapped(o[warmup:]) for o in y_lin]
         lam = np.exp(self.poles * self.dt)
         beta = (lam - 1.0) / self.poles
         R, T = y_lin.shape[:2]
@@ -250,7 +259,7 @@ class FeedbackNonlinearModel:
             w = _features(z, (z - z_prev) / self.v_scale, self.features)
             z_prev = z
             x = lam * x + beta * w[:, :, None]
-        return [o[warmup:] for o in out]
+        return [self._mapped(o[warmup:]) for o in out]
 
 
 def periodic_records(u: np.ndarray, y: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
@@ -267,7 +276,7 @@ def periodic_records(u: np.ndarray, y: np.ndarray) -> tuple[list[np.ndarray], li
 
 def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: Sequence[np.ndarray], period: int,
                                    dt: float, order: int, features: Sequence[str] = ("lin", "abs2", "cube"),
-                                   ) -> FeedbackNonlinearModel:
+                                   coordinates: str = "outputs") -> FeedbackNonlinearModel:
     """Identify the model of the module docstring from periodic records.
 
     Parameters
@@ -283,6 +292,11 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
         State dimension of the pooled best linear approximation whose modes the banks use.
     features : sequence of str
         Feature names (``FEATURES``); empty = a linear model refitted in the time domain.
+    coordinates : {'outputs', 'actuators'}
+        Where the features act: on each output, or (as many inputs as outputs) on each *actuator coordinate*
+        ``G(0)⁻¹·y`` — the output mapped back through the static gain of the best linear approximation (its lowest
+        five excited bins, real part), i.e. in volts of the actuator that would produce it statically: where a piezo
+        stack's own stiffness nonlinearity lives.
 
     Returns
     -------
@@ -294,6 +308,8 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
         Records that are not whole periods, of mismatched shapes, or an unknown feature.
     """
     features = tuple(features)
+    if coordinates not in ("outputs", "actuators"):
+        raise ValueError(f"coordinates {coordinates!r}: expected 'outputs' or 'actuators'")
     _features(np.zeros((1, 1)), np.zeros((1, 1)), features)          # names checked before any work
     if not u_records or len(u_records) != len(y_records):
         raise ValueError("feedback nonlinearity: expected as many output records as input records (≥ 1)")
@@ -310,6 +326,14 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
     Y = np.fft.rfft(np.stack([y[-period:] for y in ys], axis=2), axis=0)
     bins = np.nonzero(bla._excited(U))[0]
     poles, _ = bla._fit_order(U, Y, bins, period, int(order), dt)
+    output_map = None
+    if coordinates == "actuators":
+        if m != p:
+            raise ValueError(f"feedback nonlinearity: actuator coordinates need as many inputs as outputs ({m} vs {p})")
+        output_map = np.mean([np.real(Y[k] @ np.linalg.pinv(U[k])) for k in bins[:5]], axis=0)
+        to_actuators = np.linalg.inv(output_map)
+        ys = [y @ to_actuators.T for y in ys]
+
     z_scale = np.sqrt(np.mean(np.vstack([y - y.mean(0) for y in ys]) ** 2, axis=0))
     v_scale = np.sqrt(np.mean(np.vstack([np.diff(y, axis=0) for y in ys]) ** 2, axis=0)) / z_scale
     gram = rhs = None
@@ -328,7 +352,7 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
     sc[sc == 0] = 1.0
     theta = np.linalg.solve(gram / np.outer(sc, sc) + 1e-12 * np.eye(len(sc)), rhs / sc[:, None]) / sc[:, None]
     return FeedbackNonlinearModel(poles=poles, dt=float(dt), features=features, z_scale=z_scale, v_scale=v_scale,
-                                  theta=theta, n_inputs=m)
+                                  theta=theta, n_inputs=m, output_map=output_map)
 
 
 def benchmark_nrmse_percent(y: Sequence[np.ndarray], y_hat: Sequence[np.ndarray], period: int,
