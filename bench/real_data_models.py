@@ -3,8 +3,9 @@
 1. ``fsm_cubespec_piezo`` (3×3, 6400 Hz; Floren et al., ISMA-USD 2024, CC BY 4.0): the diagnosed effect — the
    error of one linear model growing with the amplitude — added as a static nonlinearity of the output fed back
    through the model's own modes (``core/identification/feedback_nonlinearity.py``; every feature of its basis:
-   z, z|z|, z³, v|v|, |z|v).  Modes: the best linear approximation of the training records; order chosen on the
-   training set alone (fitted on training realizations 0–4 of every level, scored in simulation on realization 5).
+   z, z|z|, z³, v|v|, |z|v, on the outputs or on the actuator coordinates G(0)⁻¹·y).  Modes: the best linear
+   approximation of the training records; order and coordinates chosen on the training set alone (fitted on
+   training realizations 0–4 of every level, scored in simulation on realization 5).
    Then fitted on all 18 training realizations and scored on the 9 test realizations with the data set's metric
    (``benchmark_nrmse_percent``: per channel, realization and period RMS(error)/std(y), averaged; pure simulation
    from the periodic steady state), next to the linear model of the same modes (the same fit without features)
@@ -16,7 +17,7 @@
    Bouc-Wen.
 
     PYTHONPATH=. PIEZO_FF_SHARED_DATA=/work/shared/data nice -n 5 .venv/bin/python bench/real_data_models.py \
-        [--only fsm|dbo] [--orders 24,28,32] [--json out.json]
+        [--only fsm|dbo] [--orders 28,32] [--json out.json]
 
 Prints the tables docs/diagnosis.md quotes (data attribution: each folder's SOURCE.md).
 """
@@ -42,6 +43,8 @@ NLLFR_PERCENT = {100: 6.37, 200: 4.84, 300: 4.19}
 #: published single BLA trained on all levels (SOURCE.md)
 BLA_ALL_PERCENT = {100: 18.61, 200: 6.61, 300: 16.28}
 FEATURES = fnl.FEATURES
+#: where the features act (``identify_feedback_nonlinearity``): chosen with the order on the training set
+COORDINATES = ("outputs", "actuators")
 
 
 def _fsm_records():
@@ -92,26 +95,30 @@ def fsm(orders) -> dict:
     recs = _fsm_records()
     out: dict = {"order_selection": {}, "levels": {}, "withheld": {}}
     t_all = time.perf_counter()
-    # 1. order on the training set alone: realizations 0-4 of every level fit, realization 5 scores
-    for n in orders:
-        t0 = time.perf_counter()
-        m = fnl.identify_feedback_nonlinearity(*_pool(recs, LEVELS, "train", range(5)), PERIOD, 1 / FSM_FS, n,
-                                               FEATURES)
-        v = [_score(m, recs, L, "train", [5])[0] for L in LEVELS]
-        ok = all(np.isfinite(v))
-        out["order_selection"][n] = {"validation_percent": v, "mean": float(np.mean(v)) if ok else None}
-        print(f"fsm order {n}: validation NRMSE (training realization 5) " +
-              " / ".join(f"{x:.2f}" for x in v) + f" %  ({time.perf_counter() - t0:.0f} s)", flush=True)
-    ranked = [(r["mean"], n) for n, r in out["order_selection"].items() if r["mean"] is not None]
-    order = min(ranked)[1]
-    out["order"] = order
+    # 1. order and coordinates on the training set alone: realizations 0-4 of every level fit, realization 5 scores
+    for coords in COORDINATES:
+        for n in orders:
+            t0 = time.perf_counter()
+            m = fnl.identify_feedback_nonlinearity(*_pool(recs, LEVELS, "train", range(5)), PERIOD, 1 / FSM_FS, n,
+                                                   FEATURES, coordinates=coords)
+            v = [_score(m, recs, L, "train", [5])[0] for L in LEVELS]
+            ok = all(np.isfinite(v))
+            out["order_selection"][f"{coords} {n}"] = {"validation_percent": v,
+                                                      "mean": float(np.mean(v)) if ok else None}
+            print(f"fsm features on {coords}, order {n}: validation NRMSE (training realization 5) " +
+                  " / ".join(f"{x:.2f}" for x in v) + f" %  ({time.perf_counter() - t0:.0f} s)", flush=True)
+    ranked = [(r["mean"], k) for k, r in out["order_selection"].items() if r["mean"] is not None]
+    coords, order_s = min(ranked)[1].split()
+    order = int(order_s)
+    out["order"], out["coordinates"] = order, coords
     # 2. all training realizations of all levels; the test realizations of each level
     t0 = time.perf_counter()
     u_tr, y_tr = _pool(recs, LEVELS, "train")
-    nl = fnl.identify_feedback_nonlinearity(u_tr, y_tr, PERIOD, 1 / FSM_FS, order, FEATURES)
+    nl = fnl.identify_feedback_nonlinearity(u_tr, y_tr, PERIOD, 1 / FSM_FS, order, FEATURES, coordinates=coords)
     lin = fnl.identify_feedback_nonlinearity(u_tr, y_tr, PERIOD, 1 / FSM_FS, order, ())
     out["small_signal_spectral_radius"] = float(np.max(np.abs(nl.small_signal_poles())))
-    print(f"fsm: fitted on all 18 training realizations, order {order} ({time.perf_counter() - t0:.0f} s); its loop "
+    print(f"fsm: fitted on all 18 training realizations, features on {coords}, order {order} "
+          f"({time.perf_counter() - t0:.0f} s); its loop "
           f"linearised at rest: largest pole magnitude {out['small_signal_spectral_radius']:.4f}")
     for L in LEVELS:
         e_nl, per_nl, sim = _score(nl, recs, L)
@@ -132,11 +139,12 @@ def fsm(orders) -> dict:
     out["effect"] = {
         "effect": "amplitude_dependent_stiffness",
         "model": "static nonlinearity of the output fed back through the pooled BLA's modes",
-        "features": list(FEATURES), "order": order,
+        "features": list(FEATURES), "coordinates": coords, "order": order,
         "test_nrmse_percent": {L: {"linear": r["linear_percent"], "added": r["model_percent"],
                                    "nllfr": r["nllfr_percent"]} for L, r in out["levels"].items()}}
     print("fsm diagnosed effect: amplitude_dependent_stiffness (resonances soften with the level), added as a static "
-          f"nonlinearity of the output ({', '.join(FEATURES)}) fed back through the {order}-state pooled BLA's modes; "
+          f"nonlinearity of the {coords} ({', '.join(FEATURES)}) fed back through the {order}-state pooled BLA's "
+          "modes; "
           "test NRMSE " + ", ".join(f"{L} mV {r['linear_percent']:.2f} -> {r['model_percent']:.2f} %"
                                     for L, r in out["levels"].items()), flush=True)
     # 3. withheld amplitude: train on two levels, test on the third
@@ -144,7 +152,7 @@ def fsm(orders) -> dict:
         others = tuple(k for k in LEVELS if k != L)
         t0 = time.perf_counter()
         u2, y2 = _pool(recs, others, "train")
-        nl2 = fnl.identify_feedback_nonlinearity(u2, y2, PERIOD, 1 / FSM_FS, order, FEATURES)
+        nl2 = fnl.identify_feedback_nonlinearity(u2, y2, PERIOD, 1 / FSM_FS, order, FEATURES, coordinates=coords)
         lin2 = fnl.identify_feedback_nonlinearity(u2, y2, PERIOD, 1 / FSM_FS, order, ())
         e_nl, per_nl, _ = _score(nl2, recs, L)
         e_lin, per_lin, _ = _score(lin2, recs, L)
@@ -184,7 +192,7 @@ def fsm(orders) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", choices=["fsm", "dbo"])
-    ap.add_argument("--orders", default="24,28,32", help="FSM orders tried on the training set (default 24,28,32)")
+    ap.add_argument("--orders", default="28,32", help="FSM orders tried on the training set (default 28,32)")
     ap.add_argument("--json", help="write the findings")
     a = ap.parse_args(argv)
     out = {}
