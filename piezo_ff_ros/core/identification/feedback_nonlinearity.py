@@ -15,7 +15,9 @@ elementwise functions of each output channel (``FEATURES``): ``lin`` (a linear l
 away from the pooled ones), ``abs2`` = z·|z| and ``cube`` = z³ (a static stiffness nonlinearity: an effective
 feedback gain growing with the amplitude, i.e. resonances that shift with level), ``vabs2`` = v·|v| and ``yv`` =
 |z|·v (damping that grows with the amplitude — what a hysteresis loop's area does), with z the output and v its
-one-sample change, both over their training RMS.
+one-sample change, both over their training RMS.  Optionally the features act on the *actuator coordinates*
+``G(0)⁻¹·y`` instead (the output mapped back through the static gain: the strain of each actuator, where a piezo
+stack's stiffness nonlinearity lives); the model still reports outputs.
 
 Identification is one linear least-squares problem (equation error): the features are evaluated on the *measured*
 output, filtered through the modal banks, and every ``C_s`` is solved for at once, each record weighted by the
