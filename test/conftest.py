@@ -12,7 +12,15 @@ import sys
 import tempfile
 from pathlib import Path
 
-import pytest
+# Single-threaded BLAS for the session and every process it starts (nodes, CLI commands inherit the environment),
+# set before anything imports numpy.  The suite's matrices are small (a 400×400 Hankel SVD, tall-thin least squares)
+# and the tests run ROS node processes alongside: OpenBLAS worker threads busy-wait between calls, so on a 2-core
+# machine with a second busy process a 400×400 SVD took ~30× the CPU time of the one-thread call (measured).  The
+# numbers tested are the same code paths; a value set by hand in the environment wins.
+for _blas_threads in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_blas_threads, "1")
+
+import pytest  # noqa: E402  (BLAS threads set first)
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:

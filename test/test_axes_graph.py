@@ -20,9 +20,11 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_commission_graph_recording_analyze(tmp_path, name, axes, only):
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    # one period per hysteresis characterisation sine (default two): the loop is identified from it just as well
+    # (held-out fit ≈ 99.2–99.9 % on the XYZ tube either way) on half the samples, the Bouc-Wen fit's cost
     r = subprocess.run([sys.executable, "-m", "piezo_ff_ros", "commission", "--out", str(tmp_path), "--quiet",
                         "--config", str(ROOT / "config" / f"{name}.yaml"), "--creep-duration", "2",
-                        "--sine-frequency", "1", "--probe-timeout", "1", "--only", only,
+                        "--sine-frequency", "1", "--sine-periods", "1", "--probe-timeout", "1", "--only", only,
                         "--domain-id", os.environ["ROS_DOMAIN_ID"]],
                        env=env, capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:] + "\n--- stdout:\n" + r.stdout[-2000:]

@@ -61,14 +61,22 @@ def test_commission_refuses_a_running_driver_without_sensor(tmp_path):
     """A driver whose backend measures nothing (here the simulator with ``sim.sensor:=false``) publishes
     no ``displacement``; commissioning against it stops with one line naming the cause, before moving the stage.
     (The driver used to create its displacement publisher whatever the backend: it passed for a sensor.)"""
-    from test_nodes_integration import start_node, stop_node
+    from test_nodes_integration import Probe, start_node, stop_node
 
     driver = start_node("driver", "-p", "sim.sensor:=false", log_dir=tmp_path)
     try:
+        # wait until the driver is configured (its /voltage subscription is made after the displacement publisher
+        # a sensor would have), so that commissioning's own probe (5 s, its floor for "no /displacement") looks at
+        # a configured driver instead of waiting out a longer timeout that covered the driver's start
+        probe = Probe("sensorless_probe")
+        try:
+            probe.spin_until(lambda: probe.node.count_subscribers("/voltage") > 0, 90, "the driver configured")
+        finally:
+            probe.close()
         env = dict(os.environ)
         env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
         r = subprocess.run([sys.executable, "-m", "piezo_ff_ros", "commission", "--out", str(tmp_path / "c"),
-                            "--quiet", "--creep-duration", "2", "--probe-timeout", "10",
+                            "--quiet", "--creep-duration", "2", "--probe-timeout", "5",
                             "--domain-id", os.environ["ROS_DOMAIN_ID"]],
                            env=env, capture_output=True, text=True, timeout=300)
     finally:
