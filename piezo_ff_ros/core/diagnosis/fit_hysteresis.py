@@ -11,14 +11,102 @@ import numpy as np
 from scipy import optimize
 
 from ..models import effects as fx
+from ..models.plant import Plant
 from .fit_common import FitContext, FitResult, _fit_scalar, _lin_per_axis, _rms, _stderr
 from .replay import Windows, residual, simulate
 
-__all__ = ["fit_hysteresis_rate_dependence", "fit_hysteresis_asymmetry", "RELAX_MIN_GAIN", "PLAY_FRACTIONS"]
+__all__ = ["fit_hysteresis_rate_dependence", "fit_hysteresis_asymmetry", "RELAX_MIN_GAIN", "PLAY_FRACTIONS",
+           "VELOCITY_EXPONENTS", "VELOCITY_SMOOTHING_SAMPLES"]
 
 
 #: a relaxation of the hysteretic state is kept when it lowers the training residual energy by this share
 RELAX_MIN_GAIN = 0.02
+#: exponents m of the velocity-damping form tried (sub-linear: a term linear in the rate is what a delay or a
+#: viscous loop gives; m < 1 is the nonlinear velocity damping of the literature, absent at rest, steep at low rates)
+VELOCITY_EXPONENTS = (0.3, 0.45, 0.6, 0.75, 0.9)
+#: smoothing of the voltage rate the velocity term sees, in sample intervals (the DAC's staircase has a rate only
+#: over a sample; how the amplifier spreads it is not known: none, one, a few samples)
+VELOCITY_SMOOTHING_SAMPLES = (0.0, 1.0, 3.0)
+
+
+def _chain_response(ctx: FitContext, make: Callable[[], Any], terms: Callable[[Any, np.ndarray], np.ndarray]
+                    ) -> np.ndarray:
+    """The model output's response (on the fit windows, flattened, each axis' mean removed) to terms added at the
+    hysteresis output: ``terms(stage, u)`` gives [N, B, n] (B basis signals per axis) for a fresh ``make()``
+    stage; column (b, i) is the response to basis b on axis i alone.  The creep and the dynamics behind the
+    hysteresis are linear, so the output is linear in the terms' gains: the chain is run alone, without re-running
+    the hysteresis."""
+    n = ctx.cfg.n_axes
+    chain = Plant(ctx.cfg, stages=("creep", "dynamics"))
+    parts: list[list[np.ndarray]] = []
+    for w, s_, e_ in ctx.windows.spans:   # each window from its warm start, like every other fit
+        T = terms(make(), ctx.u[w:e_])
+        if not parts:
+            parts = [[] for _ in range(T.shape[1] * n)]
+        for b in range(T.shape[1]):
+            for i in range(n):
+                x = np.zeros((T.shape[0], n))
+                x[:, i] = T[:, b, i]
+                chain.reset()
+                parts[b * n + i].append(chain.process(x)[s_ - w:])
+    cols = []
+    for p in parts:
+        yi = np.concatenate(p)
+        cols.append((yi - yi.mean(axis=0)).reshape(-1))
+    return np.column_stack(cols)
+
+
+def _velocity_basis(ctx: FitContext, m: float, smoothing: float) -> np.ndarray:
+    """The response to a unit velocity gain on each axis: columns [axis] (see :func:`_chain_response`)."""
+    n = ctx.cfg.n_axes
+    dp = np.diag(ctx.cfg.hysteresis.arrays()["Dp"])
+    return _chain_response(ctx, lambda: fx.VelocityTerm(dp, np.ones(n), m, smoothing, ctx.dt),
+                           lambda st, u: st.process(u)[:, None, :])
+
+
+def _velocity_form(ctx: FitContext) -> FitResult | None:
+    """The velocity-damping form: ``Y_H,i += Dp_ii·c_i·sgn(r_i)·|r_i/r_ref|^m``.  Given (m, smoothing) the output
+    is linear in the c_i (the creep and the dynamics behind the hysteresis are linear): the response to a unit c_i
+    is computed per axis and the c_i found by least squares; (m, smoothing) on the grids
+    :data:`VELOCITY_EXPONENTS` × :data:`VELOCITY_SMOOTHING_SAMPLES`, then refined (simplex).  Fitted on the
+    nominal model only (a base with other effects changes the voltage the loop sees)."""
+    n = ctx.cfg.n_axes
+    if ctx.base or ctx.cfg.hysteresis.n_in != n or ctx.cfg.hysteresis.n_out != n:
+        return None
+    r0 = residual(ctx.target, ctx.y_base_win).reshape(-1)
+    cache: dict[tuple[float, float], tuple[float, np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def fit(m: float, k: float) -> float:
+        key = (round(m, 4), round(k, 3))
+        if key not in cache:
+            X = _velocity_basis(ctx, m, k * ctx.dt)
+            c, *_ = np.linalg.lstsq(X, r0, rcond=None)
+            res = r0 - X @ c
+            cache[key] = (float(res @ res), c, res, X)
+        return cache[key][0]
+
+    grid = [(m, k) for m in VELOCITY_EXPONENTS for k in VELOCITY_SMOOTHING_SAMPLES]
+    m0, k0 = min(grid, key=lambda mk: fit(*mk))
+
+    def cost(z: np.ndarray) -> float:
+        m, k = float(np.clip(z[0], 0.1, 1.0)), float(np.clip(z[1], 0.0, 20.0))
+        return fit(m, k)
+
+    sol = optimize.minimize(cost, np.array([m0, k0]), method="Nelder-Mead",
+                            options={"maxfev": 24, "xatol": 0.01, "fatol": 0.0,
+                                     "initial_simplex": np.array([[m0, k0], [m0 + 0.08, k0], [m0, k0 + 1.0]])})
+    m, k = (float(np.clip(sol.x[0], 0.1, 1.0)), float(np.clip(sol.x[1], 0.0, 20.0))) if sol.fun < fit(m0, k0) \
+        else (m0, k0)
+    fit(m, k)
+    _, c, res, X = cache[(round(m, 4), round(k, 3))]
+    p = {"alpha": 0.0, "velocity_gain": c.tolist(), "velocity_exponent": round(m, 4),
+         "velocity_smoothing": round(k, 3) * ctx.dt}
+    se = _stderr(-X, res.reshape(-1, n))
+    return FitResult("hysteresis_rate_dependence", p,
+                     {"alpha": None, "velocity_gain": se.tolist(), "velocity_exponent": None,
+                      "velocity_smoothing": None},
+                     [("hysteresis_rate_dependence", p)], n + 2, _rms(res),
+                     note=f"velocity-damping term, exponent {m:.3g}, rate smoothed over {k:.3g} samples")
 
 
 def fit_hysteresis_rate_dependence(ctx: FitContext) -> FitResult:
@@ -38,6 +126,9 @@ def fit_hysteresis_rate_dependence(ctx: FitContext) -> FitResult:
     both = _fit_scalar(ctx, "hysteresis_rate_dependence", "alpha",
                        lambda z: {"alpha": z, "relaxation": tau}, agrid, lambda z: z, lambda z: 1.0)
     best = min((rel, both), key=lambda f: f.train_rms)
+    vel = _velocity_form(ctx)
+    if vel is not None and vel.train_rms < min(best.train_rms, base.train_rms):
+        return vel
     if best.train_rms ** 2 > (1 - RELAX_MIN_GAIN) * base.train_rms ** 2:
         return base
     p = dict(best.effects[0][1])
@@ -61,8 +152,22 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
     # residuals in units of the base model's RMS error: scipy's tolerances are absolute, metres are too small
     unit = max(_rms(residual(ctx.target, ctx.y_base_win)), 1e-15)
 
+    def regressors(y_w: np.ndarray) -> tuple[list[np.ndarray], list[float]]:
+        """The even, branch-dependent term and the loop-width plays (radii a fixed share of the stroke) on y_w."""
+        q, dq = _windowed(lambda yy: fx.BranchEvenTerm(0.0, 0.0, ctx.dt, n).terms(yy), y_w, ctx.windows, 2)
+        half = float(np.mean(0.5 * (np.max(y_w, axis=0) - np.min(y_w, axis=0))))
+        radii = [f * max(half, 1e-12) for f in PLAY_FRACTIONS]
+        W = _windowed(lambda yy: tuple(np.moveaxis(fx.PlayWidthTerm(radii, np.zeros((len(radii), n)), n).terms(yy),
+                                                   1, 0)), y_w, ctx.windows, len(radii))
+        return [q, dq] + list(W), radii
+
+    # the linear terms, near enough on the base model's output, are projected out of the residual while Δ is
+    # fitted (variable projection): Δ must not take what the even and loop-width terms explain
+    Q = np.linalg.qr(_per_axis_columns(regressors(ctx.y_base_win)[0], n))[0]
+
     def resid(theta: np.ndarray) -> np.ndarray:
-        return ctx.sim_residual([("hysteresis_asymmetry", make(theta))]).reshape(-1) / unit
+        r = ctx.sim_residual([("hysteresis_asymmetry", make(theta))]).reshape(-1)
+        return (r - Q @ (Q.T @ r)) / unit
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -71,22 +176,101 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
     r = sol.fun.reshape(-1, n)
     se = _stderr(sol.jac, r) * scale
     p = make(sol.x)
-    # then the even, branch-dependent term, linear given the generalized Bouc-Wen: regression on its regressors
+    # then the even, branch-dependent and loop-width terms, linear given the generalized Bouc-Wen: regression
     y_w = simulate(ctx.cfg, ctx.u, list(ctx.base) + [("hysteresis_asymmetry", p)], ctx.windows)
     r_w = residual(ctx.target, y_w)
-    q, dq = _windowed(lambda yy: fx.BranchEvenTerm(0.0, 0.0, ctx.dt, n).terms(yy), y_w, ctx.windows, 2)
-    # loop-width terms: classical plays on the displacement, radii a fixed share of the stroke
-    half = float(np.mean(0.5 * (np.max(y_w, axis=0) - np.min(y_w, axis=0))))
-    radii = [f * max(half, 1e-12) for f in PLAY_FRACTIONS]
-    W = _windowed(lambda yy: tuple(np.moveaxis(fx.PlayWidthTerm(radii, np.zeros((len(radii), n)), n).terms(yy),
-                                               1, 0)), y_w, ctx.windows, len(radii))
-    coef, res, se2 = _lin_per_axis(r_w, [q, dq] + list(W))
+    regs, radii = regressors(y_w)
+    coef, res, se2 = _lin_per_axis(r_w, regs)
     p = dict(p, even=coef[0].tolist(), branch_even=coef[1].tolist(), play_radii=radii,
              play_gains=coef[2:].tolist())
-    return FitResult("hysteresis_asymmetry", p, {"Delta1": se[:n].tolist(), "Delta2": se[n:].tolist(),
+    disp = FitResult("hysteresis_asymmetry", p, {"Delta1": se[:n].tolist(), "Delta2": se[n:].tolist(),
                                                  "even": se2[0].tolist(), "branch_even": se2[1].tolist(),
                                                  "play_radii": None, "play_gains": se2[2:].tolist()},
                      [("hysteresis_asymmetry", p)], (4 + len(radii)) * n, _rms(res))
+    shape = _loop_shape_form(ctx, make, scale, unit) if not ctx.base else None
+    if shape is not None and shape.train_rms ** 2 < (1 - LOOP_SHAPE_MIN_GAIN) * disp.train_rms ** 2:
+        return shape
+    return disp
+
+
+#: the loop-shape terms at the hysteresis output replace the displacement-side ones when they lower the training
+#: residual energy by this share (the family with more parameters earns them on TRAIN: the RAIL_MIN_GAIN rule)
+LOOP_SHAPE_MIN_GAIN = 0.02
+
+
+def _loop_shape_form(ctx: FitContext, make: Callable[[np.ndarray], dict[str, Any]], scale: np.ndarray,
+                     unit: float) -> FitResult | None:
+    """Δ1/Δ2 and the loop-shape terms at the hysteresis output (:class:`~..models.effects.LoopShapeTerm`): the
+    terms' gains are linear and do not depend on Δ (they are functions of the voltage), so Δ is fitted on the
+    residual with the terms' responses projected out (variable projection), then the gains by least squares."""
+    n = ctx.cfg.n_axes
+    cols = _loop_shape_columns(ctx)
+    if cols is None:
+        return None
+    X, uradii = cols
+    Q, _ = np.linalg.qr(X)
+
+    def resid(theta: np.ndarray) -> np.ndarray:
+        r = ctx.sim_residual([("hysteresis_asymmetry", make(theta))]).reshape(-1)
+        return (r - Q @ (Q.T @ r)) / unit
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sol = optimize.least_squares(resid, np.zeros(2 * n), diff_step=1e-3, max_nfev=40)
+    p = make(sol.x)
+    r = ctx.sim_residual([("hysteresis_asymmetry", p)]).reshape(-1)
+    c, *_ = np.linalg.lstsq(X, r, rcond=None)
+    res = (r - X @ c).reshape(-1, n)
+    se_d = _stderr(sol.jac, res / unit) * scale
+    se_c = _stderr(-X, res)
+    K = len(uradii)
+    cs, ss = c.reshape(1 + 2 * K, n), se_c.reshape(1 + 2 * K, n)   # rows: even, plays k, level-weighted plays k
+    p = dict(p, input_even=cs[0].tolist(), input_play_radii=uradii, input_play_gains=cs[1:1 + K].tolist(),
+             input_play_level_gains=cs[1 + K:].tolist())
+    return FitResult("hysteresis_asymmetry", p, {"Delta1": se_d[:n].tolist(), "Delta2": se_d[n:].tolist(),
+                                                 "input_even": ss[0].tolist(), "input_play_radii": None,
+                                                 "input_play_gains": ss[1:1 + K].tolist(),
+                                                 "input_play_level_gains": ss[1 + K:].tolist()},
+                     [("hysteresis_asymmetry", p)], 2 * n + X.shape[1], _rms(res),
+                     note="loop-shape terms at the hysteresis output (even bend, play widths, level-dependent width)")
+
+
+def _per_axis_columns(regs: list[np.ndarray], n: int) -> np.ndarray:
+    """Per-axis regressors [N, n] as flattened columns (each nonzero on its own axis only, mean removed)."""
+    cols = []
+    for g in regs:
+        for i in range(n):
+            c = np.zeros_like(g)
+            c[:, i] = g[:, i] - g[:, i].mean()
+            cols.append(c.reshape(-1))
+    return np.column_stack(cols)
+
+
+#: radii of the loop-shape play operators on the voltage, as shares of half the voltage range of TRAIN
+INPUT_PLAY_FRACTIONS = (0.05, 0.15, 0.4)
+
+
+def _loop_shape_columns(ctx: FitContext) -> tuple[np.ndarray, list[float]] | None:
+    """The responses to the loop-shape terms (:class:`~..models.effects.LoopShapeTerm`) at the hysteresis output:
+    columns (even, plays, level-weighted plays) × axis, and the play radii [V]."""
+    n = ctx.cfg.n_axes
+    h = ctx.cfg.hysteresis
+    if h.n_in != n or h.n_out != n:
+        return None
+    half = float(np.mean(0.5 * (np.max(ctx.u, axis=0) - np.min(ctx.u, axis=0))))
+    if not half > 0:
+        return None
+    radii = [f * half for f in INPUT_PLAY_FRACTIONS]
+    dp = np.diag(h.arrays()["Dp"])
+    K = len(radii)
+    zero = np.zeros((K, n))
+
+    def terms(st: Any, u: np.ndarray) -> np.ndarray:
+        q, w, wl = st.terms(u)
+        return np.concatenate([q[:, None, :], w, wl], axis=1)
+
+    X = _chain_response(ctx, lambda: fx.LoopShapeTerm(dp, 0.0, radii, zero, zero), terms)
+    return X, radii
 
 
 #: radii of the loop-width play operators, as shares of half the displacement stroke on TRAIN

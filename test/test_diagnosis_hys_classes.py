@@ -1,0 +1,81 @@
+"""Hysteresis, saturation and gain classes of forms the candidates were not written for: a velocity-damping term
+added to the loop (rate dependence, not a delay), a soft-knee amplifier compression (saturation, not a gain or an
+asymmetric loop), a per-axis gain seen through a slow held-out record (a gain, not a drift).  The truths are written
+here from the physics with their own code, on the nominal chain of the benchmark's independent simulator
+(bench/diagnosis/truth.py), not with the package's effect stages."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from bench.diagnosis import truth
+from bench.synthetic.in_family import excitation
+from piezo_ff_ros.core.config import load_config
+from piezo_ff_ros.core.diagnosis import DiagnosisOptions, diagnose
+from piezo_ff_ros.core.recording.run import RunData
+
+NOISE = 10e-9
+
+
+def _cfg(fs):
+    return load_config().with_sample_rate(fs)
+
+
+def _chain(nom, yh):
+    """The nominal creep and dynamics (linear) applied to a hysteresis-output signal ``yh`` [N, n]."""
+    yl = yh @ nom["K"].T + truth.lti_mimo(nom["Cr"], nom["dt"], yh)
+    return truth.lti_mimo(nom["G_L"], nom["dt"], yl)
+
+
+def _run(fs, u, y, seed):
+    y = y + NOISE * np.random.default_rng(seed).standard_normal(y.shape)
+    return RunData(np.arange(len(u)) / fs, u, y, ("x", "y"))
+
+
+def _velocity_damping(nom, u, c_volts=4.0, m=0.55, rate_ref=2000.0, smoothing_samples=2.0):
+    """A c·sgn(v̇)|v̇/v̇_ref|^m term on the loop output (PI + m-th power velocity damping): the voltage rate per
+    sample, low-passed over a couple of samples, raised to a power m < 1 — absent at rest, not linear in the rate."""
+    dt = nom["dt"]
+    rate = np.diff(u, axis=0, prepend=u[:1]) / dt
+    a = np.exp(-1.0 / smoothing_samples)
+    rate = signal.lfilter([1 - a], [1, -a], rate, axis=0)
+    term = -np.diag(nom["Dp"]) * c_volts * np.sign(rate) * np.abs(rate / rate_ref) ** m
+    return truth.simulate(nom, [], u) + _chain(nom, term)
+
+
+@pytest.mark.parametrize("fs,c_volts,m,rate_ref,duration", [(20000.0, 4.0, 0.5, 80000.0, 3.0),
+                                                             (1000.0, 5.0, 0.7, 2250.0, 12.0)])
+def test_velocity_damping_term_is_rate_dependence_not_a_delay(fs, c_volts, m, rate_ref, duration):
+    cfg = _cfg(fs)
+    nom = truth.nominal_matrices(cfg)
+    runs = []
+    for j, kind in enumerate(("train", "test")):
+        u = excitation(kind, fs, duration, seed=3 + j, amplitude=120.0)
+        runs.append(_run(fs, u, _velocity_damping(nom, u, c_volts, m, rate_ref), 40 + j))
+    res = diagnose(cfg, runs[0], runs[1], DiagnosisOptions(max_stack=1))
+    h = res["heldout"]
+    assert res["verdict"] == "hysteresis_rate_dependence", \
+        [(r["effect"], r["heldout_after_nrmse_percent"]) for r in res["ranking"]]
+    assert h["after_nrmse_percent"] < 0.3 * h["before_nrmse_percent"], h
+
+
+def _soft_knee(v, knee, sharpness):
+    """A smooth amplifier compression: v/(1 + |v/V_k|^n)^(1/n) (Rapp's solid-state amplifier law)."""
+    return v / (1.0 + np.abs(v / knee) ** sharpness) ** (1.0 / sharpness)
+
+
+@pytest.mark.parametrize("knee,sharpness", [(170.0, 3.0), (200.0, 2.0)])
+def test_soft_knee_compression_is_saturation(knee, sharpness):
+    fs = 1000.0
+    cfg = _cfg(fs)
+    nom = truth.nominal_matrices(cfg)
+    runs = []
+    for j, kind in enumerate(("train", "test")):
+        u = excitation(kind, fs, 16.0, seed=5 + j, amplitude=185.0)
+        runs.append(_run(fs, u, truth.simulate(nom, [], _soft_knee(u, knee, sharpness)), 50 + j))
+    res = diagnose(cfg, runs[0], runs[1], DiagnosisOptions(max_stack=1))
+    h = res["heldout"]
+    assert res["verdict"] == "amplifier_saturation", \
+        [(r["effect"], r["heldout_after_nrmse_percent"]) for r in res["ranking"]]
+    assert h["after_nrmse_percent"] < 0.3 * h["before_nrmse_percent"], h
