@@ -79,3 +79,29 @@ def test_soft_knee_compression_is_saturation(knee, sharpness):
     assert res["verdict"] == "amplifier_saturation", \
         [(r["effect"], r["heldout_after_nrmse_percent"]) for r in res["ranking"]]
     assert h["after_nrmse_percent"] < 0.3 * h["before_nrmse_percent"], h
+
+
+def _slow_record(fs, duration, amplitude):
+    """A slow held-out record: a slow ramp up, a long hold, a slow ramp down, a hold (the y axis at another
+    level)."""
+    t = np.arange(int(duration * fs)) / fs
+    T = duration
+    shape = np.interp(t, [0, 0.25 * T, 0.55 * T, 0.75 * T, T], [0, 1, 1, -0.4, -0.4])
+    return np.c_[amplitude * shape, -0.7 * amplitude * shape]
+
+
+def test_axis_gain_seen_on_a_slow_record_is_a_gain_not_a_drift():
+    """A per-axis gain error (the dominant gap) and a small sensor wander (a slow trend, 5 % of the gain's error):
+    a drift is a function of time, not of the input — its gain terms must not take a constant gain error."""
+    fs = 200.0
+    cfg = _cfg(fs)
+    nom = truth.nominal_matrices(cfg)
+    gain = np.array([1.07, 0.95])
+    runs = []
+    for j, u in enumerate((excitation("train", fs, 60.0, seed=9, amplitude=140.0), _slow_record(fs, 60.0, 140.0))):
+        t = np.arange(len(u)) / fs
+        wander = np.outer(t / 60.0, [0.15e-6, -0.1e-6])
+        runs.append(_run(fs, u, truth.simulate(nom, [], u) * gain + wander, 60 + j))
+    res = diagnose(cfg, runs[0], runs[1], DiagnosisOptions(max_stack=1))
+    assert res["verdict"] == "gain_mismatch", \
+        [(r["effect"], r["heldout_after_nrmse_percent"]) for r in res["ranking"]]
