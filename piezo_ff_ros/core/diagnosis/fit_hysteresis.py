@@ -109,6 +109,54 @@ def _velocity_form(ctx: FitContext) -> FitResult | None:
                      note=f"velocity-damping term, exponent {m:.3g}, rate smoothed over {k:.3g} samples")
 
 
+#: radii of the rate-dependent plays, as shares of half the voltage range of TRAIN
+RATE_PLAY_FRACTIONS = (0.05, 0.15, 0.3, 0.5)
+#: reference rates of the rate-dependent plays tried, as multiples of the 90th percentile of |dU/dt| on TRAIN
+RATE_PLAY_REFS = (0.3, 1.0, 3.0)
+#: smoothing of the rate the plays see tried, in sample intervals
+RATE_PLAY_SMOOTHING_SAMPLES = (1.0, 5.0, 20.0)
+
+
+def _rate_play_form(ctx: FitContext) -> FitResult | None:
+    """Play widths that grow with the rate (:class:`~..models.effects.RatePlayTerm`): the gains by least squares
+    on the chain's responses, the reference rate and the smoothing on the grids :data:`RATE_PLAY_REFS` ×
+    :data:`RATE_PLAY_SMOOTHING_SAMPLES`.  Fitted on the nominal model only."""
+    n = ctx.cfg.n_axes
+    h = ctx.cfg.hysteresis
+    if ctx.base or h.n_in != n or h.n_out != n:
+        return None
+    half = float(np.mean(0.5 * (np.max(ctx.u, axis=0) - np.min(ctx.u, axis=0))))
+    typical = float(np.quantile(np.abs(np.diff(ctx.u, axis=0)), 0.9)) / ctx.dt
+    if not (half > 0 and typical > 0):
+        return None
+    radii = [f * half for f in RATE_PLAY_FRACTIONS]
+    K = len(radii)
+    dp = np.diag(h.arrays()["Dp"])
+    r0 = residual(ctx.target, ctx.y_base_win).reshape(-1)
+    best: tuple[float, float, float, np.ndarray, np.ndarray, np.ndarray] | None = None
+    for mult in RATE_PLAY_REFS:
+        for k in RATE_PLAY_SMOOTHING_SAMPLES:
+            ref, sm = mult * typical, k * ctx.dt
+            X = _chain_response(ctx, lambda: fx.RatePlayTerm(dp, radii, np.zeros((K, n)), ref, sm, ctx.dt),
+                                lambda st, u: st.terms(u))
+            c, *_ = np.linalg.lstsq(X, r0, rcond=None)
+            res = r0 - X @ c
+            sse = float(res @ res)
+            if best is None or sse < best[0]:
+                best = (sse, ref, sm, c, res, X)
+    assert best is not None
+    _, ref, sm, c, res, X = best
+    se = _stderr(-X, res.reshape(-1, n))
+    p = {"alpha": 0.0, "rate_play_radii": radii, "rate_play_gains": c.reshape(K, n).tolist(), "rate_play_ref": ref,
+         "rate_play_smoothing": sm}
+    return FitResult("hysteresis_rate_dependence", p,
+                     {"alpha": None, "rate_play_radii": None, "rate_play_gains": se.reshape(K, n).tolist(),
+                      "rate_play_ref": None, "rate_play_smoothing": None},
+                     [("hysteresis_rate_dependence", p)], K * n + 2, _rms(res),
+                     note=f"play widths growing with the rate (reference {ref:.3g} V/s, smoothed over "
+                          f"{sm / ctx.dt:.3g} samples)")
+
+
 def fit_hysteresis_rate_dependence(ctx: FitContext) -> FitResult:
     """The rate-widened loop (``alpha``, grid + refinement), then a relaxation of the hysteretic state
     (``relaxation`` τ, log grid 20 µs … 20 ms + refinement, with ``alpha`` refitted once under it); the
@@ -126,16 +174,20 @@ def fit_hysteresis_rate_dependence(ctx: FitContext) -> FitResult:
     both = _fit_scalar(ctx, "hysteresis_rate_dependence", "alpha",
                        lambda z: {"alpha": z, "relaxation": tau}, agrid, lambda z: z, lambda z: 1.0)
     best = min((rel, both), key=lambda f: f.train_rms)
-    vel = _velocity_form(ctx)
-    if vel is not None and vel.train_rms < min(best.train_rms, base.train_rms):
-        return vel
     if best.train_rms ** 2 > (1 - RELAX_MIN_GAIN) * base.train_rms ** 2:
-        return base
-    p = dict(best.effects[0][1])
-    se = {"alpha": both.stderr.get("alpha") if best is both else base.stderr.get("alpha"),
-          "relaxation": rel.stderr.get("relaxation")}
-    return FitResult("hysteresis_rate_dependence", p, se, [("hysteresis_rate_dependence", p)], 2, best.train_rms,
-                     note=f"hysteretic state relaxes over {1e3 * p['relaxation']:.3g} ms")
+        chosen = base
+    else:
+        p = dict(best.effects[0][1])
+        se = {"alpha": both.stderr.get("alpha") if best is both else base.stderr.get("alpha"),
+              "relaxation": rel.stderr.get("relaxation")}
+        chosen = FitResult("hysteresis_rate_dependence", p, se, [("hysteresis_rate_dependence", p)], 2,
+                           best.train_rms, note=f"hysteretic state relaxes over {1e3 * p['relaxation']:.3g} ms")
+    # the general rate-dependent forms, by parameter count (a velocity term; play widths growing with the rate):
+    # each richer form is kept when it lowers the training residual energy by RELAX_MIN_GAIN below the current one
+    for form in (_velocity_form(ctx), _rate_play_form(ctx)):
+        if form is not None and form.train_rms ** 2 < (1 - RELAX_MIN_GAIN) * chosen.train_rms ** 2:
+            chosen = form
+    return chosen
 
 
 def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:

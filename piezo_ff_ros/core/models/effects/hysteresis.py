@@ -20,7 +20,8 @@ from ...config import BoucWenConfig
 from ...kernels.bouc_wen import bw_model_rate_run, params_of  # the model loop (one source)
 from .common import DIRECTION_TAU, LEVEL_REF, RATE_REF, RATE_SMOOTHING, _block, _per_axis
 
-__all__ = ["HysteresisStage", "RelaxedHysteresisStage", "VelocityTerm", "LoopShapeTerm", "BranchEvenTerm",
+__all__ = ["HysteresisStage", "RelaxedHysteresisStage", "VelocityTerm", "LoopShapeTerm", "RatePlayTerm",
+           "BranchEvenTerm",
            "PlayWidthTerm",
            "asymmetric_hysteresis_config"]
 
@@ -88,7 +89,7 @@ class HysteresisStage:
     """
 
     def __init__(self, cfg: BoucWenConfig, alpha: float = 0.0, dt: float = 5e-5,
-                 extras: "tuple[VelocityTerm | LoopShapeTerm, ...]" = ()):
+                 extras: "tuple[VelocityTerm | LoopShapeTerm | RatePlayTerm, ...]" = ()):
         self.cfg = cfg
         self._p = params_of(cfg.arrays())
         if not math.isfinite(alpha):
@@ -150,7 +151,7 @@ class RelaxedHysteresisStage(HysteresisStage):
     ``hysteresis_rate_dependence`` (parameter ``relaxation``)."""
 
     def __init__(self, cfg: BoucWenConfig, alpha: float = 0.0, dt: float = 5e-5, relaxation: float = 0.0,
-                 extras: "tuple[VelocityTerm | LoopShapeTerm, ...]" = ()):
+                 extras: "tuple[VelocityTerm | LoopShapeTerm | RatePlayTerm, ...]" = ()):
         if not (math.isfinite(relaxation) and relaxation > 0):
             raise ValueError(f"hysteresis_rate_dependence.relaxation: must be > 0 s, got {relaxation!r}")
         self.relaxation = float(relaxation)
@@ -283,6 +284,90 @@ class PlayWidthTerm:
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         y = _block(y, self.n)
         res: np.ndarray = y + np.einsum("tkj,kj->tj", self.terms(y), self.gains)
+        return res
+
+
+@njit
+def _rate_play_run(u: np.ndarray, radii: np.ndarray, rate_ref: float, a: float, dt: float, z: np.ndarray,
+                   z0: np.ndarray, rate: np.ndarray, u_prev: np.ndarray, started: np.ndarray,
+                   out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Per column j and radius k: ``P_{r_k·(1 + tanh(ρ_j/ρ_ref))}(U_j) − P_{r_k}(U_j)``, ρ = |ΔU|/dt low-passed by
+    ``ρ ← a·ρ + (1 − a)·|ΔU|/dt``; the plays started at z = U."""
+    N, n = u.shape
+    K = radii.shape[0]
+    for t in range(N):
+        for j in range(n):
+            v = u[t, j]
+            if not started[0]:
+                u_prev[j] = v
+                rate[j] = 0.0
+                for k in range(K):
+                    z[k, j] = v
+                    z0[k, j] = v
+            rate[j] = a * rate[j] + (1.0 - a) * abs(v - u_prev[j]) / dt
+            u_prev[j] = v
+            g = 1.0 + math.tanh(rate[j] / rate_ref)
+            for k in range(K):
+                r = radii[k] * g
+                if z[k, j] < v - r:
+                    z[k, j] = v - r
+                elif z[k, j] > v + r:
+                    z[k, j] = v + r
+                r = radii[k]
+                if z0[k, j] < v - r:
+                    z0[k, j] = v - r
+                elif z0[k, j] > v + r:
+                    z0[k, j] = v + r
+                out[t, k, j] = z[k, j] - z0[k, j]
+        started[0] = True
+
+
+class RatePlayTerm:
+    """Rate-dependent play widths at the hysteresis output: ``Y_H,i += Dp_ii·Σ_k w_ki·(P_{r_k·(1 + tanh(ρ_i/ρ_ref))}
+    (U_i) − P_{r_k}(U_i))`` — Prandtl-Ishlinskii plays whose thresholds grow with the voltage rate ρ (|dU/dt|
+    low-passed over ``smoothing`` [s]): a loop that widens with the rate and *keeps* its width at rest after a fast
+    move (unlike a velocity term).  Radii [V], gains [K][n], ``rate_ref`` [V/s].  Part of
+    ``hysteresis_rate_dependence`` (``rate_play_radii``, ``rate_play_gains``, ``rate_play_ref``,
+    ``rate_play_smoothing``)."""
+
+    def __init__(self, dp_diag: ArrayLike, radii: ArrayLike, gains: ArrayLike, rate_ref: float, smoothing: float,
+                 dt: float) -> None:
+        self.dp = np.asarray(dp_diag, float).reshape(-1)
+        n = self.n = self.dp.size
+        r = np.atleast_1d(np.asarray(radii, float)).reshape(-1)
+        if r.size == 0 or not np.all(np.isfinite(r)) or np.any(r <= 0):
+            raise ValueError(f"hysteresis_rate_dependence.rate_play_radii: expected positive radii [V], got {radii!r}")
+        g = np.asarray(gains, float)
+        if g.shape != (r.size, n) or not np.all(np.isfinite(g)):
+            raise ValueError(f"hysteresis_rate_dependence.rate_play_gains: expected [{r.size}][{n}] finite values, "
+                             f"got {gains!r}")
+        if not (math.isfinite(rate_ref) and rate_ref > 0):
+            raise ValueError(f"hysteresis_rate_dependence.rate_play_ref: must be > 0 V/s, got {rate_ref!r}")
+        if not (math.isfinite(smoothing) and smoothing >= 0):
+            raise ValueError(f"hysteresis_rate_dependence.rate_play_smoothing: must be >= 0 s, got {smoothing!r}")
+        self.radii, self.gains, self.rate_ref, self.dt = r, g, float(rate_ref), float(dt)
+        self._a = math.exp(-self.dt / smoothing) if smoothing > 0 else 0.0
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        K = self.radii.size
+        self._z, self._z0 = np.zeros((K, self.n)), np.zeros((K, self.n))
+        self._rate, self._u_prev = np.zeros(self.n), np.zeros(self.n)
+        self._started = np.zeros(1, np.bool_)
+
+    def terms(self, u: np.ndarray) -> np.ndarray:
+        """The widened-minus-static plays × Dp_ii as [N, K, n] (advances the state)."""
+        u = _block(u, self.n)
+        out = np.empty((len(u), self.radii.size, self.n))
+        _rate_play_run(u, self.radii, self.rate_ref, self._a, self.dt, self._z, self._z0, self._rate,
+                       self._u_prev, self._started, out)
+        out *= self.dp
+        return out
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """The term for one voltage block ``[N, n]`` (displacement [m]); the state moves on by N samples."""
+        res: np.ndarray = np.einsum("tkj,kj->tj", self.terms(u), self.gains)
         return res
 
 

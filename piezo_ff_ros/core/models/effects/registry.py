@@ -19,8 +19,8 @@ from ...stage import Processor
 from ..plant import Plant
 from .common import LEVEL_REF, LEVEL_TAU, RATE_REF
 from .displacement import CreepNonlinearity, GainMismatch, ThermalDrift
-from .hysteresis import (BranchEvenTerm, HysteresisStage, LoopShapeTerm, PlayWidthTerm, RelaxedHysteresisStage,
-                         VelocityTerm, asymmetric_hysteresis_config)
+from .hysteresis import (BranchEvenTerm, HysteresisStage, LoopShapeTerm, PlayWidthTerm, RatePlayTerm,
+                         RelaxedHysteresisStage, VelocityTerm, asymmetric_hysteresis_config)
 from .modes import AmplitudeDependentDynamics, CubicAmplitudeDynamics, UnmodelledMode
 from .saturation import SoftSaturation
 from .voltage import AmplifierBandwidth, AmplifierSaturation, AmplifierSlewLimit, AsymmetricSaturation, InputDelay
@@ -56,9 +56,14 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
     EffectSpec("hysteresis_rate_dependence", "hysteresis", {"alpha": ("-", False), "relaxation": ("s", False),
                                                             "velocity_gain": ("V", True),
                                                             "velocity_exponent": ("-", False),
-                                                            "velocity_smoothing": ("s", False)},
+                                                            "velocity_smoothing": ("s", False),
+                                                            "rate_play_radii": ("V", False),
+                                                            "rate_play_gains": ("-", True),
+                                                            "rate_play_ref": ("V/s", False),
+                                                            "rate_play_smoothing": ("s", False)},
                f"loop width grows with the voltage rate (A·(1 + α·tanh(|dU/dt|/{RATE_REF:g} V/s))), or a "
-               f"velocity-damping term Dp·c·sgn(dU/dt)·|dU/dt / {RATE_REF:g} V/s|^m on the hysteresis output",
+               f"velocity-damping term Dp·c·sgn(dU/dt)·|dU/dt / {RATE_REF:g} V/s|^m on the hysteresis output, or "
+               "play widths growing with the rate (rate-dependent Prandtl-Ishlinskii thresholds)",
                "loop-width error grows with frequency (error correlates with sign(dU/dt)·|dU/dt|)"),
     EffectSpec("creep_nonlinearity", "post", {"gamma": ("-", True), "beta": ("-", False),
                                               "beta_even": ("-", False), "spectrum": ("-", True)},
@@ -147,7 +152,7 @@ def build_plant(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[str, Any]
     post: list[Processor] = []
     hcfg, alpha, custom_h = cfg.hysteresis, 0.0, False
     relax = 0.0
-    extras: list[VelocityTerm | LoopShapeTerm] = []
+    extras: list[VelocityTerm | LoopShapeTerm | RatePlayTerm] = []
     for name, p in effects:
         if name not in EFFECTS:
             raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
@@ -170,6 +175,10 @@ def build_plant(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[str, Any]
                 dp = np.diag(cfg.hysteresis.arrays()["Dp"])
                 extras.append(VelocityTerm(dp, p["velocity_gain"], float(p.get("velocity_exponent", 0.5)),
                                            float(p.get("velocity_smoothing", 0.0)), cfg.dt))
+            if p.get("rate_play_radii"):
+                extras.append(RatePlayTerm(np.diag(cfg.hysteresis.arrays()["Dp"]), p["rate_play_radii"],
+                                           p["rate_play_gains"], float(p["rate_play_ref"]),
+                                           float(p.get("rate_play_smoothing", 0.0)), cfg.dt))
             if p.get("relaxation") is not None:
                 r = float(p["relaxation"])
                 if not (math.isfinite(r) and r >= 0):
