@@ -1,5 +1,11 @@
-"""Hysteresis candidates: the rate-widened loop with a relaxing hysteretic state, and the asymmetric loop (Δ1/Δ2
-by least squares, then the even, branch-dependent and play-operator loop-width terms by regression).
+"""Hysteresis candidates: the rate-dependent loop (rate-widened A, a relaxing hysteretic state, a velocity-damping
+term, play widths growing with the rate) and the asymmetric loop (Δ1/Δ2 by least squares with the linear terms
+projected out, then the even, branch-dependent and play-operator loop-width terms by regression — on the
+displacement, or at the hysteresis output through the linear creep and dynamics chain).
+
+Terms added at the hysteresis output enter the output linearly through the creep and the dynamics (both linear):
+their gains are fitted by least squares on the chain's response to each term (:func:`_chain_response`), without
+re-running the hysteresis.
 """
 from __future__ import annotations
 
@@ -159,8 +165,9 @@ def _rate_play_form(ctx: FitContext) -> FitResult | None:
 
 def fit_hysteresis_rate_dependence(ctx: FitContext) -> FitResult:
     """The rate-widened loop (``alpha``, grid + refinement), then a relaxation of the hysteretic state
-    (``relaxation`` τ, log grid 20 µs … 20 ms + refinement, with ``alpha`` refitted once under it); the
-    relaxation is kept when it lowers the training residual energy by ``RELAX_MIN_GAIN``."""
+    (``relaxation`` τ, log grid 20 µs … 20 ms + refinement, with ``alpha`` refitted once under it), then the general
+    forms — a velocity-damping term, play widths growing with the rate; each richer form is kept when it lowers the
+    training residual energy by ``RELAX_MIN_GAIN`` below the one before it."""
     grid = np.array([-0.6, -0.3, -0.1, 0.0, 0.1, 0.3, 0.6, 1.2, 2.5, 5.0])
     base = _fit_scalar(ctx, "hysteresis_rate_dependence", "alpha", lambda z: {"alpha": z}, grid, lambda z: z,
                        lambda z: 1.0)
@@ -219,7 +226,8 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
 
     def resid(theta: np.ndarray) -> np.ndarray:
         r = ctx.sim_residual([("hysteresis_asymmetry", make(theta))]).reshape(-1)
-        return (r - Q @ (Q.T @ r)) / unit
+        out: np.ndarray = (r - Q @ (Q.T @ r)) / unit
+        return out
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -264,7 +272,8 @@ def _loop_shape_form(ctx: FitContext, make: Callable[[np.ndarray], dict[str, Any
 
     def resid(theta: np.ndarray) -> np.ndarray:
         r = ctx.sim_residual([("hysteresis_asymmetry", make(theta))]).reshape(-1)
-        return (r - Q @ (Q.T @ r)) / unit
+        out: np.ndarray = (r - Q @ (Q.T @ r)) / unit
+        return out
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
