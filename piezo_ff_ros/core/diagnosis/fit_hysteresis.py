@@ -22,14 +22,17 @@ from .fit_common import FitContext, FitResult, _fit_scalar, _lin_per_axis, _rms,
 from .replay import Windows, residual, simulate
 
 __all__ = ["fit_hysteresis_rate_dependence", "fit_hysteresis_asymmetry", "RELAX_MIN_GAIN", "PLAY_FRACTIONS",
-           "VELOCITY_EXPONENTS", "VELOCITY_SMOOTHING_SAMPLES"]
+           "VELOCITY_EXPONENTS", "VELOCITY_MAX_EXPONENT", "VELOCITY_SMOOTHING_SAMPLES"]
 
 
 #: a relaxation of the hysteretic state is kept when it lowers the training residual energy by this share
 RELAX_MIN_GAIN = 0.02
 #: exponents m of the velocity-damping form tried (sub-linear: a term linear in the rate is what a delay or a
 #: viscous loop gives; m < 1 is the nonlinear velocity damping of the literature, absent at rest, steep at low rates)
-VELOCITY_EXPONENTS = (0.3, 0.45, 0.6, 0.75, 0.9)
+VELOCITY_EXPONENTS = (0.3, 0.45, 0.6, 0.75)
+#: the largest exponent the refinement may reach: near m = 1 the term is linear in the rate — a delay's error
+#: (∝ dŶ/dt) or a viscous loop's, which their own candidates name — so the form stays clearly nonlinear
+VELOCITY_MAX_EXPONENT = 0.85
 #: smoothing of the voltage rate the velocity term sees, in sample intervals (the DAC's staircase has a rate only
 #: over a sample; how the amplifier spreads it is not known: none, one, a few samples)
 VELOCITY_SMOOTHING_SAMPLES = (0.0, 1.0, 3.0)
@@ -95,13 +98,14 @@ def _velocity_form(ctx: FitContext) -> FitResult | None:
     m0, k0 = min(grid, key=lambda mk: fit(*mk))
 
     def cost(z: np.ndarray) -> float:
-        m, k = float(np.clip(z[0], 0.1, 1.0)), float(np.clip(z[1], 0.0, 20.0))
+        m, k = float(np.clip(z[0], 0.1, VELOCITY_MAX_EXPONENT)), float(np.clip(z[1], 0.0, 20.0))
         return fit(m, k)
 
     sol = optimize.minimize(cost, np.array([m0, k0]), method="Nelder-Mead",
                             options={"maxfev": 24, "xatol": 0.01, "fatol": 0.0,
                                      "initial_simplex": np.array([[m0, k0], [m0 + 0.08, k0], [m0, k0 + 1.0]])})
-    m, k = (float(np.clip(sol.x[0], 0.1, 1.0)), float(np.clip(sol.x[1], 0.0, 20.0))) if sol.fun < fit(m0, k0) \
+    m, k = (float(np.clip(sol.x[0], 0.1, VELOCITY_MAX_EXPONENT)), float(np.clip(sol.x[1], 0.0, 20.0))) \
+        if sol.fun < fit(m0, k0) \
         else (m0, k0)
     fit(m, k)
     _, c, res, X = cache[(round(m, 4), round(k, 3))]
