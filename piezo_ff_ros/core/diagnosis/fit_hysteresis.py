@@ -35,11 +35,20 @@ VELOCITY_EXPONENTS = (0.3, 0.45, 0.6, 0.75)
 VELOCITY_MAX_EXPONENT = 0.85
 #: smoothing of the voltage rate the velocity term sees, in sample intervals (the DAC's staircase has a rate only
 #: over a sample; how the amplifier spreads it is not known: none, one, a few samples)
-VELOCITY_SMOOTHING_SAMPLES = (0.0, 1.0, 3.0)
+VELOCITY_SMOOTHING_SAMPLES = (0.0, 2.0)
 
 
-def _chain_response(ctx: FitContext, make: Callable[[], Any], terms: Callable[[Any, np.ndarray], np.ndarray]
-                    ) -> np.ndarray:
+def _search_spans(ctx: FitContext) -> tuple[list[tuple[int, int, int]], np.ndarray]:
+    """The windows a grid search over a term's shape uses — every other fit window of a long run (the final
+    gains are fitted on all of them) — and the mask of their rows in the windows' concatenated samples."""
+    spans = ctx.windows.spans
+    keep = [i % 2 == 0 for i in range(len(spans))] if len(spans) > 2 else [True] * len(spans)
+    mask = np.concatenate([np.full(e_ - s_, k) for (_, s_, e_), k in zip(spans, keep)])
+    return [sp for sp, k in zip(spans, keep) if k], mask
+
+
+def _chain_response(ctx: FitContext, make: Callable[[], Any], terms: Callable[[Any, np.ndarray], np.ndarray],
+                    spans: list[tuple[int, int, int]] | None = None) -> np.ndarray:
     """The model output's response (on the fit windows, flattened, each axis' mean removed) to terms added at the
     hysteresis output: ``terms(stage, u)`` gives [N, B, n] (B basis signals per axis) for a fresh ``make()``
     stage; column (b, i) is the response to basis b on axis i alone.  The creep and the dynamics behind the
@@ -48,7 +57,7 @@ def _chain_response(ctx: FitContext, make: Callable[[], Any], terms: Callable[[A
     n = ctx.cfg.n_axes
     chain = Plant(ctx.cfg, stages=("creep", "dynamics"))
     parts: list[list[np.ndarray]] = []
-    for w, s_, e_ in ctx.windows.spans:   # each window from its warm start, like every other fit
+    for w, s_, e_ in (ctx.windows.spans if spans is None else spans):   # each from its warm start
         T = terms(make(), ctx.u[w:e_])
         if not parts:
             parts = [[] for _ in range(T.shape[1] * n)]
@@ -65,12 +74,13 @@ def _chain_response(ctx: FitContext, make: Callable[[], Any], terms: Callable[[A
     return np.column_stack(cols)
 
 
-def _velocity_basis(ctx: FitContext, m: float, smoothing: float) -> np.ndarray:
+def _velocity_basis(ctx: FitContext, m: float, smoothing: float,
+                    spans: list[tuple[int, int, int]] | None = None) -> np.ndarray:
     """The response to a unit velocity gain on each axis: columns [axis] (see :func:`_chain_response`)."""
     n = ctx.cfg.n_axes
     dp = np.diag(ctx.cfg.hysteresis.arrays()["Dp"])
     return _chain_response(ctx, lambda: fx.VelocityTerm(dp, np.ones(n), m, smoothing, ctx.dt),
-                           lambda st, u: st.process(u)[:, None, :])
+                           lambda st, u: st.process(u)[:, None, :], spans)
 
 
 def _velocity_form(ctx: FitContext) -> FitResult | None:
@@ -82,17 +92,19 @@ def _velocity_form(ctx: FitContext) -> FitResult | None:
     n = ctx.cfg.n_axes
     if ctx.base or ctx.cfg.hysteresis.n_in != n or ctx.cfg.hysteresis.n_out != n:
         return None
-    r0 = residual(ctx.target, ctx.y_base_win).reshape(-1)
-    cache: dict[tuple[float, float], tuple[float, np.ndarray, np.ndarray, np.ndarray]] = {}
+    r_all = residual(ctx.target, ctx.y_base_win)
+    spans, mask = _search_spans(ctx)
+    r0 = (r_all[mask] - r_all[mask].mean(axis=0)).reshape(-1)
+    cache: dict[tuple[float, float], float] = {}
 
     def fit(m: float, k: float) -> float:
         key = (round(m, 4), round(k, 3))
         if key not in cache:
-            X = _velocity_basis(ctx, m, k * ctx.dt)
+            X = _velocity_basis(ctx, m, k * ctx.dt, spans)
             c, *_ = np.linalg.lstsq(X, r0, rcond=None)
             res = r0 - X @ c
-            cache[key] = (float(res @ res), c, res, X)
-        return cache[key][0]
+            cache[key] = float(res @ res)
+        return cache[key]
 
     grid = [(m, k) for m in VELOCITY_EXPONENTS for k in VELOCITY_SMOOTHING_SAMPLES]
     m0, k0 = min(grid, key=lambda mk: fit(*mk))
@@ -102,15 +114,17 @@ def _velocity_form(ctx: FitContext) -> FitResult | None:
         return fit(m, k)
 
     sol = optimize.minimize(cost, np.array([m0, k0]), method="Nelder-Mead",
-                            options={"maxfev": 24, "xatol": 0.01, "fatol": 0.0,
+                            options={"maxfev": 14, "xatol": 0.01, "fatol": 0.0,
                                      "initial_simplex": np.array([[m0, k0], [m0 + 0.08, k0], [m0, k0 + 1.0]])})
     m, k = (float(np.clip(sol.x[0], 0.1, VELOCITY_MAX_EXPONENT)), float(np.clip(sol.x[1], 0.0, 20.0))) \
         if sol.fun < fit(m0, k0) \
         else (m0, k0)
-    fit(m, k)
-    _, c, res, X = cache[(round(m, 4), round(k, 3))]
-    p = {"alpha": 0.0, "velocity_gain": c.tolist(), "velocity_exponent": round(m, 4),
-         "velocity_smoothing": round(k, 3) * ctx.dt}
+    m, k = round(m, 4), round(k, 3)
+    X = _velocity_basis(ctx, m, k * ctx.dt)          # the gains on every fit window
+    r_full = r_all.reshape(-1)
+    c, *_ = np.linalg.lstsq(X, r_full, rcond=None)
+    res = r_full - X @ c
+    p = {"alpha": 0.0, "velocity_gain": c.tolist(), "velocity_exponent": m, "velocity_smoothing": k * ctx.dt}
     se = _stderr(-X, res.reshape(-1, n))
     return FitResult("hysteresis_rate_dependence", p,
                      {"alpha": None, "velocity_gain": se.tolist(), "velocity_exponent": None,
@@ -142,20 +156,28 @@ def _rate_play_form(ctx: FitContext) -> FitResult | None:
     radii = [f * half for f in RATE_PLAY_FRACTIONS]
     K = len(radii)
     dp = np.diag(h.arrays()["Dp"])
-    r0 = residual(ctx.target, ctx.y_base_win).reshape(-1)
-    best: tuple[float, float, float, np.ndarray, np.ndarray, np.ndarray] | None = None
-    for mult in RATE_PLAY_REFS:
-        for k in RATE_PLAY_SMOOTHING_SAMPLES:
-            ref, sm = mult * typical, k * ctx.dt
-            X = _chain_response(ctx, lambda: fx.RatePlayTerm(dp, radii, np.zeros((K, n)), ref, sm, ctx.dt),
-                                lambda st, u: st.terms(u))
-            c, *_ = np.linalg.lstsq(X, r0, rcond=None)
-            res = r0 - X @ c
-            sse = float(res @ res)
-            if best is None or sse < best[0]:
-                best = (sse, ref, sm, c, res, X)
-    assert best is not None
-    _, ref, sm, c, res, X = best
+    r_all = residual(ctx.target, ctx.y_base_win)
+    spans, mask = _search_spans(ctx)
+    r0 = (r_all[mask] - r_all[mask].mean(axis=0)).reshape(-1)
+
+    def basis(ref: float, sm: float, sp: list[tuple[int, int, int]] | None) -> np.ndarray:
+        return _chain_response(ctx, lambda: fx.RatePlayTerm(dp, radii, np.zeros((K, n)), ref, sm, ctx.dt),
+                               lambda st, u: st.terms(u), sp)
+
+    def sse(ref: float, sm: float) -> float:
+        X = basis(ref, sm, spans)
+        c, *_ = np.linalg.lstsq(X, r0, rcond=None)
+        res = r0 - X @ c
+        return float(res @ res)
+
+    # the reference rate at a middle smoothing, then the smoothing at that rate
+    k_mid = RATE_PLAY_SMOOTHING_SAMPLES[len(RATE_PLAY_SMOOTHING_SAMPLES) // 2]
+    ref = min((mult * typical for mult in RATE_PLAY_REFS), key=lambda r: sse(r, k_mid * ctx.dt))
+    sm = min((k * ctx.dt for k in RATE_PLAY_SMOOTHING_SAMPLES), key=lambda v: sse(ref, v))
+    X = basis(ref, sm, None)                            # the gains on every fit window
+    r_full = r_all.reshape(-1)
+    c, *_ = np.linalg.lstsq(X, r_full, rcond=None)
+    res = r_full - X @ c
     se = _stderr(-X, res.reshape(-1, n))
     p = {"alpha": 0.0, "rate_play_radii": radii, "rate_play_gains": c.reshape(K, n).tolist(), "rate_play_ref": ref,
          "rate_play_smoothing": sm}
@@ -251,7 +273,7 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
                                                  "even": se2[0].tolist(), "branch_even": se2[1].tolist(),
                                                  "play_radii": None, "play_gains": se2[2:].tolist()},
                      [("hysteresis_asymmetry", p)], (4 + len(radii)) * n, _rms(res))
-    shape = _loop_shape_form(ctx, make, scale, unit) if not ctx.base else None
+    shape = _loop_shape_form(ctx, make, scale, unit, sol.x) if not ctx.base else None
     if shape is not None and shape.train_rms ** 2 < (1 - LOOP_SHAPE_MIN_GAIN) * disp.train_rms ** 2:
         return shape
     return disp
@@ -263,10 +285,11 @@ LOOP_SHAPE_MIN_GAIN = 0.02
 
 
 def _loop_shape_form(ctx: FitContext, make: Callable[[np.ndarray], dict[str, Any]], scale: np.ndarray,
-                     unit: float) -> FitResult | None:
+                     unit: float, theta0: np.ndarray) -> FitResult | None:
     """Δ1/Δ2 and the loop-shape terms at the hysteresis output (:class:`~..models.effects.LoopShapeTerm`): the
     terms' gains are linear and do not depend on Δ (they are functions of the voltage), so Δ is fitted on the
-    residual with the terms' responses projected out (variable projection), then the gains by least squares."""
+    residual with the terms' responses projected out (variable projection), from the displacement family's Δ
+    ``theta0`` (the problem is nearly linear in Δ: a Gauss-Newton step or two), then the gains by least squares."""
     n = ctx.cfg.n_axes
     cols = _loop_shape_columns(ctx)
     if cols is None:
@@ -281,7 +304,7 @@ def _loop_shape_form(ctx: FitContext, make: Callable[[np.ndarray], dict[str, Any
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sol = optimize.least_squares(resid, np.zeros(2 * n), diff_step=1e-3, max_nfev=40)
+        sol = optimize.least_squares(resid, np.asarray(theta0, float), diff_step=1e-3, max_nfev=4 * n + 2)
     p = make(sol.x)
     r = ctx.sim_residual([("hysteresis_asymmetry", p)]).reshape(-1)
     c, *_ = np.linalg.lstsq(X, r, rcond=None)

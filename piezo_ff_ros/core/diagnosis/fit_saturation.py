@@ -26,9 +26,9 @@ __all__ = ["fit_amplifier_saturation_any", "SOFT_KNEE_MIN_GAIN", "KNEE_GRID", "S
 SOFT_KNEE_MIN_GAIN = RAIL_MIN_GAIN
 #: rails tried for the soft knee, as multiples of the largest |U| of TRAIN (a soft knee's rail may lie beyond the
 #: largest voltage reached: the compression starts well below it)
-KNEE_GRID = (0.8, 1.0, 1.3, 1.8)
-#: sharpness p tried (2: a gentle knee; 20: nearly the hard clip)
-SHARPNESS_GRID = (2.0, 4.0, 20.0)
+KNEE_GRID = (0.9, 1.4)
+#: sharpness p tried (2: a gentle knee; 8: close to the hard clip); the least squares refines from the best
+SHARPNESS_GRID = (2.0, 8.0)
 
 
 def _soft(up: float, down: float, p: float) -> dict[str, float]:
@@ -54,7 +54,7 @@ def fit_amplifier_saturation_any(ctx: FitContext) -> FitResult:
     lk, lp = grid[int(np.argmin(vals))]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sol = optimize.least_squares(resid, np.array([lk, lk, lp]), diff_step=1e-3, max_nfev=30,
+        sol = optimize.least_squares(resid, np.array([lk, lk, lp]), diff_step=1e-3, max_nfev=20,
                                      bounds=([math.log(0.3 * amax)] * 2 + [math.log(0.7)],
                                              [math.log(20 * amax)] * 2 + [math.log(100.0)]))
     r = sol.fun.reshape(-1, ctx.cfg.n_axes)
