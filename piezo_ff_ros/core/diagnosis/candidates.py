@@ -23,6 +23,7 @@ from .fit_hysteresis import PLAY_FRACTIONS, RELAX_MIN_GAIN, fit_hysteresis_asymm
 from .fit_modes import (MAX_MODES, MODE_FMIN, MODE_MIN_GAIN, MODE_ZMAX, Mode, fit_amplitude_dependent_dynamics,
                         fit_unmodelled_mode)
 from .fit_output import fit_creep_nonlinearity, fit_gain_mismatch, fit_thermal_drift
+from .fit_saturation import fit_amplifier_saturation_any
 from .fit_voltage import (RAIL_MIN_GAIN, fit_amplifier_bandwidth, fit_amplifier_saturation, fit_amplifier_slew_limit,
                           fit_input_delay)
 
@@ -42,7 +43,7 @@ CANDIDATES: dict[str, Callable[[FitContext], FitResult]] = {
     "thermal_drift": fit_thermal_drift,
     "input_delay": fit_input_delay,
     "amplifier_slew_limit": fit_amplifier_slew_limit,
-    "amplifier_saturation": fit_amplifier_saturation,
+    "amplifier_saturation": fit_amplifier_saturation_any,   # hard clip, or a soft knee per rail
     "amplifier_bandwidth": fit_amplifier_bandwidth,
     "unmodelled_mode": fit_unmodelled_mode,
     "amplitude_dependent_dynamics": fit_amplitude_dependent_dynamics,

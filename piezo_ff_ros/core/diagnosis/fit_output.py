@@ -272,9 +272,12 @@ def _two_body_drift(r0: np.ndarray, y_base: np.ndarray, tk: np.ndarray, T: float
     q = max(1, -(-len(r0) // _DRIFT_SEARCH_ROWS))
 
     def regs(t: np.ndarray, yb: np.ndarray, t1: float, t2: float) -> list[np.ndarray]:
+        # the last regressor, Ŷ itself, is a nuisance: a constant gain error is not a drift (a drift is a function
+        # of time; with it in the regression the drift's gain terms can only take a gain that *changes* over the
+        # run — a fast time constant would otherwise turn them into a constant gain)
         s1 = -np.expm1(-t / t1)[:, None]
         s2 = -np.expm1(-t / t2)[:, None]
-        return [np.repeat(s1, n, axis=1), np.repeat(s2, n, axis=1), s1 * yb, s2 * yb]
+        return [np.repeat(s1, n, axis=1), np.repeat(s2, n, axis=1), s1 * yb, s2 * yb, yb]
 
     rs, ts, ys = r0[::q], tk[::q], y_base[::q]
 
@@ -293,10 +296,15 @@ def _two_body_drift(r0: np.ndarray, y_base: np.ndarray, tk: np.ndarray, T: float
                                       method="bounded", options={"xatol": 1e-3}).x
     t1, t2 = math.exp(z1), math.exp(z2)
     try:
-        coef, res, se = _lin_per_axis(r0, regs(tk, y_base, t1, t2))
+        R = regs(tk, y_base, t1, t2)
+        coef, _, se = _lin_per_axis(r0, R)
     except np.linalg.LinAlgError:
         return None
-    a, b, g, h = coef
+    a, b, g, h, _gain = coef
+    # what the drift itself explains (the nuisance gain left out): its training residual
+    fit = sum(c * x for c, x in zip((a, b, g, h), R[:4]))
+    res = r0 - fit
+    res = res - res.mean(axis=0)
     params = {"amplitudes": a.tolist(), "time_constant": t1, "amplitudes2": b.tolist(), "time_constant2": t2,
               "gain_drift": g.tolist(), "gain_drift2": h.tolist()}
     stderr = {"amplitudes": se[0].tolist(), "time_constant": None, "amplitudes2": se[1].tolist(),

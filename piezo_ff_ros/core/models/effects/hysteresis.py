@@ -20,8 +20,64 @@ from ...config import BoucWenConfig
 from ...kernels.bouc_wen import bw_model_rate_run, params_of  # the model loop (one source)
 from .common import DIRECTION_TAU, LEVEL_REF, RATE_REF, RATE_SMOOTHING, _block, _per_axis
 
-__all__ = ["HysteresisStage", "RelaxedHysteresisStage", "BranchEvenTerm", "PlayWidthTerm",
+__all__ = ["HysteresisStage", "RelaxedHysteresisStage", "VelocityTerm", "LoopShapeTerm", "RatePlayTerm",
+           "BranchEvenTerm",
+           "PlayWidthTerm",
            "asymmetric_hysteresis_config"]
+
+
+@njit
+def _velocity_run(u: np.ndarray, gains: np.ndarray, exponent: float, rate_ref: float, a: float, dt: float,
+                  u_prev: np.ndarray, rate: np.ndarray, started: np.ndarray,
+                  out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``out[t, j] = gains[j]·sgn(r_j)·|r_j/rate_ref|^exponent``, r the voltage rate ``ΔU/dt`` low-passed by
+    ``r ← a·r + (1 − a)·ΔU/dt`` (states ``u_prev``, ``rate``); started at rest at the first input."""
+    N, n = u.shape
+    for t in range(N):
+        for j in range(n):
+            if not started[0]:
+                u_prev[j] = u[t, j]
+                rate[j] = 0.0
+            rate[j] = a * rate[j] + (1.0 - a) * (u[t, j] - u_prev[j]) / dt
+            u_prev[j] = u[t, j]
+            x = rate[j] / rate_ref
+            out[t, j] = gains[j] * math.copysign(abs(x) ** exponent, x) if x != 0.0 else 0.0
+        started[0] = True
+
+
+class VelocityTerm:
+    """A velocity-damping term of the hysteresis output: ``Y_H,i += Dp_ii·c_i·sgn(r_i)·|r_i/r_ref|^m``, r_i the
+    rate of voltage i (``ΔU/dt`` low-passed over ``smoothing`` [s]), r_ref = :data:`RATE_REF`.  A loop that widens
+    with the rate, absent at rest and — for m < 1 — *not* linear in the rate (which is how it differs from a delay,
+    whose error is linear in the derivative at every frequency).  ``gains`` c_i in volts (the equivalent input
+    voltage at r_ref), ``exponent`` m in (0, 2].  Part of ``hysteresis_rate_dependence`` (``velocity_gain``,
+    ``velocity_exponent``, ``velocity_smoothing``)."""
+
+    def __init__(self, dp_diag: ArrayLike, gains: ArrayLike, exponent: float, smoothing: float, dt: float) -> None:
+        self.dp = np.asarray(dp_diag, float).reshape(-1)
+        n = self.dp.size
+        self.gains = _per_axis(gains, n, "hysteresis_rate_dependence.velocity_gain")
+        if not (math.isfinite(exponent) and 0.0 < exponent <= 2.0):
+            raise ValueError(f"hysteresis_rate_dependence.velocity_exponent: must be in (0, 2], got {exponent!r}")
+        if not (math.isfinite(smoothing) and smoothing >= 0.0):
+            raise ValueError(f"hysteresis_rate_dependence.velocity_smoothing: must be >= 0 s, got {smoothing!r}")
+        self.exponent, self.smoothing, self.dt, self.n = float(exponent), float(smoothing), float(dt), n
+        self._a = math.exp(-self.dt / self.smoothing) if self.smoothing > 0 else 0.0
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self._u_prev = np.zeros(self.n)
+        self._rate = np.zeros(self.n)
+        self._started = np.zeros(1, np.bool_)
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """The term for one voltage block ``[N, n]`` (displacement [m]); the state moves on by N samples."""
+        u = _block(u, self.n)
+        out = np.empty((len(u), self.n))
+        _velocity_run(u, self.gains * self.dp, self.exponent, RATE_REF, self._a, self.dt, self._u_prev,
+                      self._rate, self._started, out)
+        return out
 
 
 class HysteresisStage:
@@ -32,13 +88,18 @@ class HysteresisStage:
     :data:`RATE_REF`.  ``alpha = 0`` and zero Δ give exactly the nominal :class:`BoucWenModel`.
     """
 
-    def __init__(self, cfg: BoucWenConfig, alpha: float = 0.0, dt: float = 5e-5):
+    def __init__(self, cfg: BoucWenConfig, alpha: float = 0.0, dt: float = 5e-5,
+                 extras: "tuple[VelocityTerm | LoopShapeTerm | RatePlayTerm, ...]" = ()):
         self.cfg = cfg
         self._p = params_of(cfg.arrays())
         if not math.isfinite(alpha):
             raise ValueError(f"hysteresis_rate_dependence.alpha: must be finite, got {alpha!r}")
         self.alpha, self.dt = float(alpha), float(dt)
         self._a_smooth = math.exp(-self.dt / RATE_SMOOTHING)
+        for x in extras:
+            if cfg.n_in != cfg.n_out or x.n != cfg.n_in:
+                raise ValueError(f"{type(x).__name__}: one value per axis of a square hysteresis")
+        self.extras = tuple(extras)
         self.reset()
 
     def reset(self) -> None:
@@ -47,13 +108,22 @@ class HysteresisStage:
         self._u_prev = np.zeros(self.cfg.n_in)
         self._rate = np.zeros(self.cfg.n_in)
         self._started = np.zeros(1, np.bool_)
+        for x in self.extras:
+            x.reset()
+
+    def _loop(self, u: np.ndarray) -> np.ndarray:
+        """The (generalized, rate-widened) Bouc-Wen output of one block."""
+        y = np.empty((len(u), self.cfg.n_out))
+        bw_model_rate_run(self._p, self.alpha, RATE_REF, self._a_smooth, self.dt, self._rate, self._h,
+                          self._u_prev, self._started, u, y, np.empty_like(y))
+        return y
 
     def process(self, u: np.ndarray) -> np.ndarray:
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         u = _block(u, self.cfg.n_in)
-        y = np.empty((len(u), self.cfg.n_out))
-        bw_model_rate_run(self._p, self.alpha, RATE_REF, self._a_smooth, self.dt, self._rate, self._h,
-                          self._u_prev, self._started, u, y, np.empty_like(y))
+        y = self._loop(u)
+        for x in self.extras:
+            y = y + x.process(u)
         return y
 
 
@@ -80,12 +150,13 @@ class RelaxedHysteresisStage(HysteresisStage):
     the frequency, unlike the ``alpha`` term, which widens it with the voltage rate.  Part of
     ``hysteresis_rate_dependence`` (parameter ``relaxation``)."""
 
-    def __init__(self, cfg: BoucWenConfig, alpha: float = 0.0, dt: float = 5e-5, relaxation: float = 0.0):
+    def __init__(self, cfg: BoucWenConfig, alpha: float = 0.0, dt: float = 5e-5, relaxation: float = 0.0,
+                 extras: "tuple[VelocityTerm | LoopShapeTerm | RatePlayTerm, ...]" = ()):
         if not (math.isfinite(relaxation) and relaxation > 0):
             raise ValueError(f"hysteresis_rate_dependence.relaxation: must be > 0 s, got {relaxation!r}")
         self.relaxation = float(relaxation)
         self._a_relax = math.exp(-dt / self.relaxation)
-        super().__init__(cfg, alpha, dt)
+        super().__init__(cfg, alpha, dt, extras)
 
     def reset(self) -> None:
         """All states back to rest."""
@@ -97,12 +168,14 @@ class RelaxedHysteresisStage(HysteresisStage):
     def process(self, u: np.ndarray) -> np.ndarray:
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         u = _block(u, self.cfg.n_in)
-        y = super().process(u)
+        y = self._loop(u)
         lin = static_gain(u, self._p[0])  # Dp·U
         h = lin - y
         hr = np.empty_like(h)
         _relax2_run(h, self._a_relax, self._r1, self._r2, self._r_started, hr)
         res: np.ndarray = lin - hr
+        for x in self.extras:
+            res = res + x.process(u)
         return res
 
 
@@ -211,6 +284,145 @@ class PlayWidthTerm:
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         y = _block(y, self.n)
         res: np.ndarray = y + np.einsum("tkj,kj->tj", self.terms(y), self.gains)
+        return res
+
+
+@njit
+def _rate_play_run(u: np.ndarray, radii: np.ndarray, rate_ref: float, a: float, dt: float, z: np.ndarray,
+                   z0: np.ndarray, rate: np.ndarray, u_prev: np.ndarray, started: np.ndarray,
+                   out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Per column j and radius k: ``P_{r_k·(1 + tanh(ρ_j/ρ_ref))}(U_j) − P_{r_k}(U_j)``, ρ = |ΔU|/dt low-passed by
+    ``ρ ← a·ρ + (1 − a)·|ΔU|/dt``; the plays started at z = U."""
+    N, n = u.shape
+    K = radii.shape[0]
+    for t in range(N):
+        for j in range(n):
+            v = u[t, j]
+            if not started[0]:
+                u_prev[j] = v
+                rate[j] = 0.0
+                for k in range(K):
+                    z[k, j] = v
+                    z0[k, j] = v
+            rate[j] = a * rate[j] + (1.0 - a) * abs(v - u_prev[j]) / dt
+            u_prev[j] = v
+            g = 1.0 + math.tanh(rate[j] / rate_ref)
+            for k in range(K):
+                r = radii[k] * g
+                if z[k, j] < v - r:
+                    z[k, j] = v - r
+                elif z[k, j] > v + r:
+                    z[k, j] = v + r
+                r = radii[k]
+                if z0[k, j] < v - r:
+                    z0[k, j] = v - r
+                elif z0[k, j] > v + r:
+                    z0[k, j] = v + r
+                out[t, k, j] = z[k, j] - z0[k, j]
+        started[0] = True
+
+
+class RatePlayTerm:
+    """Rate-dependent play widths at the hysteresis output: ``Y_H,i += Dp_ii·Σ_k w_ki·(P_{r_k·(1 + tanh(ρ_i/ρ_ref))}
+    (U_i) − P_{r_k}(U_i))`` — Prandtl-Ishlinskii plays whose thresholds grow with the voltage rate ρ (|dU/dt|
+    low-passed over ``smoothing`` [s]): a loop that widens with the rate and *keeps* its width at rest after a fast
+    move (unlike a velocity term).  Radii [V], gains [K][n], ``rate_ref`` [V/s].  Part of
+    ``hysteresis_rate_dependence`` (``rate_play_radii``, ``rate_play_gains``, ``rate_play_ref``,
+    ``rate_play_smoothing``)."""
+
+    def __init__(self, dp_diag: ArrayLike, radii: ArrayLike, gains: ArrayLike, rate_ref: float, smoothing: float,
+                 dt: float) -> None:
+        self.dp = np.asarray(dp_diag, float).reshape(-1)
+        n = self.n = self.dp.size
+        r = np.atleast_1d(np.asarray(radii, float)).reshape(-1)
+        if r.size == 0 or not np.all(np.isfinite(r)) or np.any(r <= 0):
+            raise ValueError(f"hysteresis_rate_dependence.rate_play_radii: expected positive radii [V], got {radii!r}")
+        g = np.asarray(gains, float)
+        if g.shape != (r.size, n) or not np.all(np.isfinite(g)):
+            raise ValueError(f"hysteresis_rate_dependence.rate_play_gains: expected [{r.size}][{n}] finite values, "
+                             f"got {gains!r}")
+        if not (math.isfinite(rate_ref) and rate_ref > 0):
+            raise ValueError(f"hysteresis_rate_dependence.rate_play_ref: must be > 0 V/s, got {rate_ref!r}")
+        if not (math.isfinite(smoothing) and smoothing >= 0):
+            raise ValueError(f"hysteresis_rate_dependence.rate_play_smoothing: must be >= 0 s, got {smoothing!r}")
+        self.radii, self.gains, self.rate_ref, self.dt = r, g, float(rate_ref), float(dt)
+        self._a = math.exp(-self.dt / smoothing) if smoothing > 0 else 0.0
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        K = self.radii.size
+        self._z, self._z0 = np.zeros((K, self.n)), np.zeros((K, self.n))
+        self._rate, self._u_prev = np.zeros(self.n), np.zeros(self.n)
+        self._started = np.zeros(1, np.bool_)
+
+    def terms(self, u: np.ndarray) -> np.ndarray:
+        """The widened-minus-static plays × Dp_ii as [N, K, n] (advances the state)."""
+        u = _block(u, self.n)
+        out = np.empty((len(u), self.radii.size, self.n))
+        _rate_play_run(u, self.radii, self.rate_ref, self._a, self.dt, self._z, self._z0, self._rate,
+                       self._u_prev, self._started, out)
+        out *= self.dp
+        return out
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """The term for one voltage block ``[N, n]`` (displacement [m]); the state moves on by N samples."""
+        res: np.ndarray = np.einsum("tkj,kj->tj", self.terms(u), self.gains)
+        return res
+
+
+#: reference voltage of the loop-shape terms at the hysteresis output [V]
+LOOP_SHAPE_UREF = 100.0
+
+
+class LoopShapeTerm:
+    """Loop-shape terms of the asymmetric hysteresis at the hysteresis output (before the creep and the dynamics,
+    where the loop lives): ``Y_H,i += Dp_ii·[e_i·U_i²/U_ref + Σ_k (w_ki + v_ki·U_i/U_ref)·(P_k(U_i) − U_i)]``,
+    ``P_k`` the classical play operator of radius ``radii[k]`` [V] on the voltage, U_ref = :data:`LOOP_SHAPE_UREF`.
+    ``e``: a static even bend (branches not point-symmetric); ``w``: a loop wider or narrower than the Bouc-Wen's
+    (a Prandtl-Ishlinskii correction); ``v``: a loop whose width changes with the level (wider at the top than at
+    the bottom — what a Preisach density off the symmetric line gives).  Part of ``hysteresis_asymmetry``
+    (``input_even``, ``input_play_radii``, ``input_play_gains``, ``input_play_level_gains``)."""
+
+    def __init__(self, dp_diag: ArrayLike, even: ArrayLike, radii: ArrayLike, gains: ArrayLike,
+                 level_gains: ArrayLike) -> None:
+        self.dp = np.asarray(dp_diag, float).reshape(-1)
+        n = self.n = self.dp.size
+        self.even = _per_axis(even, n, "hysteresis_asymmetry.input_even")
+        r = np.atleast_1d(np.asarray(radii, float)).reshape(-1)
+        if r.size == 0 or not np.all(np.isfinite(r)) or np.any(r <= 0):
+            raise ValueError(f"hysteresis_asymmetry.input_play_radii: expected positive radii [V], got {radii!r}")
+        self.radii = r
+        self.gains = self._matrix(gains, "input_play_gains")
+        self.level_gains = self._matrix(level_gains, "input_play_level_gains")
+        self.reset()
+
+    def _matrix(self, g: ArrayLike, what: str) -> np.ndarray:
+        a = np.asarray(g, float)
+        if a.shape != (self.radii.size, self.n) or not np.all(np.isfinite(a)):
+            raise ValueError(f"hysteresis_asymmetry.{what}: expected [{self.radii.size}][{self.n}] finite values, "
+                             f"got {g!r}")
+        return a
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self._z = np.zeros((self.radii.size, self.n))
+        self._started = np.zeros(1, np.bool_)
+
+    def terms(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(U²/U_ref, P_k(U) − U, (P_k(U) − U)·U/U_ref)`` as [N, n], [N, K, n], [N, K, n], each × Dp_ii (advances
+        the operators' state)."""
+        u = _block(u, self.n)
+        w = np.empty((len(u), self.radii.size, self.n))
+        _play_run(u, self.radii, self._z, self._started, w)
+        w *= self.dp
+        return u * u / LOOP_SHAPE_UREF * self.dp, w, w * (u / LOOP_SHAPE_UREF)[:, None, :]
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """The term for one voltage block ``[N, n]`` (displacement [m]); the state moves on by N samples."""
+        q, w, wl = self.terms(u)
+        res: np.ndarray = q * self.even + np.einsum("tkj,kj->tj", w, self.gains) + \
+            np.einsum("tkj,kj->tj", wl, self.level_gains)
         return res
 
 

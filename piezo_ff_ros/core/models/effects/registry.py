@@ -12,14 +12,17 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
+import numpy as np
+
 from ...config import PiezoConfig
 from ...stage import Processor
 from ..plant import Plant
 from .common import LEVEL_REF, LEVEL_TAU, RATE_REF
 from .displacement import CreepNonlinearity, GainMismatch, ThermalDrift
-from .hysteresis import (BranchEvenTerm, HysteresisStage, PlayWidthTerm, RelaxedHysteresisStage,
-                         asymmetric_hysteresis_config)
+from .hysteresis import (BranchEvenTerm, HysteresisStage, LoopShapeTerm, PlayWidthTerm, RatePlayTerm,
+                         RelaxedHysteresisStage, VelocityTerm, asymmetric_hysteresis_config)
 from .modes import AmplitudeDependentDynamics, CubicAmplitudeDynamics, UnmodelledMode
+from .saturation import SoftSaturation
 from .voltage import AmplifierBandwidth, AmplifierSaturation, AmplifierSlewLimit, AsymmetricSaturation, InputDelay
 
 __all__ = ["EffectSpec", "EFFECTS", "EFFECT_NAMES", "build_plant"]
@@ -43,12 +46,24 @@ class EffectSpec:
 EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
     EffectSpec("hysteresis_asymmetry", "hysteresis", {"Delta1": ("1/V", True), "Delta2": ("1/V", True),
                                                       "even": ("-", True), "branch_even": ("-", True),
-                                                      "play_radii": ("m", False), "play_gains": ("-", True)},
+                                                      "play_radii": ("m", False), "play_gains": ("-", True),
+                                                      "input_even": ("-", True), "input_play_radii": ("V", False),
+                                                      "input_play_gains": ("-", True),
+                                                      "input_play_level_gains": ("-", True)},
                "generalized Bouc-Wen (+ an even, branch-dependent term): ascending and descending branches not "
                "point-symmetric",
                "even harmonics in the residual (error correlates with U², not U)"),
-    EffectSpec("hysteresis_rate_dependence", "hysteresis", {"alpha": ("-", False), "relaxation": ("s", False)},
-               f"loop width grows with the voltage rate (A·(1 + α·tanh(|dU/dt|/{RATE_REF:g} V/s)))",
+    EffectSpec("hysteresis_rate_dependence", "hysteresis", {"alpha": ("-", False), "relaxation": ("s", False),
+                                                            "velocity_gain": ("V", True),
+                                                            "velocity_exponent": ("-", False),
+                                                            "velocity_smoothing": ("s", False),
+                                                            "rate_play_radii": ("V", False),
+                                                            "rate_play_gains": ("-", True),
+                                                            "rate_play_ref": ("V/s", False),
+                                                            "rate_play_smoothing": ("s", False)},
+               f"loop width grows with the voltage rate (A·(1 + α·tanh(|dU/dt|/{RATE_REF:g} V/s))), or a "
+               f"velocity-damping term Dp·c·sgn(dU/dt)·|dU/dt / {RATE_REF:g} V/s|^m on the hysteresis output, or "
+               "play widths growing with the rate (rate-dependent Prandtl-Ishlinskii thresholds)",
                "loop-width error grows with frequency (error correlates with sign(dU/dt)·|dU/dt|)"),
     EffectSpec("creep_nonlinearity", "post", {"gamma": ("-", True), "beta": ("-", False),
                                               "beta_even": ("-", False), "spectrum": ("-", True)},
@@ -65,8 +80,10 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                "residual ∝ −delay·dŶ/dt: phase lag growing linearly with frequency"),
     EffectSpec("amplifier_slew_limit", "pre", {"rate": ("V/s", False)},
                "amplifier slew-rate limit", "error concentrated where |dU/dt| is large (steps, fast ramps)"),
-    EffectSpec("amplifier_saturation", "pre", {"limit": ("V", False), "lower_limit": ("V", False)},
-               "amplifier output rails clip the voltage", "error only at the largest |U|"),
+    EffectSpec("amplifier_saturation", "pre", {"limit": ("V", False), "lower_limit": ("V", False),
+                                               "sharpness": ("-", False)},
+               "amplifier output rails clip the voltage (hard, or a soft knee v/(1 + (|v|/L)^p)^(1/p) per rail)",
+               "error only at the largest |U|"),
     EffectSpec("amplifier_bandwidth", "pre", {"cutoff": ("Hz", True), "order": ("-", False),
                                               "damping": ("-", False)},
                "first- or second-order amplifier roll-off (cutoff per axis)",
@@ -97,6 +114,8 @@ def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
     if name == "amplifier_slew_limit":
         return AmplifierSlewLimit(p["rate"], dt, n)
     if name == "amplifier_saturation":
+        if p.get("sharpness") is not None:
+            return SoftSaturation(p["limit"], p.get("lower_limit") or p["limit"], p["sharpness"], n)
         if p.get("lower_limit") is not None:
             return AsymmetricSaturation(p["limit"], p["lower_limit"], n)
         return AmplifierSaturation(p["limit"], n)
@@ -133,6 +152,7 @@ def build_plant(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[str, Any]
     post: list[Processor] = []
     hcfg, alpha, custom_h = cfg.hysteresis, 0.0, False
     relax = 0.0
+    extras: list[VelocityTerm | LoopShapeTerm | RatePlayTerm] = []
     for name, p in effects:
         if name not in EFFECTS:
             raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
@@ -144,9 +164,21 @@ def build_plant(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[str, Any]
                 post.append(BranchEvenTerm(p.get("even", 0.0), p.get("branch_even", 0.0), cfg.dt, cfg.n_axes))
             if p.get("play_radii"):
                 post.append(PlayWidthTerm(p["play_radii"], p["play_gains"], cfg.n_axes))
+            if p.get("input_play_radii"):
+                extras.append(LoopShapeTerm(np.diag(cfg.hysteresis.arrays()["Dp"]), p.get("input_even", 0.0),
+                                            p["input_play_radii"], p["input_play_gains"],
+                                            p["input_play_level_gains"]))
         elif name == "hysteresis_rate_dependence":
-            alpha += float(p["alpha"])
+            alpha += float(p.get("alpha", 0.0))
             custom_h = True
+            if p.get("velocity_gain") is not None:
+                dp = np.diag(cfg.hysteresis.arrays()["Dp"])
+                extras.append(VelocityTerm(dp, p["velocity_gain"], float(p.get("velocity_exponent", 0.5)),
+                                           float(p.get("velocity_smoothing", 0.0)), cfg.dt))
+            if p.get("rate_play_radii"):
+                extras.append(RatePlayTerm(np.diag(cfg.hysteresis.arrays()["Dp"]), p["rate_play_radii"],
+                                           p["rate_play_gains"], float(p["rate_play_ref"]),
+                                           float(p.get("rate_play_smoothing", 0.0)), cfg.dt))
             if p.get("relaxation") is not None:
                 r = float(p["relaxation"])
                 if not (math.isfinite(r) and r >= 0):
@@ -157,7 +189,7 @@ def build_plant(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[str, Any]
         else:
             post.append(_stage(name, p, cfg))
     if custom_h:
-        pre.append(HysteresisStage(hcfg, alpha, cfg.dt) if relax <= 0 else
-                   RelaxedHysteresisStage(hcfg, alpha, cfg.dt, relax))
+        pre.append(HysteresisStage(hcfg, alpha, cfg.dt, tuple(extras)) if relax <= 0 else
+                   RelaxedHysteresisStage(hcfg, alpha, cfg.dt, relax, tuple(extras)))
         return Plant(cfg, pre=pre, post=post, noise_std=noise_std, seed=seed, stages=("creep", "dynamics"))
     return Plant(cfg, pre=pre, post=post, noise_std=noise_std, seed=seed)
