@@ -60,28 +60,44 @@ def _naive_path(p: dict[str, np.ndarray], h: np.ndarray, du: np.ndarray) -> np.n
         return h + _naive_increment(p, h, du)
     m = int(np.floor(x / KAPPA_MAX))
     theta = x / KAPPA_MAX - m
+    A, B, G, D1, D2, P = (p[k].tolist() for k in ("A", "B", "Gamma", "Delta1", "Delta2", "P"))
+    n, k = len(A), len(A[0])
     ends = []
     for q in (m, m + 1):
-        hq = h.copy()
+        # the sub-steps in plain floats (numpy per sub-step would make the baseline mostly call overhead)
+        hq = h.tolist()
+        d = (du / q).tolist()
+        dh_ = [sum(P[i][j] * d[j] for j in range(k)) for i in range(n)]
+        ad = [abs(v) for v in dh_]
         for _ in range(q):
-            hq = hq + _naive_increment(p, hq, du / q)
-        ends.append(hq)
+            ah = [abs(v) for v in hq]
+            hq = [hq[i] + sum(A[i][j] * d[j] for j in range(k))
+                  - sum(B[i][j] * ad[j] * hq[j] + G[i][j] * dh_[j] * ah[j] + D1[i][j] * dh_[j] * hq[j]
+                        + D2[i][j] * ad[j] * ah[j] for j in range(n)) for i in range(n)]
+        ends.append(np.array(hq))
     return ends[0] + theta * (ends[1] - ends[0])
 
 
 def _naive_refine(p: dict[str, np.ndarray], h: np.ndarray, r: np.ndarray, du: np.ndarray) -> np.ndarray:
-    """Newton (finite-difference Jacobian) on ``Dp·du − (h' − h) = r`` for the path increment, from the one-step
-    solution ``du``."""
+    """Newton's chord iterations (one finite-difference Jacobian) on ``Dp·du − (h' − h) = r`` for the path
+    increment, from the one-step solution ``du``; nothing to do when that takes one step."""
+    from ..core.kernels.bouc_wen import KAPPA_MAX
+    sigma = float(np.max(np.sum(np.abs(p["B"]) + np.abs(p["Gamma"]) + np.abs(p["Delta1"]) + np.abs(p["Delta2"]),
+                                axis=1)))
+    if not sigma * float(np.max(np.abs(p["P"] @ du))) > KAPPA_MAX:
+        return du
+
     def f(d: np.ndarray) -> np.ndarray:
         return p["Dp"] @ d - (_naive_path(p, h, d) - h) - r
+    f0 = f(du)
+    eps = 1e-7 * (1.0 + np.max(np.abs(du)))
+    J = np.column_stack([(f(du + eps * e) - f0) / eps for e in np.eye(len(du))])
     for _ in range(50):
-        f0 = f(du)
-        eps = 1e-7 * (1.0 + np.max(np.abs(du)))
-        J = np.column_stack([(f(du + eps * e) - f0) / eps for e in np.eye(len(du))])
         step = np.linalg.solve(J, -f0)
         du = du + step
         if not np.max(np.abs(step)) > 1e-13 * np.max(np.abs(du)):
             break
+        f0 = f(du)
     return du
 
 
