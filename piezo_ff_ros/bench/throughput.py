@@ -42,9 +42,68 @@ class _Proc(Protocol):
 # naive baselines: the same maths, one sample at a time in Python (numpy per sample)
 # ----------------------------------------------------------------------------------------------------------------
 
+def _naive_increment(p: dict[str, np.ndarray], h: np.ndarray, du: np.ndarray) -> np.ndarray:
+    """One explicit Bouc-Wen step: ``A dU − B(|dÛ|∘h) − Γ(dÛ∘|h|) − Δ1(dÛ∘h) − Δ2(|dÛ|∘|h|)``."""
+    duh = p["P"] @ du
+    ah, ad = np.abs(h), np.abs(duh)
+    return p["A"] @ du - p["B"] @ (ad * h) - p["Gamma"] @ (duh * ah) - p["Delta1"] @ (duh * h) - p["Delta2"] @ (ad * ah)
+
+
+def _naive_path(p: dict[str, np.ndarray], h: np.ndarray, du: np.ndarray) -> np.ndarray:
+    """h after the step ``du`` along its straight path: one explicit step while ``κ = σ·max|dÛ| ≤ KAPPA_MAX``, else
+    the blend of m and m + 1 equal sub-steps, ``m + θ = κ / KAPPA_MAX`` (the kernels' rule, written plainly)."""
+    from ..core.kernels.bouc_wen import KAPPA_MAX
+    sigma = float(np.max(np.sum(np.abs(p["B"]) + np.abs(p["Gamma"]) + np.abs(p["Delta1"]) + np.abs(p["Delta2"]),
+                                axis=1)))
+    x = sigma * float(np.max(np.abs(p["P"] @ du)))
+    if not x > KAPPA_MAX:
+        return h + _naive_increment(p, h, du)
+    m = int(np.floor(x / KAPPA_MAX))
+    theta = x / KAPPA_MAX - m
+    A, B, G, D1, D2, P = (p[k].tolist() for k in ("A", "B", "Gamma", "Delta1", "Delta2", "P"))
+    n, k = len(A), len(A[0])
+    ends = []
+    for q in (m, m + 1):
+        # the sub-steps in plain floats (numpy per sub-step would make the baseline mostly call overhead)
+        hq = h.tolist()
+        d = (du / q).tolist()
+        dh_ = [sum(P[i][j] * d[j] for j in range(k)) for i in range(n)]
+        ad = [abs(v) for v in dh_]
+        for _ in range(q):
+            ah = [abs(v) for v in hq]
+            hq = [hq[i] + sum(A[i][j] * d[j] for j in range(k))
+                  - sum(B[i][j] * ad[j] * hq[j] + G[i][j] * dh_[j] * ah[j] + D1[i][j] * dh_[j] * hq[j]
+                        + D2[i][j] * ad[j] * ah[j] for j in range(n)) for i in range(n)]
+        ends.append(np.array(hq))
+    return ends[0] + theta * (ends[1] - ends[0])
+
+
+def _naive_refine(p: dict[str, np.ndarray], h: np.ndarray, r: np.ndarray, du: np.ndarray) -> np.ndarray:
+    """Newton's chord iterations (one finite-difference Jacobian) on ``Dp·du − (h' − h) = r`` for the path
+    increment, from the one-step solution ``du``; nothing to do when that takes one step."""
+    from ..core.kernels.bouc_wen import KAPPA_MAX
+    sigma = float(np.max(np.sum(np.abs(p["B"]) + np.abs(p["Gamma"]) + np.abs(p["Delta1"]) + np.abs(p["Delta2"]),
+                                axis=1)))
+    if not sigma * float(np.max(np.abs(p["P"] @ du))) > KAPPA_MAX:
+        return du
+
+    def f(d: np.ndarray) -> np.ndarray:
+        return p["Dp"] @ d - (_naive_path(p, h, d) - h) - r
+    f0 = f(du)
+    eps = 1e-7 * (1.0 + np.max(np.abs(du)))
+    J = np.column_stack([(f(du + eps * e) - f0) / eps for e in np.eye(len(du))])
+    for _ in range(50):
+        step = np.linalg.solve(J, -f0)
+        du = du + step
+        if not np.max(np.abs(step)) > 1e-13 * np.max(np.abs(du)):
+            break
+        f0 = f(du)
+    return du
+
+
 class _NaiveBoucWen:
-    """``h ← h + A dU − B(|dÛ|∘h) − Γ(dÛ∘|h|) − Δ1(dÛ∘h) − Δ2(|dÛ|∘|h|)``, ``Y = Dp U − h``, sample by
-    sample."""
+    """``h ← h + A dU − B(|dÛ|∘h) − Γ(dÛ∘|h|) − Δ1(dÛ∘h) − Δ2(|dÛ|∘|h|)`` along the voltage path
+    (:func:`_naive_path`), ``Y = Dp U − h``, sample by sample."""
 
     def __init__(self, p: dict[str, np.ndarray]) -> None:
         self.p = p
@@ -58,11 +117,7 @@ class _NaiveBoucWen:
             uk = u[k]
             if self.u_prev is None:
                 self.u_prev = uk.copy()
-            du = uk - self.u_prev
-            duh = p["P"] @ du
-            ah, ad = np.abs(self.h), np.abs(duh)
-            self.h = self.h + p["A"] @ du - p["B"] @ (ad * self.h) - p["Gamma"] @ (duh * ah) \
-                - p["Delta1"] @ (duh * self.h) - p["Delta2"] @ (ad * ah)
+            self.h = _naive_path(p, self.h, uk - self.u_prev)
             self.u_prev = uk.copy()
             y[k] = p["Dp"] @ uk - self.h
         return y
@@ -102,12 +157,11 @@ class _NaiveHysteresisCompensator:
                     if np.all((p["P"] @ cand) * s >= 0.0):
                         du, self.signs = cand, s
                         break
+                if du is not None:
+                    du = _naive_refine(p, self.h, r, du)
             if du is None:
                 du = self.Dp_pinv @ (yh[k] + self.h) - self.u_prev
-            duh = p["P"] @ du
-            ah, ad = np.abs(self.h), np.abs(duh)
-            self.h = self.h + p["A"] @ du - p["B"] @ (ad * self.h) - p["Gamma"] @ (duh * ah) \
-                - p["Delta1"] @ (duh * self.h) - p["Delta2"] @ (ad * ah)
+            self.h = _naive_path(p, self.h, du)
             self.u_prev = self.u_prev + du
             u[k] = self.u_prev
         return u

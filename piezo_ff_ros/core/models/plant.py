@@ -1,7 +1,8 @@
 """The nominal plant S0 (the paper's chain): ``Y = G_L(s)·[K + Cr(s)]·(Dp·U − h)``, h the Bouc-Wen state.
 
-Discretised at the config's sample rate as the model's definition says: explicit discrete Bouc-Wen, every SISO
-transfer function by zero-order hold on its own, blocks in cascade.  ``effects`` (from :mod:`.effects`) can be
+Discretised at the config's sample rate as the model's definition says: the Bouc-Wen integrated along each sample's
+straight voltage path (one explicit step for small steps, equal sub-steps for large ones: rate independent, see
+:mod:`.bouc_wen`), every SISO transfer function by zero-order hold on its own, blocks in cascade.  ``effects`` (from :mod:`.effects`) can be
 inserted before (on the voltage) or after (on the displacement) the nominal chain, and sensor noise added, to build
 "truth" plants that differ from the nominal model.  The plant is a :class:`~piezo_ff_ros.core.chain.Chain`: the
 nominal stages run as one fused compiled pass.
