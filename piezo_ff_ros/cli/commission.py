@@ -63,8 +63,9 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     g.add_argument("--probe-timeout", type=float, default=3.0, metavar="S",
                    help="how long to look for a running driver (default 3 s)")
     g.add_argument("--step-um", type=float, default=15.0, metavar="UM",
-                   help="creep/dynamics characterisation step, µm (default 15: the paper's 20 µm asks ≈ 202 V on x, "
-                        "beyond the ±200 V amplifier, and a clamped step biases the creep fit)")
+                   help="creep/dynamics characterisation step, µm (default 15: keeps the step well inside the ±200 V "
+                        "amplifier on a stage stiffer than the paper's — its 20 µm asks ≈ 159 V on x — since a "
+                        "clamped step biases the creep fit)")
     g.add_argument("--sine-frequency", type=float, default=0.1, metavar="HZ",
                    help="hysteresis characterisation sine frequency (paper 0.1 Hz)")
     g.add_argument("--sine-periods", type=int, default=2, metavar="N", help="periods per hysteresis sine (2)")

@@ -39,7 +39,7 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     p.add_argument("--window", type=int, default=4, metavar="W", help="lockstep blocks in flight (default 4)")
     p.add_argument("--voltage-limit", type=float, default=None, metavar="V",
                    help="driver (and compensator) voltage limit (default: the config's limits.voltage, 200 V — the "
-                        "paper's amplifier; the 20 µm x step asks ≈ 202 V at first, so it is clamped)")
+                        "paper's amplifier; the 20 µm x step asks ≈ 159 V, so nothing is clamped)")
     p.add_argument("--slew-limit", type=float, default=None, metavar="V/S",
                    help="driver (and compensator) slew limit (default: the config's limits.slew)")
     p.add_argument("--clocked", type=float, default=None, metavar="SPEED",
