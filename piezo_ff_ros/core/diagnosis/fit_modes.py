@@ -131,8 +131,10 @@ Mode = tuple[float, float]
 
 class _ModeSearch:
     """Greedy search of resonances in the training residual: each mode adds band-pass regressors of the base
-    output; ``kind='cross'``: output i regresses on BP(Ŷ_j) of every axis j (cross-coupled gains);
-    ``kind='level'``: on BP(Ŷ_i) and A_i(t)·BP(Ŷ_i) (amplitude-dependent)."""
+    output; ``kind='cross'``: output i regresses on BP(Ŷ_j) and HP(Ŷ_j) of every axis j (cross-coupled gains) and on
+    the low-pass LP(Ŷ_j) of every other axis j ≠ i (a mode in an off-diagonal path has a static gain: without it a
+    static cross gain takes that path's low-frequency part and the mode's peak is left over); ``kind='level'``: the
+    same plus A_i(t)·BP(Ŷ_i), A_i(t)·HP(Ŷ_i) and the cubic terms (amplitude-dependent)."""
 
     def __init__(self, ctx: FitContext, kind: str):
         self.ctx, self.kind = ctx, kind
@@ -141,6 +143,8 @@ class _ModeSearch:
         self.k = max(1, -(-len(r0) // 60_000))  # rows kept in the regressions (the filters run on every sample)
         self.r0 = r0[::self.k] - r0[::self.k].mean(axis=0)
         self.n = ctx.cfg.n_axes
+        yb = (ctx.y_base if win.is_whole else win.take(ctx.y_base))[::self.k]
+        self.yb = yb - yb.mean(axis=0)  # the base output on the regression rows (LP = Ŷ − BP − HP)
         self.lev: np.ndarray | None = _level_design(ctx.y_base, ctx.dt, win)[::self.k] if kind == "level" else None
         self.unit = max(_rms(self.r0), 1e-15)
         self._regs_cache: dict[tuple[float, float], list[np.ndarray]] = {}
@@ -173,8 +177,10 @@ class _ModeSearch:
         BH = _bp_hp_design(self.y_base_c, self.spans, self.k, f, z, self.ctx.dt)
         BH -= np.full(len(BH), 1.0 / len(BH)) @ BH  # column means (a product: faster than an axis-0 mean)
         B, Hp = BH[:, :self.n], BH[:, self.n:]
+        LP = self.yb - B - Hp
+        others = [[j for j in range(self.n) if j != i] for i in range(self.n)]
         if self.kind == "cross":
-            out = [BH] * self.n
+            out = [np.column_stack([BH, LP[:, others[i]]]) for i in range(self.n)]
         else:
             assert self.cube is not None and self.lev is not None   # kind "level"
             out = []
@@ -183,12 +189,13 @@ class _ModeSearch:
             for i in range(self.n):  # the cross-coupled mode, its level-modulated and its cubic direct terms
                 LB = self.lev[:, i] * B[:, i]
                 LH = self.lev[:, i] * Hp[:, i]
-                out.append(np.column_stack([B, Hp, LB - LB.mean(), LH - LH.mean(), CH[:, i], CH[:, self.n + i]]))
+                out.append(np.column_stack([B, Hp, LB - LB.mean(), LH - LH.mean(), CH[:, i], CH[:, self.n + i],
+                                            LP[:, others[i]]]))
         return out
 
     def _gram(self, a: Mode, b: Mode, i: int) -> np.ndarray:
         """``X_aᵀ X_b`` of output i's designs of pole pairs a and b (cached: the earlier modes recur)."""
-        key = (a, b, i if self.kind != "cross" else 0)
+        key = (a, b, i)
         G = self._gram_cache.get(key)
         if G is None:
             G = self.regs(*a)[i].T @ self.regs(*b)[i]
@@ -207,10 +214,9 @@ class _ModeSearch:
         R = [self.regs(*k) for k in keys]
         res = np.empty_like(self.r0)
         coefs: list[np.ndarray] = []
-        outs = [0] if self.kind == "cross" else range(self.n)
-        for i in outs:
+        for i in range(self.n):
             A = np.block([[self._gram(a, b, i) for b in keys] for a in keys])
-            cols = slice(None) if self.kind == "cross" else slice(i, i + 1)
+            cols = slice(i, i + 1)
             Bv = np.vstack([self._xtr(k, i) for k in keys])[:, cols]
             C = _solve_normal(A, Bv, lambda: np.hstack([Ri[i] for Ri in R]), self.r0[:, cols])
             fit = np.zeros((len(self.r0), C.shape[1]))
@@ -219,17 +225,13 @@ class _ModeSearch:
                 p = Ri[i].shape[1]
                 fit += Ri[i] @ C[o:o + p]
                 o += p
-            if self.kind == "cross":
-                res[:] = self.r0 - fit
-                coefs = [C[:, j] for j in range(self.n)]
-            else:
-                res[:, i] = self.r0[:, i] - fit[:, 0]
-                coefs.append(C[:, 0])
+            res[:, i] = self.r0[:, i] - fit[:, 0]
+            coefs.append(C[:, 0])
         return coefs, res
 
     def _xtr(self, key: Mode, i: int) -> np.ndarray:
         """``X_keyᵀ r0`` (all outputs' columns) of output i's design (cached)."""
-        ck = (key, i if self.kind != "cross" else 0)
+        ck = (key, i)
         v = self._xtr_cache.get(ck)
         if v is None:
             v = self.regs(*key)[i].T @ self.r0
@@ -253,11 +255,8 @@ class _ModeSearch:
                 for z in (0.01, 0.05, 0.2):
                     R = self._grid_regs(f, z)
                     gain = 0.0
-                    if self.kind == "cross":  # one design shared by every output: one Gram matrix
-                        gain = _explained(R[0][::g], res[::g]) * g
-                    else:
-                        for i in range(self.n):
-                            gain += _explained(R[i][::g], res[::g, i:i + 1]) * g
+                    for i in range(self.n):
+                        gain += _explained(R[i][::g], res[::g, i:i + 1]) * g
                     if gain > best[0]:
                         best = (gain, (f, z))
             if best[1] is None or best[0] < MODE_MIN_GAIN * sse:
@@ -284,7 +283,8 @@ class _ModeSearch:
 
 def fit_unmodelled_mode(ctx: FitContext) -> FitResult:
     """Up to :data:`MAX_MODES` lightly damped resonances above :data:`MODE_FMIN`, each output regressed on the
-    band-pass and high-pass of every axis' base output (cross-coupled gains)."""
+    band-pass and high-pass of every axis' base output (cross-coupled gains) and on the low-pass of every other
+    axis' (a mode in an off-diagonal path, with its static gain)."""
     n = ctx.cfg.n_axes
     fs = 1.0 / ctx.dt
     T = len(ctx.y) * ctx.dt
@@ -297,15 +297,19 @@ def fit_unmodelled_mode(ctx: FitContext) -> FitResult:
     K = len(modes)
     G = np.zeros((K, n, n))
     Hg = np.zeros((K, n, n))
+    Lg = np.zeros((K, n, n))
     for i in range(n):
-        c = np.asarray(coefs[i]).reshape(K, 2, n)  # per mode: band-pass gains of every axis, then high-pass
-        G[:, i, :] = c[:, 0, :]
-        Hg[:, i, :] = c[:, 1, :]
+        # per mode: band-pass gains of every axis, high-pass gains of every axis, low-pass gains of the others
+        c = np.asarray(coefs[i]).reshape(K, 3 * n - 1)
+        G[:, i, :] = c[:, :n]
+        Hg[:, i, :] = c[:, n:2 * n]
+        Lg[:, i, [j for j in range(n) if j != i]] = c[:, 2 * n:]
     params = {"freq": [m[0] for m in modes] if K > 1 else modes[0][0],
               "damping": [m[1] for m in modes] if K > 1 else modes[0][1], "gains": G.tolist(),
-              "hp_gains": Hg.tolist()}
-    return FitResult("unmodelled_mode", params, {"freq": None, "damping": None, "gains": None, "hp_gains": None},
-                     [("unmodelled_mode", params)], K * (2 + 2 * n * n), _rms(res),
+              "hp_gains": Hg.tolist(), "lp_gains": Lg.tolist()}
+    return FitResult("unmodelled_mode", params, {"freq": None, "damping": None, "gains": None, "hp_gains": None,
+                                                 "lp_gains": None},
+                     [("unmodelled_mode", params)], K * (2 + 2 * n * n + n * (n - 1)), _rms(res),
                      note=f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}")
 
 
@@ -329,15 +333,18 @@ def fit_amplitude_dependent_dynamics(ctx: FitContext) -> FitResult:
     G, Hg = np.zeros((K, n, n)), np.zeros((K, n, n))
     Kl, Kh = np.zeros((K, n)), np.zeros((K, n))
     Kc, Hc = np.zeros((K, n)), np.zeros((K, n))
+    Lg = np.zeros((K, n, n))
     for i in range(n):
-        c = np.asarray(coefs[i]).reshape(K, 2 * n + 4)
+        c = np.asarray(coefs[i]).reshape(K, 3 * n + 3)
         G[:, i, :], Hg[:, i, :] = c[:, :n], c[:, n:2 * n]
         Kl[:, i], Kh[:, i] = c[:, 2 * n], c[:, 2 * n + 1]
         Kc[:, i], Hc[:, i] = c[:, 2 * n + 2], c[:, 2 * n + 3]
+        Lg[:, i, [j for j in range(n) if j != i]] = c[:, 2 * n + 4:]
     params = {"freq": [m[0] for m in modes], "damping": [m[1] for m in modes], "gains": G.tolist(),
               "hp_gains": Hg.tolist(), "level_gains": Kl.tolist(), "level_hp_gains": Kh.tolist(),
-              "cubic_gains": Kc.tolist(), "cubic_hp_gains": Hc.tolist()}
+              "cubic_gains": Kc.tolist(), "cubic_hp_gains": Hc.tolist(), "lp_gains": Lg.tolist()}
     return FitResult("amplitude_dependent_dynamics", params,
                      {k: None for k in params},
-                     [("amplitude_dependent_dynamics", params)], K * (2 + 2 * n * n + 4 * n), _rms(res),
+                     [("amplitude_dependent_dynamics", params)], K * (2 + 2 * n * n + 4 * n + n * (n - 1)),
+                     _rms(res),
                      note=f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}")

@@ -72,13 +72,13 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                "first- or second-order amplifier roll-off (cutoff per axis)",
                "amplitude loss and phase lag at high frequency; steps rounded, not shifted"),
     EffectSpec("unmodelled_mode", "post", {"freq": ("Hz", False), "damping": ("-", False), "gains": ("-", True),
-                                          "hp_gains": ("-", True)},
+                                          "hp_gains": ("-", True), "lp_gains": ("-", True)},
                "extra lightly damped structural resonances (one or several, per axis and cross-coupled)",
                "narrow peaks in the residual spectrum"),
     EffectSpec("amplitude_dependent_dynamics", "post",
                {"freq": ("Hz", False), "damping": ("-", False), "gains": ("-", True), "hp_gains": ("-", True),
                 "level_gains": ("-", True), "level_hp_gains": ("-", True), "cubic_gains": ("-", True),
-                "cubic_hp_gains": ("-", True)},
+                "cubic_hp_gains": ("-", True), "lp_gains": ("-", True)},
                f"resonances whose strength moves with the level (|Y| over {LEVEL_TAU:g} s per {LEVEL_REF:g} m)",
                "dynamics-band residual growing with the motion's amplitude"),
     EffectSpec("gain_mismatch", "post", {"gains": ("-", True), "cross_gains": ("-", True)},
@@ -111,14 +111,14 @@ def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
         return CreepNonlinearity(p["gamma"], p.get("beta", 0.0), dt, n, spectrum=p.get("spectrum"),
                                  beta_even=float(p.get("beta_even", 0.0)))
     if name == "unmodelled_mode":
-        return UnmodelledMode(p["freq"], p["damping"], p["gains"], dt, n, p.get("hp_gains"))
+        return UnmodelledMode(p["freq"], p["damping"], p["gains"], dt, n, p.get("hp_gains"), p.get("lp_gains"))
     if name == "amplitude_dependent_dynamics":
         if p.get("cubic_gains") is not None:
             return CubicAmplitudeDynamics(p["freq"], p["damping"], p["gains"], p["level_gains"], dt, n,
                                           p.get("hp_gains"), p.get("level_hp_gains"), p["cubic_gains"],
-                                          p.get("cubic_hp_gains"))
+                                          p.get("cubic_hp_gains"), p.get("lp_gains"))
         return AmplitudeDependentDynamics(p["freq"], p["damping"], p["gains"], p["level_gains"], dt, n,
-                                          p.get("hp_gains"), p.get("level_hp_gains"))
+                                          p.get("hp_gains"), p.get("level_hp_gains"), p.get("lp_gains"))
     raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
 
 
