@@ -20,7 +20,8 @@ from .displacement import CreepNonlinearity, GainMismatch, ThermalDrift
 from .hysteresis import (BranchEvenTerm, HysteresisStage, PlayWidthTerm, RelaxedHysteresisStage,
                          asymmetric_hysteresis_config)
 from .modes import AmplitudeDependentDynamics, CubicAmplitudeDynamics, UnmodelledMode
-from .voltage import AmplifierBandwidth, AmplifierSaturation, AmplifierSlewLimit, AsymmetricSaturation, InputDelay
+from .voltage import (AllPassDelay, AmplifierBandwidth, AmplifierSaturation, AmplifierSlewLimit, AsymmetricSaturation,
+                      InputDelay)
 
 __all__ = ["EffectSpec", "EFFECTS", "EFFECT_NAMES", "build_plant"]
 
@@ -60,8 +61,9 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                                         "gain_drift": ("-", True), "gain_drift2": ("-", True)},
                "thermal expansion after switch-on, a_i·(1 − exp(−t/τ))",
                "residual trend over the whole run, uncorrelated with the voltage"),
-    EffectSpec("input_delay", "pre", {"delay": ("s", False)},
-               "pure delay between the commanded and the acting voltage",
+    EffectSpec("input_delay", "pre", {"delay": ("s", False), "form": ("-", False)},
+               "delay between the commanded and the acting voltage: pure (interpolated), or all-pass (form "
+               "'allpass': 2nd-order Padé, unit gain, the phase lag of the delay)",
                "residual ∝ −delay·dŶ/dt: phase lag growing linearly with frequency"),
     EffectSpec("amplifier_slew_limit", "pre", {"rate": ("V/s", False)},
                "amplifier slew-rate limit", "error concentrated where |dU/dt| is large (steps, fast ramps)"),
@@ -93,6 +95,11 @@ EFFECT_NAMES = tuple(EFFECTS)
 def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
     n, dt = cfg.n_axes, cfg.dt
     if name == "input_delay":
+        form = p.get("form", "pure")
+        if form == "allpass":
+            return AllPassDelay(p["delay"], dt, n)
+        if form != "pure":
+            raise ValueError(f"input_delay.form: must be 'pure' or 'allpass', got {form!r}")
         return InputDelay(p["delay"], dt, n)
     if name == "amplifier_slew_limit":
         return AmplifierSlewLimit(p["rate"], dt, n)
