@@ -36,11 +36,12 @@ def _ranking(res):
             for r in res["ranking"]]
 
 
-def test_mode_in_the_cross_coupling_path_is_a_mode_not_a_gain_error(cfg):
+@pytest.mark.parametrize("f0, zeta, peak", [(250.0, 0.02, 0.6), (900.0, 0.04, 0.8)])
+def test_mode_in_the_cross_coupling_path_is_a_mode_not_a_gain_error(cfg, f0, zeta, peak):
     """x's motion drives y through a lightly damped resonance k·2ζω²/(s² + 2ζωs + ω²) (static gain 2ζk, peak k at
-    ω): the residual of y is resonant, a static cross gain only takes its low-frequency part."""
+    ω): the residual of y is resonant, a static cross gain only takes its low-frequency part — even when that part
+    is nearly all of the gap (a 900 Hz mode above the excited band, rung only by the steps)."""
     nominal = build_plant(cfg, [])
-    f0, zeta, peak = 250.0, 0.02, 0.6
     w = 2 * np.pi * f0
     b, a = scipy.signal.bilinear([peak * 2 * zeta * w * w], [1.0, 2 * zeta * w, w * w], fs=FS)
 
@@ -55,7 +56,7 @@ def test_mode_in_the_cross_coupling_path_is_a_mode_not_a_gain_error(cfg):
                                                                   "amplifier_bandwidth"), max_stack=1))
     assert res["verdict"] == "unmodelled_mode", (_ranking(res), res["confidence_reason"])
     p = res["ranking"][0]["params"]
-    assert np.min(np.abs(np.atleast_1d(p["freq"]["value"]) - f0)) < 0.03 * f0
+    assert np.min(np.abs(np.atleast_1d(p["freq"]["value"]) - f0)) < 0.1 * f0
     h = res["heldout"]
     assert h["after_nrmse_percent"] < 0.2 * h["before_nrmse_percent"]
 

@@ -153,7 +153,8 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
             if s.accepted and s.fit.effect not in GENERIC and \
                     (top.extra["excess_shrink"] - s.extra["excess_shrink"] < GENERIC_MIN_EXTRA
                      or (s.fit.n_params < top.fit.n_params
-                         and stats.paired_z(top.extra["r_after"], s.extra["r_after"], psd) < TIE_Z)):
+                         and stats.paired_z(top.extra["r_after"], s.extra["r_after"], psd) < TIE_Z)) and \
+                    not _resonant_remainder(top, s, held, psd):
                 scored.remove(s)
                 scored.insert(scored.index(top), s)
                 for g in scored:
@@ -162,6 +163,46 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
                         g.extra["absorb_paired_z"] = stats.paired_z(g.extra["r_after"], s.extra["r_after"], psd)
                 break
     return psd
+
+
+#: what a generic mode family takes beyond a physical candidate is a resonance (not that candidate's form error)
+#: when its energy density within f·(1 ± RESONANT_BAND) of one of the family's lightly damped modes (ζ ≤
+#: RESONANT_ZMAX) is at least RESONANT_PEAK times that in the flanks f·(1 ± 3·RESONANT_BAND) around it.  A
+#: resonance of ζ = RESONANT_ZMAX under a flat excitation has a ratio ≈ 4 there (|H|² averaged over the band and
+#: over the flanks), a lighter one more; a smooth form error (a delay's, a roll-off's) ≈ 1
+RESONANT_BAND = 0.1
+RESONANT_ZMAX = 0.1
+RESONANT_PEAK = 3.0
+
+
+def _resonant_remainder(generic: Scored, physical: Scored, held: _Held, psd: "stats.NoisePSD") -> bool:
+    """Whether the generic mode family beats the physical candidate by a resonance the physical form cannot have:
+    significantly on the held-out run (paired z ≥ TIE_Z), taking at least half (MIN_SHARE) of what the physical
+    candidate leaves above the white-noise floor, and with the difference of their held-out predictions peaked
+    (RESONANT_PEAK) at one of the family's lightly damped modes.  A frequency-selective
+    remainder — a mode in a cross-coupling path, beyond its static gain — is another effect, not the physical
+    candidate's approximation error (which is broadband: a delay's grows with frequency)."""
+    left = 1.0 - physical.extra["excess_shrink"]
+    if left <= 0 or generic.extra["excess_shrink"] - physical.extra["excess_shrink"] < MIN_SHARE * left:
+        return False
+    if stats.paired_z(generic.extra["r_after"], physical.extra["r_after"], psd) < TIE_Z:
+        return False
+    freqs = np.atleast_1d(np.asarray(generic.fit.params.get("freq", []), float)).reshape(-1)
+    zetas = np.atleast_1d(np.asarray(generic.fit.params.get("damping", []), float)).reshape(-1)
+    if freqs.size == 0 or zetas.size != freqs.size:
+        return False
+    d = np.asarray(physical.extra["r_after"]) - np.asarray(generic.extra["r_after"])
+    P = np.sum(np.abs(np.fft.rfft(d - d.mean(axis=0), axis=0)) ** 2, axis=1)
+    f = np.fft.rfftfreq(len(d), held.cfg.dt)
+    w = RESONANT_BAND
+    for fm, zm in zip(freqs, zetas):
+        if zm > RESONANT_ZMAX or fm * (1 + 3 * w) > f[-1]:
+            continue
+        band = (f >= fm * (1 - w)) & (f <= fm * (1 + w))
+        flanks = ((f >= fm * (1 - 3 * w)) & (f < fm * (1 - w))) | ((f > fm * (1 + w)) & (f <= fm * (1 + 3 * w)))
+        if band.any() and flanks.any() and float(np.mean(P[band])) >= RESONANT_PEAK * float(np.mean(P[flanks])):
+            return True
+    return False
 
 
 def _significant(s: Scored, zc: float) -> bool:
