@@ -141,6 +141,15 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
                     (stats.paired_z(rich.extra["r_after"], simple.extra["r_after"], psd) < TIE_Z
                      or rich.sse_after > (1 - RICHER_MIN_GAIN) * simple.sse_after):
                 scored[i], scored[j] = simple, rich
+    # amplitude dependence by physics: the linear mode family fits a nonlinear resonance with several linear modes
+    # about as well on held-out data, but the resonance refitted on the small- and on the large-motion half of TRAIN
+    # moves (fit_modes.mode_level_shift) — then the richer family is named, whatever the held-out tie says
+    mode = next((x for x in scored if x.fit.effect == "unmodelled_mode" and x.accepted), None)
+    rich_ad = next((x for x in scored if x.fit.effect == "amplitude_dependent_dynamics" and x.accepted), None)
+    if mode is not None and rich_ad is not None and scored.index(rich_ad) > scored.index(mode) and \
+            (rich_ad.fit.extra.get("level_shift") or {}).get("significant"):
+        scored.remove(rich_ad)
+        scored.insert(scored.index(mode), rich_ad)
     # parsimony: a generic filter family above an accepted physical candidate that leaves it < GENERIC_MIN_EXTRA
     # of the gap above the floor absorbs that candidate; it does not name a different effect.  Nor does it when it
     # does not beat the physical candidate significantly on the held-out run (paired z < TIE_Z): with fewer

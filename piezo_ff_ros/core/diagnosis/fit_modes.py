@@ -13,11 +13,12 @@ from scipy import optimize
 
 from .._jit import njit
 from ..models import effects as fx
-from .fit_common import FitContext, FitResult, _rms
+from . import stats
+from .fit_common import FitContext, FitResult, _rms, _stderr
 from .replay import Windows, residual
 
-__all__ = ["fit_unmodelled_mode", "fit_amplitude_dependent_dynamics", "MAX_MODES", "MODE_MIN_GAIN", "MODE_FMIN",
-           "MODE_ZMAX", "Mode"]
+__all__ = ["fit_unmodelled_mode", "fit_amplitude_dependent_dynamics", "mode_level_shift", "MAX_MODES",
+           "MODE_MIN_GAIN", "MODE_FMIN", "MODE_ZMAX", "Mode", "LEVEL_SHIFT_Z"]
 
 
 #: at most this many modes per fit, and the share of the current training residual a new mode must remove
@@ -343,8 +344,64 @@ def fit_amplitude_dependent_dynamics(ctx: FitContext) -> FitResult:
     params = {"freq": [m[0] for m in modes], "damping": [m[1] for m in modes], "gains": G.tolist(),
               "hp_gains": Hg.tolist(), "level_gains": Kl.tolist(), "level_hp_gains": Kh.tolist(),
               "cubic_gains": Kc.tolist(), "cubic_hp_gains": Hc.tolist(), "lp_gains": Lg.tolist()}
+    shift = mode_level_shift(ctx, modes[0])
+    note = f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}"
+    if shift is not None:
+        note += (f"; the {shift['freq_hz'][0]:.4g} Hz resonance on the small- / large-motion half of TRAIN: "
+                 f"{shift['freq_hz'][0]:.5g} / {shift['freq_hz'][1]:.5g} Hz, ζ {shift['damping'][0]:.3g} / "
+                 f"{shift['damping'][1]:.3g} (z = {shift['z_freq']:.3g}, {shift['z_damping']:.3g})")
     return FitResult("amplitude_dependent_dynamics", params,
                      {k: None for k in params},
                      [("amplitude_dependent_dynamics", params)], K * (2 + 2 * n * n + 4 * n + n * (n - 1)),
-                     _rms(res),
-                     note=f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}")
+                     _rms(res), note=note, extra={"level_shift": shift})
+
+
+#: the resonance's frequency or damping differs between the small- and large-motion halves of TRAIN beyond this z
+#: (two-sided, two parameters, family-wise α = stats.ALPHA)
+LEVEL_SHIFT_Z = stats.z_critical(4)
+
+
+def mode_level_shift(ctx: FitContext, mode: Mode) -> dict[str, object] | None:
+    """The resonance ``mode`` refitted (frequency, damping; every output's mode gains free) on the rows of TRAIN
+    where the motion is small and on those where it is large (below / above the median of the level
+    :meth:`~piezo_ff_ros.core.models.effects.AmplitudeDependentDynamics.level`, the largest over the axes), with
+    standard errors (:func:`~.fit_common._stderr`: inflated by the residual's correlation).
+
+    A linear resonance has the same frequency and damping at every amplitude (what the halves differ by is noise);
+    a hardening/softening spring or an amplitude-dependent damping moves them.  Returns the two fits, the z of their
+    log-frequency and log-damping differences and ``significant`` (either z > :data:`LEVEL_SHIFT_Z`); ``None`` when
+    it cannot be fitted."""
+    ms = _ModeSearch(ctx, "cross")
+    L = _level_design(ctx.y_base, ctx.dt, ctx.windows)[::ms.k].max(axis=1)
+    if len(L) != len(ms.r0) or not np.any(L > np.median(L)):
+        return None
+    halves = (L <= np.median(L), L > np.median(L))
+    f0, z0 = float(mode[0]), float(mode[1])
+    hi_f = min(2 * f0, 0.49 / ctx.dt)
+    fits = []
+    for rows in halves:
+        def resid(th: np.ndarray, rows: np.ndarray = rows) -> np.ndarray:
+            R = ms._design(math.exp(th[0]), math.exp(th[1]))
+            out = []
+            for i in range(ms.n):
+                X, t = R[i][rows], ms.r0[rows, i]
+                c = np.linalg.lstsq(X, t, rcond=None)[0]
+                out.append(t - X @ c)
+            return np.concatenate(out) / ms.unit
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                sol = optimize.least_squares(resid, [math.log(f0), math.log(min(max(z0, 2e-3), 0.45))],
+                                             diff_step=1e-3, max_nfev=20,
+                                             bounds=([math.log(0.5 * f0), math.log(1e-3)],
+                                                     [math.log(hi_f), math.log(MODE_ZMAX)]))
+            except (ValueError, np.linalg.LinAlgError):
+                return None
+        se = _stderr(sol.jac, sol.fun)
+        fits.append((sol.x, se))
+    (a, sa), (b, sb) = fits
+    z = np.abs(b - a) / np.maximum(np.hypot(sa, sb), 1e-300)
+    return {"freq_hz": [math.exp(a[0]), math.exp(b[0])], "damping": [math.exp(a[1]), math.exp(b[1])],
+            "z_freq": float(z[0]), "z_damping": float(z[1]), "z_critical": LEVEL_SHIFT_Z,
+            "significant": bool(np.max(z) > LEVEL_SHIFT_Z)}
