@@ -92,7 +92,10 @@ def _bp_hp_design(y: np.ndarray, spans: np.ndarray, k: int, freq: float, damping
 
 def _solve_normal(A: np.ndarray, B: np.ndarray, X_of: Callable[[], np.ndarray], T: np.ndarray) -> np.ndarray:
     """Solution of the normal equations ``A C = B`` (``A = XᵀX``, ``B = XᵀT``), column-scaled; when they are
-    ill-conditioned, the minimum-norm least-squares solution of ``X C ≈ T`` (``X_of()`` builds X)."""
+    ill-conditioned, their minimum-norm solution with the directions below 1e-12 of the largest singular value
+    dropped (≈ 1e-6 of X's: collinear regressors, e.g. the low-passes of two modes above the excited band, which are
+    both ≈ Ŷ), from the small scaled matrix — not a least-squares pass over every row of X (``X_of`` is kept for
+    the callers' signature)."""
     d = np.sqrt(np.maximum(np.diag(A), 1e-300))
     As = A / np.outer(d, d)
     try:
@@ -100,10 +103,7 @@ def _solve_normal(A: np.ndarray, B: np.ndarray, X_of: Callable[[], np.ndarray], 
         if not np.all(np.isfinite(C)) or np.linalg.cond(As) > 1e10:
             raise np.linalg.LinAlgError
     except np.linalg.LinAlgError:
-        X = X_of()
-        dx = np.sqrt(np.einsum("ij,ij->j", X, X))
-        dx[dx == 0] = 1.0
-        C_ls: np.ndarray = np.linalg.lstsq(X / dx, T, rcond=None)[0] / dx[:, None]
+        C_ls: np.ndarray = np.linalg.lstsq(As, B / d[:, None], rcond=1e-12)[0] / d[:, None]
         return C_ls
     out: np.ndarray = C / d[:, None]
     return out
