@@ -194,6 +194,37 @@ class _ModeSearch:
                                             LP[:, others[i]]]))
         return out
 
+    def _grid_gain(self, f: float, z: float, res: np.ndarray, g: int) -> float:
+        """Energy of ``res`` (every g-th row) the mode (f, z) would explain, summed over the outputs.  For the cross
+        kind one Gram matrix of ``[BP | HP | LP]`` of every axis serves every output (each output's design is a
+        subset of its columns): the coarse grid is the search's bulk."""
+        if self.kind != "cross" or (float(f), float(z)) in self._regs_cache:
+            R = self._grid_regs(f, z)
+            return sum(_explained(R[i][::g], res[::g, i:i + 1]) * g for i in range(self.n))
+        n = self.n
+        BH = _bp_hp_design(self.y_base_c, self.spans, self.k * g, f, z, self.ctx.dt)
+        BH -= np.full(len(BH), 1.0 / len(BH)) @ BH
+        rows = min(len(BH), len(res[::g]))
+        X = np.column_stack([BH[:rows], self.yb[::g][:rows] - BH[:rows, :n] - BH[:rows, n:]])
+        T = res[::g][:rows]
+        A = X.T @ X
+        Bm = X.T @ T
+        gain = 0.0
+        for i in range(n):
+            cols = list(range(2 * n)) + [2 * n + j for j in range(n) if j != i]
+            Ai = A[np.ix_(cols, cols)]
+            bi = Bm[cols, i]
+            d = np.sqrt(np.maximum(np.diag(Ai), 1e-300))
+            As, bs = Ai / np.outer(d, d), bi / d
+            try:
+                c = np.linalg.solve(As, bs)
+                if not np.all(np.isfinite(c)) or np.linalg.cond(As) > 1e10:
+                    raise np.linalg.LinAlgError
+            except np.linalg.LinAlgError:
+                c = np.linalg.lstsq(As, bs, rcond=1e-10)[0]
+            gain += float(bs @ c) * g
+        return gain
+
     def _gram(self, a: Mode, b: Mode, i: int) -> np.ndarray:
         """``X_aᵀ X_b`` of output i's designs of pole pairs a and b (cached: the earlier modes recur)."""
         key = (a, b, i)
@@ -254,10 +285,7 @@ class _ModeSearch:
             best: tuple[float, Mode | None] = (0.0, None)
             for f in freqs:
                 for z in (0.01, 0.05, 0.2):
-                    R = self._grid_regs(f, z)
-                    gain = 0.0
-                    for i in range(self.n):
-                        gain += _explained(R[i][::g], res[::g, i:i + 1]) * g
+                    gain = self._grid_gain(f, z, res, g)
                     if gain > best[0]:
                         best = (gain, (f, z))
             if best[1] is None or best[0] < MODE_MIN_GAIN * sse:
