@@ -131,3 +131,28 @@ def test_a_stiffening_mode_is_amplitude_dependent_dynamics_not_a_linear_mode(cfg
     res = diagnose(cfg, train, test, DiagnosisOptions(candidates=("unmodelled_mode", "amplitude_dependent_dynamics",
                                                                   "gain_mismatch"), max_stack=1))
     assert res["verdict"] == "amplitude_dependent_dynamics", (_ranking(res), res["confidence_reason"])
+
+
+def test_one_amplitude_leaves_a_mode_ambiguous_with_amplitude_dependence(cfg):
+    """A linear 250 Hz mode seen only through constant-amplitude multisines: a resonance that moved with amplitude
+    could not be seen in these runs, so the mode verdict is ambiguous with amplitude_dependent_dynamics and an
+    experiment is proposed."""
+    plant = build_plant(cfg, [("unmodelled_mode", {"freq": 250.0, "damping": 0.03, "gains": [0.5, 0.5]})])
+    runs = []
+    for j in range(2):
+        rng = np.random.default_rng(20 + j)
+        t = np.arange(int(DUR * FS)) / FS
+        f = np.linspace(2.0, 400.0, 60)
+        u = np.stack([np.sum(np.sin(2 * np.pi * f[:, None] * t + rng.uniform(0, 2 * np.pi, (60, 1))), axis=0)
+                      for _ in range(2)], axis=1)
+        u *= 60.0 / np.max(np.abs(u))
+        plant.reset()
+        y = plant.process(u) + 30e-9 * rng.standard_normal(u.shape)
+        runs.append(RunData(t, u, y, ("x", "y")))
+    res = diagnose(cfg, runs[0], runs[1], DiagnosisOptions(candidates=("unmodelled_mode", "amplitude_dependent_dynamics",
+                                                                       "gain_mismatch"), max_stack=1))
+    assert res["verdict"] == "unmodelled_mode", (_ranking(res), res["confidence_reason"])
+    assert res["confidence"] == "low"
+    disc = res["discrimination"]
+    assert "amplitude_dependent_dynamics" in disc["ambiguous_between"] and "one_amplitude" in disc
+    assert "trajectory" in disc["experiment"]

@@ -380,12 +380,17 @@ def _choose(s: _Setup, rep: _Replay, j: _Judged, log: Callable[[str], None]) -> 
     confound = _rate_amplitude_confounded(s, verdict, j)
     if confound is not None:
         ties = ties + [confound[0]]
+    one_level = _one_amplitude(verdict, j)
+    if one_level is not None and one_level[0] not in ties:
+        ties = ties + [one_level[0]]
     if not ties:
         return _Choice(verdict, runner, tie_z, ties, bool(significant), None)
     discrimination: dict[str, Any] = {"ambiguous_between": [verdict.fit.effect] + [x.fit.effect for x in ties],
                                       "paired_z": {x.fit.effect: x.extra.get("paired_z") for x in ties}}
     if confound is not None:
         discrimination["confounded"] = confound[1]
+    if one_level is not None:
+        discrimination["one_amplitude"] = one_level[1]
     if s.discriminate is not None:
         pick = disc.decide_on_run(s.cfg, [verdict] + ties, s.discriminate)
         discrimination["decided_on_run"] = pick
@@ -457,6 +462,23 @@ def _rate_amplitude_confounded(s: _Setup, verdict: Scored, j: _Judged) -> tuple[
                    "why": "the voltage's rate and amplitude vary together in these runs (log-correlation "
                           f"{rho:.3g} ≥ {CONFOUND_RHO:g}): a rate-dependent loop and an amplitude-dependent one "
                           "predict the same here; the proposed experiment varies them apart"}
+
+
+def _one_amplitude(verdict: Scored, j: _Judged) -> tuple[Scored, dict[str, Any]] | None:
+    """A linear-mode verdict whose amplitude-dependent rival is significant too, on runs whose motion has one
+    amplitude (:func:`~.fit_modes.mode_level_shift`: ``one_level``): a resonance that moves with amplitude cannot be
+    seen here, so the two are a tie to discriminate (``(rival, report)``); else None."""
+    if verdict.fit.effect != "unmodelled_mode":
+        return None
+    rich = next((x for x in j.scored if x.fit.effect == "amplitude_dependent_dynamics"), None)
+    shift = (rich.fit.extra.get("level_shift") or {}) if rich is not None else {}
+    if rich is None or not shift.get("one_level") or not _significant(rich, j.zc):
+        return None
+    rich.extra.setdefault("paired_z", stats.paired_z(verdict.extra["r_after"], rich.extra["r_after"], j.psd))
+    return rich, {"between": [verdict.fit.effect, rich.fit.effect], "level_ratio": shift.get("level_ratio"),
+                  "why": f"the large-motion half of TRAIN moves only {shift.get('level_ratio', 0):.3g}× the "
+                         "small-motion half: a resonance that shifts with amplitude cannot be told from a linear "
+                         "one on these runs; the proposed experiment varies the amplitude"}
 
 
 def _ties(verdict: Scored, j: _Judged) -> tuple[Scored | None, float | None, list[Scored]]:

@@ -18,7 +18,7 @@ from .fit_common import FitContext, FitResult, _rms, _stderr
 from .replay import Windows, residual
 
 __all__ = ["fit_unmodelled_mode", "fit_amplitude_dependent_dynamics", "mode_level_shift", "MAX_MODES",
-           "MODE_MIN_GAIN", "MODE_FMIN", "MODE_ZMAX", "Mode", "LEVEL_SHIFT_Z"]
+           "MODE_MIN_GAIN", "MODE_FMIN", "MODE_ZMAX", "Mode", "LEVEL_SHIFT_Z", "LEVEL_RATIO_MIN"]
 
 
 #: at most this many modes per fit, and the share of the current training residual a new mode must remove
@@ -387,6 +387,9 @@ def fit_amplitude_dependent_dynamics(ctx: FitContext) -> FitResult:
 #: the resonance's frequency or damping differs between the small- and large-motion halves of TRAIN beyond this z
 #: (two-sided, two parameters, family-wise α = stats.ALPHA)
 LEVEL_SHIFT_Z = stats.z_critical(4)
+#: the large-motion half of TRAIN moves less than this many times more than the small-motion half (medians of the
+#: level): the run has one amplitude, and the level test cannot see a shift that grows with it
+LEVEL_RATIO_MIN = 1.5
 
 
 def mode_level_shift(ctx: FitContext, mode: Mode) -> dict[str, object] | None:
@@ -398,7 +401,8 @@ def mode_level_shift(ctx: FitContext, mode: Mode) -> dict[str, object] | None:
     A linear resonance has the same frequency and damping at every amplitude (what the halves differ by is noise);
     a hardening/softening spring or an amplitude-dependent damping moves them.  Returns the two fits, the z of their
     log-frequency and log-damping differences and ``significant`` (either z > :data:`LEVEL_SHIFT_Z`); ``None`` when
-    it cannot be fitted."""
+    it cannot be fitted.  ``level_ratio``: how many times more the large-motion half moves (medians of the level);
+    ``one_level`` below :data:`LEVEL_RATIO_MIN` (the test then has no power)."""
     ms = _ModeSearch(ctx, "cross")
     L = _level_design(ctx.y_base, ctx.dt, ctx.windows)[::ms.k].max(axis=1)
     if len(L) != len(ms.r0) or not np.any(L > np.median(L)):
@@ -430,6 +434,8 @@ def mode_level_shift(ctx: FitContext, mode: Mode) -> dict[str, object] | None:
         fits.append((sol.x, se))
     (a, sa), (b, sb) = fits
     z = np.abs(b - a) / np.maximum(np.hypot(sa, sb), 1e-300)
+    ratio = float(np.median(L[halves[1]]) / max(float(np.median(L[halves[0]])), 1e-300))
     return {"freq_hz": [math.exp(a[0]), math.exp(b[0])], "damping": [math.exp(a[1]), math.exp(b[1])],
             "z_freq": float(z[0]), "z_damping": float(z[1]), "z_critical": LEVEL_SHIFT_Z,
-            "significant": bool(np.max(z) > LEVEL_SHIFT_Z)}
+            "significant": bool(np.max(z) > LEVEL_SHIFT_Z), "level_ratio": ratio,
+            "one_level": bool(ratio < LEVEL_RATIO_MIN)}
