@@ -155,6 +155,7 @@ class _ModeSearch:
                      if kind == "level" else None)
         self._gram_cache: dict[tuple[Mode, Mode, int], np.ndarray] = {}
         self._xtr_cache: dict[tuple[Mode, int], np.ndarray] = {}
+        self._yy: tuple[int, np.ndarray] | None = None  # Ŷᵀ Ŷ on every g-th regression row (the grid's)
 
     def _grid_regs(self, f: float, z: float) -> list[np.ndarray]:
         """:meth:`regs` without filling the cache (the coarse grid visits each pole pair once per mode)."""
@@ -204,11 +205,23 @@ class _ModeSearch:
         n = self.n
         BH = _bp_hp_design(self.y_base_c, self.spans, self.k * g, f, z, self.ctx.dt)
         BH -= np.full(len(BH), 1.0 / len(BH)) @ BH
-        rows = min(len(BH), len(res[::g]))
-        X = np.column_stack([BH[:rows], self.yb[::g][:rows] - BH[:rows, :n] - BH[:rows, n:]])
-        T = res[::g][:rows]
-        A = X.T @ X
-        Bm = X.T @ T
+        yb, T = self.yb[::g], res[::g]
+        if len(BH) != len(yb) or len(BH) != len(T):  # pragma: no cover - the row counts agree by construction
+            rows = min(len(BH), len(yb), len(T))
+            BH, yb, T = BH[:rows], yb[:rows], T[:rows]
+        # [BH | LP] = [BH | Ŷ]·M with LP_j = Ŷ_j − BP_j − HP_j: the Gram matrix from the small products of BH and Ŷ
+        # (Ŷ's own ones computed once per row thinning) instead of building the 3n-column design
+        if self._yy is None or self._yy[0] != g:
+            self._yy = (g, yb.T @ yb)
+        YY, YT = self._yy[1], yb.T @ T
+        BB, BY, BT = BH.T @ BH, BH.T @ yb, BH.T @ T
+        Z = np.block([[BB, BY], [BY.T, YY]])
+        M = np.eye(3 * n)
+        for j in range(n):
+            M[j, 2 * n + j] = -1.0
+            M[n + j, 2 * n + j] = -1.0
+        A = M.T @ Z @ M
+        Bm = M.T @ np.vstack([BT, YT])
         gain = 0.0
         for i in range(n):
             cols = list(range(2 * n)) + [2 * n + j for j in range(n) if j != i]
