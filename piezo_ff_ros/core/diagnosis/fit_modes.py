@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 from scipy import optimize
@@ -405,7 +405,7 @@ LEVEL_SHIFT_Z = stats.z_critical(4)
 LEVEL_RATIO_MIN = 1.5
 
 
-def mode_level_shift(ctx: FitContext, mode: Mode) -> dict[str, object] | None:
+def mode_level_shift(ctx: FitContext, mode: Mode) -> dict[str, Any] | None:
     """The resonance ``mode`` refitted (frequency, damping; every output's mode gains free) on the rows of TRAIN
     where the motion is small and on those where it is large (below / above the median of the level
     :meth:`~piezo_ff_ros.core.models.effects.AmplitudeDependentDynamics.level`, the largest over the axes), with
