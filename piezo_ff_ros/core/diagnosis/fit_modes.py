@@ -403,6 +403,10 @@ LEVEL_SHIFT_Z = stats.z_critical(4)
 #: the large-motion half of TRAIN moves less than this many times more than the small-motion half (medians of the
 #: level): the run has one amplitude, and the level test cannot see a shift that grows with it
 LEVEL_RATIO_MIN = 1.5
+#: the level test is for a structural resonance: lightly damped (ζ ≤ LEVEL_SHIFT_ZMAX, fitted on the whole of TRAIN and
+#: on each half); broad "modes" are the family imitating a delay or a roll-off, whose fitted shape moves with
+#: whatever the halves' spectra differ by
+LEVEL_SHIFT_ZMAX = 0.1
 
 
 def mode_level_shift(ctx: FitContext, mode: Mode) -> dict[str, Any] | None:
@@ -411,11 +415,14 @@ def mode_level_shift(ctx: FitContext, mode: Mode) -> dict[str, Any] | None:
     :meth:`~piezo_ff_ros.core.models.effects.AmplitudeDependentDynamics.level`, the largest over the axes), with
     standard errors (:func:`~.fit_common._stderr`: inflated by the residual's correlation).
 
-    A linear resonance has the same frequency and damping at every amplitude (what the halves differ by is noise);
+    Only for a lightly damped resonance (:data:`LEVEL_SHIFT_ZMAX`, on the whole run and on both halves).  A linear
+    resonance has the same frequency and damping at every amplitude (what the halves differ by is noise);
     a hardening/softening spring or an amplitude-dependent damping moves them.  Returns the two fits, the z of their
     log-frequency and log-damping differences and ``significant`` (either z > :data:`LEVEL_SHIFT_Z`); ``None`` when
     it cannot be fitted.  ``level_ratio``: how many times more the large-motion half moves (medians of the level);
     ``one_level`` below :data:`LEVEL_RATIO_MIN` (the test then has no power)."""
+    if not float(mode[1]) <= LEVEL_SHIFT_ZMAX:
+        return None
     ms = _ModeSearch(ctx, "cross")
     L = _level_design(ctx.y_base, ctx.dt, ctx.windows)[::ms.k].max(axis=1)
     if len(L) != len(ms.r0) or not np.any(L > np.median(L)):
@@ -450,5 +457,6 @@ def mode_level_shift(ctx: FitContext, mode: Mode) -> dict[str, Any] | None:
     ratio = float(np.median(L[halves[1]]) / max(float(np.median(L[halves[0]])), 1e-300))
     return {"freq_hz": [math.exp(a[0]), math.exp(b[0])], "damping": [math.exp(a[1]), math.exp(b[1])],
             "z_freq": float(z[0]), "z_damping": float(z[1]), "z_critical": LEVEL_SHIFT_Z,
-            "significant": bool(np.max(z) > LEVEL_SHIFT_Z), "level_ratio": ratio,
+            "significant": bool(np.max(z) > LEVEL_SHIFT_Z and max(math.exp(a[1]), math.exp(b[1])) <= LEVEL_SHIFT_ZMAX),
+            "level_ratio": ratio,
             "one_level": bool(ratio < LEVEL_RATIO_MIN)}
