@@ -141,6 +141,15 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
                     (stats.paired_z(rich.extra["r_after"], simple.extra["r_after"], psd) < TIE_Z
                      or rich.sse_after > (1 - RICHER_MIN_GAIN) * simple.sse_after):
                 scored[i], scored[j] = simple, rich
+    # amplitude dependence by physics: the linear mode family fits a nonlinear resonance with several linear modes
+    # about as well on held-out data, but the resonance refitted on the small- and on the large-motion half of TRAIN
+    # moves (fit_modes.mode_level_shift) — then the richer family is named, whatever the held-out tie says
+    mode = next((x for x in scored if x.fit.effect == "unmodelled_mode" and x.accepted), None)
+    rich_ad = next((x for x in scored if x.fit.effect == "amplitude_dependent_dynamics" and x.accepted), None)
+    if mode is not None and rich_ad is not None and scored.index(rich_ad) > scored.index(mode) and \
+            (rich_ad.fit.extra.get("level_shift") or {}).get("significant"):
+        scored.remove(rich_ad)
+        scored.insert(scored.index(mode), rich_ad)
     # parsimony: a generic filter family above an accepted physical candidate that leaves it < GENERIC_MIN_EXTRA
     # of the gap above the floor absorbs that candidate; it does not name a different effect.  Nor does it when it
     # does not beat the physical candidate significantly on the held-out run (paired z < TIE_Z): with fewer
@@ -153,7 +162,8 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
             if s.accepted and s.fit.effect not in GENERIC and \
                     (top.extra["excess_shrink"] - s.extra["excess_shrink"] < GENERIC_MIN_EXTRA
                      or (s.fit.n_params < top.fit.n_params
-                         and stats.paired_z(top.extra["r_after"], s.extra["r_after"], psd) < TIE_Z)):
+                         and stats.paired_z(top.extra["r_after"], s.extra["r_after"], psd) < TIE_Z)) and \
+                    not _resonant_remainder(top, s, held, psd):
                 scored.remove(s)
                 scored.insert(scored.index(top), s)
                 for g in scored:
@@ -162,6 +172,46 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
                         g.extra["absorb_paired_z"] = stats.paired_z(g.extra["r_after"], s.extra["r_after"], psd)
                 break
     return psd
+
+
+#: what a generic mode family takes beyond a physical candidate is a resonance (not that candidate's form error)
+#: when its energy density within f·(1 ± RESONANT_BAND) of one of the family's lightly damped modes (ζ ≤
+#: RESONANT_ZMAX) is at least RESONANT_PEAK times that in the flanks f·(1 ± 3·RESONANT_BAND) around it.  A
+#: resonance of ζ = RESONANT_ZMAX under a flat excitation has a ratio ≈ 4 there (|H|² averaged over the band and
+#: over the flanks), a lighter one more; a smooth form error (a delay's, a roll-off's) ≈ 1
+RESONANT_BAND = 0.1
+RESONANT_ZMAX = 0.1
+RESONANT_PEAK = 3.0
+
+
+def _resonant_remainder(generic: Scored, physical: Scored, held: _Held, psd: "stats.NoisePSD") -> bool:
+    """Whether the generic mode family beats the physical candidate by a resonance the physical form cannot have:
+    significantly on the held-out run (paired z ≥ TIE_Z), taking at least half (MIN_SHARE) of what the physical
+    candidate leaves above the white-noise floor, and with the difference of their held-out predictions peaked
+    (RESONANT_PEAK) at one of the family's lightly damped modes.  A frequency-selective
+    remainder — a mode in a cross-coupling path, beyond its static gain — is another effect, not the physical
+    candidate's approximation error (which is broadband: a delay's grows with frequency)."""
+    left = 1.0 - physical.extra["excess_shrink"]
+    if left <= 0 or generic.extra["excess_shrink"] - physical.extra["excess_shrink"] < MIN_SHARE * left:
+        return False
+    if stats.paired_z(generic.extra["r_after"], physical.extra["r_after"], psd) < TIE_Z:
+        return False
+    freqs = np.atleast_1d(np.asarray(generic.fit.params.get("freq", []), float)).reshape(-1)
+    zetas = np.atleast_1d(np.asarray(generic.fit.params.get("damping", []), float)).reshape(-1)
+    if freqs.size == 0 or zetas.size != freqs.size:
+        return False
+    d = np.asarray(physical.extra["r_after"]) - np.asarray(generic.extra["r_after"])
+    P = np.sum(np.abs(np.fft.rfft(d - d.mean(axis=0), axis=0)) ** 2, axis=1)
+    f = np.fft.rfftfreq(len(d), held.cfg.dt)
+    w = RESONANT_BAND
+    for fm, zm in zip(freqs, zetas):
+        if zm > RESONANT_ZMAX or fm * (1 + 3 * w) > f[-1]:
+            continue
+        band = (f >= fm * (1 - w)) & (f <= fm * (1 + w))
+        flanks = ((f >= fm * (1 - 3 * w)) & (f < fm * (1 - w))) | ((f > fm * (1 + w)) & (f <= fm * (1 + 3 * w)))
+        if band.any() and flanks.any() and float(np.mean(P[band])) >= RESONANT_PEAK * float(np.mean(P[flanks])):
+            return True
+    return False
 
 
 def _significant(s: Scored, zc: float) -> bool:
@@ -330,12 +380,17 @@ def _choose(s: _Setup, rep: _Replay, j: _Judged, log: Callable[[str], None]) -> 
     confound = _rate_amplitude_confounded(s, verdict, j)
     if confound is not None:
         ties = ties + [confound[0]]
+    one_level = _one_amplitude(verdict, j)
+    if one_level is not None and one_level[0] not in ties:
+        ties = ties + [one_level[0]]
     if not ties:
         return _Choice(verdict, runner, tie_z, ties, bool(significant), None)
     discrimination: dict[str, Any] = {"ambiguous_between": [verdict.fit.effect] + [x.fit.effect for x in ties],
                                       "paired_z": {x.fit.effect: x.extra.get("paired_z") for x in ties}}
     if confound is not None:
         discrimination["confounded"] = confound[1]
+    if one_level is not None:
+        discrimination["one_amplitude"] = one_level[1]
     if s.discriminate is not None:
         pick = disc.decide_on_run(s.cfg, [verdict] + ties, s.discriminate)
         discrimination["decided_on_run"] = pick
@@ -407,6 +462,23 @@ def _rate_amplitude_confounded(s: _Setup, verdict: Scored, j: _Judged) -> tuple[
                    "why": "the voltage's rate and amplitude vary together in these runs (log-correlation "
                           f"{rho:.3g} ≥ {CONFOUND_RHO:g}): a rate-dependent loop and an amplitude-dependent one "
                           "predict the same here; the proposed experiment varies them apart"}
+
+
+def _one_amplitude(verdict: Scored, j: _Judged) -> tuple[Scored, dict[str, Any]] | None:
+    """A linear-mode verdict whose amplitude-dependent rival is significant too, on runs whose motion has one
+    amplitude (:func:`~.fit_modes.mode_level_shift`: ``one_level``): a resonance that moves with amplitude cannot be
+    seen here, so the two are a tie to discriminate (``(rival, report)``); else None."""
+    if verdict.fit.effect != "unmodelled_mode":
+        return None
+    rich = next((x for x in j.scored if x.fit.effect == "amplitude_dependent_dynamics"), None)
+    shift = (rich.fit.extra.get("level_shift") or {}) if rich is not None else {}
+    if rich is None or not shift.get("one_level") or not _significant(rich, j.zc):
+        return None
+    rich.extra.setdefault("paired_z", stats.paired_z(verdict.extra["r_after"], rich.extra["r_after"], j.psd))
+    return rich, {"between": [verdict.fit.effect, rich.fit.effect], "level_ratio": shift.get("level_ratio"),
+                  "why": f"the large-motion half of TRAIN moves only {shift.get('level_ratio', 0):.3g}× the "
+                         "small-motion half: a resonance that shifts with amplitude cannot be told from a linear "
+                         "one on these runs; the proposed experiment varies the amplitude"}
 
 
 def _ties(verdict: Scored, j: _Judged) -> tuple[Scored | None, float | None, list[Scored]]:

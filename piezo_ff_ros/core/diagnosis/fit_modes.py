@@ -6,18 +6,19 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 from scipy import optimize
 
 from .._jit import njit
 from ..models import effects as fx
-from .fit_common import FitContext, FitResult, _rms
+from . import stats
+from .fit_common import FitContext, FitResult, _rms, _stderr
 from .replay import Windows, residual
 
-__all__ = ["fit_unmodelled_mode", "fit_amplitude_dependent_dynamics", "MAX_MODES", "MODE_MIN_GAIN", "MODE_FMIN",
-           "MODE_ZMAX", "Mode"]
+__all__ = ["fit_unmodelled_mode", "fit_amplitude_dependent_dynamics", "mode_level_shift", "MAX_MODES",
+           "MODE_MIN_GAIN", "MODE_FMIN", "MODE_ZMAX", "Mode", "LEVEL_SHIFT_Z", "LEVEL_RATIO_MIN"]
 
 
 #: at most this many modes per fit, and the share of the current training residual a new mode must remove
@@ -91,7 +92,10 @@ def _bp_hp_design(y: np.ndarray, spans: np.ndarray, k: int, freq: float, damping
 
 def _solve_normal(A: np.ndarray, B: np.ndarray, X_of: Callable[[], np.ndarray], T: np.ndarray) -> np.ndarray:
     """Solution of the normal equations ``A C = B`` (``A = XᵀX``, ``B = XᵀT``), column-scaled; when they are
-    ill-conditioned, the minimum-norm least-squares solution of ``X C ≈ T`` (``X_of()`` builds X)."""
+    ill-conditioned, their minimum-norm solution with the directions below 1e-12 of the largest singular value
+    dropped (≈ 1e-6 of X's: collinear regressors, e.g. the low-passes of two modes above the excited band, which are
+    both ≈ Ŷ), from the small scaled matrix — not a least-squares pass over every row of X (``X_of`` is kept for
+    the callers' signature)."""
     d = np.sqrt(np.maximum(np.diag(A), 1e-300))
     As = A / np.outer(d, d)
     try:
@@ -99,10 +103,7 @@ def _solve_normal(A: np.ndarray, B: np.ndarray, X_of: Callable[[], np.ndarray], 
         if not np.all(np.isfinite(C)) or np.linalg.cond(As) > 1e10:
             raise np.linalg.LinAlgError
     except np.linalg.LinAlgError:
-        X = X_of()
-        dx = np.sqrt(np.einsum("ij,ij->j", X, X))
-        dx[dx == 0] = 1.0
-        C_ls: np.ndarray = np.linalg.lstsq(X / dx, T, rcond=None)[0] / dx[:, None]
+        C_ls: np.ndarray = np.linalg.lstsq(As, B / d[:, None], rcond=1e-12)[0] / d[:, None]
         return C_ls
     out: np.ndarray = C / d[:, None]
     return out
@@ -131,8 +132,10 @@ Mode = tuple[float, float]
 
 class _ModeSearch:
     """Greedy search of resonances in the training residual: each mode adds band-pass regressors of the base
-    output; ``kind='cross'``: output i regresses on BP(Ŷ_j) of every axis j (cross-coupled gains);
-    ``kind='level'``: on BP(Ŷ_i) and A_i(t)·BP(Ŷ_i) (amplitude-dependent)."""
+    output; ``kind='cross'``: output i regresses on BP(Ŷ_j) and HP(Ŷ_j) of every axis j (cross-coupled gains) and on
+    the low-pass LP(Ŷ_j) of every other axis j ≠ i (a mode in an off-diagonal path has a static gain: without it a
+    static cross gain takes that path's low-frequency part and the mode's peak is left over); ``kind='level'``: the
+    same plus A_i(t)·BP(Ŷ_i), A_i(t)·HP(Ŷ_i) and the cubic terms (amplitude-dependent)."""
 
     def __init__(self, ctx: FitContext, kind: str):
         self.ctx, self.kind = ctx, kind
@@ -141,6 +144,8 @@ class _ModeSearch:
         self.k = max(1, -(-len(r0) // 60_000))  # rows kept in the regressions (the filters run on every sample)
         self.r0 = r0[::self.k] - r0[::self.k].mean(axis=0)
         self.n = ctx.cfg.n_axes
+        yb = (ctx.y_base if win.is_whole else win.take(ctx.y_base))[::self.k]
+        self.yb = yb - yb.mean(axis=0)  # the base output on the regression rows (LP = Ŷ − BP − HP)
         self.lev: np.ndarray | None = _level_design(ctx.y_base, ctx.dt, win)[::self.k] if kind == "level" else None
         self.unit = max(_rms(self.r0), 1e-15)
         self._regs_cache: dict[tuple[float, float], list[np.ndarray]] = {}
@@ -150,6 +155,7 @@ class _ModeSearch:
                      if kind == "level" else None)
         self._gram_cache: dict[tuple[Mode, Mode, int], np.ndarray] = {}
         self._xtr_cache: dict[tuple[Mode, int], np.ndarray] = {}
+        self._yy: tuple[int, np.ndarray] | None = None  # Ŷᵀ Ŷ on every g-th regression row (the grid's)
 
     def _grid_regs(self, f: float, z: float) -> list[np.ndarray]:
         """:meth:`regs` without filling the cache (the coarse grid visits each pole pair once per mode)."""
@@ -173,8 +179,10 @@ class _ModeSearch:
         BH = _bp_hp_design(self.y_base_c, self.spans, self.k, f, z, self.ctx.dt)
         BH -= np.full(len(BH), 1.0 / len(BH)) @ BH  # column means (a product: faster than an axis-0 mean)
         B, Hp = BH[:, :self.n], BH[:, self.n:]
+        LP = self.yb - B - Hp
+        others = [[j for j in range(self.n) if j != i] for i in range(self.n)]
         if self.kind == "cross":
-            out = [BH] * self.n
+            out = [np.column_stack([BH, LP[:, others[i]]]) for i in range(self.n)]
         else:
             assert self.cube is not None and self.lev is not None   # kind "level"
             out = []
@@ -183,12 +191,56 @@ class _ModeSearch:
             for i in range(self.n):  # the cross-coupled mode, its level-modulated and its cubic direct terms
                 LB = self.lev[:, i] * B[:, i]
                 LH = self.lev[:, i] * Hp[:, i]
-                out.append(np.column_stack([B, Hp, LB - LB.mean(), LH - LH.mean(), CH[:, i], CH[:, self.n + i]]))
+                out.append(np.column_stack([B, Hp, LB - LB.mean(), LH - LH.mean(), CH[:, i], CH[:, self.n + i],
+                                            LP[:, others[i]]]))
         return out
+
+    def _grid_gain(self, f: float, z: float, res: np.ndarray, g: int) -> float:
+        """Energy of ``res`` (every g-th row) the mode (f, z) would explain, summed over the outputs.  For the cross
+        kind one Gram matrix of ``[BP | HP | LP]`` of every axis serves every output (each output's design is a
+        subset of its columns): the coarse grid is the search's bulk."""
+        if self.kind != "cross" or (float(f), float(z)) in self._regs_cache:
+            R = self._grid_regs(f, z)
+            return sum(_explained(R[i][::g], res[::g, i:i + 1]) * g for i in range(self.n))
+        n = self.n
+        BH = _bp_hp_design(self.y_base_c, self.spans, self.k * g, f, z, self.ctx.dt)
+        BH -= np.full(len(BH), 1.0 / len(BH)) @ BH
+        yb, T = self.yb[::g], res[::g]
+        if len(BH) != len(yb) or len(BH) != len(T):  # pragma: no cover - the row counts agree by construction
+            rows = min(len(BH), len(yb), len(T))
+            BH, yb, T = BH[:rows], yb[:rows], T[:rows]
+        # [BH | LP] = [BH | Ŷ]·M with LP_j = Ŷ_j − BP_j − HP_j: the Gram matrix from the small products of BH and Ŷ
+        # (Ŷ's own ones computed once per row thinning) instead of building the 3n-column design
+        if self._yy is None or self._yy[0] != g:
+            self._yy = (g, yb.T @ yb)
+        YY, YT = self._yy[1], yb.T @ T
+        BB, BY, BT = BH.T @ BH, BH.T @ yb, BH.T @ T
+        Z = np.block([[BB, BY], [BY.T, YY]])
+        M = np.eye(3 * n)
+        for j in range(n):
+            M[j, 2 * n + j] = -1.0
+            M[n + j, 2 * n + j] = -1.0
+        A = M.T @ Z @ M
+        Bm = M.T @ np.vstack([BT, YT])
+        gain = 0.0
+        for i in range(n):
+            cols = list(range(2 * n)) + [2 * n + j for j in range(n) if j != i]
+            Ai = A[np.ix_(cols, cols)]
+            bi = Bm[cols, i]
+            d = np.sqrt(np.maximum(np.diag(Ai), 1e-300))
+            As, bs = Ai / np.outer(d, d), bi / d
+            try:
+                c = np.linalg.solve(As, bs)
+                if not np.all(np.isfinite(c)) or np.linalg.cond(As) > 1e10:
+                    raise np.linalg.LinAlgError
+            except np.linalg.LinAlgError:
+                c = np.linalg.lstsq(As, bs, rcond=1e-10)[0]
+            gain += float(bs @ c) * g
+        return gain
 
     def _gram(self, a: Mode, b: Mode, i: int) -> np.ndarray:
         """``X_aᵀ X_b`` of output i's designs of pole pairs a and b (cached: the earlier modes recur)."""
-        key = (a, b, i if self.kind != "cross" else 0)
+        key = (a, b, i)
         G = self._gram_cache.get(key)
         if G is None:
             G = self.regs(*a)[i].T @ self.regs(*b)[i]
@@ -207,10 +259,9 @@ class _ModeSearch:
         R = [self.regs(*k) for k in keys]
         res = np.empty_like(self.r0)
         coefs: list[np.ndarray] = []
-        outs = [0] if self.kind == "cross" else range(self.n)
-        for i in outs:
+        for i in range(self.n):
             A = np.block([[self._gram(a, b, i) for b in keys] for a in keys])
-            cols = slice(None) if self.kind == "cross" else slice(i, i + 1)
+            cols = slice(i, i + 1)
             Bv = np.vstack([self._xtr(k, i) for k in keys])[:, cols]
             C = _solve_normal(A, Bv, lambda: np.hstack([Ri[i] for Ri in R]), self.r0[:, cols])
             fit = np.zeros((len(self.r0), C.shape[1]))
@@ -219,17 +270,13 @@ class _ModeSearch:
                 p = Ri[i].shape[1]
                 fit += Ri[i] @ C[o:o + p]
                 o += p
-            if self.kind == "cross":
-                res[:] = self.r0 - fit
-                coefs = [C[:, j] for j in range(self.n)]
-            else:
-                res[:, i] = self.r0[:, i] - fit[:, 0]
-                coefs.append(C[:, 0])
+            res[:, i] = self.r0[:, i] - fit[:, 0]
+            coefs.append(C[:, 0])
         return coefs, res
 
     def _xtr(self, key: Mode, i: int) -> np.ndarray:
         """``X_keyᵀ r0`` (all outputs' columns) of output i's design (cached)."""
-        ck = (key, i if self.kind != "cross" else 0)
+        ck = (key, i)
         v = self._xtr_cache.get(ck)
         if v is None:
             v = self.regs(*key)[i].T @ self.r0
@@ -251,13 +298,7 @@ class _ModeSearch:
             best: tuple[float, Mode | None] = (0.0, None)
             for f in freqs:
                 for z in (0.01, 0.05, 0.2):
-                    R = self._grid_regs(f, z)
-                    gain = 0.0
-                    if self.kind == "cross":  # one design shared by every output: one Gram matrix
-                        gain = _explained(R[0][::g], res[::g]) * g
-                    else:
-                        for i in range(self.n):
-                            gain += _explained(R[i][::g], res[::g, i:i + 1]) * g
+                    gain = self._grid_gain(f, z, res, g)
                     if gain > best[0]:
                         best = (gain, (f, z))
             if best[1] is None or best[0] < MODE_MIN_GAIN * sse:
@@ -284,7 +325,8 @@ class _ModeSearch:
 
 def fit_unmodelled_mode(ctx: FitContext) -> FitResult:
     """Up to :data:`MAX_MODES` lightly damped resonances above :data:`MODE_FMIN`, each output regressed on the
-    band-pass and high-pass of every axis' base output (cross-coupled gains)."""
+    band-pass and high-pass of every axis' base output (cross-coupled gains) and on the low-pass of every other
+    axis' (a mode in an off-diagonal path, with its static gain)."""
     n = ctx.cfg.n_axes
     fs = 1.0 / ctx.dt
     T = len(ctx.y) * ctx.dt
@@ -297,15 +339,19 @@ def fit_unmodelled_mode(ctx: FitContext) -> FitResult:
     K = len(modes)
     G = np.zeros((K, n, n))
     Hg = np.zeros((K, n, n))
+    Lg = np.zeros((K, n, n))
     for i in range(n):
-        c = np.asarray(coefs[i]).reshape(K, 2, n)  # per mode: band-pass gains of every axis, then high-pass
-        G[:, i, :] = c[:, 0, :]
-        Hg[:, i, :] = c[:, 1, :]
+        # per mode: band-pass gains of every axis, high-pass gains of every axis, low-pass gains of the others
+        c = np.asarray(coefs[i]).reshape(K, 3 * n - 1)
+        G[:, i, :] = c[:, :n]
+        Hg[:, i, :] = c[:, n:2 * n]
+        Lg[:, i, [j for j in range(n) if j != i]] = c[:, 2 * n:]
     params = {"freq": [m[0] for m in modes] if K > 1 else modes[0][0],
               "damping": [m[1] for m in modes] if K > 1 else modes[0][1], "gains": G.tolist(),
-              "hp_gains": Hg.tolist()}
-    return FitResult("unmodelled_mode", params, {"freq": None, "damping": None, "gains": None, "hp_gains": None},
-                     [("unmodelled_mode", params)], K * (2 + 2 * n * n), _rms(res),
+              "hp_gains": Hg.tolist(), "lp_gains": Lg.tolist()}
+    return FitResult("unmodelled_mode", params, {"freq": None, "damping": None, "gains": None, "hp_gains": None,
+                                                 "lp_gains": None},
+                     [("unmodelled_mode", params)], K * (2 + 2 * n * n + n * (n - 1)), _rms(res),
                      note=f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}")
 
 
@@ -329,15 +375,88 @@ def fit_amplitude_dependent_dynamics(ctx: FitContext) -> FitResult:
     G, Hg = np.zeros((K, n, n)), np.zeros((K, n, n))
     Kl, Kh = np.zeros((K, n)), np.zeros((K, n))
     Kc, Hc = np.zeros((K, n)), np.zeros((K, n))
+    Lg = np.zeros((K, n, n))
     for i in range(n):
-        c = np.asarray(coefs[i]).reshape(K, 2 * n + 4)
+        c = np.asarray(coefs[i]).reshape(K, 3 * n + 3)
         G[:, i, :], Hg[:, i, :] = c[:, :n], c[:, n:2 * n]
         Kl[:, i], Kh[:, i] = c[:, 2 * n], c[:, 2 * n + 1]
         Kc[:, i], Hc[:, i] = c[:, 2 * n + 2], c[:, 2 * n + 3]
+        Lg[:, i, [j for j in range(n) if j != i]] = c[:, 2 * n + 4:]
     params = {"freq": [m[0] for m in modes], "damping": [m[1] for m in modes], "gains": G.tolist(),
               "hp_gains": Hg.tolist(), "level_gains": Kl.tolist(), "level_hp_gains": Kh.tolist(),
-              "cubic_gains": Kc.tolist(), "cubic_hp_gains": Hc.tolist()}
+              "cubic_gains": Kc.tolist(), "cubic_hp_gains": Hc.tolist(), "lp_gains": Lg.tolist()}
+    shift = mode_level_shift(ctx, modes[0])
+    note = f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}"
+    if shift is not None:
+        note += (f"; the {shift['freq_hz'][0]:.4g} Hz resonance on the small- / large-motion half of TRAIN: "
+                 f"{shift['freq_hz'][0]:.5g} / {shift['freq_hz'][1]:.5g} Hz, ζ {shift['damping'][0]:.3g} / "
+                 f"{shift['damping'][1]:.3g} (z = {shift['z_freq']:.3g}, {shift['z_damping']:.3g})")
     return FitResult("amplitude_dependent_dynamics", params,
                      {k: None for k in params},
-                     [("amplitude_dependent_dynamics", params)], K * (2 + 2 * n * n + 4 * n), _rms(res),
-                     note=f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}")
+                     [("amplitude_dependent_dynamics", params)], K * (2 + 2 * n * n + 4 * n + n * (n - 1)),
+                     _rms(res), note=note, extra={"level_shift": shift})
+
+
+#: the resonance's frequency or damping differs between the small- and large-motion halves of TRAIN beyond this z
+#: (two-sided, two parameters, family-wise α = stats.ALPHA)
+LEVEL_SHIFT_Z = stats.z_critical(4)
+#: the large-motion half of TRAIN moves less than this many times more than the small-motion half (medians of the
+#: level): the run has one amplitude, and the level test cannot see a shift that grows with it
+LEVEL_RATIO_MIN = 1.5
+#: the level test is for a structural resonance: lightly damped (ζ ≤ LEVEL_SHIFT_ZMAX, fitted on the whole of TRAIN and
+#: on each half); broad "modes" are the family imitating a delay or a roll-off, whose fitted shape moves with
+#: whatever the halves' spectra differ by
+LEVEL_SHIFT_ZMAX = 0.1
+
+
+def mode_level_shift(ctx: FitContext, mode: Mode) -> dict[str, Any] | None:
+    """The resonance ``mode`` refitted (frequency, damping; every output's mode gains free) on the rows of TRAIN
+    where the motion is small and on those where it is large (below / above the median of the level
+    :meth:`~piezo_ff_ros.core.models.effects.AmplitudeDependentDynamics.level`, the largest over the axes), with
+    standard errors (:func:`~.fit_common._stderr`: inflated by the residual's correlation).
+
+    Only for a lightly damped resonance (:data:`LEVEL_SHIFT_ZMAX`, on the whole run and on both halves).  A linear
+    resonance has the same frequency and damping at every amplitude (what the halves differ by is noise);
+    a hardening/softening spring or an amplitude-dependent damping moves them.  Returns the two fits, the z of their
+    log-frequency and log-damping differences and ``significant`` (either z > :data:`LEVEL_SHIFT_Z`); ``None`` when
+    it cannot be fitted.  ``level_ratio``: how many times more the large-motion half moves (medians of the level);
+    ``one_level`` below :data:`LEVEL_RATIO_MIN` (the test then has no power)."""
+    if not float(mode[1]) <= LEVEL_SHIFT_ZMAX:
+        return None
+    ms = _ModeSearch(ctx, "cross")
+    L = _level_design(ctx.y_base, ctx.dt, ctx.windows)[::ms.k].max(axis=1)
+    if len(L) != len(ms.r0) or not np.any(L > np.median(L)):
+        return None
+    halves = (L <= np.median(L), L > np.median(L))
+    f0, z0 = float(mode[0]), float(mode[1])
+    hi_f = min(2 * f0, 0.49 / ctx.dt)
+    fits = []
+    for rows in halves:
+        def resid(th: np.ndarray, rows: np.ndarray = rows) -> np.ndarray:
+            R = ms._design(math.exp(th[0]), math.exp(th[1]))
+            out = []
+            for i in range(ms.n):
+                X, t = R[i][rows], ms.r0[rows, i]
+                c = np.linalg.lstsq(X, t, rcond=None)[0]
+                out.append(t - X @ c)
+            return np.concatenate(out) / ms.unit
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                sol = optimize.least_squares(resid, [math.log(f0), math.log(min(max(z0, 2e-3), 0.45))],
+                                             diff_step=1e-3, max_nfev=20,
+                                             bounds=([math.log(0.5 * f0), math.log(1e-3)],
+                                                     [math.log(hi_f), math.log(MODE_ZMAX)]))
+            except (ValueError, np.linalg.LinAlgError):
+                return None
+        se = _stderr(sol.jac, sol.fun)
+        fits.append((sol.x, se))
+    (a, sa), (b, sb) = fits
+    z = np.abs(b - a) / np.maximum(np.hypot(sa, sb), 1e-300)
+    ratio = float(np.median(L[halves[1]]) / max(float(np.median(L[halves[0]])), 1e-300))
+    return {"freq_hz": [math.exp(a[0]), math.exp(b[0])], "damping": [math.exp(a[1]), math.exp(b[1])],
+            "z_freq": float(z[0]), "z_damping": float(z[1]), "z_critical": LEVEL_SHIFT_Z,
+            "significant": bool(np.max(z) > LEVEL_SHIFT_Z and max(math.exp(a[1]), math.exp(b[1])) <= LEVEL_SHIFT_ZMAX),
+            "level_ratio": ratio,
+            "one_level": bool(ratio < LEVEL_RATIO_MIN)}

@@ -35,8 +35,56 @@ def fit_input_delay(ctx: FitContext) -> FitResult:
         # linear interpolation makes the cost wiggle between whole samples: quarter-sample steps around the best
         return np.clip(best + dt * np.arange(-3.0, 3.01, 0.25), 0.0, None)
 
-    return _fit_scalar(ctx, "input_delay", "delay", lambda z: {"delay": max(z, 0.0)}, grid,
+    pure = _fit_scalar(ctx, "input_delay", "delay", lambda z: {"delay": max(z, 0.0)}, grid,
                        lambda z: max(z, 0.0), lambda z: 1.0, fine=fine)
+    allpass = _fit_allpass_delay(ctx, float(pure.params["delay"]))
+    return allpass if allpass is not None and allpass.train_rms < pure.train_rms else pure
+
+
+def _fit_allpass_delay(ctx: FitContext, d_pure: float) -> FitResult | None:
+    """The delay in all-pass form (``form='allpass'``, the same one parameter): a log grid from half to twice the
+    pure delay's estimate, the parabola's vertex, standard error by a central difference.  ``None`` when the pure
+    fit found no delay (below a tenth of a sample).
+
+    Two forms of one physical class: the interpolated delay attenuates within the band (linear interpolation
+    is a low-pass at fractional delays) and shifts each DAC step; the all-pass keeps the gain and overshoots
+    each step within the sample.  Whichever fits TRAIN better is the delay's form; both are ``input_delay``."""
+    if not (d_pure > 0.1 * ctx.dt):
+        return None
+
+    def make(z: float) -> dict[str, Any]:
+        return {"delay": math.exp(z), "form": "allpass"}
+
+    c = math.log(d_pure)
+    grid = np.linspace(c - math.log(2.0), c + math.log(2.0), 7)
+    cache: dict[float, np.ndarray] = {}
+
+    def res(z: float) -> np.ndarray:
+        if z not in cache:
+            cache[z] = ctx.sim_residual([("input_delay", make(z))])
+        return cache[z]
+
+    vals = [float(np.sum(res(float(z)) ** 2)) for z in grid]
+    k = int(np.argmin(vals))
+    z = float(grid[k])
+    if 0 < k < len(grid) - 1:
+        x0, x1, x2 = grid[k - 1:k + 2]
+        y0, y1, y2 = vals[k - 1:k + 2]
+        den = (x0 - x1) * (x0 - x2) * (x1 - x2)
+        a = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / den
+        b = (x2 * x2 * (y0 - y1) + x1 * x1 * (y2 - y0) + x0 * x0 * (y1 - y2)) / den
+        if a > 0:
+            zv = float(np.clip(-b / (2 * a), x0, x2))
+            if float(np.sum(res(zv) ** 2)) < vals[k]:
+                z = zv
+    r = res(z)
+    h = 1e-3
+    J = ((ctx.sim_residual([("input_delay", make(z + h))]) - ctx.sim_residual([("input_delay", make(z - h))]))
+         / (2 * h)).reshape(-1, 1)
+    se = float(_stderr(J, r)[0]) * math.exp(z)
+    p = make(z)
+    return FitResult("input_delay", p, {"delay": se, "form": None}, [("input_delay", p)], 1, _rms(r),
+                     note="all-pass form (2nd-order Padé): unit gain, the delay's phase lag")
 
 
 def fit_amplifier_slew_limit(ctx: FitContext) -> FitResult:

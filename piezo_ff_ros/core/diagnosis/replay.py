@@ -249,6 +249,11 @@ def intersample_factor(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[st
     plant is quasi-static within the record's band, the filter's interval average is all that reaches it, and
     finer steps would only change the hysteresis' discretisation against the nominal replay's.
     """
+    allpass = [float(p["delay"]) for name, p in effects if name == "input_delay" and p.get("form") == "allpass"]
+    if allpass:  # the all-pass delay's within-sample excursion reaches the hysteresis: resolve it at any rate
+        from ..models.effects.voltage import allpass_steps_per_sample
+        return max(allpass_steps_per_sample(min(allpass), cfg.dt),
+                   intersample_factor(cfg, [e for e in effects if e[0] != "input_delay"]))
     if not any(name in INTERSAMPLE_EFFECTS for name, _ in effects):
         return 1
     if not lowest_resonance_hz(cfg) < cfg.sample_rate / 2:

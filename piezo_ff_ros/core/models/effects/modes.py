@@ -96,10 +96,15 @@ class UnmodelledMode:
     leaves a gain change above it.  ``freq``/``damping``: scalars (one mode) or lists (several); ``gains`` and
     ``hp_gains`` (default 0): per axis (one mode), ``[K][n]`` or ``[K][n][n]`` (output i through axis j:
     cross-coupled modes).
+
+    ``lp_gains`` (default 0, ``[K][n][n]``): ``+ Σ_m Σ_j l_mij·LP_m(Y_j)`` with ``LP_m(s) = ω_m²/(s² + 2ζ_mω_m·s +
+    ω_m²)`` (= 1 − BP_m − HP_m): a resonance with a static gain, as a lightly damped mode in an off-diagonal
+    (cross-coupling) path has — y driven by x's motion through ``k·ω²/(s² + 2ζωs + ω²)``.  In a direct path a
+    static term would be a gain error, so the fit uses it for i ≠ j only.
     """
 
     def __init__(self, freq: ArrayLike, damping: ArrayLike, gains: ArrayLike, dt: float, n_axes: int = 2,
-                 hp_gains: ArrayLike | None = None) -> None:
+                 hp_gains: ArrayLike | None = None, lp_gains: ArrayLike | None = None) -> None:
         self.n, self.dt = n_axes, float(dt)
         self.freqs, self.dampings = _modes_spec(freq, damping, self.dt, "unmodelled_mode")
         self.freq, self.damping = float(self.freqs[0]), float(self.dampings[0])
@@ -107,6 +112,8 @@ class UnmodelledMode:
         self.G = _mode_gains(gains, K, n_axes, "unmodelled_mode.gains")
         self.H = np.zeros_like(self.G) if hp_gains is None else _mode_gains(hp_gains, K, n_axes,
                                                                             "unmodelled_mode.hp_gains")
+        self.L = np.zeros_like(self.G) if lp_gains is None else _mode_gains(lp_gains, K, n_axes,
+                                                                            "unmodelled_mode.lp_gains")
         self._c = [_bandpass_coeffs(float(f), float(z), self.dt) for f, z in zip(self.freqs, self.dampings)]
         self._ch = [_highpass_coeffs(float(f), float(z), self.dt) for f, z in zip(self.freqs, self.dampings)]
         self.reset()
@@ -135,9 +142,13 @@ class UnmodelledMode:
         y = _block(y, self.n)
         out = y.copy()
         for m in range(len(self._c)):
-            out += static_gain(self.bandpass(y, m), self.G[m])
-            if np.any(self.H[m]):
-                out += static_gain(self.highpass(y, m), self.H[m])
+            bp = self.bandpass(y, m)
+            out += static_gain(bp, self.G[m])
+            if np.any(self.H[m]) or np.any(self.L[m]):
+                hp = self.highpass(y, m)
+                out += static_gain(hp, self.H[m])
+                if np.any(self.L[m]):
+                    out += static_gain(y - bp - hp, self.L[m])
         return out
 
 
@@ -166,14 +177,16 @@ class AmplitudeDependentDynamics:
     """
 
     def __init__(self, freq: ArrayLike, damping: ArrayLike, gains: ArrayLike, level_gains: ArrayLike, dt: float,
-                 n_axes: int = 2, hp_gains: ArrayLike | None = None, level_hp_gains: ArrayLike | None = None) -> None:
+                 n_axes: int = 2, hp_gains: ArrayLike | None = None, level_hp_gains: ArrayLike | None = None,
+                 lp_gains: ArrayLike | None = None) -> None:
         self.n, self.dt = n_axes, float(dt)
         self.freqs, self.dampings = _modes_spec(freq, damping, self.dt, "amplitude_dependent_dynamics")
         K = len(self.freqs)
         name = "amplitude_dependent_dynamics"
         self.base = UnmodelledMode(self.freqs, self.dampings,
                                    _mode_gains(gains, K, n_axes, f"{name}.gains"), dt, n_axes,
-                                   None if hp_gains is None else _mode_gains(hp_gains, K, n_axes, f"{name}.hp_gains"))
+                                   None if hp_gains is None else _mode_gains(hp_gains, K, n_axes, f"{name}.hp_gains"),
+                                   None if lp_gains is None else _mode_gains(lp_gains, K, n_axes, f"{name}.lp_gains"))
 
         def diag(v: ArrayLike, what: str) -> np.ndarray:
             return np.diagonal(_mode_gains(v, K, n_axes, f"{name}.{what}"), axis1=1, axis2=2).copy()
@@ -205,6 +218,8 @@ class AmplitudeDependentDynamics:
             bp = b.bandpass(y, m)
             hp = b.highpass(y, m)
             out += static_gain(bp, b.G[m]) + static_gain(hp, b.H[m]) + lev * (bp * self.Kl[m] + hp * self.Kh[m])
+            if np.any(b.L[m]):
+                out += static_gain(y - bp - hp, b.L[m])
         return out
 
 
@@ -217,8 +232,9 @@ class CubicAmplitudeDynamics(AmplitudeDependentDynamics):
 
     def __init__(self, freq: ArrayLike, damping: ArrayLike, gains: ArrayLike, level_gains: ArrayLike, dt: float,
                  n_axes: int = 2, hp_gains: ArrayLike | None = None, level_hp_gains: ArrayLike | None = None,
-                 cubic_gains: ArrayLike = 0.0, cubic_hp_gains: ArrayLike | None = None) -> None:
-        super().__init__(freq, damping, gains, level_gains, dt, n_axes, hp_gains, level_hp_gains)
+                 cubic_gains: ArrayLike = 0.0, cubic_hp_gains: ArrayLike | None = None,
+                 lp_gains: ArrayLike | None = None) -> None:
+        super().__init__(freq, damping, gains, level_gains, dt, n_axes, hp_gains, level_hp_gains, lp_gains)
         K = len(self.freqs)
         name = "amplitude_dependent_dynamics"
 

@@ -23,7 +23,8 @@ from .hysteresis import (BranchEvenTerm, HysteresisStage, LoopShapeTerm, PlayWid
                          RelaxedHysteresisStage, VelocityTerm, asymmetric_hysteresis_config)
 from .modes import AmplitudeDependentDynamics, CubicAmplitudeDynamics, UnmodelledMode
 from .saturation import SoftSaturation
-from .voltage import AmplifierBandwidth, AmplifierSaturation, AmplifierSlewLimit, AsymmetricSaturation, InputDelay
+from .voltage import (AllPassDelay, AmplifierBandwidth, AmplifierSaturation, AmplifierSlewLimit, AsymmetricSaturation,
+                      InputDelay)
 
 __all__ = ["EffectSpec", "EFFECTS", "EFFECT_NAMES", "build_plant"]
 
@@ -75,8 +76,9 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                                         "gain_drift": ("-", True), "gain_drift2": ("-", True)},
                "thermal expansion after switch-on, a_i·(1 − exp(−t/τ))",
                "residual trend over the whole run, uncorrelated with the voltage"),
-    EffectSpec("input_delay", "pre", {"delay": ("s", False)},
-               "pure delay between the commanded and the acting voltage",
+    EffectSpec("input_delay", "pre", {"delay": ("s", False), "form": ("-", False)},
+               "delay between the commanded and the acting voltage: pure (interpolated), or all-pass (form "
+               "'allpass': 2nd-order Padé, unit gain, the phase lag of the delay)",
                "residual ∝ −delay·dŶ/dt: phase lag growing linearly with frequency"),
     EffectSpec("amplifier_slew_limit", "pre", {"rate": ("V/s", False)},
                "amplifier slew-rate limit", "error concentrated where |dU/dt| is large (steps, fast ramps)"),
@@ -89,13 +91,13 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                "first- or second-order amplifier roll-off (cutoff per axis)",
                "amplitude loss and phase lag at high frequency; steps rounded, not shifted"),
     EffectSpec("unmodelled_mode", "post", {"freq": ("Hz", False), "damping": ("-", False), "gains": ("-", True),
-                                          "hp_gains": ("-", True)},
+                                          "hp_gains": ("-", True), "lp_gains": ("-", True)},
                "extra lightly damped structural resonances (one or several, per axis and cross-coupled)",
                "narrow peaks in the residual spectrum"),
     EffectSpec("amplitude_dependent_dynamics", "post",
                {"freq": ("Hz", False), "damping": ("-", False), "gains": ("-", True), "hp_gains": ("-", True),
                 "level_gains": ("-", True), "level_hp_gains": ("-", True), "cubic_gains": ("-", True),
-                "cubic_hp_gains": ("-", True)},
+                "cubic_hp_gains": ("-", True), "lp_gains": ("-", True)},
                f"resonances whose strength moves with the level (|Y| over {LEVEL_TAU:g} s per {LEVEL_REF:g} m)",
                "dynamics-band residual growing with the motion's amplitude"),
     EffectSpec("gain_mismatch", "post", {"gains": ("-", True), "cross_gains": ("-", True)},
@@ -110,6 +112,11 @@ EFFECT_NAMES = tuple(EFFECTS)
 def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
     n, dt = cfg.n_axes, cfg.dt
     if name == "input_delay":
+        form = p.get("form", "pure")
+        if form == "allpass":
+            return AllPassDelay(p["delay"], dt, n)
+        if form != "pure":
+            raise ValueError(f"input_delay.form: must be 'pure' or 'allpass', got {form!r}")
         return InputDelay(p["delay"], dt, n)
     if name == "amplifier_slew_limit":
         return AmplifierSlewLimit(p["rate"], dt, n)
@@ -130,14 +137,14 @@ def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
         return CreepNonlinearity(p["gamma"], p.get("beta", 0.0), dt, n, spectrum=p.get("spectrum"),
                                  beta_even=float(p.get("beta_even", 0.0)))
     if name == "unmodelled_mode":
-        return UnmodelledMode(p["freq"], p["damping"], p["gains"], dt, n, p.get("hp_gains"))
+        return UnmodelledMode(p["freq"], p["damping"], p["gains"], dt, n, p.get("hp_gains"), p.get("lp_gains"))
     if name == "amplitude_dependent_dynamics":
         if p.get("cubic_gains") is not None:
             return CubicAmplitudeDynamics(p["freq"], p["damping"], p["gains"], p["level_gains"], dt, n,
                                           p.get("hp_gains"), p.get("level_hp_gains"), p["cubic_gains"],
-                                          p.get("cubic_hp_gains"))
+                                          p.get("cubic_hp_gains"), p.get("lp_gains"))
         return AmplitudeDependentDynamics(p["freq"], p["damping"], p["gains"], p["level_gains"], dt, n,
-                                          p.get("hp_gains"), p.get("level_hp_gains"))
+                                          p.get("hp_gains"), p.get("level_hp_gains"), p.get("lp_gains"))
     raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
 
 

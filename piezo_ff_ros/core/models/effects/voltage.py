@@ -16,7 +16,8 @@ from ..._jit import njit
 from ...kernels.limits import limit_run  # the driver guard's limiter (one source)
 from .common import _block, _per_axis
 
-__all__ = ["InputDelay", "AmplifierSlewLimit", "AmplifierSaturation", "AsymmetricSaturation", "AmplifierBandwidth"]
+__all__ = ["InputDelay", "AllPassDelay", "AmplifierSlewLimit", "AmplifierSaturation", "AsymmetricSaturation",
+           "AmplifierBandwidth", "allpass_steps_per_sample"]
 
 
 class InputDelay:
@@ -215,6 +216,13 @@ def _lowpass_ss(cutoff: float, order: int, damping: float) -> tuple[np.ndarray, 
 
 def _interval_averaged(cutoff: float, order: int, damping: float,
                        dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]:
+    """:func:`_interval_averaged_ss` of the low-pass of :func:`_lowpass_ss`."""
+    A, B, C = _lowpass_ss(cutoff, order, damping)
+    return _interval_averaged_ss(A, B, C, 0.0, dt)
+
+
+def _interval_averaged_ss(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: float,
+                          dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]:
     """The continuous low-pass driven by the DAC's staircase (the voltage held over each sample interval), its output
     averaged over each interval: ``(Φ, Γ, C·Ψ, C·Λ, x_ss)`` with ``x ← Φx + Γu`` and ``ȳ = CΨx + CΛu``.
 
@@ -227,7 +235,6 @@ def _interval_averaged(cutoff: float, order: int, damping: float,
     """
     from scipy.linalg import expm
 
-    A, B, C = _lowpass_ss(cutoff, order, damping)
     ns = A.shape[0]
     M = np.zeros((ns + 1, ns + 1))
     M[:ns, :ns], M[:ns, ns] = A, B
@@ -239,7 +246,7 @@ def _interval_averaged(cutoff: float, order: int, damping: float,
     integ = E[:ns + 1, ns + 1:] / dt
     psi, lam = integ[:ns, :ns], integ[:ns, ns]
     xss = -np.linalg.solve(A, B)
-    return phi, gam, C @ psi, float(C @ lam), xss
+    return phi, gam, C @ psi, float(C @ lam) + float(D), xss
 
 
 class AmplifierBandwidth:
@@ -284,3 +291,58 @@ class AmplifierBandwidth:
         _ss_run(u, self._state, self._started, self._phi, self._gam, self._cpsi, self._clam, self._xss, out)
         return out
 
+
+
+class AllPassDelay:
+    """A delay of rational (all-pass) form: the second-order Padé approximant of ``e^{−s·delay}``,
+    ``(1 − sT/2 + (sT)²/12)/(1 + sT/2 + (sT)²/12)`` (``input_delay`` with ``form='allpass'``).
+
+    Unit gain at every frequency, a phase lag that follows the delay's up to ``ωT ≈ 2`` — the delay as an analogue
+    stage, a lagging loop or a model written in transfer functions has it.  Unlike the interpolated
+    :class:`InputDelay` it does not attenuate within the band, and its response to each DAC step jumps, undershoots
+    and recovers within a few sample intervals: a rate-independent hysteresis behind it sees that excursion.  Driven
+    by the DAC's staircase, the output averaged over each interval (:func:`_interval_averaged_ss`; exact), started
+    settled at the first voltage; the replay runs it at a fine internal rate (:func:`allpass_steps_per_sample`).
+    """
+
+    def __init__(self, delay: float, dt: float, n_axes: int = 2):
+        if not (math.isfinite(delay) and delay > 0):
+            raise ValueError(f"input_delay.delay: must be > 0 s for form 'allpass', got {delay!r}")
+        self.delay, self.dt, self.n = float(delay), float(dt), n_axes
+        T = self.delay
+        # H = 1 − (12/T)·s/(s² + (6/T)s + 12/T²)
+        A = np.array([[0.0, 1.0], [-12.0 / T ** 2, -6.0 / T]])
+        B = np.array([0.0, 1.0])
+        C = np.array([0.0, -12.0 / T])
+        phi, gam, cpsi, clam, xss = _interval_averaged_ss(A, B, C, 1.0, self.dt)
+        self._phi = np.ascontiguousarray(np.repeat(phi[None], n_axes, axis=0))
+        self._gam = np.ascontiguousarray(np.repeat(gam[None], n_axes, axis=0))
+        self._cpsi = np.ascontiguousarray(np.repeat(cpsi[None], n_axes, axis=0))
+        self._clam = np.full(n_axes, clam)
+        self._xss = np.ascontiguousarray(xss)
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self._state = np.zeros((2, self.n))
+        self._started = np.zeros(1, np.bool_)
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        u = _block(u, self.n)
+        out = np.empty_like(u)
+        _ss_run(u, self._state, self._started, self._phi, self._gam, self._cpsi, self._clam, self._xss, out)
+        return out
+
+
+#: the replay resolves an all-pass delay's step response (time constant T/3) with at least this many internal steps
+#: per time constant, and takes at most ALLPASS_MAX_STEPS internal steps per record sample
+ALLPASS_STEPS_PER_TC = 8
+ALLPASS_MAX_STEPS = 16
+
+
+def allpass_steps_per_sample(delay: float, dt: float) -> int:
+    """Internal steps per record sample for :class:`AllPassDelay`: ``dt/k ≤ (delay/3)/ALLPASS_STEPS_PER_TC``."""
+    if not (delay > 0):
+        return 1
+    return int(min(ALLPASS_MAX_STEPS, max(1, math.ceil(3 * ALLPASS_STEPS_PER_TC * dt / delay))))
