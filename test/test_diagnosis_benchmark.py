@@ -48,14 +48,19 @@ def test_truth_is_written_apart_from_the_judged_code():
 
 @pytest.mark.parametrize("fs", [200.0, 1000.0, 20000.0])
 def test_null_truth_is_the_nominal_plant(fs):
-    """With no effect the independent simulator gives the package's nominal plant (a different implementation)."""
+    """With no effect the independent simulator gives the package's nominal plant (a different implementation).
+
+    Both integrate the Bouc-Wen along the voltage path, in different sub-steps (the package's κ ≤ 1e-3, the
+    truth's ≤ 0.01 V), so they agree to the package's stated accuracy (~0.01 % of the output), not to rounding;
+    one explicit step per sample (the old model) is 40 % off at 200 Hz and fails this.
+    """
     from piezo_ff_ros.core.models.plant import Plant  # the reference, used only to check the generator
 
     cfg = load_config().with_sample_rate(fs)
     u = truth.excitation("test", fs, 40.0 if fs < 1000 else 2.0, np.random.default_rng(3))
     y = truth.simulate(truth.nominal_matrices(cfg), [], u)
     y_ref = Plant(cfg).process(u)
-    assert np.max(np.abs(y - y_ref)) <= 1e-9 * np.max(np.abs(y_ref))
+    assert np.max(np.abs(y - y_ref)) <= 5e-4 * np.max(np.abs(y_ref))
 
 
 def test_null_case_records_are_nominal_plus_the_stated_noise(tmp_path):
