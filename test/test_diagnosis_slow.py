@@ -80,4 +80,6 @@ def test_before_equals_an_independent_replay_of_the_model(cfg, nominal):
     r -= r.mean(axis=0)                      # the sensor zero: one constant per axis
     yc = test.y - test.y.mean(axis=0)
     independent = 100 * np.linalg.norm(r) / np.linalg.norm(yc)
-    assert res["heldout"]["before_nrmse_percent"] == pytest.approx(independent, rel=1e-9)
+    # the two replays integrate the Bouc-Wen along the voltage path in different sub-steps (agreeing to ~1e-4 of the
+    # output), so the figures agree to ~1e-5 relative; a baseline that absorbed part of the effect moves it by %
+    assert res["heldout"]["before_nrmse_percent"] == pytest.approx(independent, rel=1e-4)

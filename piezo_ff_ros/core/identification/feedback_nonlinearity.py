@@ -132,6 +132,7 @@ class FeedbackNonlinearModel:
 
     @property
     def n_outputs(self) -> int:
+        """Number of output channels (columns of ``theta``)."""
         return int(self.theta.shape[1])
 
     def _complex_output(self, theta_s: np.ndarray) -> np.ndarray:
