@@ -132,10 +132,11 @@ def spin_node(node: Any, on_exit: Callable[[], None] | None = None) -> int:
     stream."""
     code = 0
     name = node.get_name()   # read now: after a shutdown the node's handle is gone and get_name() raises
-    frozen = freeze_startup_heap()
-    node.get_logger().info(f"start-up heap frozen: {frozen} objects out of garbage collection (no full collection "
-                           "of them stalls the stream)")
     try:
+        # inside the try: a SIGINT during the (loaded-host: ~0.5 s) collection is a clean stop, on_exit included
+        frozen = freeze_startup_heap()
+        node.get_logger().info(f"start-up heap frozen: {frozen} objects out of garbage collection (no full "
+                               "collection of them stalls the stream)")
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
