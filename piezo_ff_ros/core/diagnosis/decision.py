@@ -20,6 +20,7 @@ The phase hands on two frozen records: :class:`_Judged` (the first round of fits
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -34,7 +35,7 @@ from . import stats
 from .baseline import _Effects, _Replay, _Setup
 from .candidates import FitContext, FitResult, fit_candidate, n_eff_ratio
 from .flexible import fit_flexible
-from .replay import Windows, residual, simulate
+from .replay import Windows, residual, simulate, timing_sensitivity
 from .results import DiagnosisOptions
 from .scored import Scored
 
@@ -92,15 +93,76 @@ class _Held:
             else:
                 self.target = windows.take(run.y)
             self.y_base = y_win
-        self.r_before = residual(self.target, self.y_base)
+        # the timing convention is part of the nominal model's H0 (the first round, on the nominal model alone)
+        self.timing = timing_sensitivity(cfg, run.u, windows) if not self.base else np.zeros_like(self.y_base)
+        self.r_raw = residual(self.target, self.y_base)
+        self.r_before = self.align(self.r_raw)
         yt = self.target - self.target.mean(axis=0)
         self.den = float(np.sqrt(np.sum(yt ** 2)))
 
     def nrmse(self, r: np.ndarray) -> float:
         return float(100 * np.sqrt(np.sum(r ** 2)) / max(self.den, 1e-300))
 
+    def align(self, r: np.ndarray) -> np.ndarray:
+        """``r`` with the nominal model's sub-sample timing convention fitted out (:func:`align_timing`)."""
+        return align_timing(r, self.timing)
+
     def score(self, effects: _Effects) -> np.ndarray:
-        return residual(self.target, simulate(self.cfg, self.run.u, self.base + list(effects), self.windows))
+        return self.align(residual(self.target, simulate(self.cfg, self.run.u, self.base + list(effects),
+                                                         self.windows)))
+
+
+#: the largest sub-sample timing offset between the record's voltages and displacements that is a convention of the
+#: discretisation, not an effect [samples].  Where within its sample period a DAC edge settles and where the ADC
+#: samples are not stated by a recording: a zero-order hold whose edge settles over up to the first fifth of the
+#: period (a real DAC's settling, a first-order-hold edge), or an ADC aperture anywhere in the last fifth, moves the
+#: recorded response by up to 0.1 sample against the nominal model's ideal ZOH / point sampling.  The nominal
+#: model replayed under any of these conventions is equally valid (H0); a longer lag is an effect (``input_delay``)
+TIMING_CONVENTION_SAMPLES = 0.1
+
+
+def _timing_aligned(cfg: PiezoConfig, run: RunData, y_nom: np.ndarray, windows: Windows) -> tuple[RunData, float]:
+    """``run`` with its measured displacement moved to the nominal model's timing convention: the offset ``τ``
+    (bounded, :data:`TIMING_CONVENTION_SAMPLES`) that best aligns the nominal replay ``y_nom`` with the measurement
+    on ``windows``, and ``y + τ·dŷ/dk`` (the measurement as the nominal model's convention would have recorded it,
+    to first order).  The candidates are fitted on that, so that none of them spends its parameters on the
+    convention.  Returns the run (the same object when ``τ = 0``) and ``τ`` [samples]."""
+    y_win = windows.take(np.asarray(y_nom, float))
+    c = timing_sensitivity(cfg, run.u, windows)
+    r = residual(windows.take(np.asarray(run.y, float)), y_win)
+    aligned = align_timing(r, c)
+    cc = float(np.sum(c * c))
+    tau = float(np.sum((r - aligned) * c) / cc) if cc > 0 and aligned is not r else 0.0
+    if tau == 0.0:
+        return run, 0.0
+    # measured − nominal(τ) = measured − nominal − τ·c: the measurement minus τ·c is what the convention τ
+    # would have recorded; fitted on the whole run's sensitivity
+    # (on the fitted stretches with their warm-ups only: nothing else of TRAIN is read by a fit)
+    y_run = np.array(run.y, float)
+    for w, _, stop in windows.spans:
+        y_run[w:stop] -= tau * timing_sensitivity(cfg, run.u[w:stop])
+    return dataclasses.replace(run, y=y_run), tau
+
+
+def align_timing(r: np.ndarray, direction: np.ndarray,
+                 max_samples: float = TIMING_CONVENTION_SAMPLES) -> np.ndarray:
+    """The residual ``r`` with its least-squares component along ``direction`` removed, the offset bounded to
+    ±``max_samples``.
+
+    ``direction`` is the nominal replay's sensitivity to its timing convention (:func:`~.replay.timing_sensitivity`,
+    one offset shared by all axes: one DAC and one ADC clock): ``measured − nominal(τ) ≈ measured − nominal − τ·c``.
+    Every held-out residual (before and after each model) is taken at its best convention within the bound, so that
+    a gap the nominal model closes by moving its DAC edges within a sample is not evidence of an effect.  One
+    parameter fitted on the held-out run for every model alike: it changes no comparison's null distribution to
+    first order."""
+    r = np.asarray(r, float)
+    c = np.asarray(direction, float)
+    cc = float(np.sum(c * c))
+    if not cc > 0 or c.shape != r.shape:
+        return r
+    tau = float(np.clip(float(np.sum(r * c)) / cc, -max_samples, max_samples))
+    out: np.ndarray = r - tau * c
+    return out
 
 
 def _evaluate(fit: FitResult, held: _Held, t0: float) -> Scored:
@@ -253,7 +315,7 @@ def _fit_flexible(cfg: PiezoConfig, train: RunData, y_train_nom: np.ndarray, hel
     except (ValueError, np.linalg.LinAlgError) as exc:
         log(f"  flexible model failed ({exc})")
         return None
-    r_after = residual(held.r_before, d)
+    r_after = held.align(residual(held.r_raw, d))
     fit = FitResult("flexible", {}, {}, [], fm.n_features * cfg.n_axes, float("nan"))
     s = Scored(fit, float(np.sum(held.r_before ** 2)), float(np.sum(r_after ** 2)), 0.0,
                 held.nrmse(held.r_before), held.nrmse(r_after), False, time.perf_counter() - t0,
@@ -329,9 +391,12 @@ def _first_round(s: _Setup, rep: _Replay, log: Callable[[str], None]) -> _Judged
     score_win = Windows.spread(len(s.test), opts.score_samples, opts.n_windows, int(opts.warmup_s * fs),
                                offset=s.history)
     held = _Held(s.cfg, s.test_ext, [], score_win, rep.y_ext_nom)
+    train, tau = _timing_aligned(s.cfg, s.train, rep.y_train_nom, _fit_windows(s.train, opts))
+    if tau != 0.0:
+        log(f"timing convention: TRAIN aligned by {tau:+.3f} sample (bound ±{TIMING_CONVENTION_SAMPLES:g})")
     log("candidates (fitted on train, scored on test):")
-    scored = _fit_all(s.cfg, s.train, rep.y_train_nom, [], list(opts.candidates), held, opts, log)
-    flex = _fit_flexible(s.cfg, s.train, rep.y_train_nom, held, s.test_ext, rep.y_ext_nom, opts, log) \
+    scored = _fit_all(s.cfg, train, rep.y_train_nom, [], list(opts.candidates), held, opts, log)
+    flex = _fit_flexible(s.cfg, train, rep.y_train_nom, held, s.test_ext, rep.y_ext_nom, opts, log) \
         if opts.flexible else None
     n_tests = len(scored) + (flex is not None)
     zc = stats.z_critical(n_tests)

@@ -20,7 +20,7 @@ from ..models.plant import Plant
 from ..recording.run import RunData
 
 __all__ = ["nrmse_percent", "noise_floor", "noise_floor_periodic", "input_period", "Windows", "simulate", "residual", "check_run", "check_excitation",
-           "check_sample_rate_metadata", "model_for_run", "check_scale"]
+           "check_sample_rate_metadata", "model_for_run", "check_scale", "timing_sensitivity", "TIMING_OVERSAMPLING"]
 
 
 def nrmse_percent(y: np.ndarray, y_hat: np.ndarray, axis: int | None = None) -> float | np.ndarray:
@@ -349,3 +349,35 @@ def check_scale(run: RunData, y_model: np.ndarray, name: str) -> None:
         raise ValueError(f"{name}: the displacement of axis {a} has a scale implausible for the model: {ratio:.3g}× "
                          f"what the model predicts for these voltages (RMS {ry:.3g} m vs {rm:.3g} m; {hint}?); "
                          f"give displacements in metres (scale 1e{k:+d} off)")
+
+
+#: the nominal model's timing sensitivity is taken with its DAC edges moved by 1/TIMING_OVERSAMPLING of a sample
+TIMING_OVERSAMPLING = 16
+
+
+def timing_sensitivity(cfg: PiezoConfig, u: np.ndarray, windows: Windows | None = None) -> np.ndarray:
+    """``∂ŷ/∂τ`` [m per sample] of the nominal model's replay when its held voltages (the DAC's edges) move later by
+    ``τ`` samples, on ``windows`` (default: the whole run), each axis's mean removed.
+
+    The nominal plant runs :data:`TIMING_OVERSAMPLING` steps per sample (its exact ZOH model at that rate) on the
+    held voltages, once as recorded and once with every edge one fine step later; their difference, read at the
+    record's samples, over the step.  Exact for the linear dynamics up to the step (a finite difference in ``τ``), it
+    includes the fast modes a central difference of the replay misses near Nyquist."""
+    k = TIMING_OVERSAMPLING
+    fine = dataclasses.replace(cfg, sample_rate=cfg.sample_rate * k)
+    plant = build_plant(fine, [])
+
+    def held(x: np.ndarray) -> np.ndarray:
+        out: np.ndarray = plant.process(np.repeat(x, k, axis=0))[::k]
+        return out
+
+    def later(x: np.ndarray) -> np.ndarray:
+        xf = np.repeat(x, k, axis=0)
+        out: np.ndarray = plant.process(np.vstack([xf[:1], xf[:-1]]))[::k]
+        return out
+
+    u = np.asarray(u, float)
+    w = windows if windows is not None else Windows.whole(len(u))
+    d = (w.apply(plant.reset, later, u) - w.apply(plant.reset, held, u)) * k
+    out: np.ndarray = d - d.mean(axis=0)
+    return out
