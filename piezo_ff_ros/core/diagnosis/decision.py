@@ -3,6 +3,10 @@ the verdict's near ties and how they are resolved (a discrimination run, or a pr
 
 Decision rule (:mod:`.stats` states the test):
 
+* H0 includes the nominal model's own timing convention: TRAIN is moved to the nominal model's convention (a DAC
+  edge / ADC sampling offset fitted on TRAIN, bounded to ±:data:`TIMING_CONVENTION_SAMPLES`) before any fit, and
+  every held-out residual is taken at its best convention within that bound (:func:`align_timing`); a gap the
+  nominal model closes by moving its edges within the bound is not an effect;
 * every model fitted on TRAIN — each candidate effect and the flexible reference model (:mod:`.flexible`) — gets a
   held-out z: its drop in TEST residual energy over the standard deviation that drop would have if the residual
   were noise of the measured spectrum (white, coloured or quantised alike); significant above the one-sided
@@ -39,7 +43,7 @@ from .replay import Windows, residual, simulate, timing_sensitivity
 from .results import DiagnosisOptions
 from .scored import Scored
 
-__all__ = ["RATE_AMPLITUDE", "CONFOUND_RHO", "excitation_rate_amplitude_correlation", "MIN_SHARE", "RICHER_MIN_GAIN", "MIN_EXCESS_SHRINK", "HIGH_EXCESS_SHRINK", "MIN_DROP", "TIE_Z",
+__all__ = ["TIMING_CONVENTION_SAMPLES", "align_timing", "RATE_AMPLITUDE", "CONFOUND_RHO", "excitation_rate_amplitude_correlation", "MIN_SHARE", "RICHER_MIN_GAIN", "MIN_EXCESS_SHRINK", "HIGH_EXCESS_SHRINK", "MIN_DROP", "TIE_Z",
            "HIGH_Z_MARGIN", "HIGH_SHARE", "HIGH_PAIRED_Z", "GENERIC", "GENERIC_MIN_EXTRA", "RICHER", "NESTED"]
 
 #: an accepted candidate removes at least this share of the explainable held-out gap
