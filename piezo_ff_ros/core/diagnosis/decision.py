@@ -128,11 +128,14 @@ TIMING_CONVENTION_SAMPLES = 0.1
 def _timing_aligned(cfg: PiezoConfig, run: RunData, y_nom: np.ndarray, windows: Windows) -> tuple[RunData, float]:
     """``run`` with its measured displacement moved to the nominal model's timing convention: the offset ``τ``
     (bounded, :data:`TIMING_CONVENTION_SAMPLES`) that best aligns the nominal replay ``y_nom`` with the measurement
-    on ``windows``, and ``y + τ·dŷ/dk`` (the measurement as the nominal model's convention would have recorded it,
+    on ``windows``, and ``y − τ·∂ŷ/∂τ`` (the measurement as the nominal model's convention would have recorded it,
     to first order).  The candidates are fitted on that, so that none of them spends its parameters on the
     convention.  Returns the run (the same object when ``τ = 0``) and ``τ`` [samples]."""
     y_win = windows.take(np.asarray(y_nom, float))
-    c = timing_sensitivity(cfg, run.u, windows)
+    # the sensitivity on each fitted stretch with its warm-up (nothing else of TRAIN is read by a fit)
+    c_spans = [timing_sensitivity(cfg, run.u[w:stop]) for w, _, stop in windows.spans]
+    c = np.concatenate([cs[start - w:] for cs, (w, start, _) in zip(c_spans, windows.spans)])
+    c = c - c.mean(axis=0)
     r = residual(windows.take(np.asarray(run.y, float)), y_win)
     aligned = align_timing(r, c)
     cc = float(np.sum(c * c))
@@ -140,11 +143,10 @@ def _timing_aligned(cfg: PiezoConfig, run: RunData, y_nom: np.ndarray, windows: 
     if tau == 0.0:
         return run, 0.0
     # measured − nominal(τ) = measured − nominal − τ·c: the measurement minus τ·c is what the convention τ
-    # would have recorded; fitted on the whole run's sensitivity
-    # (on the fitted stretches with their warm-ups only: nothing else of TRAIN is read by a fit)
+    # would have recorded
     y_run = np.array(run.y, float)
-    for w, _, stop in windows.spans:
-        y_run[w:stop] -= tau * timing_sensitivity(cfg, run.u[w:stop])
+    for cs, (w, _, stop) in zip(c_spans, windows.spans):
+        y_run[w:stop] -= tau * cs
     return dataclasses.replace(run, y=y_run), tau
 
 
