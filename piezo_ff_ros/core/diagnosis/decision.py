@@ -140,7 +140,9 @@ def _timing_aligned(cfg: PiezoConfig, run: RunData, y_nom: np.ndarray, windows: 
     aligned = align_timing(r, c)
     cc = float(np.sum(c * c))
     tau = float(np.sum((r - aligned) * c) / cc) if cc > 0 and aligned is not r else 0.0
-    if tau == 0.0:
+    # an offset at the bound is not a convention but a lag (``input_delay``'s to explain): TRAIN is left as recorded
+    # (a first-order correction about the nominal's convention would be wrong that far from it)
+    if tau == 0.0 or abs(tau) >= TIMING_CONVENTION_SAMPLES * (1 - 1e-9):
         return run, 0.0
     # measured − nominal(τ) = measured − nominal − τ·c: the measurement minus τ·c is what the convention τ
     # would have recorded
