@@ -235,13 +235,13 @@ def _crossing(M: np.ndarray, a: np.ndarray, hc: np.ndarray, j: int, sj: float, t
     at ``tau``): Newton safeguarded by bisection, to rounding."""
     lo = 0.0
     hi = tau
-    flo = sj * hc[j]
+    flo = float(sj * hc[j])
     t = tau * flo / (flo - fhi)
     if not (t > lo and t < hi):
         t = 0.5 * (lo + hi)
     for _ in range(100):
         _flow(M, a, hc, t, hr, term, tmp)
-        f = sj * hr[j]
+        f = float(sj * hr[j])
         if f > 0.0:
             lo = t
         elif f < 0.0:
