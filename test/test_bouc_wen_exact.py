@@ -154,3 +154,32 @@ def test_compensator_inverts_the_model_across_all_regimes(paper, which):
     assert np.max(np.abs(y - yh)) < 1e-12 * np.max(np.abs(yh))
     assert comp.fallbacks == 0
     assert np.array_equal(model.bw_state.h, comp.h)
+
+
+@pytest.mark.parametrize("alpha", [0.0, 0.4])
+def test_two_axis_fast_path_of_the_generic_loop_gives_the_generic_numbers(paper, alpha):
+    """The generic (rate) model loop takes the two-axis increment for two axes: its numbers are those of the
+    generic increment, seen through a third, uncoupled axis that forces the generic code."""
+    from piezo_ff_ros.core.kernels.bouc_wen import BoucWenParams
+    rng = np.random.default_rng(5)
+    u2 = np.ascontiguousarray(np.cumsum(rng.normal(0.0, 3.0, (3000, 2)), axis=0))
+    p2 = kb.params_of(_generalized(paper).arrays())
+
+    def embed(m, corner=0.0):
+        out = np.zeros((3, 3))
+        out[:2, :2] = m
+        out[2, 2] = corner
+        return out
+    p3 = BoucWenParams(embed(p2.Dp, 1e-7), embed(p2.A), embed(p2.B), embed(p2.G), embed(p2.D1), embed(p2.D2),
+                       embed(p2.P))
+    u3 = np.ascontiguousarray(np.column_stack([u2, np.zeros(len(u2))]))
+
+    def run(p, u):
+        n = u.shape[1]
+        y, hs = np.empty_like(u), np.empty_like(u)
+        kb.bw_model_rate_run(p, alpha, 50.0, 0.9, 5e-5, np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(1, np.bool_),
+                             u, y, hs)
+        return hs
+    h2, h3 = run(p2, u2), run(p3, u3)
+    assert np.array_equal(h2, h3[:, :2]) and not np.any(h3[:, 2])
+    assert np.max(np.abs(h2)) > 0

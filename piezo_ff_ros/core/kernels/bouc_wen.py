@@ -389,6 +389,19 @@ def bw_path_increment(p: BoucWenParams, sigma: float, h: np.ndarray, du: np.ndar
 
 
 @njit
+def _coeffs_2x2_or_zeros(p: BoucWenParams) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`coeffs_2x2` inside compiled code (28 zeros unless two voltages and two outputs)."""
+    c = np.zeros(28)
+    if p.A.shape[0] == 2 and p.A.shape[1] == 2:
+        mats = (p.Dp, p.A, p.B, p.G, p.D1, p.D2, p.P)
+        for m in range(7):
+            for i in range(2):
+                for j in range(2):
+                    c[4 * m + 2 * i + j] = mats[m][i, j]
+    return c
+
+
+@njit
 def bw_model_run(p: BoucWenParams, h: np.ndarray, u_prev: np.ndarray, started: np.ndarray, u: np.ndarray,
                  y: np.ndarray, hs: np.ndarray) -> None:  # pragma: no cover - compiled
     """The model ``Y = Dp·U − h`` over a block ``u [N, k]``: ``y``, ``hs`` [N, n] written, state carried."""
@@ -417,6 +430,9 @@ def bw_model_rate_run(p: BoucWenParams, alpha: float, rate_ref: float, a_smooth:
     he = np.zeros(n)
     ws = path_scratch(n)
     sigma = bw_sigma(p)
+    # two axes: the increment from the two-axis kernel (the same numbers, parameters in registers)
+    two = n == 2 and k == 2
+    c = model_coeff_tuple(_coeffs_2x2_or_zeros(p))
     for t in range(N):
         if not started[0]:
             for j in range(k):
@@ -424,7 +440,10 @@ def bw_model_rate_run(p: BoucWenParams, alpha: float, rate_ref: float, a_smooth:
             started[0] = True
         for j in range(k):
             du[j] = u[t, j] - u_prev[j]
-        bw_path_increment(p, sigma, h, du, dh, duh, hw, he, ws)
+        if two:
+            dh[0], dh[1] = _bw2_path_dh(c, sigma, h[0], h[1], du[0], du[1])
+        else:
+            bw_path_increment(p, sigma, h, du, dh, duh, hw, he, ws)
         if alpha != 0.0:
             # the rate only enlarges the A term: added separately, so the nominal increment stays the same numbers
             for j in range(k):
@@ -983,15 +1002,21 @@ def bw2_path_increment(c: Coeffs2, sigma: float, h0: float, h1: float, du0: floa
     return h0 + dh0, h1 + dh1
 
 
+@njit(inline="always")
+def _bw2_path_dh(c: Coeffs2, sigma: float, h0: float, h1: float, du0: float,
+                 du1: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    """The increment ``dh`` of :func:`bw_path_increment` for two axes (same numbers)."""
+    w = bw2_path_weight(c, sigma, du0, du1)
+    if w < 0.0:
+        return bw2_increment(c, h0, h1, du0, du1)
+    return _bw2_large_step(c, sigma, w, h0, h1, du0, du1)
+
+
 @njit
 def _bw2_residual(c: Coeffs2, sigma: float, h0: float, h1: float, r0: float, r1: float, du0: float,
                   du1: float) -> tuple[float, float]:  # pragma: no cover - compiled
     """:func:`_comp_residual` for two axes (same numbers)."""
-    w = bw2_path_weight(c, sigma, du0, du1)
-    if w < 0.0:
-        dh0, dh1 = bw2_increment(c, h0, h1, du0, du1)
-    else:
-        dh0, dh1 = _bw2_large_step(c, sigma, w, h0, h1, du0, du1)
+    dh0, dh1 = _bw2_path_dh(c, sigma, h0, h1, du0, du1)
     f0 = -r0 - dh0
     f0 += c[0] * du0
     f0 += c[1] * du1
