@@ -116,7 +116,8 @@ def test_h_is_continuous_across_the_one_step_boundary(paper, which):
         eps = 1e-9 * s0
         below = _path(cfg, h, (s0 - eps) * direction)
         above = _path(cfg, h, (s0 + eps) * direction)
-        slope = np.max(np.abs(_path(cfg, h, 1.01 * s0 * direction) - _path(cfg, h, 0.99 * s0 * direction))) / (0.02 * s0)
+        spread = _path(cfg, h, 1.01 * s0 * direction) - _path(cfg, h, 0.99 * s0 * direction)
+        slope = np.max(np.abs(spread)) / (0.02 * s0)
         assert np.max(np.abs(above - below)) < 10 * slope * 2 * eps
 
 
