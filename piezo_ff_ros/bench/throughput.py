@@ -49,33 +49,62 @@ def _naive_increment(p: dict[str, np.ndarray], h: np.ndarray, du: np.ndarray) ->
     return p["A"] @ du - p["B"] @ (ad * h) - p["Gamma"] @ (duh * ah) - p["Delta1"] @ (duh * h) - p["Delta2"] @ (ad * ah)
 
 
+def _naive_exact(p: dict[str, np.ndarray], h: np.ndarray, du: np.ndarray, sigma: float) -> np.ndarray:
+    """h at the end of the straight step ``du``: in each sign orthant of h the increment's ODE is linear,
+    ``dh/dλ = A·dU + M·h``, solved by ``expm`` of the augmented matrix; a sign change of h is located by ``brentq``
+    and the path continues in the next orthant (the kernels' exact path, written plainly)."""
+    import scipy.linalg
+    import scipy.optimize
+    q = p["P"] @ du
+    a = p["A"] @ du
+    n = len(h)
+    B, G, D1, D2 = p["B"], p["Gamma"], p["Delta1"], p["Delta2"]
+    tau_max = min(1.0, 0.5 / (sigma * float(np.max(np.abs(q)))))
+    h = np.array(h, float)
+    lam = 0.0
+    while lam < 1.0:
+        s = np.sign(h)
+        M = -(np.abs(q)[None, :] * (B + D2 * s[None, :]) + q[None, :] * (G * s[None, :] + D1))
+        if np.any(s == 0):
+            d = a + M @ h
+            s = np.where(s == 0, np.where(d < 0, -1.0, 1.0), s)
+            M = -(np.abs(q)[None, :] * (B + D2 * s[None, :]) + q[None, :] * (G * s[None, :] + D1))
+        aug = np.zeros((n + 1, n + 1))
+        aug[:n, :n] = M
+        aug[:n, n] = a
+
+        def flow(t: float, aug: np.ndarray = aug, h: np.ndarray = h) -> np.ndarray:
+            out: np.ndarray = (scipy.linalg.expm(aug * t) @ np.r_[h, 1.0])[:n]
+            return out
+        tau = min(1.0 - lam, tau_max)
+        end = flow(tau)
+        crossed = [j for j in range(n) if s[j] * end[j] < 0]
+        if not crossed:
+            h, lam = end, lam + tau
+            continue
+        tc, jc = min((scipy.optimize.brentq(lambda t, j=j: float(flow(t)[j]), 0.0, tau, xtol=1e-18, rtol=1e-15), j)
+                     for j in crossed)
+        h = flow(tc)
+        h[jc] = 0.0
+        lam += tc
+    return h
+
+
 def _naive_path(p: dict[str, np.ndarray], h: np.ndarray, du: np.ndarray) -> np.ndarray:
-    """h after the step ``du`` along its straight path: one explicit step while ``κ = σ·max|dÛ| ≤ KAPPA_MAX``, else
-    the blend of m and m + 1 equal sub-steps, ``m + θ = κ / KAPPA_MAX`` (the kernels' rule, written plainly)."""
+    """h after the step ``du`` along its straight path: one explicit step while ``κ = σ·max|dÛ| ≤ KAPPA_MAX``, the
+    exact path beyond ``2·KAPPA_MAX`` (:func:`_naive_exact`), blended in between (the kernels' rule, written
+    plainly)."""
     from ..core.kernels.bouc_wen import KAPPA_MAX
     sigma = float(np.max(np.sum(np.abs(p["B"]) + np.abs(p["Gamma"]) + np.abs(p["Delta1"]) + np.abs(p["Delta2"]),
                                 axis=1)))
     x = sigma * float(np.max(np.abs(p["P"] @ du)))
+    one = h + _naive_increment(p, h, du)
     if not x > KAPPA_MAX:
-        return h + _naive_increment(p, h, du)
-    m = int(np.floor(x / KAPPA_MAX))
-    theta = x / KAPPA_MAX - m
-    A, B, G, D1, D2, P = (p[k].tolist() for k in ("A", "B", "Gamma", "Delta1", "Delta2", "P"))
-    n, k = len(A), len(A[0])
-    ends = []
-    for q in (m, m + 1):
-        # the sub-steps in plain floats (numpy per sub-step would make the baseline mostly call overhead)
-        hq = h.tolist()
-        d = (du / q).tolist()
-        dh_ = [sum(P[i][j] * d[j] for j in range(k)) for i in range(n)]
-        ad = [abs(v) for v in dh_]
-        for _ in range(q):
-            ah = [abs(v) for v in hq]
-            hq = [hq[i] + sum(A[i][j] * d[j] for j in range(k))
-                  - sum(B[i][j] * ad[j] * hq[j] + G[i][j] * dh_[j] * ah[j] + D1[i][j] * dh_[j] * hq[j]
-                        + D2[i][j] * ad[j] * ah[j] for j in range(n)) for i in range(n)]
-        ends.append(np.array(hq))
-    return ends[0] + theta * (ends[1] - ends[0])
+        return one
+    exact = _naive_exact(p, h, du, sigma)
+    w = min(x / KAPPA_MAX - 1.0, 1.0)
+    out: np.ndarray = one + w * (exact - one)
+    return out
 
 
 def _naive_refine(p: dict[str, np.ndarray], h: np.ndarray, r: np.ndarray, du: np.ndarray) -> np.ndarray:

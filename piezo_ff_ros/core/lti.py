@@ -14,7 +14,7 @@ well conditioned, otherwise through a dense ZOH (``scipy.linalg.expm``) in a sin
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -71,6 +71,12 @@ def static_gain(x: ArrayLike, M: ArrayLike) -> np.ndarray:
         y += xa[:, j:j + 1] * Ma[:, j]
     return y
 
+
+#: the discretisations :meth:`DiscreteModalSS.zoh_from_tf_matrix` remembers (oldest dropped first)
+_ZOH_CACHE: dict[Any, "DiscreteModalSS"] = {}
+_ZOH_CACHE_SIZE = 32
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # Discrete block-diagonal state space and its streaming filter
 # ----------------------------------------------------------------------------------------------------------------
@@ -109,7 +115,26 @@ class DiscreteModalSS:
     # -- construction -----------------------------------------------------------------------------------------
     @staticmethod
     def zoh_from_tf_matrix(tfm: TFMatrix, dt: float) -> "DiscreteModalSS":
-        """Each SISO entry discretised on its own by exact zero-order hold, stacked."""
+        """Each SISO entry discretised on its own by exact zero-order hold, stacked.
+
+        Remembered per ``(tfm, dt)`` (a diagnosis rebuilds the same nominal plant hundreds of times; the poles and
+        residues of order-9 entries dominate that): each call gets its own copy of the arrays.
+        """
+        try:
+            key: Any = (tfm, float(dt))
+            hit = _ZOH_CACHE.get(key)
+        except TypeError:  # unhashable entries: no memory
+            key, hit = None, None
+        if hit is None:
+            hit = DiscreteModalSS._zoh_from_tf_matrix(tfm, dt)
+            if key is not None:
+                if len(_ZOH_CACHE) >= _ZOH_CACHE_SIZE:
+                    _ZOH_CACHE.pop(next(iter(_ZOH_CACHE)))
+                _ZOH_CACHE[key] = hit
+        return DiscreteModalSS(hit.A.copy(), hit.B.copy(), hit.C.copy(), hit.D.copy(), hit.sizes.copy(), hit.dt)
+
+    @staticmethod
+    def _zoh_from_tf_matrix(tfm: TFMatrix, dt: float) -> "DiscreteModalSS":
         n_out, n_in = tfm.shape
         blocks: list[Block] = []
         D = np.zeros((n_out, n_in))

@@ -11,15 +11,17 @@ The increment of h for a voltage step dU (``dÛ = P·dU``)::
 Bouc-Wen is rate independent: h depends on the voltage path, not on how fast it is followed.  One explicit step per
 sample is accurate only while the step is small: its relative error grows with ``κ = σ·max_j |dÛ_j|``, σ the largest
 row sum of ``|B| + |Γ| + |Δ1| + |Δ2|`` (42 % off on 100 V steps, ~0.1 % of the output with 1 V steps on the paper's
-tube).  So a sample's increment is integrated along the straight voltage path (:func:`substep_split`,
+tube).  So a sample's increment is integrated along the straight voltage path (:func:`path_weight`,
 :func:`bw_path_increment`, :func:`bw2_path_increment`): one explicit step while ``κ ≤`` :data:`KAPPA_MAX` (0.11 V per
 sample on the paper's tube: its 0.1 Hz hysteresis sines and open-loop circles at 20 kHz), with exactly the numbers of
-the single-step form; beyond, the blend ``(1 − θ)·H_m + θ·H_{m+1}`` of m and m + 1 equal explicit sub-steps,
-``m + θ = κ / KAPPA_MAX`` (continuous in the step, so that it can be inverted).  The sub-steps have ``κ`` of about
-:data:`KAPPA_MAX` whatever the sample rate: the model follows the continuous Bouc-Wen equally well at 100 Hz and at
-20 kHz.  The compensator inverts the same path increment (Newton on the sub-step chains when one step is not
-enough, :func:`bw_refine`, :func:`bw2_refine`), so the model and its inverse stay exact inverses and share h bit for
-bit.
+the single-step form; beyond, the exact solution along the path (:func:`bw_exact_path`, :func:`bw2_exact_path`:
+along a straight step ``dÛ`` is constant, so the ODE in the path parameter is linear in h inside each sign orthant
+of h, and is summed by its Taylor series piece by piece, stopping where a component of h changes sign), blended
+with the one explicit step for ``KAPPA_MAX < κ < 2·KAPPA_MAX`` so that h is a continuous function of the step (the
+compensator inverts it).  The model follows the continuous Bouc-Wen equally well at 100 Hz and at 20 kHz, and a
+100 V step costs a few series instead of ~1000 explicit sub-steps.  The compensator inverts the same path
+increment (Newton, :func:`bw_refine`, :func:`bw2_refine`), so the model and its inverse stay exact inverses and
+share h bit for bit.
 
 Parameters travel as :class:`BoucWenParams` (named arrays), the compensator's state as :class:`CompState`, its
 options as :class:`CompOptions`, and its counters in an int64 array indexed by :data:`FALLBACKS` and
@@ -36,8 +38,9 @@ from .._jit import njit
 from .limits import CLAMPED, SLEWED, limit_step
 
 __all__ = ["BoucWenParams", "CompState", "CompOptions", "FALLBACKS", "SATURATED", "N_COUNTERS", "params_of",
-           "KAPPA_MAX", "MAX_SUBSTEPS", "substep_split", "bw_sigma", "bw_path_increment", "bw_path_jacobian",
-           "bw_refine", "bw2_sigma", "bw2_substeps", "bw2_path_increment", "bw2_path_jacobian", "bw2_refine",
+           "KAPPA_MAX", "PIECE_KAPPA", "SERIES_TERMS", "MAX_PIECES", "path_weight", "path_scratch", "bw_sigma",
+           "bw_exact_path", "bw_path_increment", "bw_refine", "bw2_sigma", "bw2_path_weight", "bw2_exact_path",
+           "bw2_path_increment", "bw2_refine",
            "bw_increment", "bw_model_run", "bw_model_rate_run", "bw_model_run_2x2", "bw_comp_run", "bw_comp_run_2x2", "solve_small",
            "coeffs_2x2", "bw2_factors", "bw2_increment", "bw2_model_step", "bw2_comp_step", "bw2_comp_first", "comp_coeffs_2x2",
            "coeff_tuple", "model_coeff_tuple"]
@@ -51,8 +54,15 @@ N_COUNTERS = 2
 #: the largest ``κ = σ·max_j |dÛ_j|`` one explicit Bouc-Wen step may take (the relative change of the h-dependent
 #: terms in one step; the explicit step's error on h is about κ/3 of the loop's amplitude, ~0.01 % of the output here)
 KAPPA_MAX = 1.0e-3
-#: cap on the sub-steps of one sample (a 400 V step on the paper's tube needs ~3 700)
-MAX_SUBSTEPS = 1 << 20
+#: the largest ``‖M‖·Δλ`` of one piece of the exact path (its Taylor series then reaches rounding in ~16 terms)
+PIECE_KAPPA = 0.5
+#: the most terms of one piece's Taylor series
+SERIES_TERMS = 30
+#: ``1/k`` for the series' terms (a multiplication per term instead of a division: the per-sample latency)
+_INV = tuple(1.0 / k if k else 0.0 for k in range(SERIES_TERMS + 1))
+#: cap on the pieces of one sample's exact path (~2κ plus the sign changes of h: a 400 V step on the paper's tube
+#: takes ~8)
+MAX_PIECES = 1 << 20
 
 
 class BoucWenParams(NamedTuple):
@@ -129,27 +139,20 @@ def bw_increment(p: BoucWenParams, h: np.ndarray, du: np.ndarray, dh: np.ndarray
 
 
 @njit
-def substep_split(sigma: float, duh_max: float) -> tuple[int, float]:  # pragma: no cover - compiled
-    """How a sample whose largest ``|dÛ_j|`` is ``duh_max`` is integrated: ``(m, θ)``.
+def path_weight(sigma: float, duh_max: float) -> float:  # pragma: no cover - compiled
+    """How a sample whose largest ``|dÛ_j|`` is ``duh_max`` is integrated: the weight ``w`` of the exact path.
 
-    ``θ < 0``: one explicit step (``κ = σ·duh_max ≤ KAPPA_MAX``).  Else ``x = κ / KAPPA_MAX > 1``, ``m = ⌊x⌋`` and
-    ``θ = x − m``: the increment is ``(1 − θ)·H_m + θ·H_{m+1}``, ``H_m`` the result of m equal explicit sub-steps.
-    The blend makes h a continuous function of the step (plain ``⌈x⌉`` sub-steps jump where m changes, so the
-    compensator could not invert the model there); at ``x → 1`` it is the one step.  Non-finite steps take one step
-    (the result is non-finite anyway); at most :data:`MAX_SUBSTEPS`.
+    ``w < 0``: one explicit step (``κ = σ·duh_max ≤ KAPPA_MAX``, NaN included: the result is non-finite anyway).
+    ``0 ≤ w < 1`` (``KAPPA_MAX < κ < 2·KAPPA_MAX``): the blend ``(1 − w)·H_1 + w·H_exact`` of the one explicit step
+    and the exact path (:func:`bw_exact_path`), ``w = κ / KAPPA_MAX − 1``, so that h is a continuous function of
+    the step (the compensator inverts it).  ``w = 1``: the exact path alone.
     """
     x = sigma * duh_max
-    if x <= KAPPA_MAX:
-        return 1, -1.0
-    if x < MAX_SUBSTEPS * KAPPA_MAX:
-        xr = x / KAPPA_MAX
-        m = int(math.floor(xr))
-        if m < 1:
-            m = 1
-        return m, xr - m
-    if x != x:
-        return 1, -1.0
-    return MAX_SUBSTEPS, 0.0
+    if not x > KAPPA_MAX:
+        return -1.0
+    if x < 2.0 * KAPPA_MAX:
+        return x / KAPPA_MAX - 1.0
+    return 1.0
 
 
 @njit
@@ -167,29 +170,200 @@ def bw_sigma(p: BoucWenParams) -> float:  # pragma: no cover - compiled
 
 
 @njit
-def _bw_chain(p: BoucWenParams, m: int, h: np.ndarray, du: np.ndarray, hw: np.ndarray, dh: np.ndarray,
-              duh: np.ndarray, ds: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``hw`` ← h after ``m`` equal explicit steps of ``du / m``."""
+def path_scratch(n: int) -> np.ndarray:  # pragma: no cover - compiled
+    """The scratch :func:`bw_exact_path` needs for n outputs (allocated once per block, not per sample).
+
+    Parameters
+    ----------
+    n : int
+        Number of outputs (size of h).
+
+    Returns
+    -------
+    ndarray
+        ``[n + 8, n]``.
+    """
+    return np.zeros((n + 8, n))
+
+
+@njit
+def _bw_orthant(p: BoucWenParams, q: np.ndarray, s: np.ndarray, M: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``M`` ← the matrix of the flow ``dh/dλ = A·dU + M·h`` where ``sgn(h) = s`` (``q = P·dU``).
+
+    ``|h_j| = s_j·h_j`` there, so ``−(|q_j|·φ_ij + q_j·ψ_ij) = M_ij·h_j``.
+    """
+    n = q.shape[0]
+    for i in range(n):
+        for j in range(n):
+            M[i, j] = -(abs(q[j]) * (p.B[i, j] + p.D2[i, j] * s[j]) + q[j] * (p.G[i, j] * s[j] + p.D1[i, j]))
+
+
+@njit
+def _flow(M: np.ndarray, a: np.ndarray, hc: np.ndarray, t: float, out: np.ndarray, term: np.ndarray,
+          tmp: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``out`` ← the solution of ``dh/dλ = a + M·h`` at ``λ = t`` from ``hc`` (its Taylor series, summed until
+    the terms are below rounding: ``‖M‖·t ≤`` :data:`PIECE_KAPPA`, so at most :data:`SERIES_TERMS` terms)."""
+    n = hc.shape[0]
+    for i in range(n):
+        acc = a[i]
+        for j in range(n):
+            acc += M[i, j] * hc[j]
+        term[i] = t * acc
+        out[i] = hc[i] + term[i]
+    for kk in range(2, SERIES_TERMS + 1):
+        f = t * _INV[kk]
+        for i in range(n):
+            acc = 0.0
+            for j in range(n):
+                acc += M[i, j] * term[j]
+            tmp[i] = f * acc
+        big = 0.0
+        scale = 0.0
+        for i in range(n):
+            term[i] = tmp[i]
+            out[i] += tmp[i]
+            if abs(tmp[i]) > big:
+                big = abs(tmp[i])
+            if abs(out[i]) > scale:
+                scale = abs(out[i])
+        if not big > 1e-17 * scale:
+            break
+
+
+@njit
+def _crossing(M: np.ndarray, a: np.ndarray, hc: np.ndarray, j: int, sj: float, tau: float, fhi: float,
+              hr: np.ndarray, term: np.ndarray, tmp: np.ndarray) -> float:  # pragma: no cover - compiled
+    """The λ in ``(0, tau)`` where ``h_j`` of :func:`_flow` crosses zero (``sj·h_j ≥ 0`` at 0, ``sj·h_j = fhi < 0``
+    at ``tau``): Newton safeguarded by bisection, to rounding."""
+    lo = 0.0
+    hi = tau
+    flo = float(sj * hc[j])
+    t = tau * flo / (flo - fhi)
+    if not (t > lo and t < hi):
+        t = 0.5 * (lo + hi)
+    for _ in range(100):
+        _flow(M, a, hc, t, hr, term, tmp)
+        f = float(sj * hr[j])
+        if f > 0.0:
+            lo = t
+        elif f < 0.0:
+            hi = t
+        else:
+            return t
+        acc = a[j]
+        for l in range(hc.shape[0]):
+            acc += M[j, l] * hr[l]
+        d = sj * acc
+        tn = 0.5 * (lo + hi)
+        if d != 0.0:
+            tn = t - f / d
+            if not (tn > lo and tn < hi):
+                tn = 0.5 * (lo + hi)
+        if not abs(tn - t) > 4e-16 * tau or not hi - lo > 4e-16 * tau:
+            return tn
+        t = tn
+    return t
+
+
+@njit
+def bw_exact_path(p: BoucWenParams, sigma: float, h: np.ndarray, du: np.ndarray, he: np.ndarray,
+                  ws: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``he`` ← h at the end of the straight voltage path ``du``, integrated exactly.
+
+    Along the path ``U + λ·dU`` (λ from 0 to 1) the increment is the ODE ``dh/dλ = A·dU − Σ_j (|dÛ_j|·φ_ij +
+    dÛ_j·ψ_ij)``, linear in h inside each sign orthant of h (``dÛ = P·dU`` is constant): ``dh/dλ = a + M·h``
+    (:func:`_bw_orthant`).  It is solved piece by piece by its Taylor series (:func:`_flow`: pieces with
+    ``‖M‖·Δλ ≤`` :data:`PIECE_KAPPA`, ~2κ of them), stopping where a component of h changes sign
+    (:func:`_crossing`) to continue in the next orthant.  A component at zero leaves it in the direction of its
+    derivative (which does not depend on its own sign).  ``ws`` is :func:`path_scratch`; nothing is allocated.
+    """
     n = h.shape[0]
     k = du.shape[0]
-    for j in range(k):
-        ds[j] = du[j] / m
+    M = ws[:n]
+    q = ws[n]
+    a = ws[n + 1]
+    s = ws[n + 2]
+    term = ws[n + 3]
+    tmp = ws[n + 4]
+    hx = ws[n + 5]
+    hr = ws[n + 6]
+    big = 0.0
     for i in range(n):
-        hw[i] = h[i]
-    for _ in range(m):
-        bw_increment(p, hw, ds, dh, duh)
+        acc = 0.0
+        for j in range(k):
+            acc += p.P[i, j] * du[j]
+        q[i] = acc
+        if abs(acc) > big:
+            big = abs(acc)
+    for i in range(n):
+        acc = 0.0
+        for j in range(k):
+            acc += p.A[i, j] * du[j]
+        a[i] = acc
+    kap = sigma * big
+    if not kap < np.inf:
+        # non-finite step: the one explicit step (non-finite too)
+        bw_increment(p, h, du, tmp, term)
         for i in range(n):
-            hw[i] += dh[i]
+            he[i] = h[i] + tmp[i]
+        return
+    tau_max = 1.0
+    if kap > PIECE_KAPPA:
+        tau_max = PIECE_KAPPA / kap
+    for i in range(n):
+        he[i] = h[i]
+    lam = 0.0
+    for _ in range(MAX_PIECES):
+        rem = 1.0 - lam
+        if not rem > 0.0:
+            break
+        zero = False
+        for j in range(n):
+            s[j] = 1.0 if he[j] > 0.0 else (-1.0 if he[j] < 0.0 else 0.0)
+            if s[j] == 0.0:
+                zero = True
+        _bw_orthant(p, q, s, M)
+        if zero:
+            for i in range(n):
+                acc = a[i]
+                for j in range(n):
+                    acc += M[i, j] * he[j]
+                tmp[i] = acc
+            for j in range(n):
+                if s[j] == 0.0:
+                    s[j] = -1.0 if tmp[j] < 0.0 else 1.0
+            _bw_orthant(p, q, s, M)
+        tau = rem if rem < tau_max else tau_max
+        _flow(M, a, he, tau, hx, term, tmp)
+        tc = tau
+        jc = -1
+        for j in range(n):
+            if s[j] * hx[j] < 0.0:
+                t = _crossing(M, a, he, j, s[j], tau, s[j] * hx[j], hr, term, tmp)
+                if t < tc:
+                    tc = t
+                    jc = j
+        if jc >= 0:
+            _flow(M, a, he, tc, hx, term, tmp)
+            hx[jc] = 0.0
+            lam += tc
+        else:
+            lam += tau
+        for i in range(n):
+            he[i] = hx[i]
+        if jc < 0 and tau == rem:
+            break
 
 
 @njit
 def bw_path_increment(p: BoucWenParams, sigma: float, h: np.ndarray, du: np.ndarray, dh: np.ndarray,
-                      duh: np.ndarray, ds: np.ndarray, hw: np.ndarray,
-                      hv: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``dh`` ← the increment of h along the straight voltage path ``du`` (:func:`substep_split`): exactly
-    :func:`bw_increment` when one step is enough, else the blend of m and m + 1 equal explicit sub-steps.
+                      duh: np.ndarray, hw: np.ndarray, he: np.ndarray,
+                      ws: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``dh`` ← the increment of h along the straight voltage path ``du`` (:func:`path_weight`): exactly
+    :func:`bw_increment` when one step is enough, else the exact path (:func:`bw_exact_path`), blended with the
+    one step just above :data:`KAPPA_MAX`.
 
-    ``duh`` [n], ``ds`` [k], ``hw``, ``hv`` [n] are scratch; nothing is allocated.
+    ``duh``, ``hw``, ``he`` [n] and ``ws`` (:func:`path_scratch`) are scratch; nothing is allocated.
     """
     n = h.shape[0]
     k = du.shape[0]
@@ -200,14 +374,33 @@ def bw_path_increment(p: BoucWenParams, sigma: float, h: np.ndarray, du: np.ndar
             acc += p.P[i, j] * du[j]
         if abs(acc) > big:
             big = abs(acc)
-    m, theta = substep_split(sigma, big)
-    if theta < 0.0:
+    w = path_weight(sigma, big)
+    if w < 0.0:
         bw_increment(p, h, du, dh, duh)
         return
-    _bw_chain(p, m, h, du, hw, dh, duh, ds)
-    _bw_chain(p, m + 1, h, du, hv, dh, duh, ds)
-    for i in range(n):
-        dh[i] = (hw[i] + theta * (hv[i] - hw[i])) - h[i]
+    bw_exact_path(p, sigma, h, du, he, ws)
+    if w < 1.0:
+        bw_increment(p, h, du, dh, duh)
+        for i in range(n):
+            hw[i] = h[i] + dh[i]
+        for i in range(n):
+            dh[i] = (hw[i] + w * (he[i] - hw[i])) - h[i]
+    else:
+        for i in range(n):
+            dh[i] = he[i] - h[i]
+
+
+@njit
+def _coeffs_2x2_or_zeros(p: BoucWenParams) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`coeffs_2x2` inside compiled code (28 zeros unless two voltages and two outputs)."""
+    c = np.zeros(28)
+    if p.A.shape[0] == 2 and p.A.shape[1] == 2:
+        mats = (p.Dp, p.A, p.B, p.G, p.D1, p.D2, p.P)
+        for m in range(7):
+            for i in range(2):
+                for j in range(2):
+                    c[4 * m + 2 * i + j] = mats[m][i, j]
+    return c
 
 
 @njit
@@ -233,12 +426,15 @@ def bw_model_rate_run(p: BoucWenParams, alpha: float, rate_ref: float, a_smooth:
     n = h.shape[0]
     du = np.zeros(k)
     dus = np.zeros(k)
-    ds = np.zeros(k)
     dh = np.zeros(n)
     duh = np.zeros(n)
     hw = np.zeros(n)
-    hv = np.zeros(n)
+    he = np.zeros(n)
+    ws = path_scratch(n)
     sigma = bw_sigma(p)
+    # two axes: the increment from the two-axis kernel (the same numbers, parameters in registers)
+    two = n == 2 and k == 2
+    c = model_coeff_tuple(_coeffs_2x2_or_zeros(p))
     for t in range(N):
         if not started[0]:
             for j in range(k):
@@ -246,7 +442,10 @@ def bw_model_rate_run(p: BoucWenParams, alpha: float, rate_ref: float, a_smooth:
             started[0] = True
         for j in range(k):
             du[j] = u[t, j] - u_prev[j]
-        bw_path_increment(p, sigma, h, du, dh, duh, ds, hw, hv)
+        if two:
+            dh[0], dh[1] = _bw2_path_dh(c, sigma, h[0], h[1], du[0], du[1])
+        else:
+            bw_path_increment(p, sigma, h, du, dh, duh, hw, he, ws)
         if alpha != 0.0:
             # the rate only enlarges the A term: added separately, so the nominal increment stays the same numbers
             for j in range(k):
@@ -320,98 +519,76 @@ def solve_small(M: np.ndarray, r: np.ndarray, x: np.ndarray, a: np.ndarray,
 
 
 @njit
-def bw_path_jacobian(p: BoucWenParams, m: int, h: np.ndarray, du: np.ndarray, hw: np.ndarray, J: np.ndarray,
-                     Jn: np.ndarray, ds: np.ndarray, dh: np.ndarray,
-                     duh: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``hw`` ← h after ``m`` equal explicit sub-steps of ``du`` (as :func:`bw_path_increment`), ``J`` [n, k] ←
-    ∂hw/∂du (forward differentiation through the sub-steps; ``Jn``, ``ds``, ``dh``, ``duh`` scratch)."""
+def _comp_residual(p: BoucWenParams, sigma: float, h: np.ndarray, r: np.ndarray, du: np.ndarray, F: np.ndarray,
+                   dh: np.ndarray, duh: np.ndarray, hw: np.ndarray, he: np.ndarray,
+                   ws: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``F`` ← ``Dp·du − Δh(du) − r``, Δh the path increment (:func:`bw_path_increment`)."""
     n = h.shape[0]
     k = du.shape[0]
-    for j in range(k):
-        ds[j] = du[j] / m
+    bw_path_increment(p, sigma, h, du, dh, duh, hw, he, ws)
     for i in range(n):
-        hw[i] = h[i]
+        acc = -r[i] - dh[i]
         for j in range(k):
-            J[i, j] = 0.0
-    for _ in range(m):
-        for l in range(n):
-            acc = 0.0
-            for j in range(k):
-                acc += p.P[l, j] * ds[j]
-            duh[l] = acc
-        for i in range(n):
-            for j in range(k):
-                # direct term: (A − Σ_l (sgn(dÛ_l)·φ_il + ψ_il)·P_l) / m
-                acc = p.A[i, j]
-                for l in range(n):
-                    ah = abs(hw[l])
-                    sgn = 1.0 if duh[l] > 0.0 else (-1.0 if duh[l] < 0.0 else 0.0)
-                    acc -= (sgn * (p.B[i, l] * hw[l] + p.D2[i, l] * ah) + (p.G[i, l] * ah + p.D1[i, l] * hw[l])) \
-                        * p.P[l, j]
-                acc /= m
-                # through h: J + Σ_l ∂dh_i/∂h_l · J_lj
-                g = J[i, j]
-                for l in range(n):
-                    sh = 1.0 if hw[l] > 0.0 else (-1.0 if hw[l] < 0.0 else 0.0)
-                    dd = abs(duh[l]) * (p.B[i, l] + p.D2[i, l] * sh) + duh[l] * (p.G[i, l] * sh + p.D1[i, l])
-                    g -= dd * J[l, j]
-                Jn[i, j] = g + acc
-        bw_increment(p, hw, ds, dh, duh)
-        for i in range(n):
-            hw[i] += dh[i]
-            for j in range(k):
-                J[i, j] = Jn[i, j]
+            acc += p.Dp[i, j] * du[j]
+        F[i] = acc
 
 
 @njit
-def bw_refine(p: BoucWenParams, sigma: float, h: np.ndarray, r: np.ndarray, du: np.ndarray, ds: np.ndarray,
-              hw: np.ndarray, hv: np.ndarray, J: np.ndarray, Jv: np.ndarray, Jn: np.ndarray, M: np.ndarray,
-              G: np.ndarray, dh: np.ndarray, duh: np.ndarray, lu: np.ndarray,
-              rhs: np.ndarray) -> None:  # pragma: no cover - compiled
-    """Refine the one-step solution ``du`` of ``Dp·du − (h' − h) = r`` for the path increment (Newton).
+def bw_refine(p: BoucWenParams, sigma: float, h: np.ndarray, r: np.ndarray, du: np.ndarray, F0: np.ndarray,
+              Fj: np.ndarray, x: np.ndarray, M: np.ndarray, lu: np.ndarray, rhs: np.ndarray, dh: np.ndarray,
+              duh: np.ndarray, hw: np.ndarray, he: np.ndarray, ws: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Refine the one-step solution ``du`` of ``Dp·du − Δh(du) = r`` for the path increment (Newton).
 
-    Nothing to do (``du`` untouched) when ``du`` takes one step; else Newton's iterations on the blend of the
-    sub-step chains (:func:`bw_path_increment`, m and θ re-chosen from each iterate; θ's own, tiny, derivative is
-    left out), from the one-step solution, until the correction is at rounding level (at most 50 iterations).
+    Nothing to do (``du`` untouched) when ``du`` takes one step; else Newton's iterations on the path increment
+    (:func:`bw_path_increment`, its Jacobian by forward differences of relative step 1e-7: the convergence stays
+    ~1e-7 per iteration), from the one-step solution, until the correction is at rounding level or stops
+    shrinking (at most 50 iterations).  ``F0``, ``Fj``, ``rhs``, ``dh``, ``duh``, ``hw``, ``he`` [n], ``x`` [k],
+    ``M``, ``lu`` [n, n] and ``ws`` (:func:`path_scratch`) are scratch.
     """
     n = h.shape[0]
     k = du.shape[0]
+    prev = np.inf
     for it in range(50):
-        big = 0.0
-        for l in range(n):
-            acc = 0.0
-            for j in range(k):
-                acc += p.P[l, j] * du[j]
-            if abs(acc) > big:
-                big = abs(acc)
-        m, theta = substep_split(sigma, big)
-        if theta < 0.0:
-            if it == 0:
-                return
-            bw_path_jacobian(p, 1, h, du, hw, J, Jn, ds, dh, duh)
-        else:
-            bw_path_jacobian(p, m, h, du, hw, J, Jn, ds, dh, duh)
-            bw_path_jacobian(p, m + 1, h, du, hv, Jv, Jn, ds, dh, duh)
+        if it == 0:
+            big = 0.0
             for i in range(n):
-                hw[i] = hw[i] + theta * (hv[i] - hw[i])
+                acc = 0.0
                 for j in range(k):
-                    J[i, j] = J[i, j] + theta * (Jv[i, j] - J[i, j])
+                    acc += p.P[i, j] * du[j]
+                if abs(acc) > big:
+                    big = abs(acc)
+            if path_weight(sigma, big) < 0.0:
+                return
+        _comp_residual(p, sigma, h, r, du, F0, dh, duh, hw, he, ws)
+        size = 0.0
+        for j in range(k):
+            size = max(size, abs(du[j]))
+        eps = 1e-7 * size
+        if not eps > 0.0:
+            return
+        for j in range(k):
+            dj = du[j]
+            du[j] = dj + eps
+            e = du[j] - dj
+            _comp_residual(p, sigma, h, r, du, Fj, dh, duh, hw, he, ws)
+            du[j] = dj
+            for i in range(n):
+                M[i, j] = (Fj[i] - F0[i]) / e
         for i in range(n):
-            acc = -r[i] - (hw[i] - h[i])
-            for j in range(k):
-                acc += p.Dp[i, j] * du[j]
-                M[i, j] = p.Dp[i, j] - J[i, j]
-            G[i] = -acc
-        if not solve_small(M, G, ds, lu, rhs):
+            Fj[i] = -F0[i]
+        if not solve_small(M, Fj, x, lu, rhs):
             return
         step = 0.0
         size = 0.0
         for j in range(k):
-            du[j] += ds[j]
-            step = max(step, abs(ds[j]))
+            du[j] += x[j]
+            step = max(step, abs(x[j]))
             size = max(size, abs(du[j]))
         if not step > 4e-16 * size:
             return
+        if it >= 3 and not step < 0.5 * prev:
+            return   # rounding level: the corrections no longer shrink
+        prev = step
 
 
 @njit
@@ -422,8 +599,8 @@ def bw_comp_run(p: BoucWenParams, Dp_pinv: np.ndarray, st: CompState, opt: CompO
     Exact loop: given the signs of ``dÛ`` the increment of h is linear in dU, so each sign pattern gives a linear
     system ``(Dp − A + W·P)·dU = Y_H − Dp·U_prev + h``; the previous pattern is tried first, then all 2ⁿ, and the
     first consistent solution is kept (else the delayed formula, counted in ``counters[FALLBACKS]``).  A step that
-    the model integrates in several sub-steps (:func:`bw_path_increment`) is then refined by Newton on the sub-step
-    chain (:func:`bw_refine`), so that the model's output is again ``Y_H``.  The voltage then goes through :func:`~.limits.limit_step` (counted in ``counters[SATURATED]``).
+    the model does not take in one explicit step (:func:`bw_path_increment`) is then refined by Newton on the path
+    increment (:func:`bw_refine`), so that the model's output is again ``Y_H``.  The voltage then goes through :func:`~.limits.limit_step` (counted in ``counters[SATURATED]``).
     """
     h, u_prev, started, signs = st.h, st.u_prev, st.started, st.signs
     N = yh.shape[0]
@@ -438,13 +615,12 @@ def bw_comp_run(p: BoucWenParams, Dp_pinv: np.ndarray, st: CompState, opt: CompO
     duh = np.zeros(n)
     lu = np.zeros((n, n))
     rhs = np.zeros(n)
-    ds = np.zeros(k)
     hw = np.zeros(n)
-    hv = np.zeros(n)
-    J = np.zeros((n, k))
-    Jv = np.zeros((n, k))
-    Jn = np.zeros((n, k))
-    G = np.zeros(n)
+    he = np.zeros(n)
+    F0 = np.zeros(n)
+    Fj = np.zeros(n)
+    x = np.zeros(k)
+    ws = path_scratch(n)
     npat = 1 << n
     sigma = bw_sigma(p)
     for t in range(N):
@@ -505,7 +681,7 @@ def bw_comp_run(p: BoucWenParams, Dp_pinv: np.ndarray, st: CompState, opt: CompO
             if not solved:
                 counters[FALLBACKS] += 1
             else:
-                bw_refine(p, sigma, h, r, du, ds, hw, hv, J, Jv, Jn, M, G, dh, duh, lu, rhs)
+                bw_refine(p, sigma, h, r, du, F0, Fj, x, M, lu, rhs, dh, duh, hw, he, ws)
         if not solved:
             for j in range(k):
                 acc = 0.0
@@ -518,7 +694,7 @@ def bw_comp_run(p: BoucWenParams, Dp_pinv: np.ndarray, st: CompState, opt: CompO
             du[j] = v - u_prev[j]  # the step actually made: h follows the voltage output
             u_prev[j] = v
             u[t, j] = v
-        bw_path_increment(p, sigma, h, du, dh, duh, ds, hw, hv)
+        bw_path_increment(p, sigma, h, du, dh, duh, hw, he, ws)
         for i in range(n):
             h[i] += dh[i]
 
@@ -625,8 +801,8 @@ def bw2_sigma(c: Coeffs2) -> float:  # pragma: no cover - compiled
 
 
 @njit(inline="always")
-def bw2_substeps(c: Coeffs2, sigma: float, du0: float, du1: float) -> tuple[int, float]:  # pragma: no cover - compiled
-    """:func:`substep_split` of the step ``du`` for two axes."""
+def bw2_path_weight(c: Coeffs2, sigma: float, du0: float, du1: float) -> float:  # pragma: no cover - compiled
+    """:func:`path_weight` of the step ``du`` for two axes."""
     duh0 = 0.0 + c[24] * du0 + c[25] * du1
     duh1 = 0.0 + c[26] * du0 + c[27] * du1
     big = 0.0
@@ -634,155 +810,264 @@ def bw2_substeps(c: Coeffs2, sigma: float, du0: float, du1: float) -> tuple[int,
         big = abs(duh0)
     if abs(duh1) > big:
         big = abs(duh1)
-    return substep_split(sigma, big)
+    return path_weight(sigma, big)
+
+
+@njit(inline="always")
+def _bw2_orthant(c: Coeffs2, q0: float, q1: float, s0: float,
+                 s1: float) -> tuple[float, float, float, float]:  # pragma: no cover - compiled
+    """:func:`_bw_orthant` for two axes: ``(M00, M01, M10, M11)``."""
+    m00 = -(abs(q0) * (c[8] + c[20] * s0) + q0 * (c[12] * s0 + c[16]))
+    m01 = -(abs(q1) * (c[9] + c[21] * s1) + q1 * (c[13] * s1 + c[17]))
+    m10 = -(abs(q0) * (c[10] + c[22] * s0) + q0 * (c[14] * s0 + c[18]))
+    m11 = -(abs(q1) * (c[11] + c[23] * s1) + q1 * (c[15] * s1 + c[19]))
+    return m00, m01, m10, m11
+
+
+@njit(inline="always")
+def _bw2_flow(m00: float, m01: float, m10: float, m11: float, a0: float, a1: float, h0: float, h1: float,
+              t: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    """:func:`_flow` for two axes (same numbers)."""
+    acc = a0
+    acc += m00 * h0
+    acc += m01 * h1
+    t0 = t * acc
+    o0 = h0 + t0
+    acc = a1
+    acc += m10 * h0
+    acc += m11 * h1
+    t1 = t * acc
+    o1 = h1 + t1
+    for kk in range(2, SERIES_TERMS + 1):
+        f = t * _INV[kk]
+        acc = 0.0
+        acc += m00 * t0
+        acc += m01 * t1
+        x0 = f * acc
+        acc = 0.0
+        acc += m10 * t0
+        acc += m11 * t1
+        x1 = f * acc
+        big = 0.0
+        scale = 0.0
+        t0 = x0
+        o0 += x0
+        if abs(x0) > big:
+            big = abs(x0)
+        if abs(o0) > scale:
+            scale = abs(o0)
+        t1 = x1
+        o1 += x1
+        if abs(x1) > big:
+            big = abs(x1)
+        if abs(o1) > scale:
+            scale = abs(o1)
+        if not big > 1e-17 * scale:
+            break
+    return o0, o1
+
+
+@njit
+def _bw2_crossing(m00: float, m01: float, m10: float, m11: float, a0: float, a1: float, h0: float, h1: float,
+                  j: int, sj: float, tau: float, fhi: float) -> float:  # pragma: no cover - compiled
+    """:func:`_crossing` for two axes (same numbers)."""
+    lo = 0.0
+    hi = tau
+    flo = sj * (h0 if j == 0 else h1)
+    t = tau * flo / (flo - fhi)
+    if not (t > lo and t < hi):
+        t = 0.5 * (lo + hi)
+    for _ in range(100):
+        r0, r1 = _bw2_flow(m00, m01, m10, m11, a0, a1, h0, h1, t)
+        f = sj * (r0 if j == 0 else r1)
+        if f > 0.0:
+            lo = t
+        elif f < 0.0:
+            hi = t
+        else:
+            return t
+        if j == 0:
+            acc = a0
+            acc += m00 * r0
+            acc += m01 * r1
+        else:
+            acc = a1
+            acc += m10 * r0
+            acc += m11 * r1
+        d = sj * acc
+        tn = 0.5 * (lo + hi)
+        if d != 0.0:
+            tn = t - f / d
+            if not (tn > lo and tn < hi):
+                tn = 0.5 * (lo + hi)
+        if not abs(tn - t) > 4e-16 * tau or not hi - lo > 4e-16 * tau:
+            return tn
+        t = tn
+    return t
+
+
+@njit(inline="always")
+def bw2_exact_path(c: Coeffs2, sigma: float, h0: float, h1: float, du0: float,
+                   du1: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    """:func:`bw_exact_path` for two axes (same numbers): h at the end of the path."""
+    q0 = 0.0 + c[24] * du0 + c[25] * du1
+    q1 = 0.0 + c[26] * du0 + c[27] * du1
+    big = 0.0
+    if abs(q0) > big:
+        big = abs(q0)
+    if abs(q1) > big:
+        big = abs(q1)
+    a0 = 0.0 + c[4] * du0 + c[5] * du1
+    a1 = 0.0 + c[6] * du0 + c[7] * du1
+    kap = sigma * big
+    if not kap < np.inf:
+        dh0, dh1 = bw2_increment(c, h0, h1, du0, du1)
+        return h0 + dh0, h1 + dh1
+    tau_max = 1.0
+    if kap > PIECE_KAPPA:
+        tau_max = PIECE_KAPPA / kap
+    e0 = h0
+    e1 = h1
+    lam = 0.0
+    for _ in range(MAX_PIECES):
+        rem = 1.0 - lam
+        if not rem > 0.0:
+            break
+        s0 = 1.0 if e0 > 0.0 else (-1.0 if e0 < 0.0 else 0.0)
+        s1 = 1.0 if e1 > 0.0 else (-1.0 if e1 < 0.0 else 0.0)
+        m00, m01, m10, m11 = _bw2_orthant(c, q0, q1, s0, s1)
+        if s0 == 0.0 or s1 == 0.0:
+            d0 = a0
+            d0 += m00 * e0
+            d0 += m01 * e1
+            d1 = a1
+            d1 += m10 * e0
+            d1 += m11 * e1
+            if s0 == 0.0:
+                s0 = -1.0 if d0 < 0.0 else 1.0
+            if s1 == 0.0:
+                s1 = -1.0 if d1 < 0.0 else 1.0
+            m00, m01, m10, m11 = _bw2_orthant(c, q0, q1, s0, s1)
+        tau = rem if rem < tau_max else tau_max
+        x0, x1 = _bw2_flow(m00, m01, m10, m11, a0, a1, e0, e1, tau)
+        tc = tau
+        jc = -1
+        if s0 * x0 < 0.0:
+            t = _bw2_crossing(m00, m01, m10, m11, a0, a1, e0, e1, 0, s0, tau, s0 * x0)
+            if t < tc:
+                tc = t
+                jc = 0
+        if s1 * x1 < 0.0:
+            t = _bw2_crossing(m00, m01, m10, m11, a0, a1, e0, e1, 1, s1, tau, s1 * x1)
+            if t < tc:
+                tc = t
+                jc = 1
+        if jc >= 0:
+            x0, x1 = _bw2_flow(m00, m01, m10, m11, a0, a1, e0, e1, tc)
+            if jc == 0:
+                x0 = 0.0
+            else:
+                x1 = 0.0
+            lam += tc
+        else:
+            lam += tau
+        e0 = x0
+        e1 = x1
+        if jc < 0 and tau == rem:
+            break
+    return e0, e1
+
+
+@njit
+def _bw2_large_step(c: Coeffs2, sigma: float, w: float, h0: float, h1: float, du0: float,
+                    du1: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    """The increment ``dh`` of a step beyond one explicit step (``w ≥ 0``), as :func:`bw_path_increment`
+    computes it (out of line: the per-sample loop keeps its one-step body small)."""
+    e0, e1 = bw2_exact_path(c, sigma, h0, h1, du0, du1)
+    if w < 1.0:
+        i0, i1 = bw2_increment(c, h0, h1, du0, du1)
+        hw0 = h0 + i0
+        hw1 = h1 + i1
+        return (hw0 + w * (e0 - hw0)) - h0, (hw1 + w * (e1 - hw1)) - h1
+    return e0 - h0, e1 - h1
 
 
 @njit(inline="always")
 def bw2_path_increment(c: Coeffs2, sigma: float, h0: float, h1: float, du0: float,
                        du1: float) -> tuple[float, float]:  # pragma: no cover - compiled
     """h after the step ``du`` along its straight path (:func:`bw_path_increment` for two axes, same numbers)."""
-    m, theta = bw2_substeps(c, sigma, du0, du1)
-    if theta < 0.0:
+    w = bw2_path_weight(c, sigma, du0, du1)
+    if w < 0.0:
         dh0, dh1 = bw2_increment(c, h0, h1, du0, du1)
         return h0 + dh0, h1 + dh1
-    return _bw2_blend(c, m, theta, h0, h1, du0, du1)
-
-
-@njit
-def _bw2_chain(c: Coeffs2, m: int, h0: float, h1: float, du0: float,
-               du1: float) -> tuple[float, float]:  # pragma: no cover - compiled
-    """h after ``m`` equal explicit steps of ``du / m``."""
-    d0 = du0 / m
-    d1 = du1 / m
-    for _ in range(m):
-        dh0, dh1 = bw2_increment(c, h0, h1, d0, d1)
-        h0 += dh0
-        h1 += dh1
-    return h0, h1
-
-
-@njit
-def _bw2_blend(c: Coeffs2, m: int, theta: float, h0: float, h1: float, du0: float,
-               du1: float) -> tuple[float, float]:  # pragma: no cover - compiled
-    """``(1 − θ)·H_m + θ·H_{m+1}`` as :func:`bw_path_increment` computes it (out of line: the per-sample loop keeps
-    its one-step body small)."""
-    w0, w1 = _bw2_chain(c, m, h0, h1, du0, du1)
-    v0, v1 = _bw2_chain(c, m + 1, h0, h1, du0, du1)
-    dh0 = (w0 + theta * (v0 - w0)) - h0
-    dh1 = (w1 + theta * (v1 - w1)) - h1
+    dh0, dh1 = _bw2_large_step(c, sigma, w, h0, h1, du0, du1)
     return h0 + dh0, h1 + dh1
 
 
 @njit(inline="always")
-def _sgn(x: float) -> float:  # pragma: no cover - compiled
-    return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
+def _bw2_path_dh(c: Coeffs2, sigma: float, h0: float, h1: float, du0: float,
+                 du1: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    """The increment ``dh`` of :func:`bw_path_increment` for two axes (same numbers)."""
+    w = bw2_path_weight(c, sigma, du0, du1)
+    if w < 0.0:
+        return bw2_increment(c, h0, h1, du0, du1)
+    return _bw2_large_step(c, sigma, w, h0, h1, du0, du1)
 
 
 @njit
-def bw2_path_jacobian(c: Coeffs2, m: int, h0: float, h1: float, du0: float,
-                      du1: float) -> tuple[float, float, float, float, float, float]:  # pragma: no cover - compiled
-    """:func:`bw_path_jacobian` for two axes (same numbers): ``(hw0, hw1, J00, J01, J10, J11)``."""
-    a = (c[4], c[5], c[6], c[7])
-    b = (c[8], c[9], c[10], c[11])
-    g = (c[12], c[13], c[14], c[15])
-    e1 = (c[16], c[17], c[18], c[19])
-    e2 = (c[20], c[21], c[22], c[23])
-    pp = (c[24], c[25], c[26], c[27])
-    d0 = du0 / m
-    d1 = du1 / m
-    j00 = 0.0
-    j01 = 0.0
-    j10 = 0.0
-    j11 = 0.0
-    for _ in range(m):
-        q0 = 0.0 + pp[0] * d0 + pp[1] * d1
-        q1 = 0.0 + pp[2] * d0 + pp[3] * d1
-        ah0 = abs(h0)
-        ah1 = abs(h1)
-        s0 = _sgn(q0)
-        s1 = _sgn(q1)
-        sh0 = _sgn(h0)
-        sh1 = _sgn(h1)
-        n00 = 0.0
-        n01 = 0.0
-        n10 = 0.0
-        n11 = 0.0
-        for i in range(2):
-            # w_il = sgn(dÛ_l)·φ_il + ψ_il;  dd_il = ∂dh_i/∂h_l (as the generic loop)
-            w0 = s0 * (b[2 * i] * h0 + e2[2 * i] * ah0) + (g[2 * i] * ah0 + e1[2 * i] * h0)
-            w1 = s1 * (b[2 * i + 1] * h1 + e2[2 * i + 1] * ah1) + (g[2 * i + 1] * ah1 + e1[2 * i + 1] * h1)
-            dd0 = abs(q0) * (b[2 * i] + e2[2 * i] * sh0) + q0 * (g[2 * i] * sh0 + e1[2 * i])
-            dd1 = abs(q1) * (b[2 * i + 1] + e2[2 * i + 1] * sh1) + q1 * (g[2 * i + 1] * sh1 + e1[2 * i + 1])
-            for j in range(2):
-                acc = a[2 * i + j]
-                acc -= w0 * pp[j]
-                acc -= w1 * pp[2 + j]
-                acc /= m
-                if j == 0:
-                    gj = j00 if i == 0 else j10
-                    gj -= dd0 * j00
-                    gj -= dd1 * j10
-                else:
-                    gj = j01 if i == 0 else j11
-                    gj -= dd0 * j01
-                    gj -= dd1 * j11
-                if i == 0 and j == 0:
-                    n00 = gj + acc
-                elif i == 0:
-                    n01 = gj + acc
-                elif j == 0:
-                    n10 = gj + acc
-                else:
-                    n11 = gj + acc
-        dh0, dh1 = bw2_increment(c, h0, h1, d0, d1)
-        h0 += dh0
-        h1 += dh1
-        j00, j01, j10, j11 = n00, n01, n10, n11
-    return h0, h1, j00, j01, j10, j11
+def _bw2_residual(c: Coeffs2, sigma: float, h0: float, h1: float, r0: float, r1: float, du0: float,
+                  du1: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    """:func:`_comp_residual` for two axes (same numbers)."""
+    dh0, dh1 = _bw2_path_dh(c, sigma, h0, h1, du0, du1)
+    f0 = -r0 - dh0
+    f0 += c[0] * du0
+    f0 += c[1] * du1
+    f1 = -r1 - dh1
+    f1 += c[2] * du0
+    f1 += c[3] * du1
+    return f0, f1
 
 
 @njit
 def bw2_refine(c: Coeffs2, sigma: float, h0: float, h1: float, r0: float, r1: float, du0: float,
                du1: float) -> tuple[float, float]:  # pragma: no cover - compiled
     """:func:`bw_refine` for two axes (same numbers): the refined ``(du0, du1)``."""
+    prev = np.inf
     for it in range(50):
-        m, theta = bw2_substeps(c, sigma, du0, du1)
-        if theta < 0.0:
-            if it == 0:
-                return du0, du1
-            hw0, hw1, j00, j01, j10, j11 = bw2_path_jacobian(c, 1, h0, h1, du0, du1)
-        else:
-            hw0, hw1, j00, j01, j10, j11 = bw2_path_jacobian(c, m, h0, h1, du0, du1)
-            hv0, hv1, v00, v01, v10, v11 = bw2_path_jacobian(c, m + 1, h0, h1, du0, du1)
-            hw0 = hw0 + theta * (hv0 - hw0)
-            j00 = j00 + theta * (v00 - j00)
-            j01 = j01 + theta * (v01 - j01)
-            hw1 = hw1 + theta * (hv1 - hw1)
-            j10 = j10 + theta * (v10 - j10)
-            j11 = j11 + theta * (v11 - j11)
-        acc0 = -r0 - (hw0 - h0)
-        acc0 += c[0] * du0
-        acc0 += c[1] * du1
-        acc1 = -r1 - (hw1 - h1)
-        acc1 += c[2] * du0
-        acc1 += c[3] * du1
-        m00 = c[0] - j00
-        m01 = c[1] - j01
-        m10 = c[2] - j10
-        m11 = c[3] - j11
-        g0 = -acc0
-        g1 = -acc1
+        if it == 0 and bw2_path_weight(c, sigma, du0, du1) < 0.0:
+            return du0, du1
+        f0, f1 = _bw2_residual(c, sigma, h0, h1, r0, r1, du0, du1)
+        size = max(max(0.0, abs(du0)), abs(du1))
+        eps = 1e-7 * size
+        if not eps > 0.0:
+            return du0, du1
+        v = du0 + eps
+        e = v - du0
+        g0, g1 = _bw2_residual(c, sigma, h0, h1, r0, r1, v, du1)
+        m00 = (g0 - f0) / e
+        m10 = (g1 - f1) / e
+        v = du1 + eps
+        e = v - du1
+        g0, g1 = _bw2_residual(c, sigma, h0, h1, r0, r1, du0, v)
+        m01 = (g0 - f0) / e
+        m11 = (g1 - f1) / e
+        b0 = -f0
+        b1 = -f1
+        # Cramer's rule (as solve_small for n = 2)
         det = m00 * m11 - m01 * m10
         if abs(det) < 1e-300:
             return du0, du1
-        x0 = (g0 * m11 - m01 * g1) / det
-        x1 = (m00 * g1 - m10 * g0) / det
+        x0 = (b0 * m11 - m01 * b1) / det
+        x1 = (m00 * b1 - m10 * b0) / det
         du0 += x0
         du1 += x1
         step = max(max(0.0, abs(x0)), abs(x1))
         size = max(max(0.0, abs(du0)), abs(du1))
         if not step > 4e-16 * size:
             return du0, du1
+        if it >= 3 and not step < 0.5 * prev:
+            return du0, du1
+        prev = step
     return du0, du1
 
 
@@ -884,7 +1169,7 @@ def bw2_comp_step(c: Coeffs2, sigma: float, exact: bool, ulim: float, dulim: flo
             break
         if not solved:
             n_fallback = 1
-        elif bw2_substeps(c, sigma, du0, du1)[1] >= 0.0:
+        elif bw2_path_weight(c, sigma, du0, du1) >= 0.0:
             du0, du1 = bw2_refine(c, sigma, h0, h1, r0, r1, du0, du1)
     if not solved:
         du0 = 0.0 + q00 * (y0 + h0) + q01 * (y1 + h1) - up0

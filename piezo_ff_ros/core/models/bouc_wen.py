@@ -5,9 +5,10 @@
 Bouc-Wen is rate independent, so h after a sample depends only on the straight path from the previous voltage to
 this one.  A small step (``κ = σ·max|dÛ| ≤ 1e-3``, σ the largest row sum of ``|B| + |Γ| + |Δ1| + |Δ2|``: 0.11 V per
 sample on the paper's tube) is one explicit step, ``h[k+1] = h[k] + dh(h[k], dU)``, exactly as the paper's discrete
-form; a larger one is integrated in equal explicit sub-steps of about that size
-(:func:`~piezo_ff_ros.core.kernels.bouc_wen.bw_path_increment`), so that 100 V steps at a DAC's rate are not tens of
-per cent off and the model gives the same h at 100 Hz as at 20 kHz.
+form; a larger one is integrated exactly along its straight path (linear in h within each sign orthant of h,
+:func:`~piezo_ff_ros.core.kernels.bouc_wen.bw_path_increment`; blended with the one step up to κ = 2e-3 so that h is
+continuous in the step), so that 100 V steps at a DAC's rate are not tens of per cent off and the model gives the
+same h at 100 Hz as at 20 kHz.
 
 The first sample a fresh model sees defines its starting voltage (dU = 0 there), so ``h`` is exactly the state the
 definition ``h[0] = 0`` gives.  The recursion runs in a compiled loop (:mod:`~piezo_ff_ros.core.kernels.bouc_wen`)
