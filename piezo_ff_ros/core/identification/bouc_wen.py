@@ -12,9 +12,10 @@ compiled), so the identified parameters are exactly those the compensator invert
    asked) is searched, with ``scipy.optimize.least_squares`` on the *simulated* output error, from a few multiples
    of the secant slope (Y ≈ M·U) — a small, well-posed problem.
 2. **Output-error refinement** of all parameters together (``least_squares``, trust-region reflective, normalised
-   parameters) on the record subsampled so that the voltage moves ≤ ~0.5 % of its range per sample: the model is an
-   Euler form of a rate-independent ODE, so a coarser step changes it by far less than the sensor noise while making
-   each simulation ~20× cheaper.
+   parameters) on the record subsampled so that the voltage moves ≤ ``max_step_fraction`` of its range per sample
+   (on 99 % of the moving samples: a brief slew-limited ramp does not count): the model is integrated along the
+   voltage path of a rate-independent ODE, so a coarser step changes it by far less than the sensor noise while
+   making each simulation several times cheaper.
 3. The fit (MATLAB ``compare``) is reported on the fitted runs and, at the full sample rate, on held-out runs.
 
 The generalized (asymmetric) model starts from the classical solution with ``Δ1 = Δ2 = 0``.
@@ -260,7 +261,15 @@ def identify_bouc_wen(runs: Sequence[RunData], validation: Sequence[RunData] = (
     y_scale = float(np.max(np.abs(Y_all - (Y_all.mean(axis=0) if fit_offset else 0.0)))) or 1.0
 
     # -- subsample for fitting: voltage step per sample ≤ max_step_fraction of the range -------------------------
-    step = max(float(np.max(np.abs(np.diff(r.u, axis=0)))) for r in runs)
+    # The step is the 99th percentile over the samples where the voltage moves, not the single largest: a few
+    # large steps (a driver's slew-limited ramp to a sine's starting value: 40 samples of 5 V in a 20 000-sample
+    # run) would otherwise hold the whole fit at the native rate.  The model integrates a large step along its
+    # straight path, and a ramp is a straight path, so subsampling it changes nothing but its corners; a record
+    # that is mostly steps and holds has only ramp samples moving and keeps the native rate.
+    moves = np.concatenate([np.max(np.abs(np.diff(r.u, axis=0)), axis=1) for r in runs if len(r) > 1] or
+                           [np.zeros(1)])
+    moves = moves[moves > 0]
+    step = float(np.percentile(moves, 99)) if moves.size else 0.0
     dec = max(1, int(max_step_fraction * u_range / max(step, 1e-300)))
     if delay and dec > 1:
         dec = 1  # a sample-level lag needs the native rate
