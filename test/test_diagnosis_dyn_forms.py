@@ -56,26 +56,25 @@ def test_base_excited_mode_is_block_split_invariant_and_silent_when_linear():
 
 def _nonlinear_mode_change(y, fs, f0, zeta, beta, kappa, yref, over=16):
     """d'' + 2ζω(1 + κ|d'|/(ω·yref))·d' + ω²·d·(1 + β(d/yref)²) = −y'' per column (d: the mode's deflection
-    relative to its base y), minus the same with β = κ = 0: semi-implicit Euler at ``over``× the record's rate, the
-    base's velocity a held difference (a different integrator from the package's RK4)."""
+    relative to its base y), minus the same with β = κ = 0: the base moves at a constant velocity over each sample
+    interval (its velocity steps at the samples: an impulse on d'), semi-implicit Euler at ``over``× the record's
+    rate (a different integrator from the package's RK4)."""
     w = 2 * np.pi * f0
     h = 1 / (over * fs)
     out = np.zeros_like(y)
     for j in range(y.shape[1]):
-        yd_prev = 0.0
         st = [[0.0, 0.0], [0.0, 0.0]]  # (d, d') nonlinear, linear
-        for k in range(len(y)):
-            yd = (y[k, j] - y[k - 1, j]) * fs if k else 0.0
-            acc = (yd - yd_prev) * fs / over  # the base's velocity step spread over the sub-steps
-            yd_prev = yd
-            for _ in range(over):
-                for s, (b, kq) in enumerate(((beta, kappa), (0.0, 0.0))):
-                    d, v = st[s]
-                    a = -acc / h - 2 * zeta * w * (1 + kq * abs(v) / (w * yref)) * v - w * w * d * (1 + b * (d / yref) ** 2)
-                    v += h * a
+        yd_prev = 0.0
+        for k in range(1, len(y)):
+            yd = (y[k, j] - y[k - 1, j]) * fs
+            for s, (b, kq) in enumerate(((beta, kappa), (0.0, 0.0))):
+                d, v = st[s]
+                v -= yd - yd_prev
+                for _ in range(over):
+                    v += h * (-2 * zeta * w * (1 + kq * abs(v) / (w * yref)) * v - w * w * d * (1 + b * (d / yref) ** 2))
                     d += h * v
-                    st[s] = [d, v]
-                acc = 0.0
+                st[s] = [d, v]
+            yd_prev = yd
             out[k, j] = st[0][0] - st[1][0]
     return out
 

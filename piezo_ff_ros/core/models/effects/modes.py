@@ -352,4 +352,5 @@ class BaseExcitedNonlinearMode:
     def process(self, y: np.ndarray) -> np.ndarray:
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
         y = _block(y, self.n)
-        return y + self.deflection_change(y)
+        out: np.ndarray = y + self.deflection_change(y)
+        return out
