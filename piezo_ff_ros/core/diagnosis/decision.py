@@ -163,7 +163,7 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
                     (top.extra["excess_shrink"] - s.extra["excess_shrink"] < GENERIC_MIN_EXTRA
                      or (s.fit.n_params < top.fit.n_params
                          and stats.paired_z(top.extra["r_after"], s.extra["r_after"], psd) < TIE_Z)) and \
-                    not _resonant_remainder(top, s, held, psd) and not _resonance_seen_on_train(top, s):
+                    not _resonant_remainder(top, s, held, psd):
                 scored.remove(s)
                 scored.insert(scored.index(top), s)
                 for g in scored:
@@ -212,16 +212,6 @@ def _resonant_remainder(generic: Scored, physical: Scored, held: _Held, psd: "st
         if band.any() and flanks.any() and float(np.mean(P[band])) >= RESONANT_PEAK * float(np.mean(P[flanks])):
             return True
     return False
-
-
-def _resonance_seen_on_train(generic: Scored, physical: Scored) -> bool:
-    """Whether a generic mode family that ties a static gain candidate on the held-out run found, on TRAIN, a
-    lightly damped resonance beyond any static (cross-)gain matrix
-    (:func:`~.fit_modes.resonance_beyond_static_gain`): a mode in a cross-coupling path above the held-out run's
-    band is only its static gain there, so the held-out tie cannot tell them apart, but TRAIN rang the mode."""
-    if physical.fit.effect != "gain_mismatch" or generic.fit.effect != "unmodelled_mode":
-        return False
-    return bool((generic.fit.extra.get("resonance_beyond_static_gain") or {}).get("significant"))
 
 
 def _significant(s: Scored, zc: float) -> bool:

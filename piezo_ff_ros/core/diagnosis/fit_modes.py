@@ -17,8 +17,7 @@ from . import stats
 from .fit_common import FitContext, FitResult, _rms, _stderr, n_eff_ratio
 from .replay import Windows, residual
 
-__all__ = ["fit_unmodelled_mode", "fit_amplitude_dependent_dynamics", "fit_base_excited_mode", "mode_level_shift",
-           "resonance_beyond_static_gain", "TRAIN_RESONANT_BAND", "TRAIN_RESONANT_ZMAX", "TRAIN_RESONANT_PEAK", "MAX_MODES",
+__all__ = ["fit_unmodelled_mode", "fit_amplitude_dependent_dynamics", "fit_base_excited_mode", "mode_level_shift", "MAX_MODES",
            "MODE_MIN_GAIN", "MODE_FMIN", "MODE_ZMAX", "Mode", "LEVEL_SHIFT_Z", "LEVEL_RATIO_MIN"]
 
 
@@ -350,61 +349,10 @@ def fit_unmodelled_mode(ctx: FitContext) -> FitResult:
     params = {"freq": [m[0] for m in modes] if K > 1 else modes[0][0],
               "damping": [m[1] for m in modes] if K > 1 else modes[0][1], "gains": G.tolist(),
               "hp_gains": Hg.tolist(), "lp_gains": Lg.tolist()}
-    n_params = K * (2 + 2 * n * n + n * (n - 1))
-    beyond = resonance_beyond_static_gain(ms, modes, n_params)
     return FitResult("unmodelled_mode", params, {"freq": None, "damping": None, "gains": None, "hp_gains": None,
                                                  "lp_gains": None},
-                     [("unmodelled_mode", params)], n_params, _rms(res),
-                     note=f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}",
-                     extra={"resonance_beyond_static_gain": beyond})
-
-
-#: a lightly damped mode (ζ ≤ TRAIN_RESONANT_ZMAX) whose share of the training residual beyond a static (cross-)gain
-#: matrix has an energy density within f·(1 ± TRAIN_RESONANT_BAND) at least TRAIN_RESONANT_PEAK times that of the
-#: flanks f·(1 ± 3·TRAIN_RESONANT_BAND) is a resonance the gain cannot have (the values of the held-out test of
-#: :func:`~.decision._resonant_remainder`, for the same reason: a flat excitation through a resonance of ζ = 0.1 gives
-#: ≈ 4 there, a smooth form error ≈ 1)
-TRAIN_RESONANT_BAND = 0.1
-TRAIN_RESONANT_ZMAX = 0.1
-TRAIN_RESONANT_PEAK = 3.0
-
-
-def resonance_beyond_static_gain(ms: "_ModeSearch", modes: list[Mode], n_params: int) -> dict[str, Any]:
-    """Whether the modes explain TRAIN beyond a static gain matrix by a resonance: the training residual regressed
-    on every axis' base output (a gain/cross-gain matrix) and on that plus the modes' regressors; ``significant``
-    when the modes lower the Bayesian information criterion (effective sample size from the residual's
-    correlation, :func:`~.fit_common.n_eff_ratio`) and what they take is peaked at one of them
-    (:data:`TRAIN_RESONANT_PEAK`).  The held-out run may not excite the resonance (a mode above its band, in a
-    cross-coupling path, is then only its static gain there): TRAIN may."""
-    out: dict[str, Any] = {"significant": False}
-    n = ms.n
-    rs, rb = np.empty_like(ms.r0), np.empty_like(ms.r0)
-    for i in range(n):
-        t = ms.r0[:, i]
-        cs = np.linalg.lstsq(ms.yb, t, rcond=None)[0]
-        rs[:, i] = t - ms.yb @ cs
-        X = np.column_stack([ms.yb] + [ms.regs(float(f), float(z))[i] for f, z in modes])
-        cb = np.linalg.lstsq(X, t, rcond=None)[0]
-        rb[:, i] = t - X @ cb
-    s_static, s_both = float(np.sum(rs ** 2)), float(np.sum(rb ** 2))
-    n_eff = max(rb.size / n_eff_ratio(rb), 2.0)
-    bic_gain = n_eff * math.log(max(s_static, 1e-300) / max(s_both, 1e-300)) - n_params * math.log(n_eff)
-    d = rs - rb
-    P = np.sum(np.abs(np.fft.rfft(d - d.mean(axis=0), axis=0)) ** 2, axis=1)
-    f = np.fft.rfftfreq(len(d), ms.ctx.dt * ms.k)
-    w = TRAIN_RESONANT_BAND
-    peak = 0.0
-    for fm, zm in modes:
-        if zm > TRAIN_RESONANT_ZMAX or fm * (1 + 3 * w) > f[-1]:
-            continue
-        band = (f >= fm * (1 - w)) & (f <= fm * (1 + w))
-        flanks = ((f >= fm * (1 - 3 * w)) & (f < fm * (1 - w))) | ((f > fm * (1 + w)) & (f <= fm * (1 + 3 * w)))
-        if band.any() and flanks.any():
-            peak = max(peak, float(np.mean(P[band])) / max(float(np.mean(P[flanks])), 1e-300))
-    out.update(bic_gain=float(bic_gain), peak_ratio=peak,
-               share_beyond_gain=float(1 - s_both / max(s_static, 1e-300)),
-               significant=bool(bic_gain > 0 and peak >= TRAIN_RESONANT_PEAK))
-    return out
+                     [("unmodelled_mode", params)], K * (2 + 2 * n * n + n * (n - 1)), _rms(res),
+                     note=f"{K} mode(s) at {', '.join(f'{m[0]:.4g} Hz' for m in modes)}")
 
 
 def fit_amplitude_dependent_dynamics(ctx: FitContext) -> FitResult:
