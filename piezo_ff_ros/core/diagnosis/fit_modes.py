@@ -358,23 +358,31 @@ def fit_unmodelled_mode(ctx: FitContext) -> FitResult:
 def fit_amplitude_dependent_dynamics(ctx: FitContext) -> FitResult:
     """The better of two forms on TRAIN by :func:`_bic` (the residual's effective sample size): the level-modulated
     filter family (:func:`_fit_level_filters`, several parameters per mode and axis pair) and the physical
-    base-excited mode with a cubic spring and a quadratic damping (:func:`fit_base_excited_mode`, 2 + 2n
+    base-excited mode with a cubic spring and a quadratic damping (:func:`fit_base_excited_mode`, 2 + 3n
     parameters).  The family can mimic the physical form with many more parameters; named by the one that earns
     them."""
     filters = _fit_level_filters(ctx)
-    try:
-        found = list(zip(np.atleast_1d(filters.params["freq"]).tolist(),
-                         np.atleast_1d(filters.params["damping"]).tolist()))
-        physical = fit_base_excited_mode(ctx, _linear_modes(ctx, found))
-    except (ValueError, np.linalg.LinAlgError, FloatingPointError):
-        return filters
     ratio = n_eff_ratio(residual(ctx.target, ctx.y_base_win))
     rows = ctx.target.size
-    if _bic(physical, rows, ratio) <= _bic(filters, rows, ratio):
-        physical.extra["level_shift"] = filters.extra.get("level_shift")
-        physical.extra["filter_family_train_rms"] = filters.train_rms
-        return physical
-    return filters
+    # the mode alone first; on top of the linear resonances found only when alone it does not earn its place (the
+    # nominal output may lack a linear mode as well)
+    best = filters
+    try:
+        alone = fit_base_excited_mode(ctx)
+        if _bic(alone, rows, ratio) <= _bic(best, rows, ratio):
+            best = alone
+        else:
+            found = list(zip(np.atleast_1d(filters.params["freq"]).tolist(),
+                             np.atleast_1d(filters.params["damping"]).tolist()))
+            on_linear = fit_base_excited_mode(ctx, _linear_modes(ctx, found))
+            if _bic(on_linear, rows, ratio) <= _bic(best, rows, ratio):
+                best = on_linear
+    except (ValueError, np.linalg.LinAlgError, FloatingPointError):
+        return filters
+    if best is not filters:
+        best.extra["level_shift"] = filters.extra.get("level_shift")
+        best.extra["filter_family_train_rms"] = filters.train_rms
+    return best
 
 
 def _fit_level_filters(ctx: FitContext) -> FitResult:
@@ -493,10 +501,11 @@ BASE_EXCITED_ZETAS = (0.01, 0.03, 0.1)
 
 
 def _base_excited_change(ctx: FitContext, freq: float, damping: float, cubic: np.ndarray,
-                         quad: np.ndarray, y_base: np.ndarray | None = None) -> np.ndarray:
+                         quad: np.ndarray, y_base: np.ndarray | None = None,
+                         participation: np.ndarray | float = 1.0) -> np.ndarray:
     """What the base-excited mode's nonlinearity adds to the base output (``y_base``: another output it is shaken
     by, on the whole run) on the fit's windows (rows as the training residual's)."""
-    st = fx.BaseExcitedNonlinearMode(freq, damping, cubic, quad, ctx.dt, ctx.cfg.n_axes)
+    st = fx.BaseExcitedNonlinearMode(freq, damping, cubic, quad, ctx.dt, ctx.cfg.n_axes, participation)
     yb = ctx.y_base if y_base is None else y_base
     if ctx.windows.is_whole:
         return st.deflection_change(yb)
@@ -525,7 +534,7 @@ def _linear_modes(ctx: FitContext, found: list[Mode]) -> tuple[dict[str, Any], i
 
 def fit_base_excited_mode(ctx: FitContext, linear: tuple[dict[str, Any], int] | None = None) -> FitResult:
     """One lightly damped mode shaken by the base output with a cubic spring and a quadratic damping
-    (:class:`~piezo_ff_ros.core.models.effects.BaseExcitedNonlinearMode`, form ``base_excited``): 2 + 2n parameters.
+    (:class:`~piezo_ff_ros.core.models.effects.BaseExcitedNonlinearMode`, form ``base_excited``): 2 + 3n parameters.
     Start: on a grid of (frequency, damping), the first-order (small-nonlinearity) response to each coefficient —
     linear in the coefficients — regressed on the training residual per axis; then every parameter refined by
     simulation (``scipy.optimize.least_squares``)."""
@@ -572,34 +581,39 @@ def fit_base_excited_mode(ctx: FitContext, linear: tuple[dict[str, Any], int] | 
     q0 = np.clip(q0, 0.0, 50.0)
 
     def resid(th: np.ndarray) -> np.ndarray:
-        d = _base_excited_change(ctx, math.exp(th[0]), math.exp(th[1]), th[2:2 + n], th[2 + n:], yb)
+        d = _base_excited_change(ctx, math.exp(th[0]), math.exp(th[1]), th[2:2 + n], th[2 + n:2 + 2 * n], yb,
+                                 th[2 + 2 * n:])
         r = residual(ctx.target, yb_win + d)
         if not np.all(np.isfinite(r)):
             return np.full(r.size, 1e6)
         out: np.ndarray = r.reshape(-1) / unit
         return out
 
-    lo = np.r_[math.log(fmin), math.log(2e-3), np.full(n, -50.0), np.zeros(n)]
-    hi = np.r_[math.log(0.49 * fs), math.log(MODE_ZMAX), np.full(n, 50.0), np.full(n, 50.0)]
-    x0 = np.clip(np.r_[math.log(f0), math.log(z0), c0, q0], lo + 1e-9, hi - 1e-9)
+    # participation per axis: how much of the mode's motion the output sees (1 to first order, where it only
+    # scales the coefficients; apart from them when the nonlinearity is strong)
+    lo = np.r_[math.log(fmin), math.log(2e-3), np.full(n, -50.0), np.zeros(n), np.zeros(n)]
+    hi = np.r_[math.log(0.49 * fs), math.log(MODE_ZMAX), np.full(n, 50.0), np.full(n, 50.0), np.full(n, 2.0)]
+    x0 = np.clip(np.r_[math.log(f0), math.log(z0), c0, q0, np.ones(n)], lo + 1e-9, hi - 1e-9)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sol = optimize.least_squares(resid, x0, diff_step=1e-3, max_nfev=40, bounds=(lo, hi))
+        sol = optimize.least_squares(resid, x0, diff_step=1e-3, max_nfev=60, bounds=(lo, hi))
     th = sol.x
     r = sol.fun.reshape(-1, n) * unit
     se = _stderr(sol.jac, sol.fun)
     freq, zeta = math.exp(th[0]), math.exp(th[1])
     params = {"form": "base_excited", "freq": freq, "damping": zeta, "cubic": th[2:2 + n].tolist(),
-              "quadratic_damping": th[2 + n:].tolist()}
+              "quadratic_damping": th[2 + n:2 + 2 * n].tolist(), "participation": th[2 + 2 * n:].tolist()}
     stderr = {"form": None, "freq": float(se[0]) * freq, "damping": float(se[1]) * zeta,
-              "cubic": se[2:2 + n].tolist(), "quadratic_damping": se[2 + n:].tolist()}
+              "cubic": se[2:2 + n].tolist(), "quadratic_damping": se[2 + n:2 + 2 * n].tolist(),
+              "participation": se[2 + 2 * n:].tolist()}
     extra_n = 0 if linear is None else linear[1]
     return FitResult("amplitude_dependent_dynamics", params, stderr,
-                     lin_effects + [("amplitude_dependent_dynamics", params)], 2 + 2 * n + extra_n, _rms(r),
+                     lin_effects + [("amplitude_dependent_dynamics", params)], 2 + 3 * n + extra_n, _rms(r),
                      note=("on the linear resonances found, " if linear is not None else "") +
                           f"base-excited mode at {freq:.4g} Hz, ζ {zeta:.3g}: cubic spring "
                           f"{', '.join(f'{v:.3g}' for v in th[2:2 + n])}, quadratic damping "
-                          f"{', '.join(f'{v:.3g}' for v in th[2 + n:])} (at {fx.LEVEL_REF:g} m)")
+                          f"{', '.join(f'{v:.3g}' for v in th[2 + n:2 + 2 * n])}, participation "
+                          f"{', '.join(f'{v:.3g}' for v in th[2 + 2 * n:])} (at {fx.LEVEL_REF:g} m)")
 
 
 def _bic(fit: FitResult, n_rows: int, ratio: float) -> float:

@@ -98,7 +98,7 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                {"freq": ("Hz", False), "damping": ("-", False), "gains": ("-", True), "hp_gains": ("-", True),
                 "level_gains": ("-", True), "level_hp_gains": ("-", True), "cubic_gains": ("-", True),
                 "cubic_hp_gains": ("-", True), "lp_gains": ("-", True), "form": ("-", False), "cubic": ("-", True),
-                "quadratic_damping": ("-", True)},
+                "quadratic_damping": ("-", True), "participation": ("-", True)},
                f"resonances whose strength moves with the level (|Y| over {LEVEL_TAU:g} s per {LEVEL_REF:g} m); "
                "form 'base_excited': one mode with a cubic spring and a quadratic damping, shaken by the motion",
                "dynamics-band residual growing with the motion's amplitude"),
@@ -144,7 +144,7 @@ def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
     if name == "amplitude_dependent_dynamics":
         if p.get("form", "filters") == "base_excited":
             return BaseExcitedNonlinearMode(p["freq"], p["damping"], p.get("cubic", 0.0), p.get("quadratic_damping", 0.0),
-                                            dt, n)
+                                            dt, n, p.get("participation", 1.0))
         if p.get("cubic_gains") is not None:
             return CubicAmplitudeDynamics(p["freq"], p["damping"], p["gains"], p["level_gains"], dt, n,
                                           p.get("hp_gains"), p.get("level_hp_gains"), p["cubic_gains"],
