@@ -104,12 +104,12 @@ OVER = 20
 
 
 def test_a_bessel_roll_off_is_amplifier_bandwidth_not_a_delay(cfg):
-    """A third-order Bessel low-pass (−3 dB at 700 Hz, maximally flat group delay) on the DAC's staircase in front
+    """A third-order Bessel low-pass (−3 dB at 1 kHz, maximally flat group delay) on the DAC's staircase in front
     of the nominal model, both at 20× the record's rate (scipy's Bessel, the nominal replayed by the benchmark's own
     code): in the band it is a delay, but the excitation's steps carry energy near the cut-off where its magnitude
     falls (a delay is all-pass) — an amplifier_bandwidth."""
     from bench.diagnosis import truth as bench_truth
-    b, a = scipy.signal.bessel(3, 2 * np.pi * 700.0, analog=True, norm="mag")
+    b, a = scipy.signal.bessel(3, 2 * np.pi * 1000.0, analog=True, norm="mag")
     bd, ad, _ = scipy.signal.cont2discrete((b, a), 1 / (OVER * FS), method="zoh")
     bd = np.ravel(bd)
     nom = bench_truth.nominal_matrices(cfg.with_sample_rate(OVER * FS))

@@ -360,7 +360,8 @@ class BaseExcitedNonlinearMode:
         out = np.empty_like(y)
         _nl_mode_run(y, 2 * math.pi * self.freq, self.damping, self.cubic, self.quadratic_damping, LEVEL_REF,
                      self.dt, self._st, out)
-        return out * self.participation
+        scaled: np.ndarray = out * self.participation
+        return scaled
 
     def process(self, y: np.ndarray) -> np.ndarray:
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
