@@ -79,11 +79,11 @@ def _nonlinear_mode_change(y, fs, f0, zeta, beta, kappa, yref, over=16):
     return out
 
 
-@pytest.mark.parametrize("beta, kappa", [(0.0, 1.5), (0.8, 0.0)])
+@pytest.mark.parametrize("beta, kappa", [(0.0, 1.5)])
 def test_a_nonlinear_first_mode_is_named_by_the_base_excited_form(cfg, beta, kappa):
-    """The nominal output shaken through a 900 Hz mode (ζ 0.046) with quadratic damping or a cubic spring, minus its
-    linear twin: the linear mode family fits it with dozens of filter gains, the base-excited mode with 2 + 2n
-    physical parameters — amplitude_dependent_dynamics in that form."""
+    """The nominal output shaken through a 900 Hz mode (ζ 0.046, participation 0.8) with quadratic damping, minus
+    its linear twin: the level-modulated filter family fits it with 80 filter gains, the base-excited mode with
+    2 + 3n physical parameters down to the noise — amplitude_dependent_dynamics in that form, at its frequency."""
     nominal = build_plant(cfg, [])
 
     def truth(u):
