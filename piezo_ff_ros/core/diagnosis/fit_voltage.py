@@ -184,13 +184,17 @@ def fit_amplifier_bandwidth(ctx: FitContext) -> FitResult:
             f3, z3 = _fit_damping(ctx, _as_fit(ctx, f2, math.exp(z3c), e3), 3, 0.5)
             if f3.train_rms ** 2 < (1 - DAMPING_MIN_GAIN) * f2.train_rms ** 2:
                 fits.append((f3.train_rms, 3, f3, z3))
+        # the linear-phase (Bessel) roll-offs: one parameter like the 1st order, but in the band a delay — the 1st
+        # order's magnitude loss at the same phase lag is what made them lose to it, and the 2nd order's gate above
+        fits += _bessel_fits(ctx, f1, c1)
     _, order, best, zeta = min(fits, key=lambda t: t[0])
+    form = str(best.extra.get("form", "filter"))
     c0 = math.log(best.params["cutoff"])
     if n > 1 and c0 < math.log(fs):
         unit = max(_rms(residual(ctx.target, ctx.y_base_win)), 1e-15)
 
         def resid(theta: np.ndarray) -> np.ndarray:
-            p = {"cutoff": np.exp(theta).tolist(), "order": order, "damping": zeta}
+            p = {"cutoff": np.exp(theta).tolist(), "order": order, "damping": zeta, **_form_key(form)}
             return ctx.sim_residual([("amplifier_bandwidth", p)]).reshape(-1) / unit
 
         with warnings.catch_warnings():
@@ -201,15 +205,48 @@ def fit_amplifier_bandwidth(ctx: FitContext) -> FitResult:
         if _rms(r) < best.train_rms:
             cut = np.exp(sol.x)
             se = _stderr(sol.jac, r / unit) * cut
-            p = {"cutoff": cut.tolist(), "order": order, "damping": zeta}
-            return FitResult("amplifier_bandwidth", p, {"cutoff": se.tolist(), "order": None, "damping": None},
-                             [("amplifier_bandwidth", p)], n + 1 + (zeta not in (2 ** -0.5, 0.5)), _rms(r),
-                             note=f"order {order}, damping {zeta:.3g}")
-    p = {"cutoff": [best.params["cutoff"]] * n, "order": order, "damping": zeta}
+            p = {"cutoff": cut.tolist(), "order": order, "damping": zeta, **_form_key(form)}
+            return FitResult("amplifier_bandwidth", p, {"cutoff": se.tolist(), "order": None, "damping": None,
+                                                        **_form_key(form, None)},
+                             [("amplifier_bandwidth", p)], n + 1 + _damping_param(form, zeta), _rms(r),
+                             note=_note(form, order, zeta))
+    p = {"cutoff": [best.params["cutoff"]] * n, "order": order, "damping": zeta, **_form_key(form)}
     return FitResult("amplifier_bandwidth", p, {"cutoff": [best.stderr["cutoff"]] * n, "order": None,
-                                                "damping": None},
-                     [("amplifier_bandwidth", p)], 2 + (zeta not in (2 ** -0.5, 0.5)), best.train_rms,
-                     note=f"order {order}, damping {zeta:.3g}", extra=best.extra)
+                                                "damping": None, **_form_key(form, None)},
+                     [("amplifier_bandwidth", p)], 2 + _damping_param(form, zeta), best.train_rms,
+                     note=_note(form, order, zeta), extra=best.extra)
+
+
+#: orders of the Bessel (linear-phase) roll-off tried
+BESSEL_ORDERS = (2, 3)
+
+
+def _form_key(form: str, value: Any = "") -> dict[str, Any]:
+    """``{"form": …}`` for a Bessel roll-off (``value`` replaces the form's name, e.g. ``None`` for its standard
+    error), nothing for the 1st/2nd/3rd-order filters (their parameters stay as they were)."""
+    return {"form": form if value == "" else value} if form == "bessel" else {}
+
+
+def _damping_param(form: str, zeta: float) -> int:
+    """1 when the damping was fitted (not a Bessel shape, not Butterworth's)."""
+    return int(form != "bessel" and zeta not in (2 ** -0.5, 0.5))
+
+
+def _note(form: str, order: int, zeta: float) -> str:
+    return f"Bessel (linear phase), order {order}" if form == "bessel" else f"order {order}, damping {zeta:.3g}"
+
+
+def _bessel_fits(ctx: FitContext, f1: FitResult, c1: float) -> list[tuple[float, int, FitResult, float]]:
+    """Bessel roll-offs of :data:`BESSEL_ORDERS`, their shared cutoff on a short log grid above the 1st order's
+    (a Bessel filter of the same DC lag has a higher −3 dB point), then the parabola's vertex: one parameter each."""
+    out = []
+    for order in BESSEL_ORDERS:
+        def make(z: float, order: int = order) -> dict[str, Any]:
+            return {"cutoff": math.exp(z), "order": order, "form": "bessel"}
+        zc, e = _grid_parabola(ctx, make, np.linspace(c1 - 0.3, c1 + 1.5, 6))
+        fit = dataclasses.replace(_as_fit(ctx, f1, math.exp(zc), e), extra={**f1.extra, "form": "bessel"})
+        out.append((fit.train_rms, order, fit, 2 ** -0.5))
+    return out
 
 
 #: a 2nd-order roll-off's damping other than 0.707 (Butterworth) is kept when it lowers the training residual energy

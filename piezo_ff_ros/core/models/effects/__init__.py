@@ -34,6 +34,7 @@ from .hysteresis import _play_run as _play_run
 from .hysteresis import _relax2_run as _relax2_run
 from .hysteresis import asymmetric_hysteresis_config as asymmetric_hysteresis_config
 from .modes import AmplitudeDependentDynamics, CubicAmplitudeDynamics, UnmodelledMode
+from .modes import BaseExcitedNonlinearMode as BaseExcitedNonlinearMode
 from .modes import _bandpass_coeffs as _bandpass_coeffs
 from .modes import _biquad_run as _biquad_run
 from .modes import _highpass_coeffs as _highpass_coeffs

@@ -17,7 +17,8 @@ from ..._jit import njit
 from ...lti import static_gain
 from .common import LEVEL_REF, LEVEL_TAU, _block, _per_axis
 
-__all__ = ["UnmodelledMode", "AmplitudeDependentDynamics", "CubicAmplitudeDynamics"]
+__all__ = ["UnmodelledMode", "AmplitudeDependentDynamics", "CubicAmplitudeDynamics", "BaseExcitedNonlinearMode",
+           "MIN_STIFFNESS_FACTOR", "RK4_OMEGA_STEP"]
 
 
 @njit
@@ -257,4 +258,113 @@ class CubicAmplitudeDynamics(AmplitudeDependentDynamics):
         c = y * (y / LEVEL_REF) ** 2
         for m in range(len(self.freqs)):
             out += self._cubic.bandpass(c, m) * self.Kc[m] + self._cubic.highpass(c, m) * self.Hc[m]
+        return out
+
+
+#: a softening spring's stiffness factor 1 + c·(d/LEVEL_REF)² is held at or above this share of the linear stiffness
+#: (a cubic spring's range of validity: beyond it the mode would snap through, which no positioner does)
+MIN_STIFFNESS_FACTOR = 0.2
+#: the base-excited mode is integrated in RK4 sub-steps of at most this many radians of its natural frequency
+RK4_OMEGA_STEP = 0.25
+
+
+@njit
+def _nl_mode_run(y: np.ndarray, w: float, z: float, kc: np.ndarray, kq: np.ndarray, ref: float, dt: float,
+                 st: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Relative deflection of a base-excited mode, nonlinear (``kc``, ``kq``) and linear twin, RK4 per sample; the
+    base piecewise linear between samples (its velocity step, from the last three samples, an impulse at the
+    interval's start); ``out`` = nonlinear − linear deflection.
+    ``st[j]`` = (d, d', d_lin, d'_lin, y[k−1], y[k−2], samples seen)."""
+    N, n = y.shape
+    # RK4 sub-steps of at most RK4_OMEGA_STEP radians of the mode (its phase error then stays below ~1e-5 a step)
+    sub = max(1, int(math.ceil(w * dt / RK4_OMEGA_STEP)))
+    h = dt / sub
+    for t in range(N):
+        for j in range(n):
+            yk = y[t, j]
+            seen = st[j, 6]
+            if seen < 1.0:
+                st[j, 4] = yk
+                st[j, 5] = yk
+            elif seen < 2.0:
+                st[j, 5] = st[j, 4]
+            # the base's velocity steps at the sample it starts the interval from (a piecewise-linear base): an
+            # impulse on the relative velocity, then the mode moves freely over the interval
+            dv = (yk - 2.0 * st[j, 4] + st[j, 5]) / dt if seen >= 1.0 else 0.0
+            for lin in range(2):
+                c3 = 0.0 if lin == 1 else kc[j]
+                c2 = 0.0 if lin == 1 else kq[j]
+                x = st[j, 2 * lin]
+                v = st[j, 2 * lin + 1] - dv
+                for _ in range(sub):
+                    xs = x
+                    vs = v
+                    k_x = 0.0
+                    k_v = 0.0
+                    kx = 0.0
+                    kv = 0.0
+                    for s in range(4):
+                        if s == 0:
+                            xs, vs = x, v
+                        elif s < 3:
+                            xs, vs = x + 0.5 * h * k_x, v + 0.5 * h * k_v
+                        else:
+                            xs, vs = x + h * k_x, v + h * k_v
+                        fk = max(MIN_STIFFNESS_FACTOR, 1.0 + c3 * (xs / ref) ** 2)
+                        k_v = -2.0 * z * w * (1.0 + c2 * abs(vs) / (w * ref)) * vs - w * w * xs * fk
+                        k_x = vs
+                        wgt = 1.0 if (s == 0 or s == 3) else 2.0
+                        kx += wgt * k_x
+                        kv += wgt * k_v
+                    x = x + h * kx / 6.0
+                    v = v + h * kv / 6.0
+                st[j, 2 * lin] = x
+                st[j, 2 * lin + 1] = v
+            out[t, j] = st[j, 0] - st[j, 2]
+            st[j, 5] = st[j, 4]
+            st[j, 4] = yk
+            st[j, 6] = seen + 1.0
+
+
+class BaseExcitedNonlinearMode:
+    """One lightly damped mode shaken by the motion it carries, with a cubic spring and a quadratic
+    (amplitude-dependent) damping; what its nonlinearity adds to the output: ``Y_i ← Y_i + d_i − d_lin,i``, where
+    ``d`` is the mode's relative deflection,
+    ``d'' + 2ζω(1 + q_i·|d'|/(ω·LEVEL_REF))·d' + ω²·d·max(MIN_STIFFNESS_FACTOR, 1 + c_i·(d/LEVEL_REF)²) = −Y_i''``,
+    and ``d_lin`` its linear twin (c = q = 0) — a first bending mode whose linear part the nominal dynamics already
+    hold.  ``cubic`` c_i (> 0 stiffening, < 0 softening) and ``quadratic_damping`` q_i per axis, dimensionless at
+    :data:`~.common.LEVEL_REF`; ``freq`` [Hz] and ``damping`` shared.  Integrated by RK4 (sub-steps of :data:`RK4_OMEGA_STEP` rad), the base
+    piecewise linear between samples (each velocity step an impulse on the relative velocity).  ``participation`` (per axis, default 1): how much
+    of the mode's motion the output sees."""
+
+    def __init__(self, freq: float, damping: float, cubic: ArrayLike, quadratic_damping: ArrayLike, dt: float,
+                 n_axes: int = 2, participation: ArrayLike = 1.0) -> None:
+        self.n, self.dt = n_axes, float(dt)
+        self.freq, self.damping = float(freq), float(damping)
+        name = "amplitude_dependent_dynamics"
+        if not (0 < self.freq < 0.5 / self.dt) or not (0 < self.damping <= 2.0):
+            raise ValueError(f"{name}: base-excited mode needs 0 < freq < fs/2 and 0 < damping <= 2, got "
+                             f"freq={freq!r}, damping={damping!r}")
+        self.cubic = _per_axis(cubic, n_axes, f"{name}.cubic")
+        self.quadratic_damping = _per_axis(quadratic_damping, n_axes, f"{name}.quadratic_damping")
+        self.participation = _per_axis(participation, n_axes, f"{name}.participation")
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self._st = np.zeros((self.n, 7))
+
+    def deflection_change(self, y: np.ndarray) -> np.ndarray:
+        """``participation·(d − d_lin)`` of every column of one block (advances the state)."""
+        y = np.ascontiguousarray(_block(y, self.n), dtype=float)
+        out = np.empty_like(y)
+        _nl_mode_run(y, 2 * math.pi * self.freq, self.damping, self.cubic, self.quadratic_damping, LEVEL_REF,
+                     self.dt, self._st, out)
+        scaled: np.ndarray = out * self.participation
+        return scaled
+
+    def process(self, y: np.ndarray) -> np.ndarray:
+        """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
+        y = _block(y, self.n)
+        out: np.ndarray = y + self.deflection_change(y)
         return out

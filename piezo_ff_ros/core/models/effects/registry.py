@@ -21,7 +21,7 @@ from .common import LEVEL_REF, LEVEL_TAU, RATE_REF
 from .displacement import CreepNonlinearity, GainMismatch, ThermalDrift
 from .hysteresis import (BranchEvenTerm, HysteresisStage, LoopShapeTerm, PlayWidthTerm, RatePlayTerm,
                          RelaxedHysteresisStage, VelocityTerm, asymmetric_hysteresis_config)
-from .modes import AmplitudeDependentDynamics, CubicAmplitudeDynamics, UnmodelledMode
+from .modes import AmplitudeDependentDynamics, BaseExcitedNonlinearMode, CubicAmplitudeDynamics, UnmodelledMode
 from .saturation import SoftSaturation
 from .voltage import (AllPassDelay, AmplifierBandwidth, AmplifierSaturation, AmplifierSlewLimit, AsymmetricSaturation,
                       InputDelay)
@@ -87,8 +87,8 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                "amplifier output rails clip the voltage (hard, or a soft knee v/(1 + (|v|/L)^p)^(1/p) per rail)",
                "error only at the largest |U|"),
     EffectSpec("amplifier_bandwidth", "pre", {"cutoff": ("Hz", True), "order": ("-", False),
-                                              "damping": ("-", False)},
-               "first- or second-order amplifier roll-off (cutoff per axis)",
+                                              "damping": ("-", False), "form": ("-", False)},
+               "first-, second- or third-order amplifier roll-off (cutoff per axis; form 'bessel': linear phase)",
                "amplitude loss and phase lag at high frequency; steps rounded, not shifted"),
     EffectSpec("unmodelled_mode", "post", {"freq": ("Hz", False), "damping": ("-", False), "gains": ("-", True),
                                           "hp_gains": ("-", True), "lp_gains": ("-", True)},
@@ -97,8 +97,10 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
     EffectSpec("amplitude_dependent_dynamics", "post",
                {"freq": ("Hz", False), "damping": ("-", False), "gains": ("-", True), "hp_gains": ("-", True),
                 "level_gains": ("-", True), "level_hp_gains": ("-", True), "cubic_gains": ("-", True),
-                "cubic_hp_gains": ("-", True), "lp_gains": ("-", True)},
-               f"resonances whose strength moves with the level (|Y| over {LEVEL_TAU:g} s per {LEVEL_REF:g} m)",
+                "cubic_hp_gains": ("-", True), "lp_gains": ("-", True), "form": ("-", False), "cubic": ("-", True),
+                "quadratic_damping": ("-", True), "participation": ("-", True)},
+               f"resonances whose strength moves with the level (|Y| over {LEVEL_TAU:g} s per {LEVEL_REF:g} m); "
+               "form 'base_excited': one mode with a cubic spring and a quadratic damping, shaken by the motion",
                "dynamics-band residual growing with the motion's amplitude"),
     EffectSpec("gain_mismatch", "post", {"gains": ("-", True), "cross_gains": ("-", True)},
                "gain error per axis and cross-talk between axes (piezo coefficient, amplifier, sensor calibration)",
@@ -127,7 +129,8 @@ def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
             return AsymmetricSaturation(p["limit"], p["lower_limit"], n)
         return AmplifierSaturation(p["limit"], n)
     if name == "amplifier_bandwidth":
-        return AmplifierBandwidth(p["cutoff"], dt, n, int(p.get("order", 1)), float(p.get("damping", 2 ** -0.5)))
+        return AmplifierBandwidth(p["cutoff"], dt, n, int(p.get("order", 1)), float(p.get("damping", 2 ** -0.5)),
+                                  str(p.get("form", "filter")))
     if name == "gain_mismatch":
         return GainMismatch(p["gains"], n, p.get("cross_gains"))
     if name == "thermal_drift":
@@ -139,6 +142,9 @@ def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
     if name == "unmodelled_mode":
         return UnmodelledMode(p["freq"], p["damping"], p["gains"], dt, n, p.get("hp_gains"), p.get("lp_gains"))
     if name == "amplitude_dependent_dynamics":
+        if p.get("form", "filters") == "base_excited":
+            return BaseExcitedNonlinearMode(p["freq"], p["damping"], p.get("cubic", 0.0), p.get("quadratic_damping", 0.0),
+                                            dt, n, p.get("participation", 1.0))
         if p.get("cubic_gains") is not None:
             return CubicAmplitudeDynamics(p["freq"], p["damping"], p["gains"], p["level_gains"], dt, n,
                                           p.get("hp_gains"), p.get("level_hp_gains"), p["cubic_gains"],

@@ -214,10 +214,21 @@ def _lowpass_ss(cutoff: float, order: int, damping: float) -> tuple[np.ndarray, 
     return A, np.array([w, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
 
 
-def _interval_averaged(cutoff: float, order: int, damping: float,
-                       dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]:
-    """:func:`_interval_averaged_ss` of the low-pass of :func:`_lowpass_ss`."""
-    A, B, C = _lowpass_ss(cutoff, order, damping)
+def _bessel_ss(cutoff: float, order: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Continuous state space ``(A, B, C)`` of the Bessel (maximally flat group delay) low-pass of ``order``, −3 dB
+    at ``cutoff`` [Hz], unit DC gain."""
+    import scipy.signal
+
+    b, a = scipy.signal.bessel(order, 2.0 * math.pi * cutoff, analog=True, norm="mag")
+    A, B, C, _ = scipy.signal.tf2ss(b, a)
+    return A, B[:, 0], C[0]
+
+
+def _interval_averaged(cutoff: float, order: int, damping: float, dt: float,
+                       form: str = "filter") -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]:
+    """:func:`_interval_averaged_ss` of the low-pass of :func:`_lowpass_ss` (``form='bessel'``: of
+    :func:`_bessel_ss`)."""
+    A, B, C = _bessel_ss(cutoff, order) if form == "bessel" else _lowpass_ss(cutoff, order, damping)
     return _interval_averaged_ss(A, B, C, 0.0, dt)
 
 
@@ -252,7 +263,8 @@ def _interval_averaged_ss(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: float,
 class AmplifierBandwidth:
     """Amplifier roll-off on the voltage: first order ``1/(s/ωc + 1)``, second order ``ωc²/(s² + 2ζωc·s + ωc²)``
     (``order=2``, damping ``ζ``) or third order, the product of the two (``order=3``; ζ = 0.5 is Butterworth), with
-    a cutoff per axis or shared.
+    a cutoff per axis or shared.  ``form='bessel'``: the Bessel low-pass of that order instead (−3 dB at the cutoff,
+    maximally flat group delay: in the band it is a delay, its magnitude falls near the cutoff; ``damping`` unused).
 
     The continuous filter driven by the DAC's staircase, its output averaged over each sample interval
     (:func:`_interval_averaged`): unit DC gain, the filter's own delay, the identity as the cutoff goes to
@@ -261,8 +273,10 @@ class AmplifierBandwidth:
     """
 
     def __init__(self, cutoff: ArrayLike, dt: float, n_axes: int = 2, order: int = 1,
-                 damping: float = 1 / math.sqrt(2)) -> None:
+                 damping: float = 1 / math.sqrt(2), form: str = "filter") -> None:
         c = _per_axis(cutoff, n_axes, "amplifier_bandwidth.cutoff")
+        if form not in ("filter", "bessel"):
+            raise ValueError(f"amplifier_bandwidth.form: must be 'filter' or 'bessel', got {form!r}")
         if not np.all(c > 0):
             raise ValueError(f"amplifier_bandwidth.cutoff: must be > 0 Hz, got {cutoff!r}")
         if int(order) not in (1, 2, 3):
@@ -270,8 +284,8 @@ class AmplifierBandwidth:
         if not (math.isfinite(damping) and damping > 0):
             raise ValueError(f"amplifier_bandwidth.damping: must be > 0, got {damping!r}")
         self.cutoff, self.dt, self.n = c, float(dt), n_axes
-        self.order, self.damping = int(order), float(damping)
-        parts = [_interval_averaged(float(f), self.order, self.damping, self.dt) for f in c]
+        self.order, self.damping, self.form = int(order), float(damping), form
+        parts = [_interval_averaged(float(f), self.order, self.damping, self.dt, form) for f in c]
         self._phi = np.ascontiguousarray(np.stack([p[0] for p in parts]))
         self._gam = np.ascontiguousarray(np.stack([p[1] for p in parts]))
         self._cpsi = np.ascontiguousarray(np.stack([p[2] for p in parts]))
