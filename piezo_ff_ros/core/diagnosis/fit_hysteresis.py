@@ -273,10 +273,53 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
                                                  "even": se2[0].tolist(), "branch_even": se2[1].tolist(),
                                                  "play_radii": None, "play_gains": se2[2:].tolist()},
                      [("hysteresis_asymmetry", p)], (4 + len(radii)) * n, _rms(res))
+    best = disp
     shape = _loop_shape_form(ctx, make, scale, unit, sol.x) if not ctx.base else None
-    if shape is not None and shape.train_rms ** 2 < (1 - LOOP_SHAPE_MIN_GAIN) * disp.train_rms ** 2:
-        return shape
-    return disp
+    if shape is not None and shape.train_rms ** 2 < (1 - LOOP_SHAPE_MIN_GAIN) * best.train_rms ** 2:
+        best = shape
+    relays = _relay_plane_form(ctx) if not ctx.base else None
+    if relays is not None and relays.train_rms ** 2 < (1 - LOOP_SHAPE_MIN_GAIN) * best.train_rms ** 2:
+        best = relays
+    return best
+
+
+#: threshold levels of the discretised Preisach plane, spread evenly over the voltage range of TRAIN: the relays
+#: are every pair (α, β) of levels with β < α (RELAY_LEVELS·(RELAY_LEVELS − 1)/2 per axis)
+RELAY_LEVELS = 9
+
+
+def _relay_plane_form(ctx: FitContext) -> FitResult | None:
+    """An added hysteretic term with its own loop (:class:`~..models.effects.RelayPlaneTerm`): a discretised
+    Preisach plane on the voltage at the hysteresis output, the nominal Bouc-Wen kept.  The output is linear in
+    the relays' weights (the creep and the dynamics behind the hysteresis are linear): the chain's response to
+    each relay, then the weights by least squares on TRAIN.  Only relays of nonzero width (β < α): a weight on
+    them is a loop — area, and an output that depends on the reversal history — not a memoryless gain or
+    compression, whose own candidates name those."""
+    n = ctx.cfg.n_axes
+    h = ctx.cfg.hysteresis
+    if h.n_in != n or h.n_out != n:
+        return None
+    lo, hi = float(np.min(ctx.u)), float(np.max(ctx.u))
+    if not hi > lo:
+        return None
+    step = (hi - lo) / RELAY_LEVELS
+    levels = lo + step * (np.arange(RELAY_LEVELS) + 0.5)
+    ia, ib = np.triu_indices(RELAY_LEVELS, 1)
+    alpha, beta = levels[ib].tolist(), levels[ia].tolist()     # β = levels[i] < α = levels[j]
+    R = len(alpha)
+    dp = np.diag(h.arrays()["Dp"])
+    X = _chain_response(ctx, lambda: fx.RelayPlaneTerm(dp, alpha, beta, np.zeros((R, n))),
+                        lambda st, u: st.terms(u))
+    r = residual(ctx.target, ctx.y_base_win).reshape(-1)
+    c, *_ = np.linalg.lstsq(X, r, rcond=None)
+    res = (r - X @ c).reshape(-1, n)
+    se = _stderr(-X, res)
+    p = {"Delta1": [0.0] * n, "Delta2": [0.0] * n, "relay_alpha": alpha, "relay_beta": beta,
+         "relay_gains": c.reshape(R, n).tolist()}
+    return FitResult("hysteresis_asymmetry", p, {"Delta1": None, "Delta2": None, "relay_alpha": None,
+                                                 "relay_beta": None, "relay_gains": se.reshape(R, n).tolist()},
+                     [("hysteresis_asymmetry", p)], R * n, _rms(res),
+                     note=f"an added hysteretic term: a Preisach plane of {R} relays per axis on the voltage")
 
 
 #: the loop-shape terms at the hysteresis output replace the displacement-side ones when they lower the training
