@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections import OrderedDict
 from typing import Any, Callable
 
 import numpy as np
@@ -249,9 +250,10 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
     # the linear terms, near enough on the base model's output, are projected out of the residual while Δ is
     # fitted (variable projection): Δ must not take what the even and loop-width terms explain
     Q = np.linalg.qr(_per_axis_columns(regressors(ctx.y_base_win)[0], n))[0]
+    output = _trial_outputs(ctx, make, keep=4 * n + 2)
 
     def resid(theta: np.ndarray) -> np.ndarray:
-        r = ctx.sim_residual([("hysteresis_asymmetry", make(theta))]).reshape(-1)
+        r = residual(ctx.target, output(theta)).reshape(-1)
         out: np.ndarray = (r - Q @ (Q.T @ r)) / unit
         return out
 
@@ -263,7 +265,7 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
     se = _stderr(sol.jac, r) * scale
     p = make(sol.x)
     # then the even, branch-dependent and loop-width terms, linear given the generalized Bouc-Wen: regression
-    y_w = simulate(ctx.cfg, ctx.u, list(ctx.base) + [("hysteresis_asymmetry", p)], ctx.windows)
+    y_w = output(sol.x)                           # the solution's replay: one of the trials already run
     r_w = residual(ctx.target, y_w)
     regs, radii = regressors(y_w)
     coef, res, se2 = _lin_per_axis(r_w, regs)
@@ -274,7 +276,7 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
                                                  "play_radii": None, "play_gains": se2[2:].tolist()},
                      [("hysteresis_asymmetry", p)], (4 + len(radii)) * n, _rms(res))
     best = disp
-    shape = _loop_shape_form(ctx, make, scale, unit, sol.x) if not ctx.base else None
+    shape = _loop_shape_form(ctx, make, output, scale, unit, sol.x) if not ctx.base else None
     if shape is not None and shape.train_rms ** 2 < (1 - LOOP_SHAPE_MIN_GAIN) * best.train_rms ** 2:
         best = shape
     relays = _relay_plane_form(ctx) if not ctx.base else None
@@ -327,12 +329,35 @@ def _relay_plane_form(ctx: FitContext) -> FitResult | None:
 LOOP_SHAPE_MIN_GAIN = 0.02
 
 
-def _loop_shape_form(ctx: FitContext, make: Callable[[np.ndarray], dict[str, Any]], scale: np.ndarray,
-                     unit: float, theta0: np.ndarray) -> FitResult | None:
+def _trial_outputs(ctx: FitContext, make: Callable[[np.ndarray], dict[str, Any]],
+                   keep: int) -> Callable[[np.ndarray], np.ndarray]:
+    """``output(theta)``: the model's replay on the fit windows with ``("hysteresis_asymmetry", make(theta))``
+    added, the last ``keep`` trials remembered — a least-squares solver returns one of the points it evaluated, and
+    the next fit starts from it, so neither re-runs the (costly) Bouc-Wen replay at that point."""
+    store: OrderedDict[bytes, np.ndarray] = OrderedDict()
+
+    def output(theta: np.ndarray) -> np.ndarray:
+        key = np.asarray(theta, float).tobytes()
+        if key in store:
+            store.move_to_end(key)
+            return store[key]
+        y = simulate(ctx.cfg, ctx.u, list(ctx.base) + [("hysteresis_asymmetry", make(theta))], ctx.windows)
+        store[key] = y
+        while len(store) > keep:
+            store.popitem(last=False)
+        return y
+
+    return output
+
+
+def _loop_shape_form(ctx: FitContext, make: Callable[[np.ndarray], dict[str, Any]],
+                     output: Callable[[np.ndarray], np.ndarray], scale: np.ndarray, unit: float,
+                     theta0: np.ndarray) -> FitResult | None:
     """Δ1/Δ2 and the loop-shape terms at the hysteresis output (:class:`~..models.effects.LoopShapeTerm`): the
     terms' gains are linear and do not depend on Δ (they are functions of the voltage), so Δ is fitted on the
     residual with the terms' responses projected out (variable projection), from the displacement family's Δ
-    ``theta0`` (the problem is nearly linear in Δ: a Gauss-Newton step or two), then the gains by least squares."""
+    ``theta0`` (the problem is nearly linear in Δ: a Gauss-Newton step or two), then the gains by least squares.
+    ``output``: the replay of a trial Δ (:func:`_trial_outputs`, shared with the displacement family's fit)."""
     n = ctx.cfg.n_axes
     cols = _loop_shape_columns(ctx)
     if cols is None:
@@ -341,7 +366,7 @@ def _loop_shape_form(ctx: FitContext, make: Callable[[np.ndarray], dict[str, Any
     Q, _ = np.linalg.qr(X)
 
     def resid(theta: np.ndarray) -> np.ndarray:
-        r = ctx.sim_residual([("hysteresis_asymmetry", make(theta))]).reshape(-1)
+        r = residual(ctx.target, output(theta)).reshape(-1)
         out: np.ndarray = (r - Q @ (Q.T @ r)) / unit
         return out
 
@@ -349,7 +374,7 @@ def _loop_shape_form(ctx: FitContext, make: Callable[[np.ndarray], dict[str, Any
         warnings.simplefilter("ignore")
         sol = optimize.least_squares(resid, np.asarray(theta0, float), diff_step=1e-3, max_nfev=4 * n + 2)
     p = make(sol.x)
-    r = ctx.sim_residual([("hysteresis_asymmetry", p)]).reshape(-1)
+    r = residual(ctx.target, output(sol.x)).reshape(-1)
     c, *_ = np.linalg.lstsq(X, r, rcond=None)
     res = (r - X @ c).reshape(-1, n)
     se_d = _stderr(sol.jac, res / unit) * scale

@@ -18,6 +18,7 @@ from scipy import optimize
 
 from .fit_common import FitContext, FitResult, _rms, _stderr
 from .fit_voltage import RAIL_MIN_GAIN, fit_amplifier_saturation
+from .replay import residual
 
 __all__ = ["fit_amplifier_saturation_any", "SOFT_KNEE_MIN_GAIN", "KNEE_GRID", "SHARPNESS_GRID"]
 
@@ -43,7 +44,7 @@ def fit_amplifier_saturation_any(ctx: FitContext) -> FitResult:
     amax = float(np.max(np.abs(ctx.u)))
     if not amax > 0:
         return hard
-    unit = max(_rms(ctx.sim_residual([])), 1e-15)
+    unit = max(_rms(residual(ctx.target, ctx.y_base_win)), 1e-15)    # the base replay: no re-run
 
     def resid(theta: np.ndarray) -> np.ndarray:
         up, down, p = (float(math.exp(x)) for x in theta)
