@@ -22,7 +22,8 @@ from ..models.plant import Plant
 from .fit_common import FitContext, FitResult, _fit_scalar, _lin_per_axis, _rms, _stderr
 from .replay import Windows, residual, simulate
 
-__all__ = ["fit_hysteresis_rate_dependence", "fit_hysteresis_asymmetry", "RELAX_MIN_GAIN", "PLAY_FRACTIONS",
+__all__ = ["fit_hysteresis_rate_dependence", "fit_hysteresis_asymmetry", "search_context", "RELAX_MIN_GAIN",
+           "PLAY_FRACTIONS", "RELAY_LEVELS",
            "VELOCITY_EXPONENTS", "VELOCITY_MAX_EXPONENT", "VELOCITY_SMOOTHING_SAMPLES"]
 
 
@@ -46,6 +47,33 @@ def _search_spans(ctx: FitContext) -> tuple[list[tuple[int, int, int]], np.ndarr
     keep = [i % 2 == 0 for i in range(len(spans))] if len(spans) > 2 else [True] * len(spans)
     mask = np.concatenate([np.full(e_ - s_, k) for (_, s_, e_), k in zip(spans, keep)])
     return [sp for sp, k in zip(spans, keep) if k], mask
+
+
+def search_context(ctx: FitContext) -> FitContext:
+    """The context a search over a nonlinear parameter runs on: every other fit window of a long run (the windows
+    are spread evenly over TRAIN, so half of them see the same excitation; the found parameter is then evaluated on
+    all of them), ``ctx`` itself when there are two windows or fewer.  Each trial replays the model, so the search
+    costs half."""
+    spans = ctx.windows.spans
+    if len(spans) <= 2:
+        return ctx
+    return FitContext(ctx.cfg, list(ctx.base), ctx.u, ctx.y, ctx.y_base, Windows(spans[::2]))
+
+
+def _scalar_searched(ctx: FitContext, sub: FitContext, pname: str, make: Callable[[float], dict[str, Any]],
+                     grid: np.ndarray, to_value: Callable[[float], float], dvalue: Callable[[float], float],
+                     from_value: Callable[[float], float]) -> FitResult:
+    """:func:`~.fit_common._fit_scalar` of ``hysteresis_rate_dependence``'s ``pname``: the grid and the refinement
+    on ``sub`` (:func:`search_context`), the residual and the standard error at the point found on every window of
+    ``ctx``."""
+    name = "hysteresis_rate_dependence"
+    if sub is ctx:
+        return _fit_scalar(ctx, name, pname, make, grid, to_value, dvalue)
+    found = _fit_scalar(sub, name, pname, make, grid, to_value, dvalue)
+    z = from_value(float(found.params[pname]))
+    full = _fit_scalar(ctx, name, pname, make, np.array([z]), to_value, dvalue)
+    full.extra = dict(found.extra)
+    return full
 
 
 def _chain_response(ctx: FitContext, make: Callable[[], Any], terms: Callable[[Any, np.ndarray], np.ndarray],
@@ -195,18 +223,19 @@ def fit_hysteresis_rate_dependence(ctx: FitContext) -> FitResult:
     (``relaxation`` τ, log grid 20 µs … 20 ms + refinement, with ``alpha`` refitted once under it), then the general
     forms — a velocity-damping term, play widths growing with the rate; each richer form is kept when it lowers the
     training residual energy by ``RELAX_MIN_GAIN`` below the one before it."""
+    sub = search_context(ctx)          # the searches on half the windows, each result evaluated on all of them
     grid = np.array([-0.6, -0.3, -0.1, 0.0, 0.1, 0.3, 0.6, 1.2, 2.5, 5.0])
-    base = _fit_scalar(ctx, "hysteresis_rate_dependence", "alpha", lambda z: {"alpha": z}, grid, lambda z: z,
-                       lambda z: 1.0)
+    same: Callable[[float], float] = lambda z: z  # noqa: E731
+    one: Callable[[float], float] = lambda z: 1.0  # noqa: E731
+    base = _scalar_searched(ctx, sub, "alpha", lambda z: {"alpha": z}, grid, same, one, same)
     alpha = float(base.params["alpha"])
     lo = math.log(max(20e-6, 0.3 * ctx.dt))
     tgrid = np.linspace(lo, math.log(20e-3), 10)
-    rel = _fit_scalar(ctx, "hysteresis_rate_dependence", "relaxation",
-                      lambda z: {"alpha": alpha, "relaxation": math.exp(z)}, tgrid, math.exp, math.exp)
+    rel = _scalar_searched(ctx, sub, "relaxation", lambda z: {"alpha": alpha, "relaxation": math.exp(z)}, tgrid,
+                           math.exp, math.exp, math.log)
     tau = float(rel.params["relaxation"])
     agrid = alpha + np.array([-0.4, -0.15, -0.05, 0.0, 0.05, 0.15, 0.4])
-    both = _fit_scalar(ctx, "hysteresis_rate_dependence", "alpha",
-                       lambda z: {"alpha": z, "relaxation": tau}, agrid, lambda z: z, lambda z: 1.0)
+    both = _scalar_searched(ctx, sub, "alpha", lambda z: {"alpha": z, "relaxation": tau}, agrid, same, one, same)
     best = min((rel, both), key=lambda f: f.train_rms)
     if best.train_rms ** 2 > (1 - RELAX_MIN_GAIN) * base.train_rms ** 2:
         chosen = base
