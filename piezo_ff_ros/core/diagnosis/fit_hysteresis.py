@@ -9,6 +9,7 @@ re-running the hysteresis.
 """
 from __future__ import annotations
 
+import itertools
 import math
 import warnings
 from collections import OrderedDict
@@ -323,9 +324,9 @@ def _relay_plane_form(ctx: FitContext) -> FitResult | None:
     """An added hysteretic term with its own loop (:class:`~..models.effects.RelayPlaneTerm`): a discretised
     Preisach plane on the voltage at the hysteresis output, the nominal Bouc-Wen kept.  The output is linear in
     the relays' weights (the creep and the dynamics behind the hysteresis are linear): the chain's response to
-    each relay, then the weights by least squares on TRAIN.  Only relays of nonzero width (β < α): a weight on
-    them is a loop — area, and an output that depends on the reversal history — not a memoryless gain or
-    compression, whose own candidates name those."""
+    each relay, then the weights by least squares on TRAIN, of one sign per axis (:func:`_signed_density`).  Only
+    relays of nonzero width (β < α): a weight on them is a loop — area, and an output that depends on the
+    reversal history — not a memoryless gain or compression, whose own candidates name those."""
     n = ctx.cfg.n_axes
     h = ctx.cfg.hysteresis
     if h.n_in != n or h.n_out != n:
@@ -342,7 +343,7 @@ def _relay_plane_form(ctx: FitContext) -> FitResult | None:
     X = _chain_response(ctx, lambda: fx.RelayPlaneTerm(dp, alpha, beta, np.zeros((R, n))),
                         lambda st, u: st.terms(u))
     r = residual(ctx.target, ctx.y_base_win).reshape(-1)
-    c, *_ = np.linalg.lstsq(X, r, rcond=None)
+    c = _signed_density(X, r, n)
     res = (r - X @ c).reshape(-1, n)
     se = _stderr(-X, res)
     p = {"Delta1": [0.0] * n, "Delta2": [0.0] * n, "relay_alpha": alpha, "relay_beta": beta,
@@ -351,6 +352,24 @@ def _relay_plane_form(ctx: FitContext) -> FitResult | None:
                                                  "relay_beta": None, "relay_gains": se.reshape(R, n).tolist()},
                      [("hysteresis_asymmetry", p)], R * n, _rms(res),
                      note=f"an added hysteretic term: a Preisach plane of {R} relays per axis on the voltage")
+
+
+def _signed_density(X: np.ndarray, r: np.ndarray, n: int) -> np.ndarray:
+    """Relay weights of one sign per axis minimising ``‖r − X·c‖`` (columns relay-major, axis-minor): a Preisach
+    density does not change sign (an added loop runs one way round), and the constraint keeps neighbouring, nearly
+    collinear relays from taking large weights of opposite signs that cancel on TRAIN and not on another record.
+    Non-negative least squares on the triangular factor of ``X`` for each of the 2ⁿ sign patterns, the best kept."""
+    k = X.shape[1]
+    Ra = np.linalg.qr(np.column_stack([X, r]), mode="r")     # [X r] = Q·[R Qᵀr; 0 ρ]: Q never formed
+    Rm, b = Ra[:k, :k], Ra[:k, k]
+    best: tuple[float, np.ndarray] | None = None
+    for signs in itertools.product((1.0, -1.0), repeat=n):
+        d = np.tile(np.asarray(signs), k // n)
+        w, rnorm = optimize.nnls(Rm * d, b)
+        if best is None or rnorm < best[0]:
+            best = (float(rnorm), d * w)
+    assert best is not None
+    return best[1]
 
 
 #: the loop-shape terms at the hysteresis output replace the displacement-side ones when they lower the training
