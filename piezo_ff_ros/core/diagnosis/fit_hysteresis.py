@@ -318,6 +318,8 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
 #: threshold levels of the discretised Preisach plane, spread evenly over the voltage range of TRAIN: the relays
 #: are every pair (α, β) of levels with β < α (RELAY_LEVELS·(RELAY_LEVELS − 1)/2 per axis)
 RELAY_LEVELS = 9
+#: a relay enters the fit when it switches at least this often on TRAIN (two round trips of its own loop)
+RELAY_MIN_SWITCHES = 4
 
 
 def _relay_plane_form(ctx: FitContext) -> FitResult | None:
@@ -340,12 +342,22 @@ def _relay_plane_form(ctx: FitContext) -> FitResult | None:
     alpha, beta = levels[ib].tolist(), levels[ia].tolist()     # β = levels[i] < α = levels[j]
     R = len(alpha)
     dp = np.diag(h.arrays()["Dp"])
+    # a relay's weight is told by its loop only where TRAIN runs round it: one that switches a few times is a step
+    # in time (it would take a slow trend, a creep's); kept when it switches RELAY_MIN_SWITCHES times on its axis
+    states = fx.RelayPlaneTerm(np.ones(n), alpha, beta, np.zeros((R, n))).terms(ctx.u)
+    switches = np.count_nonzero(np.diff(states, axis=0), axis=0)             # [R, n]
+    if not np.any(switches >= RELAY_MIN_SWITCHES):
+        return None
+    gate = (switches >= RELAY_MIN_SWITCHES).astype(float)
     X = _chain_response(ctx, lambda: fx.RelayPlaneTerm(dp, alpha, beta, np.zeros((R, n))),
-                        lambda st, u: st.terms(u))
+                        lambda st, u: st.terms(u) * gate)
+    used = np.flatnonzero(gate.reshape(-1))                                   # columns relay-major, axis-minor
     r = residual(ctx.target, ctx.y_base_win).reshape(-1)
-    c = _signed_density(X, r, n)
+    c = np.zeros(R * n)
+    c[used] = _signed_density(X[:, used], r, used % n, n)
     res = (r - X @ c).reshape(-1, n)
-    se = _stderr(-X, res)
+    se = np.zeros(R * n)
+    se[used] = _stderr(-X[:, used], res)
     p = {"Delta1": [0.0] * n, "Delta2": [0.0] * n, "relay_alpha": alpha, "relay_beta": beta,
          "relay_gains": c.reshape(R, n).tolist()}
     return FitResult("hysteresis_asymmetry", p, {"Delta1": None, "Delta2": None, "relay_alpha": None,
@@ -354,17 +366,18 @@ def _relay_plane_form(ctx: FitContext) -> FitResult | None:
                      note=f"an added hysteretic term: a Preisach plane of {R} relays per axis on the voltage")
 
 
-def _signed_density(X: np.ndarray, r: np.ndarray, n: int) -> np.ndarray:
-    """Relay weights of one sign per axis minimising ``‖r − X·c‖`` (columns relay-major, axis-minor): a Preisach
+def _signed_density(X: np.ndarray, r: np.ndarray, axis_of: np.ndarray, n: int) -> np.ndarray:
+    """Relay weights of one sign per axis minimising ``‖r − X·c‖`` (column k on axis ``axis_of[k]``): a Preisach
     density does not change sign (an added loop runs one way round), and the constraint keeps neighbouring, nearly
     collinear relays from taking large weights of opposite signs that cancel on TRAIN and not on another record.
     Non-negative least squares on the triangular factor of ``X`` for each of the 2ⁿ sign patterns, the best kept."""
     k = X.shape[1]
-    Ra = np.linalg.qr(np.column_stack([X, r]), mode="r")     # [X r] = Q·[R Qᵀr; 0 ρ]: Q never formed
+    # [X r] = Q·[R Qᵀr; 0 ρ]: the triangular factor alone, Q never formed
+    Ra: np.ndarray = np.linalg.qr(np.column_stack([X, r]), mode="r")  # type: ignore[assignment]
     Rm, b = Ra[:k, :k], Ra[:k, k]
     best: tuple[float, np.ndarray] | None = None
     for signs in itertools.product((1.0, -1.0), repeat=n):
-        d = np.tile(np.asarray(signs), k // n)
+        d = np.asarray(signs)[axis_of]
         w, rnorm = optimize.nnls(Rm * d, b)
         if best is None or rnorm < best[0]:
             best = (float(rnorm), d * w)
