@@ -16,7 +16,7 @@ from collections import OrderedDict
 from typing import Any, Callable
 
 import numpy as np
-from scipy import optimize
+from scipy import linalg, optimize
 
 from ..models import effects as fx
 from ..models.plant import Plant
@@ -373,7 +373,7 @@ def _signed_density(X: np.ndarray, r: np.ndarray, axis_of: np.ndarray, n: int) -
     Non-negative least squares on the triangular factor of ``X`` for each of the 2ⁿ sign patterns, the best kept."""
     k = X.shape[1]
     # [X r] = Q·[R Qᵀr; 0 ρ]: the triangular factor alone, Q never formed
-    Ra: np.ndarray = np.linalg.qr(np.column_stack([X, r]), mode="r")  # type: ignore[assignment]
+    Ra = np.asarray(linalg.qr(np.column_stack([X, r]), mode="r", check_finite=False)[0])
     Rm, b = Ra[:k, :k], Ra[:k, k]
     best: tuple[float, np.ndarray] | None = None
     for signs in itertools.product((1.0, -1.0), repeat=n):
