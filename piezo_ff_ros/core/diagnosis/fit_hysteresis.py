@@ -344,8 +344,7 @@ def _relay_plane_form(ctx: FitContext) -> FitResult | None:
     dp = np.diag(h.arrays()["Dp"])
     # a relay's weight is told by its loop only where TRAIN runs round it: one that switches a few times is a step
     # in time (it would take a slow trend, a creep's); kept when it switches RELAY_MIN_SWITCHES times on its axis
-    states = fx.RelayPlaneTerm(np.ones(n), alpha, beta, np.zeros((R, n))).terms(ctx.u)
-    switches = np.count_nonzero(np.diff(states, axis=0), axis=0)             # [R, n]
+    switches = _relay_switches(ctx, alpha, beta)                              # [R, n], on the fit windows
     if not np.any(switches >= RELAY_MIN_SWITCHES):
         return None
     gate = (switches >= RELAY_MIN_SWITCHES).astype(float)
@@ -364,6 +363,26 @@ def _relay_plane_form(ctx: FitContext) -> FitResult | None:
                                                  "relay_beta": None, "relay_gains": se.reshape(R, n).tolist()},
                      [("hysteresis_asymmetry", p)], R * n, _rms(res),
                      note=f"an added hysteretic term: a Preisach plane of {R} relays per axis on the voltage")
+
+
+def _relay_switches(ctx: FitContext, alpha: list[float], beta: list[float], block: int = 20_000) -> np.ndarray:
+    """How often each relay switches on each axis over the fit windows' scored samples, [R, n] (the relays run
+    from each window's warm start, block by block: the states are never held for a whole window)."""
+    n = ctx.cfg.n_axes
+    count = np.zeros((len(alpha), n), dtype=np.int64)
+    for w, s_, e_ in ctx.windows.spans:
+        term = fx.RelayPlaneTerm(np.ones(n), alpha, beta, np.zeros((len(alpha), n)))
+        last: np.ndarray | None = None
+        for a in range(w, e_, block):
+            st = term.terms(ctx.u[a:min(a + block, e_)])
+            st = st[max(s_ - a, 0):]
+            if len(st) == 0:
+                continue
+            if last is not None:
+                count += st[0] != last
+            count += np.count_nonzero(np.diff(st, axis=0), axis=0)
+            last = st[-1]
+    return count
 
 
 def _signed_density(X: np.ndarray, r: np.ndarray, axis_of: np.ndarray, n: int) -> np.ndarray:
