@@ -20,7 +20,7 @@ from scipy import linalg, optimize
 
 from ..models import effects as fx
 from ..models.plant import Plant
-from .fit_common import FitContext, FitResult, _fit_scalar, _lin_per_axis, _rms, _stderr
+from .fit_common import FitContext, FitResult, _fit_scalar, _lin_per_axis, _rms, _stderr, n_eff_ratio
 from .replay import Windows, residual, simulate
 
 __all__ = ["fit_hysteresis_rate_dependence", "fit_hysteresis_asymmetry", "search_context", "RELAX_MIN_GAIN",
@@ -352,11 +352,17 @@ def _relay_plane_form(ctx: FitContext) -> FitResult | None:
                         lambda st, u: st.terms(u) * gate)
     used = np.flatnonzero(gate.reshape(-1))                                   # columns relay-major, axis-minor
     r = residual(ctx.target, ctx.y_base_win).reshape(-1)
+    Xu = X[:, used]
+    # [Xu r] = Q·[R Qᵀr; 0 ρ]: the triangular factor alone (Q never formed) gives the weights and XᵀX = RᵀR
+    Ra = np.asarray(linalg.qr(np.column_stack([Xu, r]), mode="r", check_finite=False)[0])
+    k = len(used)
+    Rm, b = Ra[:k, :k], Ra[:k, k]
     c = np.zeros(R * n)
-    c[used] = _signed_density(X[:, used], r, used % n, n)
+    c[used] = _signed_density(Rm, b, used % n, n)
     res = (r - X @ c).reshape(-1, n)
     se = np.zeros(R * n)
-    se[used] = _stderr(-X[:, used], res)
+    s2 = float(np.sum(res ** 2)) / max(res.size - k, 1) * n_eff_ratio(res)
+    se[used] = np.sqrt(np.maximum(np.diag(np.linalg.pinv(Rm.T @ Rm)) * s2, 0.0))
     p = {"Delta1": [0.0] * n, "Delta2": [0.0] * n, "relay_alpha": alpha, "relay_beta": beta,
          "relay_gains": c.reshape(R, n).tolist()}
     return FitResult("hysteresis_asymmetry", p, {"Delta1": None, "Delta2": None, "relay_alpha": None,
@@ -385,15 +391,13 @@ def _relay_switches(ctx: FitContext, alpha: list[float], beta: list[float], bloc
     return count
 
 
-def _signed_density(X: np.ndarray, r: np.ndarray, axis_of: np.ndarray, n: int) -> np.ndarray:
-    """Relay weights of one sign per axis minimising ``‖r − X·c‖`` (column k on axis ``axis_of[k]``): a Preisach
-    density does not change sign (an added loop runs one way round), and the constraint keeps neighbouring, nearly
-    collinear relays from taking large weights of opposite signs that cancel on TRAIN and not on another record.
-    Non-negative least squares on the triangular factor of ``X`` for each of the 2ⁿ sign patterns, the best kept."""
-    k = X.shape[1]
-    # [X r] = Q·[R Qᵀr; 0 ρ]: the triangular factor alone, Q never formed
-    Ra = np.asarray(linalg.qr(np.column_stack([X, r]), mode="r", check_finite=False)[0])
-    Rm, b = Ra[:k, :k], Ra[:k, k]
+def _signed_density(Rm: np.ndarray, b: np.ndarray, axis_of: np.ndarray, n: int) -> np.ndarray:
+    """Relay weights of one sign per axis minimising ``‖Rm·c − b‖`` (``Rm``, ``b``: the triangular factor of the
+    relays' responses and the residual rotated with it — the same minimiser as on the responses themselves; column
+    k on axis ``axis_of[k]``): a Preisach density does not change sign (an added loop runs one way round), and the
+    constraint keeps neighbouring, nearly collinear relays from taking large weights of opposite signs that cancel
+    on TRAIN and not on another record.  Non-negative least squares for each of the 2ⁿ sign patterns, the best
+    kept."""
     best: tuple[float, np.ndarray] | None = None
     for signs in itertools.product((1.0, -1.0), repeat=n):
         d = np.asarray(signs)[axis_of]
