@@ -9,19 +9,22 @@ re-running the hysteresis.
 """
 from __future__ import annotations
 
+import itertools
 import math
 import warnings
+from collections import OrderedDict
 from typing import Any, Callable
 
 import numpy as np
-from scipy import optimize
+from scipy import linalg, optimize
 
 from ..models import effects as fx
 from ..models.plant import Plant
-from .fit_common import FitContext, FitResult, _fit_scalar, _lin_per_axis, _rms, _stderr
+from .fit_common import FitContext, FitResult, _fit_scalar, _lin_per_axis, _rms, _stderr, n_eff_ratio
 from .replay import Windows, residual, simulate
 
-__all__ = ["fit_hysteresis_rate_dependence", "fit_hysteresis_asymmetry", "RELAX_MIN_GAIN", "PLAY_FRACTIONS",
+__all__ = ["fit_hysteresis_rate_dependence", "fit_hysteresis_asymmetry", "search_context", "RELAX_MIN_GAIN",
+           "PLAY_FRACTIONS", "RELAY_LEVELS",
            "VELOCITY_EXPONENTS", "VELOCITY_MAX_EXPONENT", "VELOCITY_SMOOTHING_SAMPLES"]
 
 
@@ -45,6 +48,33 @@ def _search_spans(ctx: FitContext) -> tuple[list[tuple[int, int, int]], np.ndarr
     keep = [i % 2 == 0 for i in range(len(spans))] if len(spans) > 2 else [True] * len(spans)
     mask = np.concatenate([np.full(e_ - s_, k) for (_, s_, e_), k in zip(spans, keep)])
     return [sp for sp, k in zip(spans, keep) if k], mask
+
+
+def search_context(ctx: FitContext) -> FitContext:
+    """The context a search over a nonlinear parameter runs on: every other fit window of a long run (the windows
+    are spread evenly over TRAIN, so half of them see the same excitation; the found parameter is then evaluated on
+    all of them), ``ctx`` itself when there are two windows or fewer.  Each trial replays the model, so the search
+    costs half."""
+    spans = ctx.windows.spans
+    if len(spans) <= 2:
+        return ctx
+    return FitContext(ctx.cfg, list(ctx.base), ctx.u, ctx.y, ctx.y_base, Windows(spans[::2]))
+
+
+def _scalar_searched(ctx: FitContext, sub: FitContext, pname: str, make: Callable[[float], dict[str, Any]],
+                     grid: np.ndarray, to_value: Callable[[float], float], dvalue: Callable[[float], float],
+                     from_value: Callable[[float], float]) -> FitResult:
+    """:func:`~.fit_common._fit_scalar` of ``hysteresis_rate_dependence``'s ``pname``: the grid and the refinement
+    on ``sub`` (:func:`search_context`), the residual and the standard error at the point found on every window of
+    ``ctx``."""
+    name = "hysteresis_rate_dependence"
+    if sub is ctx:
+        return _fit_scalar(ctx, name, pname, make, grid, to_value, dvalue)
+    found = _fit_scalar(sub, name, pname, make, grid, to_value, dvalue)
+    z = from_value(float(found.params[pname]))
+    full = _fit_scalar(ctx, name, pname, make, np.array([z]), to_value, dvalue)
+    full.extra = dict(found.extra)
+    return full
 
 
 def _chain_response(ctx: FitContext, make: Callable[[], Any], terms: Callable[[Any, np.ndarray], np.ndarray],
@@ -194,18 +224,19 @@ def fit_hysteresis_rate_dependence(ctx: FitContext) -> FitResult:
     (``relaxation`` τ, log grid 20 µs … 20 ms + refinement, with ``alpha`` refitted once under it), then the general
     forms — a velocity-damping term, play widths growing with the rate; each richer form is kept when it lowers the
     training residual energy by ``RELAX_MIN_GAIN`` below the one before it."""
+    sub = search_context(ctx)          # the searches on half the windows, each result evaluated on all of them
     grid = np.array([-0.6, -0.3, -0.1, 0.0, 0.1, 0.3, 0.6, 1.2, 2.5, 5.0])
-    base = _fit_scalar(ctx, "hysteresis_rate_dependence", "alpha", lambda z: {"alpha": z}, grid, lambda z: z,
-                       lambda z: 1.0)
+    same: Callable[[float], float] = lambda z: z  # noqa: E731
+    one: Callable[[float], float] = lambda z: 1.0  # noqa: E731
+    base = _scalar_searched(ctx, sub, "alpha", lambda z: {"alpha": z}, grid, same, one, same)
     alpha = float(base.params["alpha"])
     lo = math.log(max(20e-6, 0.3 * ctx.dt))
     tgrid = np.linspace(lo, math.log(20e-3), 10)
-    rel = _fit_scalar(ctx, "hysteresis_rate_dependence", "relaxation",
-                      lambda z: {"alpha": alpha, "relaxation": math.exp(z)}, tgrid, math.exp, math.exp)
+    rel = _scalar_searched(ctx, sub, "relaxation", lambda z: {"alpha": alpha, "relaxation": math.exp(z)}, tgrid,
+                           math.exp, math.exp, math.log)
     tau = float(rel.params["relaxation"])
     agrid = alpha + np.array([-0.4, -0.15, -0.05, 0.0, 0.05, 0.15, 0.4])
-    both = _fit_scalar(ctx, "hysteresis_rate_dependence", "alpha",
-                       lambda z: {"alpha": z, "relaxation": tau}, agrid, lambda z: z, lambda z: 1.0)
+    both = _scalar_searched(ctx, sub, "alpha", lambda z: {"alpha": z, "relaxation": tau}, agrid, same, one, same)
     best = min((rel, both), key=lambda f: f.train_rms)
     if best.train_rms ** 2 > (1 - RELAX_MIN_GAIN) * base.train_rms ** 2:
         chosen = base
@@ -249,9 +280,10 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
     # the linear terms, near enough on the base model's output, are projected out of the residual while Δ is
     # fitted (variable projection): Δ must not take what the even and loop-width terms explain
     Q = np.linalg.qr(_per_axis_columns(regressors(ctx.y_base_win)[0], n))[0]
+    output = _trial_outputs(ctx, make, keep=4 * n + 2)
 
     def resid(theta: np.ndarray) -> np.ndarray:
-        r = ctx.sim_residual([("hysteresis_asymmetry", make(theta))]).reshape(-1)
+        r = residual(ctx.target, output(theta)).reshape(-1)
         out: np.ndarray = (r - Q @ (Q.T @ r)) / unit
         return out
 
@@ -263,7 +295,7 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
     se = _stderr(sol.jac, r) * scale
     p = make(sol.x)
     # then the even, branch-dependent and loop-width terms, linear given the generalized Bouc-Wen: regression
-    y_w = simulate(ctx.cfg, ctx.u, list(ctx.base) + [("hysteresis_asymmetry", p)], ctx.windows)
+    y_w = output(sol.x)                           # the solution's replay: one of the trials already run
     r_w = residual(ctx.target, y_w)
     regs, radii = regressors(y_w)
     coef, res, se2 = _lin_per_axis(r_w, regs)
@@ -273,10 +305,107 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
                                                  "even": se2[0].tolist(), "branch_even": se2[1].tolist(),
                                                  "play_radii": None, "play_gains": se2[2:].tolist()},
                      [("hysteresis_asymmetry", p)], (4 + len(radii)) * n, _rms(res))
-    shape = _loop_shape_form(ctx, make, scale, unit, sol.x) if not ctx.base else None
-    if shape is not None and shape.train_rms ** 2 < (1 - LOOP_SHAPE_MIN_GAIN) * disp.train_rms ** 2:
-        return shape
-    return disp
+    best = disp
+    shape = _loop_shape_form(ctx, make, output, scale, unit, sol.x) if not ctx.base else None
+    if shape is not None and shape.train_rms ** 2 < (1 - LOOP_SHAPE_MIN_GAIN) * best.train_rms ** 2:
+        best = shape
+    relays = _relay_plane_form(ctx) if not ctx.base else None
+    if relays is not None and relays.train_rms ** 2 < (1 - LOOP_SHAPE_MIN_GAIN) * best.train_rms ** 2:
+        best = relays
+    return best
+
+
+#: threshold levels of the discretised Preisach plane, spread evenly over the voltage range of TRAIN: the relays
+#: are every pair (α, β) of levels with β < α (RELAY_LEVELS·(RELAY_LEVELS − 1)/2 per axis)
+RELAY_LEVELS = 9
+#: a relay enters the fit when it switches at least this often on TRAIN (two round trips of its own loop)
+RELAY_MIN_SWITCHES = 4
+
+
+def _relay_plane_form(ctx: FitContext) -> FitResult | None:
+    """An added hysteretic term with its own loop (:class:`~..models.effects.RelayPlaneTerm`): a discretised
+    Preisach plane on the voltage at the hysteresis output, the nominal Bouc-Wen kept.  The output is linear in
+    the relays' weights (the creep and the dynamics behind the hysteresis are linear): the chain's response to
+    each relay, then the weights by least squares on TRAIN, of one sign per axis (:func:`_signed_density`).  Only
+    relays of nonzero width (β < α): a weight on them is a loop — area, and an output that depends on the
+    reversal history — not a memoryless gain or compression, whose own candidates name those."""
+    n = ctx.cfg.n_axes
+    h = ctx.cfg.hysteresis
+    if h.n_in != n or h.n_out != n:
+        return None
+    lo, hi = float(np.min(ctx.u)), float(np.max(ctx.u))
+    if not hi > lo:
+        return None
+    step = (hi - lo) / RELAY_LEVELS
+    levels = lo + step * (np.arange(RELAY_LEVELS) + 0.5)
+    ia, ib = np.triu_indices(RELAY_LEVELS, 1)
+    alpha, beta = levels[ib].tolist(), levels[ia].tolist()     # β = levels[i] < α = levels[j]
+    R = len(alpha)
+    dp = np.diag(h.arrays()["Dp"])
+    # a relay's weight is told by its loop only where TRAIN runs round it: one that switches a few times is a step
+    # in time (it would take a slow trend, a creep's); kept when it switches RELAY_MIN_SWITCHES times on its axis
+    switches = _relay_switches(ctx, alpha, beta)                              # [R, n], on the fit windows
+    if not np.any(switches >= RELAY_MIN_SWITCHES):
+        return None
+    gate = (switches >= RELAY_MIN_SWITCHES).astype(float)
+    X = _chain_response(ctx, lambda: fx.RelayPlaneTerm(dp, alpha, beta, np.zeros((R, n))),
+                        lambda st, u: st.terms(u) * gate)
+    used = np.flatnonzero(gate.reshape(-1))                                   # columns relay-major, axis-minor
+    r = residual(ctx.target, ctx.y_base_win).reshape(-1)
+    Xu = X[:, used]
+    # [Xu r] = Q·[R Qᵀr; 0 ρ]: the triangular factor alone (Q never formed) gives the weights and XᵀX = RᵀR
+    Ra = np.asarray(linalg.qr(np.column_stack([Xu, r]), mode="r", check_finite=False)[0])
+    k = len(used)
+    Rm, b = Ra[:k, :k], Ra[:k, k]
+    c = np.zeros(R * n)
+    c[used] = _signed_density(Rm, b, used % n, n)
+    res = (r - X @ c).reshape(-1, n)
+    se = np.zeros(R * n)
+    s2 = float(np.sum(res ** 2)) / max(res.size - k, 1) * n_eff_ratio(res)
+    se[used] = np.sqrt(np.maximum(np.diag(np.linalg.pinv(Rm.T @ Rm)) * s2, 0.0))
+    p = {"Delta1": [0.0] * n, "Delta2": [0.0] * n, "relay_alpha": alpha, "relay_beta": beta,
+         "relay_gains": c.reshape(R, n).tolist()}
+    return FitResult("hysteresis_asymmetry", p, {"Delta1": None, "Delta2": None, "relay_alpha": None,
+                                                 "relay_beta": None, "relay_gains": se.reshape(R, n).tolist()},
+                     [("hysteresis_asymmetry", p)], R * n, _rms(res),
+                     note=f"an added hysteretic term: a Preisach plane of {R} relays per axis on the voltage")
+
+
+def _relay_switches(ctx: FitContext, alpha: list[float], beta: list[float], block: int = 20_000) -> np.ndarray:
+    """How often each relay switches on each axis over the fit windows' scored samples, [R, n] (the relays run
+    from each window's warm start, block by block: the states are never held for a whole window)."""
+    n = ctx.cfg.n_axes
+    count = np.zeros((len(alpha), n), dtype=np.int64)
+    for w, s_, e_ in ctx.windows.spans:
+        term = fx.RelayPlaneTerm(np.ones(n), alpha, beta, np.zeros((len(alpha), n)))
+        last: np.ndarray | None = None
+        for a in range(w, e_, block):
+            st = term.terms(ctx.u[a:min(a + block, e_)])
+            st = st[max(s_ - a, 0):]
+            if len(st) == 0:
+                continue
+            if last is not None:
+                count += st[0] != last
+            count += np.count_nonzero(np.diff(st, axis=0), axis=0)
+            last = st[-1]
+    return count
+
+
+def _signed_density(Rm: np.ndarray, b: np.ndarray, axis_of: np.ndarray, n: int) -> np.ndarray:
+    """Relay weights of one sign per axis minimising ``‖Rm·c − b‖`` (``Rm``, ``b``: the triangular factor of the
+    relays' responses and the residual rotated with it — the same minimiser as on the responses themselves; column
+    k on axis ``axis_of[k]``): a Preisach density does not change sign (an added loop runs one way round), and the
+    constraint keeps neighbouring, nearly collinear relays from taking large weights of opposite signs that cancel
+    on TRAIN and not on another record.  Non-negative least squares for each of the 2ⁿ sign patterns, the best
+    kept."""
+    best: tuple[float, np.ndarray] | None = None
+    for signs in itertools.product((1.0, -1.0), repeat=n):
+        d = np.asarray(signs)[axis_of]
+        w, rnorm = optimize.nnls(Rm * d, b)
+        if best is None or rnorm < best[0]:
+            best = (float(rnorm), d * w)
+    assert best is not None
+    return best[1]
 
 
 #: the loop-shape terms at the hysteresis output replace the displacement-side ones when they lower the training
@@ -284,12 +413,35 @@ def fit_hysteresis_asymmetry(ctx: FitContext) -> FitResult:
 LOOP_SHAPE_MIN_GAIN = 0.02
 
 
-def _loop_shape_form(ctx: FitContext, make: Callable[[np.ndarray], dict[str, Any]], scale: np.ndarray,
-                     unit: float, theta0: np.ndarray) -> FitResult | None:
+def _trial_outputs(ctx: FitContext, make: Callable[[np.ndarray], dict[str, Any]],
+                   keep: int) -> Callable[[np.ndarray], np.ndarray]:
+    """``output(theta)``: the model's replay on the fit windows with ``("hysteresis_asymmetry", make(theta))``
+    added, the last ``keep`` trials remembered — a least-squares solver returns one of the points it evaluated, and
+    the next fit starts from it, so neither re-runs the (costly) Bouc-Wen replay at that point."""
+    store: OrderedDict[bytes, np.ndarray] = OrderedDict()
+
+    def output(theta: np.ndarray) -> np.ndarray:
+        key = np.asarray(theta, float).tobytes()
+        if key in store:
+            store.move_to_end(key)
+            return store[key]
+        y = simulate(ctx.cfg, ctx.u, list(ctx.base) + [("hysteresis_asymmetry", make(theta))], ctx.windows)
+        store[key] = y
+        while len(store) > keep:
+            store.popitem(last=False)
+        return y
+
+    return output
+
+
+def _loop_shape_form(ctx: FitContext, make: Callable[[np.ndarray], dict[str, Any]],
+                     output: Callable[[np.ndarray], np.ndarray], scale: np.ndarray, unit: float,
+                     theta0: np.ndarray) -> FitResult | None:
     """Δ1/Δ2 and the loop-shape terms at the hysteresis output (:class:`~..models.effects.LoopShapeTerm`): the
     terms' gains are linear and do not depend on Δ (they are functions of the voltage), so Δ is fitted on the
     residual with the terms' responses projected out (variable projection), from the displacement family's Δ
-    ``theta0`` (the problem is nearly linear in Δ: a Gauss-Newton step or two), then the gains by least squares."""
+    ``theta0`` (the problem is nearly linear in Δ: a Gauss-Newton step or two), then the gains by least squares.
+    ``output``: the replay of a trial Δ (:func:`_trial_outputs`, shared with the displacement family's fit)."""
     n = ctx.cfg.n_axes
     cols = _loop_shape_columns(ctx)
     if cols is None:
@@ -298,7 +450,7 @@ def _loop_shape_form(ctx: FitContext, make: Callable[[np.ndarray], dict[str, Any
     Q, _ = np.linalg.qr(X)
 
     def resid(theta: np.ndarray) -> np.ndarray:
-        r = ctx.sim_residual([("hysteresis_asymmetry", make(theta))]).reshape(-1)
+        r = residual(ctx.target, output(theta)).reshape(-1)
         out: np.ndarray = (r - Q @ (Q.T @ r)) / unit
         return out
 
@@ -306,7 +458,7 @@ def _loop_shape_form(ctx: FitContext, make: Callable[[np.ndarray], dict[str, Any
         warnings.simplefilter("ignore")
         sol = optimize.least_squares(resid, np.asarray(theta0, float), diff_step=1e-3, max_nfev=4 * n + 2)
     p = make(sol.x)
-    r = ctx.sim_residual([("hysteresis_asymmetry", p)]).reshape(-1)
+    r = residual(ctx.target, output(sol.x)).reshape(-1)
     c, *_ = np.linalg.lstsq(X, r, rcond=None)
     res = (r - X @ c).reshape(-1, n)
     se_d = _stderr(sol.jac, res / unit) * scale

@@ -18,6 +18,8 @@ from scipy import optimize
 
 from .fit_common import FitContext, FitResult, _rms, _stderr
 from .fit_voltage import RAIL_MIN_GAIN, fit_amplifier_saturation
+from .fit_hysteresis import search_context
+from .replay import residual
 
 __all__ = ["fit_amplifier_saturation_any", "SOFT_KNEE_MIN_GAIN", "KNEE_GRID", "SHARPNESS_GRID"]
 
@@ -43,27 +45,34 @@ def fit_amplifier_saturation_any(ctx: FitContext) -> FitResult:
     amax = float(np.max(np.abs(ctx.u)))
     if not amax > 0:
         return hard
-    unit = max(_rms(ctx.sim_residual([])), 1e-15)
+    unit = max(_rms(residual(ctx.target, ctx.y_base_win)), 1e-15)    # the base replay: no re-run
+    sub = search_context(ctx)           # the search on half the windows of a long run, the result on all of them
 
-    def resid(theta: np.ndarray) -> np.ndarray:
+    def resid_on(c: FitContext, theta: np.ndarray) -> np.ndarray:
         up, down, p = (float(math.exp(x)) for x in theta)
-        return ctx.sim_residual([("amplifier_saturation", _soft(up, down, min(p, 100.0)))]).reshape(-1) / unit
+        return c.sim_residual([("amplifier_saturation", _soft(up, down, min(p, 100.0)))]).reshape(-1) / unit
 
     grid = [(math.log(k * amax), math.log(p)) for k in KNEE_GRID for p in SHARPNESS_GRID]
-    vals = [float(np.sum(resid(np.array([lk, lk, lp])) ** 2)) for lk, lp in grid]
+    vals = [float(np.sum(resid_on(sub, np.array([lk, lk, lp])) ** 2)) for lk, lp in grid]
     lk, lp = grid[int(np.argmin(vals))]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sol = optimize.least_squares(resid, np.array([lk, lk, lp]), diff_step=1e-3, max_nfev=20,
-                                     bounds=([math.log(0.3 * amax)] * 2 + [math.log(0.7)],
-                                             [math.log(20 * amax)] * 2 + [math.log(100.0)]))
+        sol = optimize.least_squares(lambda th: resid_on(sub, th), np.array([lk, lk, lp]), diff_step=1e-3,
+                                     max_nfev=20, bounds=([math.log(0.3 * amax)] * 2 + [math.log(0.7)],
+                                                          [math.log(20 * amax)] * 2 + [math.log(100.0)]))
+    jac = sol.jac
+    if sub is not ctx:                  # the residual and the Jacobian (standard errors) on every window
+        r0 = resid_on(ctx, sol.x)
+        jac = np.column_stack([(resid_on(ctx, sol.x + h) - r0) / h[k]
+                               for k, h in enumerate(np.diag(1e-3 * np.maximum(np.abs(sol.x), 1.0)))])
+        sol.fun = r0
     r = sol.fun.reshape(-1, ctx.cfg.n_axes)
     sse_soft = float(np.sum(r ** 2)) * unit ** 2
     sse_hard = float(hard.train_rms ** 2 * ctx.target.size)
     if sse_soft > (1 - SOFT_KNEE_MIN_GAIN) * sse_hard:
         return hard
     up, down, p = (float(math.exp(x)) for x in sol.x)
-    se = _stderr(sol.jac, r) * np.exp(sol.x)    # d(value) = value·d(log value)
+    se = _stderr(jac, r) * np.exp(sol.x)    # d(value) = value·d(log value)
     params = _soft(up, down, p)
     return FitResult("amplifier_saturation", params,
                      {"limit": float(se[0]), "lower_limit": float(se[1]), "sharpness": float(se[2])},

@@ -28,7 +28,7 @@ from .common import _block as _block
 from .common import _per_axis as _per_axis
 from .displacement import CreepNonlinearity, GainMismatch, ThermalDrift
 from .displacement import _lp_bank_run as _lp_bank_run
-from .hysteresis import BranchEvenTerm, HysteresisStage, PlayWidthTerm, RelaxedHysteresisStage, VelocityTerm, LoopShapeTerm, RatePlayTerm
+from .hysteresis import BranchEvenTerm, HysteresisStage, PlayWidthTerm, RelaxedHysteresisStage, VelocityTerm, LoopShapeTerm, RatePlayTerm, RelayPlaneTerm
 from .hysteresis import _lp1_run as _lp1_run
 from .hysteresis import _play_run as _play_run
 from .hysteresis import _relax2_run as _relax2_run
@@ -52,6 +52,6 @@ __all__ = [
     "InputDelay", "AmplifierSlewLimit", "AmplifierSaturation", "AmplifierBandwidth", "GainMismatch",
     "ThermalDrift", "CreepNonlinearity", "UnmodelledMode", "AmplitudeDependentDynamics", "BranchEvenTerm",
     "HysteresisStage", "EffectSpec", "EFFECTS", "AsymmetricSaturation", "RelaxedHysteresisStage", "PlayWidthTerm",
-    "CubicAmplitudeDynamics", "VelocityTerm", "LoopShapeTerm", "RatePlayTerm",
+    "CubicAmplitudeDynamics", "VelocityTerm", "LoopShapeTerm", "RatePlayTerm", "RelayPlaneTerm",
     "EFFECT_NAMES", "build_plant", "RATE_REF", "CREEP_TAUS", "CREEP_YREF",
 ]

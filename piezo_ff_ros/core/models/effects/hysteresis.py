@@ -21,7 +21,7 @@ from ...kernels.bouc_wen import bw_model_rate_run, params_of  # the model loop (
 from .common import DIRECTION_TAU, LEVEL_REF, RATE_REF, RATE_SMOOTHING, _block, _per_axis
 
 __all__ = ["HysteresisStage", "RelaxedHysteresisStage", "VelocityTerm", "LoopShapeTerm", "RatePlayTerm",
-           "BranchEvenTerm",
+           "RelayPlaneTerm", "BranchEvenTerm",
            "PlayWidthTerm",
            "asymmetric_hysteresis_config"]
 
@@ -89,7 +89,7 @@ class HysteresisStage:
     """
 
     def __init__(self, cfg: BoucWenConfig, alpha: float = 0.0, dt: float = 5e-5,
-                 extras: "tuple[VelocityTerm | LoopShapeTerm | RatePlayTerm, ...]" = ()):
+                 extras: "tuple[VelocityTerm | LoopShapeTerm | RatePlayTerm | RelayPlaneTerm, ...]" = ()):
         self.cfg = cfg
         self._p = params_of(cfg.arrays())
         if not math.isfinite(alpha):
@@ -151,7 +151,7 @@ class RelaxedHysteresisStage(HysteresisStage):
     ``hysteresis_rate_dependence`` (parameter ``relaxation``)."""
 
     def __init__(self, cfg: BoucWenConfig, alpha: float = 0.0, dt: float = 5e-5, relaxation: float = 0.0,
-                 extras: "tuple[VelocityTerm | LoopShapeTerm | RatePlayTerm, ...]" = ()):
+                 extras: "tuple[VelocityTerm | LoopShapeTerm | RatePlayTerm | RelayPlaneTerm, ...]" = ()):
         if not (math.isfinite(relaxation) and relaxation > 0):
             raise ValueError(f"hysteresis_rate_dependence.relaxation: must be > 0 s, got {relaxation!r}")
         self.relaxation = float(relaxation)
@@ -423,6 +423,71 @@ class LoopShapeTerm:
         q, w, wl = self.terms(u)
         res: np.ndarray = q * self.even + np.einsum("tkj,kj->tj", w, self.gains) + \
             np.einsum("tkj,kj->tj", wl, self.level_gains)
+        return res
+
+
+@njit
+def _relay_run(u: np.ndarray, alpha: np.ndarray, beta: np.ndarray, state: np.ndarray, started: np.ndarray,
+               out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Preisach relays of every column: out[t, r, j] = state_rj, switched to +1 where U_j ≥ α_r and to −1 where
+    U_j ≤ β_r; at the first input a relay is up when U_j is above its centre (α_r + β_r)/2."""
+    N, n = u.shape
+    R = alpha.shape[0]
+    for t in range(N):
+        for j in range(n):
+            v = u[t, j]
+            for r in range(R):
+                if not started[0]:
+                    state[r, j] = 1.0 if v >= 0.5 * (alpha[r] + beta[r]) else -1.0
+                if v >= alpha[r]:
+                    state[r, j] = 1.0
+                elif v <= beta[r]:
+                    state[r, j] = -1.0
+                out[t, r, j] = state[r, j]
+        started[0] = True
+
+
+class RelayPlaneTerm:
+    """A hysteretic term with its own loop at the hysteresis output: a discretised Preisach plane on the voltage,
+    ``Y_H,i += Dp_ii·Σ_r w_ri·γ_r(U_i)``, γ_r the relay that switches up at ``alpha[r]`` and down at ``beta[r]`` ≤
+    ``alpha[r]`` [V] (state ±1).  Weights anywhere on the plane make loops of any shape — off the symmetric line
+    (a density shifted to positive voltages: a loop that lives at the top of the stroke), narrow or wide, with
+    minor loops that depend on the reversal history — which the Bouc-Wen's Δ terms and the loop-shape plays
+    cannot.  The term is linear in the weights ``gains`` [R][n] (volts of equivalent input).  Part of
+    ``hysteresis_asymmetry`` (``relay_alpha``, ``relay_beta``, ``relay_gains``)."""
+
+    def __init__(self, dp_diag: ArrayLike, alpha: ArrayLike, beta: ArrayLike, gains: ArrayLike) -> None:
+        self.dp = np.asarray(dp_diag, float).reshape(-1)
+        n = self.n = self.dp.size
+        a = np.atleast_1d(np.asarray(alpha, float)).reshape(-1)
+        b = np.atleast_1d(np.asarray(beta, float)).reshape(-1)
+        if a.size == 0 or a.shape != b.shape or not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))) or \
+                np.any(b > a):
+            raise ValueError(f"hysteresis_asymmetry.relay_alpha/relay_beta: expected as many finite thresholds "
+                             f"[V] with beta <= alpha, got {alpha!r}, {beta!r}")
+        g = np.asarray(gains, float)
+        if g.shape != (a.size, n) or not np.all(np.isfinite(g)):
+            raise ValueError(f"hysteresis_asymmetry.relay_gains: expected [{a.size}][{n}] finite values, got "
+                             f"{gains!r}")
+        self.alpha, self.beta, self.gains = a, b, g
+        self.reset()
+
+    def reset(self) -> None:
+        """All states back to rest."""
+        self._state = np.zeros((self.alpha.size, self.n))
+        self._started = np.zeros(1, np.bool_)
+
+    def terms(self, u: np.ndarray) -> np.ndarray:
+        """The relays' states × Dp_ii as [N, R, n] (advances the relays)."""
+        u = _block(u, self.n)
+        out = np.empty((len(u), self.alpha.size, self.n))
+        _relay_run(u, self.alpha, self.beta, self._state, self._started, out)
+        out *= self.dp
+        return out
+
+    def process(self, u: np.ndarray) -> np.ndarray:
+        """The term for one voltage block ``[N, n]`` (displacement [m]); the state moves on by N samples."""
+        res: np.ndarray = np.einsum("tkj,kj->tj", self.terms(u), self.gains)
         return res
 
 

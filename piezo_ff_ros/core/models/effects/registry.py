@@ -19,7 +19,7 @@ from ...stage import Processor
 from ..plant import Plant
 from .common import LEVEL_REF, LEVEL_TAU, RATE_REF
 from .displacement import CreepNonlinearity, GainMismatch, ThermalDrift
-from .hysteresis import (BranchEvenTerm, HysteresisStage, LoopShapeTerm, PlayWidthTerm, RatePlayTerm,
+from .hysteresis import (BranchEvenTerm, HysteresisStage, LoopShapeTerm, PlayWidthTerm, RatePlayTerm, RelayPlaneTerm,
                          RelaxedHysteresisStage, VelocityTerm, asymmetric_hysteresis_config)
 from .modes import AmplitudeDependentDynamics, BaseExcitedNonlinearMode, CubicAmplitudeDynamics, UnmodelledMode
 from .saturation import SoftSaturation
@@ -50,7 +50,9 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                                                       "play_radii": ("m", False), "play_gains": ("-", True),
                                                       "input_even": ("-", True), "input_play_radii": ("V", False),
                                                       "input_play_gains": ("-", True),
-                                                      "input_play_level_gains": ("-", True)},
+                                                      "input_play_level_gains": ("-", True),
+                                                      "relay_alpha": ("V", False), "relay_beta": ("V", False),
+                                                      "relay_gains": ("V", True)},
                "generalized Bouc-Wen (+ an even, branch-dependent term): ascending and descending branches not "
                "point-symmetric",
                "even harmonics in the residual (error correlates with U², not U)"),
@@ -165,7 +167,7 @@ def build_plant(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[str, Any]
     post: list[Processor] = []
     hcfg, alpha, custom_h = cfg.hysteresis, 0.0, False
     relax = 0.0
-    extras: list[VelocityTerm | LoopShapeTerm | RatePlayTerm] = []
+    extras: list[VelocityTerm | LoopShapeTerm | RatePlayTerm | RelayPlaneTerm] = []
     for name, p in effects:
         if name not in EFFECTS:
             raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
@@ -181,6 +183,9 @@ def build_plant(cfg: PiezoConfig, effects: Sequence[tuple[str, Mapping[str, Any]
                 extras.append(LoopShapeTerm(np.diag(cfg.hysteresis.arrays()["Dp"]), p.get("input_even", 0.0),
                                             p["input_play_radii"], p["input_play_gains"],
                                             p["input_play_level_gains"]))
+            if p.get("relay_alpha"):
+                extras.append(RelayPlaneTerm(np.diag(cfg.hysteresis.arrays()["Dp"]), p["relay_alpha"],
+                                             p["relay_beta"], p["relay_gains"]))
         elif name == "hysteresis_rate_dependence":
             alpha += float(p.get("alpha", 0.0))
             custom_h = True
