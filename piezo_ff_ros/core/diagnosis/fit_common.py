@@ -13,7 +13,7 @@ from scipy import optimize
 from ..config import PiezoConfig
 from .replay import Windows, residual, simulate
 
-__all__ = ["FitContext", "FitResult", "n_eff_ratio", "MAX_REGRESSION_ROWS"]
+__all__ = ["FitContext", "FitResult", "n_eff_ratio", "search_context", "MAX_REGRESSION_ROWS"]
 
 
 @dataclass
@@ -155,3 +155,14 @@ def _fit_scalar(ctx: FitContext, name: str, pname: str, make: Callable[[float], 
     p = make(z)
     return FitResult(name, {pname: value}, {pname: float(abs(dvalue(z)) * se_z)}, [(name, p)], 1, _rms(r),
                      extra={"grid": [float(to_value(g)) for g in grid], "grid_sse": vals})
+
+
+def search_context(ctx: FitContext) -> FitContext:
+    """The context a search over a nonlinear parameter runs on: every other fit window of a long run (the windows
+    are spread evenly over TRAIN, so half of them see the same excitation; the found parameter is then evaluated on
+    all of them), ``ctx`` itself when there are two windows or fewer.  Each trial replays the model, so the search
+    costs half."""
+    spans = ctx.windows.spans
+    if len(spans) <= 2:
+        return ctx
+    return FitContext(ctx.cfg, list(ctx.base), ctx.u, ctx.y, ctx.y_base, Windows(spans[::2]))

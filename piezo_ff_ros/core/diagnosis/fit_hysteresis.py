@@ -20,7 +20,7 @@ from scipy import linalg, optimize
 
 from ..models import effects as fx
 from ..models.plant import Plant
-from .fit_common import FitContext, FitResult, _fit_scalar, _lin_per_axis, _rms, _stderr, n_eff_ratio
+from .fit_common import FitContext, FitResult, _fit_scalar, _lin_per_axis, _rms, _stderr, n_eff_ratio, search_context
 from .replay import Windows, residual, simulate
 
 __all__ = ["fit_hysteresis_rate_dependence", "fit_hysteresis_asymmetry", "search_context", "RELAX_MIN_GAIN",
@@ -48,17 +48,6 @@ def _search_spans(ctx: FitContext) -> tuple[list[tuple[int, int, int]], np.ndarr
     keep = [i % 2 == 0 for i in range(len(spans))] if len(spans) > 2 else [True] * len(spans)
     mask = np.concatenate([np.full(e_ - s_, k) for (_, s_, e_), k in zip(spans, keep)])
     return [sp for sp, k in zip(spans, keep) if k], mask
-
-
-def search_context(ctx: FitContext) -> FitContext:
-    """The context a search over a nonlinear parameter runs on: every other fit window of a long run (the windows
-    are spread evenly over TRAIN, so half of them see the same excitation; the found parameter is then evaluated on
-    all of them), ``ctx`` itself when there are two windows or fewer.  Each trial replays the model, so the search
-    costs half."""
-    spans = ctx.windows.spans
-    if len(spans) <= 2:
-        return ctx
-    return FitContext(ctx.cfg, list(ctx.base), ctx.u, ctx.y, ctx.y_base, Windows(spans[::2]))
 
 
 def _scalar_searched(ctx: FitContext, sub: FitContext, pname: str, make: Callable[[float], dict[str, Any]],

@@ -14,7 +14,7 @@ from scipy import optimize
 from .._jit import njit
 from ..models import effects as fx
 from . import stats
-from .fit_common import FitContext, FitResult, _rms, _stderr, n_eff_ratio
+from .fit_common import FitContext, FitResult, _rms, _stderr, n_eff_ratio, search_context
 from .replay import Windows, residual
 
 __all__ = ["fit_unmodelled_mode", "fit_amplitude_dependent_dynamics", "fit_base_excited_mode", "mode_level_shift", "MAX_MODES",
@@ -532,12 +532,30 @@ def _linear_modes(ctx: FitContext, found: list[Mode]) -> tuple[dict[str, Any], i
     return params, K * (2 + 2 * n * n + n * (n - 1))
 
 
+#: on a long run the grid and the refinement run on every other fit window (:func:`~.fit_common.search_context`);
+#: the point found is refined on all windows with at most this many further evaluations (and its standard errors
+#: taken there)
+BASE_EXCITED_FULL_NFEV = 3
+
+
 def fit_base_excited_mode(ctx: FitContext, linear: tuple[dict[str, Any], int] | None = None) -> FitResult:
     """One lightly damped mode shaken by the base output with a cubic spring and a quadratic damping
     (:class:`~piezo_ff_ros.core.models.effects.BaseExcitedNonlinearMode`, form ``base_excited``): 2 + 3n parameters.
     Start: on a grid of (frequency, damping), the first-order (small-nonlinearity) response to each coefficient —
     linear in the coefficients — regressed on the training residual per axis; then every parameter refined by
-    simulation (``scipy.optimize.least_squares``)."""
+    simulation (``scipy.optimize.least_squares``).  Each trial replays the mode over the fit windows: on a long run
+    the search runs on half of them and the point found is refined briefly on all of them."""
+    sub = search_context(ctx)
+    found = _fit_base_excited_on(sub, linear)
+    if sub is ctx:
+        return found
+    return _fit_base_excited_on(ctx, linear, np.asarray(found.extra["theta"], float), BASE_EXCITED_FULL_NFEV)
+
+
+def _fit_base_excited_on(ctx: FitContext, linear: tuple[dict[str, Any], int] | None,
+                         start: np.ndarray | None = None, max_nfev: int = 60) -> FitResult:
+    """:func:`fit_base_excited_mode` on the windows of ``ctx``: the grid start unless ``start`` (the parameter
+    vector, log frequency and log damping first) is given, then at most ``max_nfev`` evaluations of refinement."""
     n = ctx.cfg.n_axes
     fs = 1.0 / ctx.dt
     T = len(ctx.y) * ctx.dt
@@ -559,7 +577,7 @@ def fit_base_excited_mode(ctx: FitContext, linear: tuple[dict[str, Any], int] | 
     eps = 1e-3
     zeros = np.zeros(n)
     best: tuple[float, float, float, np.ndarray, np.ndarray] = (0.0, 0.0, 0.0, zeros, zeros)
-    for f in np.geomspace(fmin, 0.45 * fs, BASE_EXCITED_FREQS):
+    for f in (np.geomspace(fmin, 0.45 * fs, BASE_EXCITED_FREQS) if start is None else ()):
         for z in BASE_EXCITED_ZETAS:
             Sc = _base_excited_change(ctx, float(f), z, np.full(n, eps), zeros, yb) / eps
             Sq = _base_excited_change(ctx, float(f), z, zeros, np.full(n, eps), yb) / eps
@@ -573,7 +591,7 @@ def fit_base_excited_mode(ctx: FitContext, linear: tuple[dict[str, Any], int] | 
                 c[i], q[i] = coef
             if gain > best[0]:
                 best = (gain, float(f), z, c, q)
-    if best[0] <= 0.0:
+    if start is None and best[0] <= 0.0:
         raise ValueError("no base-excited nonlinear mode explains the training residual")
     _, f0, z0, c0, q0 = best
     # the first-order coefficients are good when the nonlinearity is weak; keep them within a physical range
@@ -593,10 +611,11 @@ def fit_base_excited_mode(ctx: FitContext, linear: tuple[dict[str, Any], int] | 
     # scales the coefficients; apart from them when the nonlinearity is strong)
     lo = np.r_[math.log(fmin), math.log(2e-3), np.full(n, -50.0), np.zeros(n), np.zeros(n)]
     hi = np.r_[math.log(0.49 * fs), math.log(MODE_ZMAX), np.full(n, 50.0), np.full(n, 50.0), np.full(n, 2.0)]
-    x0 = np.clip(np.r_[math.log(f0), math.log(z0), c0, q0, np.ones(n)], lo + 1e-9, hi - 1e-9)
+    x0 = np.clip(np.r_[math.log(f0), math.log(z0), c0, q0, np.ones(n)] if start is None else start,
+                 lo + 1e-9, hi - 1e-9)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sol = optimize.least_squares(resid, x0, diff_step=1e-3, max_nfev=60, bounds=(lo, hi))
+        sol = optimize.least_squares(resid, x0, diff_step=1e-3, max_nfev=max_nfev, bounds=(lo, hi))
     th = sol.x
     r = sol.fun.reshape(-1, n) * unit
     se = _stderr(sol.jac, sol.fun)
@@ -609,6 +628,7 @@ def fit_base_excited_mode(ctx: FitContext, linear: tuple[dict[str, Any], int] | 
     extra_n = 0 if linear is None else linear[1]
     return FitResult("amplitude_dependent_dynamics", params, stderr,
                      lin_effects + [("amplitude_dependent_dynamics", params)], 2 + 3 * n + extra_n, _rms(r),
+                     extra={"theta": th.tolist()},
                      note=("on the linear resonances found, " if linear is not None else "") +
                           f"base-excited mode at {freq:.4g} Hz, ζ {zeta:.3g}: cubic spring "
                           f"{', '.join(f'{v:.3g}' for v in th[2:2 + n])}, quadratic damping "
