@@ -253,11 +253,11 @@ def _stability_penalty(model: FeedbackNonlinearModel, theta: np.ndarray, max_rad
     if pen == 0.0:
         return 0.0, grad
     dK = np.zeros_like(K)
-    for i in np.nonzero(over > 0)[0]:
-        u, v = VL[:, i], VR[:, i]
+    for e in np.nonzero(over > 0)[0]:
+        u, v = VL[:, e], VR[:, e]
         dl_dK = np.outer(np.conj(u) @ B, v) / (np.conj(u) @ v)        # dλ/dK[o, n]
-        d_abs = np.real(np.conj(lam[i]) / abs(lam[i]) * dl_dK)
-        dK += weight * 2 * over[i] * d_abs
+        d_abs = np.real(np.conj(lam[e]) / abs(lam[e]) * dl_dK)
+        dK += weight * 2 * over[e] * d_abs
     dC = dK / mdl.z_scale[:, None]                                    # [p, n]
     # C's columns from θ of the lin banks: per signal s (output channel fed back), per mode: real → θ row;
     # pair → columns 2θa, −2θb (small_signal_matrices' layout)
