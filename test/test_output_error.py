@@ -33,20 +33,30 @@ def noisy():
 
 
 def test_the_adjoint_gradient_is_the_finite_difference_one(noisy):
-    """The reverse-sweep gradient of the simulation loss equals central finite differences on every coefficient
-    (inputs and fed-back features, all five feature kinds)."""
+    """The reverse-sweep gradient of the simulation loss equals central finite differences on every output
+    coefficient (inputs and fed-back features, all five feature kinds) and on every pole (real and imaginary part)."""
     (u, y), _, _, _ = noisy
     m = fnl.identify_feedback_nonlinearity(u, y, PERIOD, DT, order=2, features=fnl.FEATURES)
     prob = oe._Problem(m, u, y, PERIOD)
     loss, grad = prob.evaluate(m.theta)
     assert loss == pytest.approx(oe.simulation_loss(m, u, y, PERIOD))
-    for i in range(m.theta.shape[0]):
+    n = m.theta.shape[0]
+    for i in range(n):
         h = 1e-6 * max(1.0, abs(m.theta[i, 0]))
         tp, tm = m.theta.copy(), m.theta.copy()
         tp[i, 0] += h
         tm[i, 0] -= h
         fd = (prob.evaluate(tp, False)[0] - prob.evaluate(tm, False)[0]) / (2 * h)
-        assert grad[i, 0] == pytest.approx(fd, rel=1e-4, abs=1e-9 * abs(loss)), i
+        assert grad[i * m.theta.shape[1]] == pytest.approx(fd, rel=1e-4, abs=1e-9 * abs(loss)), i
+    pv = oe._pole_vector(m.poles)
+    for i in range(len(pv)):
+        h = 1e-3
+        a, b = pv.copy(), pv.copy()
+        a[i] += h
+        b[i] -= h
+        fd = (prob.evaluate(m.theta, False, oe._poles_from_vector(a, m.poles))[0]
+              - prob.evaluate(m.theta, False, oe._poles_from_vector(b, m.poles))[0]) / (2 * h)
+        assert grad[m.theta.size + i] == pytest.approx(fd, rel=1e-4, abs=1e-9 * abs(loss)), i
 
 
 def test_output_error_recovers_the_truth_the_equation_error_start_misses(noisy):

@@ -41,21 +41,23 @@ __all__ = ["OutputErrorResult", "refine_output_error", "simulation_loss"]
 
 
 @njit
-def _forward(ylin: np.ndarray, c: np.ndarray, lam: np.ndarray, beta: np.ndarray, zs: np.ndarray, vs: np.ndarray,
+def _forward(u: np.ndarray, c: np.ndarray, lam: np.ndarray, beta: np.ndarray, zs: np.ndarray, vs: np.ndarray,
              codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """The loop of :meth:`FeedbackNonlinearModel.simulate`: outputs ``y [R, T, p]`` and fed-back features
-    ``w [R, T, nf]`` (``c [nf, modes, p]`` complex, feature ``codes`` indices into ``FEATURES``)."""
-    R, T, p = ylin.shape
-    nf, nm = c.shape[0], c.shape[1]
+    """The loop of :meth:`FeedbackNonlinearModel.simulate` with every bank in it: outputs ``y [R, T, p]`` and fed-back
+    features ``w [R, T, nf]`` of inputs ``u [R, T, m]`` (``c [m + nf, modes, p]`` complex output coefficients of the
+    input banks then the feature banks; feature ``codes`` index ``FEATURES``)."""
+    R, T, m = u.shape
+    ns, nm, p = c.shape[0], c.shape[1], c.shape[2]
+    nf = ns - m
     y = np.empty((R, T, p))
     w = np.empty((R, T, nf))
     for r in range(R):
-        x = np.zeros((nf, nm), np.complex128)
+        x = np.zeros((ns, nm), np.complex128)
         zp = np.zeros(p)
         for k in range(T):
             for o in range(p):
-                acc = ylin[r, k, o]
-                for s in range(nf):
+                acc = 0.0
+                for s in range(ns):
                     for j in range(nm):
                         acc += (c[s, j, o] * x[s, j]).real
                 y[r, k, o] = acc
@@ -76,37 +78,43 @@ def _forward(ylin: np.ndarray, c: np.ndarray, lam: np.ndarray, beta: np.ndarray,
                     else:
                         val = abs(z) * v
                     w[r, k, f * p + o] = val
-            for s in range(nf):
-                ws = w[r, k, s]
+            for s in range(ns):
+                sv = u[r, k, s] if s < m else w[r, k, s - m]
                 for j in range(nm):
-                    x[s, j] = lam[j] * x[s, j] + beta[j] * ws
+                    x[s, j] = lam[j] * x[s, j] + beta[j] * sv
     return y, w
 
 
 @njit
 def _adjoint(gdirect: np.ndarray, y: np.ndarray, sig: np.ndarray, c: np.ndarray, lam: np.ndarray,
-             beta: np.ndarray, zs: np.ndarray, vs: np.ndarray, codes: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """Gradient ``dL/dc [n_in + nf, modes, p]`` (complex: ``Σ_k g_y[k]·conj(x[k])``) of a loss whose direct
-    gradient on the outputs is ``gdirect [R, T, p]``; ``sig [R, T, n_in + nf]`` = inputs then fed-back features of
-    the forward pass.  Reverse sweep: ``a_x[k] = conj(λ)·a_x[k+1] + conj(c)·g_y[k]``, ``g_w[k] = Re(conj(β)·a_x[k+1])``
-    through the features' slopes into ``g_y``; the coefficient gradient by the backward filter
-    ``H[i] = g_y[i+1] + conj(λ)·H[i+1]`` (``Σ_k g_y[k]·conj(x[k]) = Σ_i conj(β)·s[i]·H[i]``)."""
+             beta: np.ndarray, zs: np.ndarray, vs: np.ndarray, codes: np.ndarray, m: int
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Gradients of a loss whose direct gradient on the outputs is ``gdirect [R, T, p]``: ``dL/dc [m + nf, modes,
+    p]``, ``dL/dλ`` and ``dL/dβ`` ``[modes]`` (complex: ``∂/∂Re + i·∂/∂Im``); ``sig [R, T, m + nf]`` = inputs then
+    fed-back features of the forward pass.  Reverse sweep: ``a_x[k] = conj(λ)·a_x[k+1] + conj(c)·g_y[k]``,
+    ``g_w[k] = Re(conj(β)·a_x[k+1])`` through the features' slopes into ``g_y``.  The sums over the states
+    (``Σ_k g_y[k]·conj(x[k])`` for ``c``, ``Σ_k a_x[k+1]·conj(x[k])`` for ``λ``) by backward filters, so the states
+    need not be stored: ``H[i] = g_y[i+1] + conj(λ)·H[i+1]``, ``G[i] = a_x[i+2] + conj(λ)·G[i+1]``, and
+    ``Σ_k q[k]·conj(x[k]) = Σ_i conj(β)·s[i]·Q[i]``."""
     R, T, p = y.shape
-    nf, nm = c.shape[0], c.shape[1]
-    ns = sig.shape[2]
+    ns, nm = c.shape[0], c.shape[1]
     dc = np.zeros((ns, nm, p), np.complex128)
+    glam = np.zeros(nm, np.complex128)
+    gbeta = np.zeros(nm, np.complex128)
     for r in range(R):
-        ax = np.zeros((nf, nm), np.complex128)       # dL/dx[k+1]
-        H = np.zeros((nm, p), np.complex128)          # backward filter of g_y, at k+1
+        ax = np.zeros((ns, nm), np.complex128)       # dL/dx[k+1]
+        axn = np.zeros((ns, nm), np.complex128)      # dL/dx[k+2]
+        G = np.zeros((ns, nm), np.complex128)
+        H = np.zeros((nm, p), np.complex128)
         carry = np.zeros(p)
         gy_next = np.zeros(p)
         for k in range(T - 1, -1, -1):
-            # H[k] = g_y[k+1] + conj(λ)·H[k+1]
             for j in range(nm):
                 lc = np.conj(lam[j])
                 for o in range(p):
                     H[j, o] = gy_next[o] + lc * H[j, o]
-            # coefficient gradients at k (signal s[k] drives x[k+1] onwards)
+                for s in range(ns):
+                    G[s, j] = axn[s, j] + lc * G[s, j]
             for s in range(ns):
                 sv = sig[r, k, s]
                 if sv != 0.0:
@@ -114,13 +122,14 @@ def _adjoint(gdirect: np.ndarray, y: np.ndarray, sig: np.ndarray, c: np.ndarray,
                         bs = np.conj(beta[j]) * sv
                         for o in range(p):
                             dc[s, j, o] += bs * H[j, o]
-            # adjoint of the features at k
+                        glam[j] += bs * G[s, j]
+                        gbeta[j] += ax[s, j] * sv
             gz = np.zeros(p)
             gv = np.zeros(p)
             for f in range(codes.shape[0]):
                 cd = codes[f]
                 for o in range(p):
-                    s = f * p + o
+                    s = m + f * p + o
                     gw = 0.0
                     for j in range(nm):
                         gw += (np.conj(beta[j]) * ax[s, j]).real
@@ -142,14 +151,15 @@ def _adjoint(gdirect: np.ndarray, y: np.ndarray, sig: np.ndarray, c: np.ndarray,
             for o in range(p):
                 gy[o] = gdirect[r, k, o] + (gz[o] + gv[o] / vs[o] + carry[o]) / zs[o]
                 carry[o] = -gv[o] / vs[o]
-            for s in range(nf):
+            for s in range(ns):
                 for j in range(nm):
+                    axn[s, j] = ax[s, j]
                     acc = np.conj(lam[j]) * ax[s, j]
                     for o in range(p):
                         acc += gy[o] * np.conj(c[s, j, o])
                     ax[s, j] = acc
             gy_next = gy
-    return dc
+    return dc, glam, gbeta
 
 
 def _complex_coefficients(model: FeedbackNonlinearModel, theta: np.ndarray) -> np.ndarray:
@@ -171,8 +181,31 @@ def _theta_gradient(model: FeedbackNonlinearModel, dc: np.ndarray) -> np.ndarray
     return np.array(rows)
 
 
+def _pole_vector(values: np.ndarray, poles: np.ndarray | None = None) -> np.ndarray:
+    """Real parameters of ``values`` laid out as the poles ``poles`` (default ``values``): the real part of a real
+    pole's entry, real and imaginary part of a pair's."""
+    ref = values if poles is None else poles
+    out: list[float] = []
+    for v, pl in zip(values, ref):
+        out += [float(v.real)] if pl.imag == 0 else [float(v.real), float(v.imag)]
+    return np.array(out)
+
+
+def _poles_from_vector(vec: np.ndarray, like: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`_pole_vector` for poles laid out as ``like``."""
+    out, i = [], 0
+    for pl in like:
+        if pl.imag == 0:
+            out.append(complex(vec[i]))
+            i += 1
+        else:
+            out.append(complex(vec[i], vec[i + 1]))
+            i += 2
+    return np.array(out)
+
+
 class _Problem:
-    """Records in the model's coordinates, their weights and the input banks' states (fixed: the poles are)."""
+    """Records (inputs in the model's coordinates with their warm-up, outputs measured) and their weights."""
 
     def __init__(self, model: FeedbackNonlinearModel, u_records: Sequence[np.ndarray], y_records: Sequence[np.ndarray],
                  warmup: int) -> None:
@@ -191,31 +224,41 @@ class _Problem:
         T = self.y_meas.shape[1]
         self.weight = 1.0 / (np.std(self.y_meas, axis=1) ** 2 * T)     # [R, p]
         self.codes = np.array([FEATURES.index(f) for f in model.features], np.int64)
-        self.lam = np.exp(model.poles * model.dt)
-        self.beta = (self.lam - 1.0) / model.poles
         self.ns = _n_states(model.poles)
-        m = model.n_inputs
-        self.bank_u = [_modal_bank(model.poles, model.dt, u) for u in us]      # [T+warmup, m·ns] each
 
-    def evaluate(self, theta: np.ndarray, gradient: bool = True) -> tuple[float, np.ndarray | None]:
-        """Loss ``L(θ)`` and (optionally) its gradient."""
-        mdl, ns, m = self.model, self.ns, self.model.n_inputs
-        ylin = np.stack([b @ theta[:m * ns] for b in self.bank_u])
-        c = _complex_coefficients(mdl, theta)
-        cf = np.ascontiguousarray(c[m:]) if len(c) > m else np.zeros((0, len(mdl.poles), mdl.n_outputs), complex)
+    def evaluate(self, theta: np.ndarray, gradient: bool = True, poles: np.ndarray | None = None
+                 ) -> tuple[float, np.ndarray | None]:
+        """Loss ``L(θ, poles)`` and (optionally) its gradient: ``dL/dθ`` flattened, then ``dL/dpoles`` (real part of
+        each real pole; real and imaginary part of one of each pair)."""
+        mdl = self.model if poles is None else replace(self.model, poles=poles)
+        lam = np.exp(mdl.poles * mdl.dt)
+        beta = (lam - 1.0) / mdl.poles
+        c = np.ascontiguousarray(_complex_coefficients(mdl, theta))
         with np.errstate(all="ignore"):
-            y, w = _forward(ylin, cf, self.lam, self.beta, mdl.z_scale, mdl.v_scale, self.codes)
+            y, w = _forward(self.u, c, lam, beta, mdl.z_scale, mdl.v_scale, self.codes)
             e = y[:, self.warmup:] @ self.M.T - self.y_meas
             loss = 0.5 * float(np.sum(self.weight[:, None, :] * e ** 2))
+        n_pole = len(_pole_vector(mdl.poles))
         if not np.isfinite(loss):
-            return float("inf"), (np.zeros_like(theta) if gradient else None)
+            return float("inf"), (np.zeros(theta.size + n_pole) if gradient else None)
         if not gradient:
             return loss, None
         gd = np.zeros_like(y)
         gd[:, self.warmup:] = (self.weight[:, None, :] * e) @ self.M
         sig = np.ascontiguousarray(np.concatenate([self.u, w], axis=2))
-        dc = _adjoint(gd, y, sig, cf, self.lam, self.beta, mdl.z_scale, mdl.v_scale, self.codes)
-        return loss, _theta_gradient(mdl, dc)
+        dc, glam, gbeta = _adjoint(gd, y, sig, c, lam, beta, mdl.z_scale, mdl.v_scale, self.codes, mdl.n_inputs)
+        pl, dt = mdl.poles, mdl.dt
+        g_p = np.conj(dt * lam) * glam + np.conj((dt * lam * pl - (lam - 1.0)) / pl ** 2) * gbeta
+        return loss, np.concatenate([_theta_gradient(mdl, dc).ravel(), _pole_vector(g_p, pl)])
+
+    def outputs(self, theta: np.ndarray, poles: np.ndarray | None = None) -> np.ndarray:
+        """Simulated outputs ``[R, T, p]`` in the model's coordinates (warm-up included)."""
+        mdl = self.model if poles is None else replace(self.model, poles=poles)
+        lam = np.exp(mdl.poles * mdl.dt)
+        with np.errstate(all="ignore"):
+            y, _ = _forward(self.u, np.ascontiguousarray(_complex_coefficients(mdl, theta)), lam,
+                            (lam - 1.0) / mdl.poles, mdl.z_scale, mdl.v_scale, self.codes)
+        return y
 
     def column_norms(self) -> np.ndarray:
         """Norms of every coefficient's regressor (inputs: the input banks; features: the banks of the features of
@@ -326,7 +369,7 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
                         y_records: Sequence[np.ndarray], warmup: int = 0, max_iterations: int = 100,
                         validation: tuple[Sequence[np.ndarray], Sequence[np.ndarray]] | None = None,
                         max_radius: float = 0.9995, stability_weight: float = 1e3, every: int = 5,
-                        progress: Callable[[str], None] | None = None) -> OutputErrorResult:
+                        refine_poles: bool = True, progress: Callable[[str], None] | None = None) -> OutputErrorResult:
     """Minimise the simulation error of ``model`` over all its output coefficients (module docstring).
 
     Parameters
@@ -348,6 +391,9 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
         Weight of that penalty (0 = none).
     every : int
         Iterations between validation scores.
+    refine_poles : bool
+        Refine the modes (the continuous poles shared by every bank) too, each scaled by the output's sensitivity
+        to it; False = the start's modes kept.
     progress : callable, optional
         Progress lines.
 
@@ -366,51 +412,77 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
     scale = prob.column_norms()
     theta0 = np.asarray(model.theta, float)
     shape = theta0.shape
-
-    def fun(phi: np.ndarray) -> tuple[float, np.ndarray]:
-        theta = (phi.reshape(shape) / scale[:, None])
-        loss, g = prob.evaluate(theta)
-        if not np.isfinite(loss):
-            return 1e30, np.zeros_like(phi)
-        pen, gp = _stability_penalty(model, theta, max_radius, stability_weight)
-        assert g is not None
-        return loss + pen, ((g + gp) / scale[:, None]).ravel()
-
-    def radius(theta: np.ndarray) -> float:
-        return float(np.max(np.abs(replace(model, theta=theta).small_signal_poles())))
-
-    history: list[dict[str, float]] = []
-    best: tuple[float, int, np.ndarray] | None = None
+    pv0 = _pole_vector(model.poles)
     l0 = prob.evaluate(theta0, gradient=False)[0]
     if not np.isfinite(l0):
         raise ValueError("output-error refinement: the start diverges in simulation on the training records")
+    if refine_poles:
+        # each pole parameter scaled by the norm of the output's sensitivity to it (a finite difference), as the
+        # output coefficients are by their regressors' norms
+        y0 = prob.outputs(theta0)
+        pscale = np.empty(len(pv0))
+        for i in range(len(pv0)):
+            h = 1e-7 * float(np.max(np.abs(model.poles)))
+            pv = pv0.copy()
+            pv[i] += h
+            pscale[i] = max(float(np.linalg.norm(prob.outputs(theta0, _poles_from_vector(pv, model.poles)) - y0)) / h,
+                            1e-30)
+    else:
+        pscale = np.ones(0)
 
-    def record(it: int, theta: np.ndarray) -> None:
+    def unpack(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        theta = phi[:theta0.size].reshape(shape) / scale[:, None]
+        if not refine_poles:
+            return theta, model.poles
+        return theta, _poles_from_vector(pv0 + phi[theta0.size:] / pscale, model.poles)
+
+    def fun(phi: np.ndarray) -> tuple[float, np.ndarray]:
+        theta, poles = unpack(phi)
+        if refine_poles and np.any(poles.real >= 0):
+            return 1e30, np.zeros_like(phi)
+        loss, g = prob.evaluate(theta, poles=poles)
+        if not np.isfinite(loss):
+            return 1e30, np.zeros_like(phi)
+        pen, gp = _stability_penalty(replace(model, poles=poles), theta, max_radius, stability_weight)
+        assert g is not None
+        g_theta = (g[:theta0.size].reshape(shape) + gp) / scale[:, None]
+        if not refine_poles:
+            return loss + pen, g_theta.ravel()
+        return loss + pen, np.concatenate([g_theta.ravel(), g[theta0.size:] / pscale])
+
+    history: list[dict[str, float]] = []
+    best: tuple[float, int, np.ndarray, np.ndarray] | None = None
+
+    def record(it: int, phi: np.ndarray) -> None:
         nonlocal best
-        row = {"iteration": float(it), "loss": prob.evaluate(theta, gradient=False)[0], "radius": radius(theta),
-               "penalty": _stability_penalty(model, theta, max_radius, stability_weight)[0]}
+        theta, poles = unpack(phi)
+        mdl = replace(model, theta=theta, poles=poles)
+        row = {"iteration": float(it), "loss": prob.evaluate(theta, False, poles)[0],
+               "radius": float(np.max(np.abs(mdl.small_signal_poles()))),
+               "penalty": _stability_penalty(mdl, theta, max_radius, stability_weight)[0]}
         score = row["loss"]
         if val is not None:
-            row["validation"] = val.evaluate(theta, gradient=False)[0]
+            row["validation"] = val.evaluate(theta, False, poles)[0]
             score = row["validation"]
         score += row["penalty"]             # the bound counts in the choice too (a soft one: slightly crossed)
         history.append(row)
         say("output error: " + ", ".join(f"{k} {v:.5g}" for k, v in row.items()))
         if row["radius"] < 1.0 and np.isfinite(score) and (best is None or score < best[0]):
-            best = (score, it, theta.copy())
+            best = (score, it, theta.copy(), poles.copy())
 
-    record(0, theta0)
+    phi0 = np.concatenate([(theta0 * scale[:, None]).ravel(), np.zeros(len(pscale))])
+    record(0, phi0)
     count = [0]
 
     def callback(xk: np.ndarray) -> None:
         count[0] += 1
         if count[0] % every == 0 or count[0] == max_iterations:
-            record(count[0], xk.reshape(shape) / scale[:, None])
+            record(count[0], xk)
 
-    res = scipy.optimize.minimize(fun, (theta0 * scale[:, None]).ravel(), jac=True, method="L-BFGS-B",
-                                  callback=callback, options={"maxiter": max_iterations, "maxcor": 20})
+    res = scipy.optimize.minimize(fun, phi0, jac=True, method="L-BFGS-B", callback=callback,
+                                  options={"maxiter": max_iterations, "maxcor": 20})
     if count[0] % every:                                       # stopped between two scores: score the last
-        record(count[0], res.x.reshape(shape) / scale[:, None])
+        record(count[0], res.x)
     if best is None:
         return OutputErrorResult(model=model, iteration=0, history=history)
-    return OutputErrorResult(model=replace(model, theta=best[2]), iteration=best[1], history=history)
+    return OutputErrorResult(model=replace(model, theta=best[2], poles=best[3]), iteration=best[1], history=history)
