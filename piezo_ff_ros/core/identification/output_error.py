@@ -6,20 +6,22 @@ the small equation errors (the FSM: about twice the error).  This module minimis
 what the published NL-LFR baseline is trained on — over every output coefficient, linear (the input banks) and
 nonlinear (the feature banks) jointly::
 
-    L(θ) = ½ Σ_records Σ_channels  Σ_k e²[k] / (std(y_channel)² · T)        e = simulated − measured output
+    L(θ, poles) = ½ Σ_records Σ_channels Σ_k e²[k] / (std(y_channel)² · T),     e = simulated − measured output
 
 (the benchmark's metric, squared: each record and channel relative to its own spread, so every amplitude level
-counts alike), from the equation-error model as the start, with the modes (poles) kept.  The gradient is exact and
-costs about one more simulation: a reverse-mode (adjoint) sweep through the loop, compiled with numba
-(``_forward`` / ``_adjoint``), so a quasi-Newton method (L-BFGS) can use it over ~10³ coefficients where a
-finite-difference Jacobian would need one simulation per coefficient.  Parameters are scaled by the norms of their
-regressors (a Jacobi preconditioner of the linear part).
+counts alike), from the equation-error model as the start, over the output coefficients *and* the modes (the
+continuous poles every bank shares; ``refine_poles``).  The gradient is exact and costs about two simulations: a
+reverse-mode (adjoint) sweep through the loop, compiled with numba (``_forward`` / ``_adjoint``), so a quasi-Newton
+method (L-BFGS) can use it over ~10³ parameters where a finite-difference Jacobian would need one simulation per
+parameter.  Output coefficients are scaled by the norms of their regressors (a Jacobi preconditioner of the linear
+part), poles by the norm of the output's sensitivity to them (one finite difference each, at the start).
 
 Stability at rest is enforced by a penalty on the loop linearised at rest
 (:meth:`~.feedback_nonlinearity.FeedbackNonlinearModel.small_signal_poles`): every pole magnitude above
-``max_radius`` costs ``stability_weight·(|λ| − max_radius)²``, with its exact gradient (first-order eigenvalue
-perturbation).  Without it a model trained at large drive only can be unstable at small drive, where the nonlinear
-terms no longer hold the loop (the FSM trained on 200 + 300 mV: a pole of magnitude 1.11).
+``max_radius`` costs ``stability_weight·(|λ| − max_radius)²``, with its gradient in the output coefficients
+(first-order eigenvalue perturbation; the poles' share of it is left to the line search, which sees the penalty's
+value).  Without it a model trained at large drive only can be unstable at small drive, where the nonlinear terms no
+longer hold the loop (the FSM trained on 200 + 300 mV: a pole of magnitude 1.11).
 
 How many iterations: the caller's choice, made on data the fit does not see (``validation``: the iterate with the
 smallest validation loss among the stable ones is returned), never on a test set.
@@ -375,7 +377,7 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
     Parameters
     ----------
     model : FeedbackNonlinearModel
-        The start (e.g. the equation-error fit of ``identify_feedback_nonlinearity``); its poles are kept.
+        The start (e.g. the equation-error fit of ``identify_feedback_nonlinearity``).
     u_records, y_records : sequences of ndarray
         Training input ``[T, m]`` and measured output ``[T, p]`` records of one length.
     warmup : int
