@@ -31,8 +31,8 @@ which puts a neural network in the feedback path) restricted to a static basis o
 identified without iterative optimisation (no local minima, about a minute for the 18 training realizations of
 the FSM) and simulated by one recursion over the samples (vectorised over records).  What it is not: it is
 fitted on the equation error, not on the simulation error — its simulation error is larger than its equation
-error (a lightly damped loop amplifies small model errors), which is why the published NL-LFR, optimised on the
-simulation error, stays ahead (docs/diagnosis.md, real data).
+error (a lightly damped loop amplifies small model errors); ``output_error.refine_output_error`` refines it on the
+simulation error, as the published NL-LFR is trained (docs/diagnosis.md, real data).
 """
 from __future__ import annotations
 
