@@ -34,7 +34,6 @@ from typing import Callable, Sequence
 import numpy as np
 import scipy.linalg
 import scipy.optimize
-import scipy.signal
 
 from .._jit import njit
 from .feedback_nonlinearity import FEATURES, FeedbackNonlinearModel, _modal_bank, _n_states
