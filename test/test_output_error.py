@@ -93,3 +93,35 @@ def test_a_diverging_start_is_refused_in_one_line(noisy):
     bad = fnl.FeedbackNonlinearModel(**{**start.__dict__, "theta": start.theta * 1e3})
     with pytest.raises(ValueError, match="diverges"):
         oe.refine_output_error(bad, *train, warmup=PERIOD, max_iterations=2)
+
+
+def test_a_first_step_that_diverges_is_backed_off_not_taken_for_convergence(noisy):
+    """A start at the edge of divergence (the noisy fit with every coefficient 1.23 times too large, whose first
+    full L-BFGS step makes the simulation diverge) is still refined: the optimiser backs off from the diverging trial
+    point and keeps descending (the training loss lower at every scored iteration, 2 % lower after six) instead of
+    stopping at the start as converged."""
+    from dataclasses import replace
+
+    train, _, _, start = noisy
+    edge = replace(start, theta=start.theta * 1.23)
+    res = oe.refine_output_error(edge, *train, warmup=PERIOD, max_iterations=6, every=1, refine_poles=False)
+    losses = [h["loss"] for h in res.history]
+    assert len(losses) == 7, losses
+    assert all(b < a for a, b in zip(losses, losses[1:])), losses
+    assert losses[-1] < 0.98 * losses[0], losses
+    assert res.iteration > 0
+
+
+def test_the_linear_part_of_a_diverging_start_is_a_stable_start(noisy):
+    """A start whose simulation diverges on its own training records, reduced to its linear part (the same modes,
+    fed-back feature coefficients zero), simulates finitely and the refinement from it lowers the training loss."""
+    from dataclasses import replace
+
+    train, _, _, start = noisy
+    bad = replace(start, theta=start.theta * 1.3)
+    assert not np.isfinite(oe.simulation_loss(bad, *train, PERIOD))
+    lin = oe.linear_part(bad)
+    assert np.all(lin.theta[: lin.n_inputs * oe._n_states(lin.poles)] == bad.theta[: lin.n_inputs
+                                                                                     * oe._n_states(lin.poles)])
+    res = oe.refine_output_error(lin, *train, warmup=PERIOD, max_iterations=10, every=5, refine_poles=False)
+    assert res.history[-1]["loss"] < res.history[0]["loss"]

@@ -345,6 +345,25 @@ class OutputErrorResult:
     history: list[dict[str, float]] = field(default_factory=list)
 
 
+def linear_part(model: FeedbackNonlinearModel) -> FeedbackNonlinearModel:
+    """``model`` with its fed-back feature coefficients set to zero: the input banks alone on the same (stable)
+    modes, so it cannot diverge — a start for the refinement when the equation-error fit diverges in simulation.
+
+    Parameters
+    ----------
+    model : FeedbackNonlinearModel
+        The model.
+
+    Returns
+    -------
+    FeedbackNonlinearModel
+        The same modes, scales and input coefficients; every feature coefficient zero.
+    """
+    theta = np.array(model.theta, float)
+    theta[model.n_inputs * _n_states(model.poles):] = 0.0
+    return replace(model, theta=theta)
+
+
 def simulation_loss(model: FeedbackNonlinearModel, u_records: Sequence[np.ndarray], y_records: Sequence[np.ndarray],
                     warmup: int = 0) -> float:
     """The loss the refinement minimises (module docstring), of ``model`` on the given records.
@@ -437,19 +456,34 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
             return theta, model.poles
         return theta, _poles_from_vector(pv0 + phi[theta0.size:] / pscale, model.poles)
 
+    last: list = []                                  # the last finite point: (phi, value, gradient)
+
+    def stand_in(phi: np.ndarray) -> tuple[float, np.ndarray]:
+        # A diverging trial point has no loss to give. A constant with a zero gradient ends L-BFGS-B's line search
+        # at the start as if converged; instead: the last finite value plus a large quadratic wall around the last
+        # finite point (its gradient points back to it), so the line search shortens the step and goes on.
+        p_f, f_f, g_f = last[-1]
+        d = phi - p_f
+        dd = max(float(d @ d), 1e-300)
+        w = (10.0 * abs(f_f) + float(np.abs(g_f @ d)) + 1.0) / dd
+        return f_f + w * dd, g_f + 2.0 * w * d
+
     def fun(phi: np.ndarray) -> tuple[float, np.ndarray]:
         theta, poles = unpack(phi)
         if refine_poles and np.any(poles.real >= 0):
-            return 1e30, np.zeros_like(phi)
+            return stand_in(phi)
         loss, g = prob.evaluate(theta, poles=poles)
         if not np.isfinite(loss):
-            return 1e30, np.zeros_like(phi)
+            return stand_in(phi)
         pen, gp = _stability_penalty(replace(model, poles=poles), theta, max_radius, stability_weight)
         assert g is not None
         g_theta = (g[:theta0.size].reshape(shape) + gp) / scale[:, None]
-        if not refine_poles:
-            return loss + pen, g_theta.ravel()
-        return loss + pen, np.concatenate([g_theta.ravel(), g[theta0.size:] / pscale])
+        if refine_poles:
+            out = loss + pen, np.concatenate([g_theta.ravel(), g[theta0.size:] / pscale])
+        else:
+            out = loss + pen, g_theta.ravel()
+        last[:] = [(phi.copy(), out[0], out[1].copy())]
+        return out
 
     history: list[dict[str, float]] = []
     best: tuple[float, int, np.ndarray, np.ndarray] | None = None
