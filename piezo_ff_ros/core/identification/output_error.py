@@ -456,7 +456,7 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
             return theta, model.poles
         return theta, _poles_from_vector(pv0 + phi[theta0.size:] / pscale, model.poles)
 
-    last: list[tuple[np.ndarray, float, np.ndarray]] = []                               # the last finite point: (phi, value, gradient)
+    last: list[tuple[np.ndarray, float, np.ndarray]] = []    # the last finite point: (phi, value, gradient)
 
     def stand_in(phi: np.ndarray) -> tuple[float, np.ndarray]:
         # A diverging trial point has no loss to give. A constant with a zero gradient ends L-BFGS-B's line search
