@@ -21,7 +21,10 @@ Stability at rest is enforced by a penalty on the loop linearised at rest
 ``max_radius`` costs ``stability_weight·(|λ| − max_radius)²``, with its gradient in the output coefficients
 (first-order eigenvalue perturbation; the poles' share of it is left to the line search, which sees the penalty's
 value).  Without it a model trained at large drive only can be unstable at small drive, where the nonlinear terms no
-longer hold the loop (the FSM trained on 200 + 300 mV: a pole of magnitude 1.11).
+longer hold the loop (the FSM trained on 200 + 300 mV: a pole of magnitude 1.11). A start that already diverges
+on its training records is refused; :func:`linear_part` (the feature coefficients zeroed) is a stable one on the
+same modes. A trial point whose simulation diverges is answered with a finite wall around the last finite point
+(its gradient pointing back), so the line search shortens its step instead of stopping as converged.
 
 How many iterations: the caller's choice, made on data the fit does not see (``validation``: the iterate with the
 smallest validation loss among the stable ones is returned), never on a test set.
