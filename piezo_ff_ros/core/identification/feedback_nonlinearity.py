@@ -31,8 +31,8 @@ which puts a neural network in the feedback path) restricted to a static basis o
 identified without iterative optimisation (no local minima, about a minute for the 18 training realizations of
 the FSM) and simulated by one recursion over the samples (vectorised over records).  What it is not: it is
 fitted on the equation error, not on the simulation error — its simulation error is larger than its equation
-error (a lightly damped loop amplifies small model errors), which is why the published NL-LFR, optimised on the
-simulation error, stays ahead (docs/diagnosis.md, real data).
+error (a lightly damped loop amplifies small model errors); ``output_error.refine_output_error`` refines it on the
+simulation error, as the published NL-LFR is trained (docs/diagnosis.md, real data).
 """
 from __future__ import annotations
 
@@ -161,6 +161,24 @@ class FeedbackNonlinearModel:
         """
         if "lin" not in self.features:
             return np.exp(self.poles * self.dt)
+        A, B, C = self.small_signal_matrices()
+        return np.asarray(np.linalg.eigvals(A + B @ (C / self.z_scale[:, None])))
+
+    def small_signal_matrices(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``A, B, C`` of the ``lin`` feature's banks (real modal form; the loop at rest is ``A + B·C/z_scale``).
+
+        Returns
+        -------
+        tuple of ndarray
+            ``A [n, n]``, ``B [n, p]`` (one bank per fed-back channel) and ``C [p, n]``.
+
+        Raises
+        ------
+        ValueError
+            The model has no ``lin`` feature.
+        """
+        if "lin" not in self.features:
+            raise ValueError("small-signal matrices: the model has no linear loop (feature 'lin')")
         ns = _n_states(self.poles)
         m, p = self.n_inputs, self.n_outputs
         k0 = m + self.features.index("lin") * p          # the lin feature's first signal
@@ -189,7 +207,7 @@ class FeedbackNonlinearModel:
         for (b, s) in blocks_b:
             B[r:r + len(b), s] = b[:, 0]
             r += len(b)
-        return np.asarray(np.linalg.eigvals(A + B @ (C / self.z_scale[:, None])))
+        return A, B, C
 
     def equation_error_output(self, u: np.ndarray, y: np.ndarray, warmup: int = 0) -> np.ndarray:
         """The model's output with the features taken from the *measured* output ``y`` (what the fit minimises;
