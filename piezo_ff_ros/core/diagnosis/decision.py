@@ -213,11 +213,14 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
                 scored[i], scored[j] = simple, rich
     # amplitude dependence by physics: the linear mode family fits a nonlinear resonance with several linear modes
     # about as well on held-out data, but the resonance refitted on the small- and on the large-motion half of TRAIN
-    # moves (fit_modes.mode_level_shift) — then the richer family is named, whatever the held-out tie says
+    # moves (fit_modes.mode_level_shift) — then the richer family is named, whatever the held-out tie says.  Not on
+    # runs whose motion has one level (``one_level``): their two halves are the same amplitude, so a "shift" between
+    # them is no evidence of amplitude dependence (that case is a tie to discriminate, :func:`_one_amplitude`)
     mode = next((x for x in scored if x.fit.effect == "unmodelled_mode" and x.accepted), None)
     rich_ad = next((x for x in scored if x.fit.effect == "amplitude_dependent_dynamics" and x.accepted), None)
+    shift = (rich_ad.fit.extra.get("level_shift") or {}) if rich_ad is not None else {}
     if mode is not None and rich_ad is not None and scored.index(rich_ad) > scored.index(mode) and \
-            (rich_ad.fit.extra.get("level_shift") or {}).get("significant"):
+            shift.get("significant") and not shift.get("one_level"):
         scored.remove(rich_ad)
         scored.insert(scored.index(mode), rich_ad)
     # parsimony: a generic filter family above an accepted physical candidate that leaves it < GENERIC_MIN_EXTRA
