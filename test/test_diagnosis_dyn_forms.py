@@ -10,32 +10,11 @@ import pytest
 import scipy.signal
 
 from bench.synthetic.in_family import excitation
-from piezo_ff_ros.core.config import load_config
 from piezo_ff_ros.core.diagnosis import DiagnosisOptions, diagnose
 from piezo_ff_ros.core.models.effects import BaseExcitedNonlinearMode, build_plant
-from piezo_ff_ros.core.recording.run import RunData
 
-FS = 5000.0
-DUR = 8.0
-
-
-@pytest.fixture(scope="module")
-def cfg():
-    return load_config().with_sample_rate(FS)
-
-
-def _runs_from(cfg, truth, seed=0, noise=30e-9):
-    runs = []
-    for j, kind in enumerate(("train", "test")):
-        u = excitation(kind, FS, DUR, seed=seed + j)
-        y = truth(u) + noise * np.random.default_rng(seed + 10 + j).standard_normal((len(u), 2))
-        runs.append(RunData(np.arange(len(u)) / FS, u, y, ("x", "y")))
-    return runs
-
-
-def _ranking(res):
-    return [(r["effect"], round(r["heldout_after_nrmse_percent"], 4), r["n_params"], r["accepted"])
-            for r in res["ranking"]]
+# the 5 kHz in-family runs and the ranking view of the linear-dynamics tests, shared
+from test_diagnosis_linear_dynamics import DUR, FS, _ranking, _runs_from, cfg  # noqa: F401 (cfg is a fixture)
 
 
 def test_base_excited_mode_is_block_split_invariant_and_silent_when_linear():

@@ -11,20 +11,8 @@ from bench.diagnosis import truth
 from bench.synthetic.in_family import excitation
 from piezo_ff_ros.core.config import load_config
 from piezo_ff_ros.core.diagnosis import DiagnosisOptions, diagnose
-from piezo_ff_ros.core.recording.run import RunData
 
-NOISE = 10e-9
-
-
-def _chain(nom, yh):
-    """The nominal creep and dynamics (linear) applied to a hysteresis-output signal ``yh`` [N, n]."""
-    yl = yh @ nom["K"].T + truth.lti_mimo(nom["Cr"], nom["dt"], yh)
-    return truth.lti_mimo(nom["G_L"], nom["dt"], yl)
-
-
-def _run(fs, u, y, seed):
-    y = y + NOISE * np.random.default_rng(seed).standard_normal(y.shape)
-    return RunData(np.arange(len(u)) / fs, u, y, ("x", "y"))
+from test_diagnosis_hys_classes import _chain, _run  # the nominal linear chain and noisy runs, shared
 
 
 def _relay_plane(v, centre, spread, width, n_grid=14, vmax=160.0):
