@@ -43,7 +43,7 @@ class Rig:
     def state(self) -> str:
         from lifecycle_msgs.srv import GetState
 
-        return self.p.call(self.get, GetState.Request(), 30).current_state.label
+        return self.p.call(self.get, GetState.Request(), 30, resend_every=2.0).current_state.label
 
     def transition(self, label: str, volts: float | None = None) -> bool:
         """Ask for a transition; while waiting for the answer, keep streaming blocks of ``volts`` (None: none)."""
