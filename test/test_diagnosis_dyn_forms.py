@@ -14,7 +14,7 @@ from piezo_ff_ros.core.diagnosis import DiagnosisOptions, diagnose
 from piezo_ff_ros.core.models.effects import BaseExcitedNonlinearMode, build_plant
 
 # the 5 kHz in-family runs and the ranking view of the linear-dynamics tests, shared
-from test_diagnosis_linear_dynamics import DUR, FS, _ranking, _runs_from, cfg  # noqa: F401 (cfg is a fixture)
+from test_diagnosis_linear_dynamics import DUR, FS, _filtered_voltage_truth, _ranking, _runs_from, cfg  # noqa: F401 (cfg is a fixture)
 
 
 def test_base_excited_mode_is_block_split_invariant_and_silent_when_linear():
@@ -87,19 +87,9 @@ def test_a_bessel_roll_off_is_amplifier_bandwidth_not_a_delay(cfg):
     of the nominal model, both at 20× the record's rate (scipy's Bessel, the nominal replayed by the benchmark's own
     code): in the band it is a delay, but the excitation's steps carry energy near the cut-off where its magnitude
     falls (a delay is all-pass) — an amplifier_bandwidth."""
-    from bench.diagnosis import truth as bench_truth
     b, a = scipy.signal.bessel(3, 2 * np.pi * 1000.0, analog=True, norm="mag")
     bd, ad, _ = scipy.signal.cont2discrete((b, a), 1 / (OVER * FS), method="zoh")
-    bd = np.ravel(bd)
-    nom = bench_truth.nominal_matrices(cfg.with_sample_rate(OVER * FS))
-
-    def truth(u):
-        uf = np.repeat(u, OVER, axis=0)
-        zi = scipy.signal.lfilter_zi(bd, ad)[:, None] * uf[:1]
-        v = scipy.signal.lfilter(bd, ad, uf, axis=0, zi=zi)[0]
-        return bench_truth.simulate(nom, [], v)[::OVER]
-
-    train, test = _runs_from(cfg, truth, seed=41)
+    train, test = _runs_from(cfg, _filtered_voltage_truth(cfg, bd, ad), seed=41)
     res = diagnose(cfg, train, test, DiagnosisOptions(candidates=("input_delay", "amplifier_bandwidth",
                                                                   "gain_mismatch", "unmodelled_mode"), max_stack=1))
     assert res["verdict"] == "amplifier_bandwidth", (_ranking(res), res["confidence_reason"])

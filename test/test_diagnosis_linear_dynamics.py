@@ -64,16 +64,11 @@ def test_mode_in_the_cross_coupling_path_is_a_mode_not_a_gain_error(cfg, f0, zet
 OVER = 20
 
 
-def test_delay_of_all_pass_form_is_an_input_delay(cfg):
-    """A 1.6-sample delay in 2nd-order Padé (all-pass) form, (1 − sT/2 + (sT)²/12)/(1 + sT/2 + (sT)²/12), on the DAC's
-    staircase in front of the nominal model, both at 20× the record's rate (scipy ZOH of the filter; the nominal
-    replayed by the benchmark's own code), sampled at the record's rate: unit gain, the delay's phase lag, and an
-    undershoot after every DAC step that the hysteresis sees.  It is an input_delay, not a hysteresis or gain
-    error."""
+def _filtered_voltage_truth(cfg, bd, ad):
+    """The team truth's nominal plant, simulated at OVER × FS, driven by the held voltage through the discrete
+    filter ``(bd, ad)`` (at OVER × FS, started at rest with the first voltage), read back at FS."""
     from bench.diagnosis import truth as bench_truth
-    T = 1.6 / FS
-    bd, ad, _ = scipy.signal.cont2discrete(([T * T / 12, -T / 2, 1.0], [T * T / 12, T / 2, 1.0]), 1 / (OVER * FS),
-                                           method="zoh")
+
     bd = np.ravel(bd)
     nom = bench_truth.nominal_matrices(cfg.with_sample_rate(OVER * FS))
 
@@ -83,7 +78,19 @@ def test_delay_of_all_pass_form_is_an_input_delay(cfg):
         v = scipy.signal.lfilter(bd, ad, uf, axis=0, zi=zi)[0]
         return bench_truth.simulate(nom, [], v)[::OVER]
 
-    train, test = _runs_from(cfg, truth, seed=7)
+    return truth
+
+
+def test_delay_of_all_pass_form_is_an_input_delay(cfg):
+    """A 1.6-sample delay in 2nd-order Padé (all-pass) form, (1 − sT/2 + (sT)²/12)/(1 + sT/2 + (sT)²/12), on the DAC's
+    staircase in front of the nominal model, both at 20× the record's rate (scipy ZOH of the filter; the nominal
+    replayed by the benchmark's own code), sampled at the record's rate: unit gain, the delay's phase lag, and an
+    undershoot after every DAC step that the hysteresis sees.  It is an input_delay, not a hysteresis or gain
+    error."""
+    T = 1.6 / FS
+    bd, ad, _ = scipy.signal.cont2discrete(([T * T / 12, -T / 2, 1.0], [T * T / 12, T / 2, 1.0]), 1 / (OVER * FS),
+                                           method="zoh")
+    train, test = _runs_from(cfg, _filtered_voltage_truth(cfg, bd, ad), seed=7)
     res = diagnose(cfg, train, test, DiagnosisOptions(candidates=("input_delay", "hysteresis_asymmetry",
                                                                   "gain_mismatch", "amplifier_bandwidth",
                                                                   "unmodelled_mode"), max_stack=1))
