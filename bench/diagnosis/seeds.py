@@ -27,5 +27,10 @@ FRESH2_HELDOUT_SEEDS = (94129, 94130)
 # at the end of the round, report, never tune.
 FRESH3_HELDOUT_SEEDS = (16403, 28254)
 
+# drawn at random (Python ``secrets``) and frozen 2026-11-27 20:00 UTC (session 8), before this round's diagnosis work
+# and before any diagnosis ran on them; fresh3 was run and looked at per case since.  Run once (``--split fresh4``)
+# at the end of the round, report, never tune.
+FRESH4_HELDOUT_SEEDS = (19275, 63690)
+
 #: the seeds of the in-family cases (the project's own generator) per split
-IN_FAMILY_SEED = {"tuning": 0, "heldout": 90417, "fresh": 52609, "fresh2": 94129, "fresh3": 16403}
+IN_FAMILY_SEED = {"tuning": 0, "heldout": 90417, "fresh": 52609, "fresh2": 94129, "fresh3": 16403, "fresh4": 19275}
