@@ -96,22 +96,15 @@ class Probe:
             self.ex.spin_once(timeout_sec=0.02)
 
     def call(self, client, request, timeout=10.0, resend_every=None):
-        """The service's reply to ``request`` within ``timeout`` s.  ``resend_every`` (idempotent requests only):
-        ask again after that many seconds without a reply — right after a server starts, ``wait_for_service`` sees
-        its request reader while its reply writer may not have matched this client yet, and that reply is lost."""
+        """The service's reply to ``request`` within ``timeout`` s; a read-only request whose reply is lost is asked
+        again (``piezo_ff_ros.ros.service_call``), others too when ``resend_every`` is given."""
+        from piezo_ff_ros.ros.service_call import call_service
+
         assert client.wait_for_service(timeout_sec=timeout), f"service {client.srv_name} not available"
-        deadline = time.monotonic() + timeout
-        while True:
-            fut = client.call_async(request)
-            wait = deadline - time.monotonic() if resend_every is None else \
-                min(resend_every, deadline - time.monotonic())
-            try:
-                self.spin_until(fut.done, max(wait, 0.0), f"reply of {client.srv_name}")
-                return fut.result()
-            except AssertionError:
-                client.remove_pending_request(fut)
-                if time.monotonic() >= deadline:
-                    raise AssertionError(f"timed out after {timeout} s waiting for reply of {client.srv_name}")
+        try:
+            return call_service(client, request, lambda t: self.ex.spin_once(timeout_sec=t), timeout, resend_every)
+        except TimeoutError:
+            raise AssertionError(f"timed out after {timeout} s waiting for reply of {client.srv_name}") from None
 
     def close(self):
         self.node.destroy_node()

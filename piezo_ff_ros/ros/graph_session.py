@@ -21,6 +21,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
 
+from .service_call import call_service
+
 if TYPE_CHECKING:
     from ..core.trajectories import Trajectory
 
@@ -108,9 +110,10 @@ class GraphClient:
         """Call a service and wait for its reply (RuntimeError when unavailable or too slow)."""
         if not client.wait_for_service(timeout_sec=timeout):
             raise RuntimeError(f"service {client.srv_name} not available")
-        fut = client.call_async(request)
-        self.spin_until(fut.done, timeout, f"reply of {client.srv_name}")
-        return fut.result()
+        try:
+            return call_service(client, request, lambda t: self.executor.spin_once(timeout_sec=t), timeout)
+        except TimeoutError:
+            raise RuntimeError(f"timed out after {timeout:g} s waiting for reply of {client.srv_name}") from None
 
     def set_params(self, client: Any, values: Mapping[str, Any]) -> None:
         """Set parameters atomically through ``client`` (a ``set_parameters_atomically`` client); RuntimeError if
@@ -265,13 +268,10 @@ def step_lifecycle(node: str, transitions: Iterable[str], domain_id: int | None 
         def call(srv: Any, request: Any) -> Any:
             if not srv.wait_for_service(timeout_sec=timeout):
                 raise RuntimeError(f"service {srv.srv_name} not available after {timeout:g} s")
-            fut = srv.call_async(request)
-            deadline = time.monotonic() + timeout
-            while not fut.done():
-                if time.monotonic() > deadline:
-                    raise RuntimeError(f"no reply from {srv.srv_name} after {timeout:g} s")
-                executor.spin_once(timeout_sec=0.02)
-            return fut.result()
+            try:
+                return call_service(srv, request, lambda t: executor.spin_once(timeout_sec=t), timeout)
+            except TimeoutError:
+                raise RuntimeError(f"no reply from {srv.srv_name} after {timeout:g} s") from None
 
         change: Any = client_node.create_client(ChangeState, f"{node}/change_state")
         get: Any = client_node.create_client(GetState, f"{node}/get_state")

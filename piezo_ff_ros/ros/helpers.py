@@ -61,9 +61,13 @@ class Session:
         try:
             self.spin_until(client.service_is_ready, f"no service {service} within {self.timeout:g} s: is the "
                                                      "node running?")
-            fut = client.call_async(request)
-            self.spin_until(fut.done, f"no reply from {service} within {self.timeout:g} s")
-            return fut.result()
+            from .service_call import call_service
+
+            try:
+                return call_service(client, request, lambda t: self.executor.spin_once(timeout_sec=t), self.timeout)
+            except TimeoutError:
+                raise HelperError(f"no reply from {service} within {self.timeout:g} s (ROS_DOMAIN_ID={self.domain}: "
+                                  "the graph's? the launcher prints it)") from None
         finally:
             self.node.destroy_client(client)
 
