@@ -42,9 +42,11 @@ def corrected_config(cfg: PiezoConfig, effects: Iterable[tuple[str, Mapping[str,
     notes: list[str] = []
     for name, p in effects:
         if name == "hysteresis_asymmetry":
-            cfg = dataclasses.replace(cfg, hysteresis=asymmetric_hysteresis_config(cfg.hysteresis, p["Delta1"],
-                                                                                   p.get("Delta2", 0.0)))
-            notes.append("hysteresis_asymmetry: Δ1/Δ2 added to hysteresis (generalized Bouc-Wen compensator)")
+            notes.append(_apply_asymmetry(p))
+            d1, d2 = np.asarray(p["Delta1"], float), np.asarray(p.get("Delta2", 0.0), float)
+            if np.any(d1 != 0) or np.any(d2 != 0):
+                cfg = dataclasses.replace(cfg, hysteresis=asymmetric_hysteresis_config(cfg.hysteresis, p["Delta1"],
+                                                                                       p.get("Delta2", 0.0)))
         elif name == "gain_mismatch":
             g = np.asarray(p["gains"], float)
             K = np.asarray(cfg.creep.K, float) * g[:, None]
@@ -67,6 +69,26 @@ def corrected_config(cfg: PiezoConfig, effects: Iterable[tuple[str, Mapping[str,
         else:
             notes.append(f"{name}: no compensator for it in the cascade; the model knows it, the config does not")
     return cfg.validate(), extra, notes
+
+
+#: the hysteresis_asymmetry forms the Bouc-Wen compensator cannot invert, by the parameter that marks each
+_LOOP_FORMS = {"relay_gains": "an added Preisach relay plane", "input_play_gains": "an added play-operator loop"}
+
+
+def _apply_asymmetry(p: Mapping[str, Any]) -> str:
+    """The note for a ``hysteresis_asymmetry`` fit: its Δ1/Δ2 (written to the generalized Bouc-Wen compensator when
+    any is non-zero) and any added loop of another form, which no stage of the cascade inverts."""
+    d1 = np.round(np.asarray(p["Delta1"], float), 6).tolist()
+    d2 = np.round(np.broadcast_to(np.asarray(p.get("Delta2", 0.0), float), (len(d1),)), 6).tolist()
+    loops = [what for key, what in _LOOP_FORMS.items() if key in p]
+    parts = []
+    if any(d1) or any(d2):
+        parts.append(f"Δ1 = {d1}, Δ2 = {d2} added to hysteresis (generalized Bouc-Wen compensator)")
+    if loops:
+        parts.append(f"{' and '.join(loops)}: no compensator for it in the cascade, "
+                     + ("the rest of the loop is not compensated" if parts else "hysteresis config unchanged")
+                     + "; the model knows it, the config does not")
+    return "hysteresis_asymmetry: " + ("; ".join(parts) if parts else "Δ1 = Δ2 = 0, hysteresis config unchanged")
 
 
 def write_apply(path: str | Path, cfg: PiezoConfig, effects: Iterable[tuple[str, Mapping[str, Any]]],
