@@ -10,7 +10,8 @@ compiled), so the identified parameters are exactly those the compensator invert
    *linear* in ``A, B, Γ, Δ``: they come from one linear least-squares regression (on block-averaged data, which
    keeps the equation error out of the sensor noise).  Only ``Dp`` (n×k numbers, and the output offset ``c`` when
    asked) is searched, with ``scipy.optimize.least_squares`` on the *simulated* output error, from a few multiples
-   of the secant slope (Y ≈ M·U) — a small, well-posed problem.
+   of the secant slope (Y ≈ M·U) — a small, well-posed problem.  The starts are compared on coarser block means
+   (~600 per run) and only the best is polished on the ~3000.
 2. **Output-error refinement** of all parameters together (``least_squares``, trust-region reflective, normalised
    parameters) on the record subsampled so that the voltage moves ≤ ``max_step_fraction`` of its range per sample
    (on 99 % of the moving samples: a brief slew-limited ramp does not count): the model is integrated along the
@@ -368,7 +369,7 @@ def _initialise(runs: Sequence[RunData], prob: _Problem, generalized: bool, fit_
         try:
             best = search(us, ys, best.x)
         except (ValueError, np.linalg.LinAlgError):
-            best = None
+            pass   # the pre-search's solution is a start still (the refinement follows)
     if best is None:
         raise ValueError("hysteresis identification: initialisation failed (data do not look like a hysteresis loop)")
     Dp, c = unpack_x(best.x)
