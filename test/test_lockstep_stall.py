@@ -74,16 +74,34 @@ def test_lockstep_run_survives_a_stall_longer_than_the_stale_timeout(tmp_path, p
     assert int(last["late_samples"]) == 0 and int(last["gap_samples"]) == 0, last
 
 
-def test_a_vanished_lockstep_source_gives_the_watchdog_back(tmp_path, probe):
+#: Fast DDS participant profile of the node that is killed: it announces a 4 s lease (default 20 s), so that the
+#: others see its process gone after ≤ 4 s instead of 20 s.  Only the killed process's own announced lease matters.
+_SHORT_LEASE_XML = """<?xml version="1.0" encoding="UTF-8"?>
+<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <participant profile_name="short_lease" is_default_profile="true">
+    <rtps><builtin><discovery_config>
+      <leaseDuration><sec>4</sec></leaseDuration>
+      <leaseAnnouncement><sec>1</sec></leaseAnnouncement>
+    </discovery_config></builtin></rtps>
+  </participant>
+</profiles>
+"""
+
+
+def test_a_vanished_lockstep_source_gives_the_watchdog_back(tmp_path, probe, monkeypatch):
     """The suspension lasts only while a lockstep run plays: when the trajectory node is killed (-9, no final
     state message) the driver sees its state publisher gone, and the stale watchdog ramps to safe."""
     got, diags, _ = _io(probe, publisher=False)
     spec = {"type": "circle", "radius": 1e-5, "frequency": 5.0, "revolutions": 1000.0}
     procs = [start_node("driver", "-p", "diagnostics_period:=0.2", log_dir=tmp_path),
-             start_node("compensator", "-p", "cascade.vibration:=false", log_dir=tmp_path),
-             start_node("trajectory", "-p", "mode:=lockstep", "-p", "block_size:=200", "-p", "window:=4",
-                        "-p", f"trajectory:='{json.dumps(spec)}'", "-p", "min_subscribers:=1",
-                        "-p", "autostart:=true", log_dir=tmp_path)]
+             start_node("compensator", "-p", "cascade.vibration:=false", log_dir=tmp_path)]
+    profile = tmp_path / "short_lease.xml"
+    profile.write_text(_SHORT_LEASE_XML)
+    with monkeypatch.context() as env:      # the trajectory node's process only
+        env.setenv("FASTDDS_DEFAULT_PROFILES_FILE", str(profile))
+        procs.append(start_node("trajectory", "-p", "mode:=lockstep", "-p", "block_size:=200", "-p", "window:=4",
+                                "-p", f"trajectory:='{json.dumps(spec)}'", "-p", "min_subscribers:=1",
+                                "-p", "autostart:=true", log_dir=tmp_path))
     try:
         probe.spin_until(lambda: diags and diags[-1][2].get("stream_paced") == "True"
                          and diags[-1][2].get("state") == "active", 90,

@@ -111,8 +111,8 @@ def test_internal_errors_are_one_line_too(monkeypatch, capsys):
 
     real = cli.build_parser
 
-    def patched():
-        p = real()
+    def patched(*args):
+        p = real(*args)
         p._subparsers._group_actions[0].choices["check"].set_defaults(func=boom)
         return p
 
@@ -127,8 +127,8 @@ def test_cli_error_is_exit_2(monkeypatch, capsys):
 
     real = cli.build_parser
 
-    def patched():
-        p = real()
+    def patched(*args):
+        p = real(*args)
         p._subparsers._group_actions[0].choices["check"].set_defaults(
             func=lambda a: (_ for _ in ()).throw(CliError("--x: bad\nsecond line")))
         return p

@@ -74,13 +74,15 @@ def _check_parent(p: Path, option: str) -> None:
         raise CliError(f"{option} {p}: directory {anc} is not writable")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The ``piezo-ff`` parser with every subcommand, or with ``only`` that one when it is a known subcommand (a
+    command line naming its subcommand first needs no other module: each costs its imports, ~1 s for all)."""
     parser = argparse.ArgumentParser(
         prog="piezo-ff",
         description="Sensorless multivariable feedforward compensation of piezoelectric positioners "
                     "(Habineza et al., IEEE TASE 2018).")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in SUBCOMMANDS:
+    for name in [only] if only in SUBCOMMANDS else SUBCOMMANDS:
         try:
             mod = importlib.import_module(f"{__name__}.{name}")
         except ImportError as exc:  # pragma: no cover - optional subcommands
@@ -133,7 +135,10 @@ def one_line(exc: BaseException) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``piezo-ff`` with ``argv`` (default: the process's); the exit code (0 ok, 2 bad input, 1 defect)."""
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # `rig-check` is the module rig_check (`rig_check` is no command: the full parser says so, listing them all)
+    first = argv[0].replace("-", "_") if argv and "_" not in argv[0] else None
+    parser = build_parser(first) if first in SUBCOMMANDS else build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
