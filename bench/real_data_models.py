@@ -63,13 +63,13 @@ def _last_periods(u_list, y_list):
 
 
 def _channel_directions(model):
-    """Directions of the added nonlinear channels, in the model's scaled outputs ``y'/z_scale``: for a model on the
-    actuator coordinates, the measured outputs themselves (``y = y'·output_mapᵀ``: each output's direction), so the
+    """Directions of the added nonlinear channels, as combinations of the model's own outputs ``y'``: for a model on
+    the actuator coordinates, the measured outputs themselves (``y = y'·output_mapᵀ``: each output's row), so the
     features act on both coordinate systems at once; for a model on the outputs, the pairwise differences of the
     outputs (the mirror's tilts)."""
     p = model.n_outputs
     if model.output_map is not None:
-        return np.asarray(model.output_map, float) * model.z_scale[None, :]
+        return np.asarray(model.output_map, float)
     return np.array([np.eye(p)[i] - np.eye(p)[j] for i in range(p) for j in range(i + 1, p)])
 
 

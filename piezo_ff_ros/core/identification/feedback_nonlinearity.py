@@ -313,7 +313,8 @@ def periodic_records(u: np.ndarray, y: np.ndarray) -> tuple[list[np.ndarray], li
 
 def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: Sequence[np.ndarray], period: int,
                                    dt: float, order: int, features: Sequence[str] = ("lin", "abs2", "cube"),
-                                   coordinates: str = "outputs") -> FeedbackNonlinearModel:
+                                   coordinates: str = "outputs", channels: np.ndarray | None = None
+                                   ) -> FeedbackNonlinearModel:
     """Identify the model of the module docstring from periodic records.
 
     Parameters
@@ -334,6 +335,10 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
         ``G(0)⁻¹·y`` — the output mapped back through the static gain of the best linear approximation (its lowest
         five excited bins, real part), i.e. in volts of the actuator that would produce it statically: where a piezo
         stack's own stiffness nonlinearity lives.
+    channels : ndarray, optional
+        ``[k, p]``: more nonlinear channels, each a combination of the coordinates above (as in
+        :func:`add_channels`, rescaled to unit RMS over the records), fed through every feature besides the
+        coordinates themselves.
 
     Returns
     -------
@@ -373,10 +378,25 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
 
     z_scale = np.sqrt(np.mean(np.vstack([y - y.mean(0) for y in ys]) ** 2, axis=0))
     v_scale = np.sqrt(np.mean(np.vstack([np.diff(y, axis=0) for y in ys]) ** 2, axis=0)) / z_scale
+    channel_map = None
+    if channels is not None:
+        d = np.atleast_2d(np.asarray(channels, float))
+        if d.shape[1] != p:
+            raise ValueError(f"feedback nonlinearity: channels must be [k, {p}], got {d.shape}")
+        d = d * z_scale[None, :]
+        zs = [(y - y.mean(0)) / z_scale for y in ys]
+        rms = np.sqrt(np.mean(np.vstack([z @ d.T for z in zs]) ** 2, axis=0))
+        if np.any(rms <= 0):
+            raise ValueError("feedback nonlinearity: a channel direction has no output along it")
+        d = d / rms[:, None]
+        channel_map = np.vstack([np.eye(p), d])
+        v_scale = np.concatenate([v_scale, np.sqrt(np.mean(np.vstack([np.diff(z @ d.T, axis=0) for z in zs]) ** 2,
+                                                           axis=0))])
+    P = np.eye(p) if channel_map is None else channel_map
     gram = rhs = None
     for u, y in zip(us, ys):
         uw = np.concatenate([u[-period:], u])
-        yw = np.concatenate([y[-period:], y]) / z_scale
+        yw = (np.concatenate([y[-period:], y]) / z_scale) @ P.T
         v = np.diff(yw, axis=0, prepend=yw[:1]) / v_scale
         signals = np.hstack([uw, _features(yw, v, features)]) if features else uw
         X = _modal_bank(poles, dt, signals)[period:]
@@ -389,7 +409,7 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
     sc[sc == 0] = 1.0
     theta = np.linalg.solve(gram / np.outer(sc, sc) + 1e-12 * np.eye(len(sc)), rhs / sc[:, None]) / sc[:, None]
     return FeedbackNonlinearModel(poles=poles, dt=float(dt), features=features, z_scale=z_scale, v_scale=v_scale,
-                                  theta=theta, n_inputs=m, output_map=output_map)
+                                  theta=theta, n_inputs=m, output_map=output_map, channel_map=channel_map)
 
 
 def add_channels(model: FeedbackNonlinearModel, directions: np.ndarray, y_records: Sequence[np.ndarray]
@@ -404,8 +424,9 @@ def add_channels(model: FeedbackNonlinearModel, directions: np.ndarray, y_record
     model : FeedbackNonlinearModel
         The model to widen (e.g. the refined elementwise fit).
     directions : ndarray
-        ``[k, p]``: the new channels as combinations of the scaled model outputs ``y'/z_scale``; each is rescaled
-        to unit RMS over ``y_records`` (so its features stay of order one, as the existing channels').
+        ``[k, p]``: the new channels as combinations of the model outputs ``y'`` (the outputs, or the actuator
+        coordinates of a model that has an ``output_map``); each is rescaled to unit RMS over ``y_records`` (so its
+        features stay of order one, as the existing channels').
     y_records : sequence of ndarray
         Measured output records ``[T, p]`` (training), for the scales.
 
@@ -423,6 +444,7 @@ def add_channels(model: FeedbackNonlinearModel, directions: np.ndarray, y_record
     p, nq, m = model.n_outputs, model.n_channels, model.n_inputs
     if d.shape[1] != p:
         raise ValueError(f"add channels: directions must be [k, {p}], got {d.shape}")
+    d = d * model.z_scale[None, :]                    # on the scaled outputs the channels are computed from
     ys = [np.asarray(y, float) for y in y_records]
     if model.output_map is not None:
         ys = [y @ np.linalg.inv(model.output_map).T for y in ys]
