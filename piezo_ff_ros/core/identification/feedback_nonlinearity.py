@@ -17,7 +17,13 @@ feedback gain growing with the amplitude, i.e. resonances that shift with level)
 |z|·v (damping that grows with the amplitude — what a hysteresis loop's area does), with z the output and v its
 one-sample change, both over their training RMS.  Optionally the features act on the *actuator coordinates*
 ``G(0)⁻¹·y`` instead (the output mapped back through the static gain: the strain of each actuator, where a piezo
-stack's stiffness nonlinearity lives); the model still reports outputs.
+stack's stiffness nonlinearity lives); the model still reports outputs.  And optionally on more *channels* than
+outputs (``channel_map``): each channel a combination of all the model's outputs (e.g. the actuator coordinates and
+the outputs themselves at once, or the difference of two outputs — a spring between them), every feature applied to
+every channel: several nonlinear branches, so that products across outputs (``(y₁ − y₂)³``) are within reach where
+the elementwise basis only has ``y₁³`` and ``y₂³``.  ``add_channels`` widens an identified model by such channels
+with zero coefficients (the same model, a start that cannot do worse); the directions are then learnt with
+everything else by the simulation-error refinement.
 
 Identification is one linear least-squares problem (equation error): the features are evaluated on the *measured*
 output, filtered through the modal banks, and every ``C_s`` is solved for at once, each record weighted by the

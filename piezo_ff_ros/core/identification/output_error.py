@@ -10,7 +10,8 @@ nonlinear (the feature banks) jointly::
 
 (the benchmark's metric, squared: each record and channel relative to its own spread, so every amplitude level
 counts alike), from the equation-error model as the start, over the output coefficients *and* the modes (the
-continuous poles every bank shares; ``refine_poles``).  The gradient is exact and costs about two simulations: a
+continuous poles every bank shares; ``refine_poles``) and, optionally, the directions of the nonlinear channels
+(``channel_map``; ``refine_channels``).  The gradient is exact and costs about two simulations: a
 reverse-mode (adjoint) sweep through the loop, compiled with numba (``_forward`` / ``_adjoint``), so a quasi-Newton
 method (L-BFGS) can use it over ~10³ parameters where a finite-difference Jacobian would need one simulation per
 parameter.  Output coefficients are scaled by the norms of their regressors (a Jacobi preconditioner of the linear
