@@ -9,7 +9,10 @@
    Then refined on the simulation error (``core/identification/output_error.py``: every output coefficient and
    every pole, L-BFGS with an exact adjoint gradient, stability at rest as a penalty) on the last period of training
    realizations 0–2 of every level, its iteration count chosen on training realization 5.  Then fitted on all 18
-   training realizations (equation error), refined for that many iterations on realizations 0–2 of every level,
+   training realizations (equation error), refined for that many iterations on realizations 0–2 of every level.
+   Then widened by more nonlinear channels (``feedback_nonlinearity.add_channels``: the measured outputs as well as
+   the actuator coordinates, zero coefficients — the same model) and refined again, channel directions included
+   (``--channel-iterations``; its count chosen on training realization 5 the same way, 0 = not widened),
    and scored on the 9 test realizations with the data set's metric
    (``benchmark_nrmse_percent``: per channel, realization and period RMS(error)/std(y), averaged; pure simulation
    from the periodic steady state), next to the linear model of the same modes (the same fit without features)
@@ -22,7 +25,7 @@
    Bouc-Wen.
 
     PYTHONPATH=. PIEZO_FF_SHARED_DATA=/work/shared/data nice -n 5 .venv/bin/python bench/real_data_models.py \
-        [--only fsm|dbo] [--orders 28,32] [--oe-iterations 60] [--json out.json]
+        [--only fsm|dbo] [--orders 28,32] [--oe-iterations 60] [--channel-iterations 40] [--json out.json]
 
 Prints the tables docs/diagnosis.md quotes (data attribution: each folder's SOURCE.md).
 """
