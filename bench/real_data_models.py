@@ -9,7 +9,10 @@
    Then refined on the simulation error (``core/identification/output_error.py``: every output coefficient and
    every pole, L-BFGS with an exact adjoint gradient, stability at rest as a penalty) on the last period of training
    realizations 0–2 of every level, its iteration count chosen on training realization 5.  Then fitted on all 18
-   training realizations (equation error), refined for that many iterations on realizations 0–2 of every level,
+   training realizations (equation error), refined for that many iterations on realizations 0–2 of every level.
+   Then widened by more nonlinear channels (``feedback_nonlinearity.add_channels``: the measured outputs as well as
+   the actuator coordinates, zero coefficients — the same model) and refined again, channel directions included
+   (``--channel-iterations``; its count chosen on training realization 5 the same way, 0 = not widened),
    and scored on the 9 test realizations with the data set's metric
    (``benchmark_nrmse_percent``: per channel, realization and period RMS(error)/std(y), averaged; pure simulation
    from the periodic steady state), next to the linear model of the same modes (the same fit without features)
@@ -22,7 +25,7 @@
    Bouc-Wen.
 
     PYTHONPATH=. PIEZO_FF_SHARED_DATA=/work/shared/data nice -n 5 .venv/bin/python bench/real_data_models.py \
-        [--only fsm|dbo] [--orders 28,32] [--oe-iterations 60] [--json out.json]
+        [--only fsm|dbo] [--orders 28,32] [--oe-iterations 60] [--channel-iterations 40] [--json out.json]
 
 Prints the tables docs/diagnosis.md quotes (data attribution: each folder's SOURCE.md).
 """
@@ -60,6 +63,35 @@ OE_VALIDATION = 5
 def _last_periods(u_list, y_list):
     """The last period of each record (its periodic steady state; the period before it is the warm-up)."""
     return [u[-PERIOD:] for u in u_list], [y[-PERIOD:] for y in y_list]
+
+
+def _channel_directions(model):
+    """Directions of the added nonlinear channels, as combinations of the model's own outputs ``y'``: for a model on
+    the actuator coordinates, the measured outputs themselves (``y = y'·output_mapᵀ``: each output's row), so the
+    features act on both coordinate systems at once; for a model on the outputs, the pairwise differences of the
+    outputs (the mirror's tilts)."""
+    p = model.n_outputs
+    if model.output_map is not None:
+        return np.asarray(model.output_map, float)
+    return np.array([np.eye(p)[i] - np.eye(p)[j] for i in range(p) for j in range(i + 1, p)])
+
+
+def _refine_channels(start, recs, levels, realizations, iterations, validation=None, label=""):
+    """The richer nonlinearity: ``start`` (the refined elementwise model) widened by the channels of
+    ``_channel_directions`` with zero coefficients (the same model), then refined on the simulation error over
+    every coefficient, pole and channel direction; ``validation``: the iteration count is chosen on it (iteration 0,
+    the start, included: it cannot do worse there)."""
+    t0 = time.perf_counter()
+    train = _last_periods(*_pool(recs, levels, "train", realizations))
+    wide = fnl.add_channels(start, _channel_directions(start), train[1])
+    val = _last_periods(*_pool(recs, levels, "train", [validation])) if validation is not None else None
+    res = oe.refine_output_error(wide, *train, warmup=PERIOD, max_iterations=iterations, validation=val, every=5,
+                                 refine_channels=True)
+    h = res.history
+    print(f"fsm {label}: {wide.n_channels} nonlinear channels, refinement {h[0]['loss']:.5f} -> {h[-1]['loss']:.5f} "
+          f"(training loss) in {int(h[-1]['iteration'])} iterations, kept iteration {res.iteration} "
+          f"({time.perf_counter() - t0:.0f} s)", flush=True)
+    return res
 
 
 def _refine(start, recs, levels, realizations, iterations, validation=None, label=""):
@@ -129,7 +161,7 @@ def _peaks(u_list, y_list, f_lo=600.0, f_hi=2600.0, n=4):
     return sorted(float(f[band][i]) for i in top)
 
 
-def fsm(orders, oe_iterations: int = 60) -> dict:
+def fsm(orders, oe_iterations: int = 60, channel_iterations: int = 40) -> dict:
     recs = _fsm_records()
     out: dict = {"order_selection": {}, "levels": {}, "withheld": {}}
     fitted = {}
@@ -160,6 +192,18 @@ def fsm(orders, oe_iterations: int = 60) -> dict:
     out["oe_selection"] = {"history": res.history, "iterations": n_oe, "validation_percent": v}
     print(f"fsm output error: iterations {n_oe} (best on training realization {OE_VALIDATION}); validation NRMSE "
           + " / ".join(f"{x:.2f}" for x in v) + " %", flush=True)
+    # 1c. the richer nonlinearity's iteration count, the same way: the refined model widened by more nonlinear
+    # channels (zero coefficients: the same model), refined, scored every 5 iterations on realization OE_VALIDATION
+    n_ch = 0
+    if channel_iterations > 0:
+        res_ch = _refine_channels(res.model, recs, LEVELS, OE_REALIZATIONS, channel_iterations, OE_VALIDATION,
+                                  "channels, validation run")
+        n_ch = res_ch.iteration
+        v_ch = [_score(res_ch.model, recs, L, "train", [OE_VALIDATION])[0] for L in LEVELS]
+        out["channel_selection"] = {"history": res_ch.history, "iterations": n_ch, "validation_percent": v_ch,
+                                    "n_channels": res_ch.model.n_channels}
+        print(f"fsm nonlinear channels: iterations {n_ch} (best on training realization {OE_VALIDATION}; 0 = the "
+              "elementwise model kept); validation NRMSE " + " / ".join(f"{x:.2f}" for x in v_ch) + " %", flush=True)
     # 2. all training realizations of all levels; the test realizations of each level
     t0 = time.perf_counter()
     u_tr, y_tr = _pool(recs, LEVELS, "train")
@@ -167,6 +211,9 @@ def fsm(orders, oe_iterations: int = 60) -> dict:
     lin = fnl.identify_feedback_nonlinearity(u_tr, y_tr, PERIOD, 1 / FSM_FS, order, ())
     nl_eq = nl
     nl = _refine(nl_eq, recs, LEVELS, OE_REALIZATIONS, n_oe, None, "all levels").model
+    nl_elem = nl
+    if n_ch > 0:
+        nl = _refine_channels(nl_elem, recs, LEVELS, OE_REALIZATIONS, n_ch, None, "channels, all levels").model
     out["small_signal_spectral_radius"] = float(np.max(np.abs(nl.small_signal_poles())))
     print(f"fsm: fitted on all 18 training realizations, features on {coords}, order {order} "
           f"({time.perf_counter() - t0:.0f} s); its loop "
@@ -175,18 +222,20 @@ def fsm(orders, oe_iterations: int = 60) -> dict:
         e_nl, per_nl, sim = _score(nl, recs, L)
         e_lin, per_lin, _ = _score(lin, recs, L)
         e_ee, per_ee, _ = _score(nl_eq, recs, L)
+        e_el, per_el, _ = _score(nl_elem, recs, L)
         u_te, y_te = recs[L]["test"]
         e_eq = fnl.benchmark_nrmse_percent(y_te, [nl.equation_error_output(u, y, warmup=PERIOD)
                                                   for u, y in zip(u_te, y_te)], PERIOD)
         row = {"equation_error_percent": e_eq, "linear_percent": e_lin, "linear_per_realization": per_lin,
-               "equation_error_fit_percent": e_ee,
+               "equation_error_fit_percent": e_ee, "elementwise_refined_percent": e_el,
+               "elementwise_refined_per_realization": per_el, "n_channels": nl.n_channels,
                "model_percent": e_nl,
                "model_per_realization": per_nl, "nllfr_percent": NLLFR_PERCENT[L],
                "bla_all_published_percent": BLA_ALL_PERCENT[L],
                "peaks_measured_hz": _peaks(u_te, y_te), "peaks_model_hz": _peaks(u_te, sim)}
         out["levels"][L] = row
         print(f"fsm {L} mV test: linear {e_lin:.2f} % -> with the feedback nonlinearity {e_ee:.2f} % (equation-error "
-              f"fit) -> {e_nl:.2f} % (simulation-error refined) "
+              f"fit) -> {e_el:.2f} % (simulation-error refined) -> {e_nl:.2f} % ({nl.n_channels} channels) "
               f"(per realization {', '.join(f'{x:.2f}' for x in per_nl)}; equation error {e_eq:.2f} %; NL-LFR "
               f"{NLLFR_PERCENT[L]:.2f} %); "
               f"resonances measured {row['peaks_measured_hz']} Hz, model {row['peaks_model_hz']} Hz", flush=True)
@@ -209,6 +258,9 @@ def fsm(orders, oe_iterations: int = 60) -> dict:
         nl2_eq = fnl.identify_feedback_nonlinearity(u2, y2, PERIOD, 1 / FSM_FS, order, FEATURES, coordinates=coords)
         rho_eq = float(np.max(np.abs(nl2_eq.small_signal_poles())))
         nl2 = _refine(nl2_eq, recs, others, OE_REALIZATIONS, n_oe, None, f"withheld {L} mV").model
+        e_el = _score(nl2, recs, L)[0]
+        if n_ch > 0:
+            nl2 = _refine_channels(nl2, recs, others, OE_REALIZATIONS, n_ch, None, f"channels, withheld {L} mV").model
         lin2 = fnl.identify_feedback_nonlinearity(u2, y2, PERIOD, 1 / FSM_FS, order, ())
         e_nl, per_nl, _ = _score(nl2, recs, L)
         e_lin, per_lin, _ = _score(lin2, recs, L)
@@ -217,6 +269,7 @@ def fsm(orders, oe_iterations: int = 60) -> dict:
         verdict = "amplitude_dependent_stiffness" if better_everywhere else "none"
         rho = float(np.max(np.abs(nl2.small_signal_poles())))
         row = {"trained_on_mV": list(others), "linear_percent": e_lin, "model_percent": e_nl if ok else None,
+               "elementwise_refined_percent": e_el if np.isfinite(e_el) else None, "n_channels": nl2.n_channels,
                "linear_per_realization": per_lin, "model_per_realization": per_nl if ok else None,
                "shrink_percent": 100 * (1 - e_nl / e_lin) if ok else None, "verdict": verdict,
                "small_signal_spectral_radius": rho, "equation_error_fit_spectral_radius": rho_eq,
@@ -229,22 +282,25 @@ def fsm(orders, oe_iterations: int = 60) -> dict:
               flush=True)
     out["seconds"] = time.perf_counter() - t_all
     print("\n| level | linear, same modes (all levels) | + static nonlinearity in feedback, equation error | "
-          "+ simulation-error refinement | NL-LFR | single BLA (published) | resonances measured → model [Hz] |")
-    print("|---|---|---|---|---|---|---|")
+          "+ simulation-error refinement | + nonlinear channels (refined) | NL-LFR | single BLA (published) | "
+          "resonances measured → model [Hz] |")
+    print("|---|---|---|---|---|---|---|---|")
     for L, r in out["levels"].items():
         print(f"| {L} mV | {r['linear_percent']:.2f} % | {r['equation_error_fit_percent']:.2f} % | "
-              f"**{r['model_percent']:.2f} %** | {r['nllfr_percent']:.2f} % | "
+              f"{r['elementwise_refined_percent']:.2f} % | "
+              f"**{r['model_percent']:.2f} %** ({r['n_channels']} ch.) | {r['nllfr_percent']:.2f} % | "
               f"{r['bla_all_published_percent']:.2f} % | {', '.join(f'{x:.0f}' for x in r['peaks_measured_hz'])} → "
               f"{', '.join(f'{x:.0f}' for x in r['peaks_model_hz'])} |")
-    print("\n| withheld | trained on | linear | + nonlinearity (refined) | shrink | "
+    print("\n| withheld | trained on | linear | + nonlinearity (refined, elementwise) | + nonlinear channels | shrink | "
           "verdict (better on all 3 test realizations) | pole magnitude at rest, equation error → refined |")
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     for L, r in out["withheld"].items():
         sh = "—" if r["shrink_percent"] is None else f"{r['shrink_percent']:.0f} %"
         mp = (f"{r['model_percent']:.2f} %" if r["model_percent"] is not None else
               f"diverges (pole {r['small_signal_spectral_radius']:.4f} at rest)")
+        el = "—" if r["elementwise_refined_percent"] is None else f"{r['elementwise_refined_percent']:.2f} %"
         print(f"| {L} mV | {' + '.join(str(k) for k in r['trained_on_mV'])} mV | {r['linear_percent']:.2f} % | "
-              f"{mp} | {sh} | `{r['verdict']}` | {r['equation_error_fit_spectral_radius']:.4f} → "
+              f"{el} | {mp} ({r['n_channels']} ch.) | {sh} | `{r['verdict']}` | {r['equation_error_fit_spectral_radius']:.4f} → "
               f"{r['small_signal_spectral_radius']:.4f} |")
     return out
 
@@ -255,12 +311,15 @@ def main(argv=None) -> int:
     ap.add_argument("--orders", default="28,32", help="FSM orders tried on the training set (default 28,32)")
     ap.add_argument("--oe-iterations", type=int, default=60,
                     help="FSM: most simulation-error iterations tried on the training hold-out (default 60)")
+    ap.add_argument("--channel-iterations", type=int, default=40,
+                    help="FSM: most iterations of the refinement with added nonlinear channels, tried on the training "
+                         "hold-out (default 40; 0 = elementwise model only)")
     ap.add_argument("--json", help="write the findings")
     a = ap.parse_args(argv)
     out = {}
     try:
         if a.only in (None, "fsm"):
-            out["fsm"] = fsm([int(x) for x in a.orders.split(",")], a.oe_iterations)
+            out["fsm"] = fsm([int(x) for x in a.orders.split(",")], a.oe_iterations, a.channel_iterations)
         if a.only in (None, "dbo"):
             out["dbo"] = dbo()
     except FileNotFoundError as exc:

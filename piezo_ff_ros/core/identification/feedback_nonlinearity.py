@@ -17,7 +17,13 @@ feedback gain growing with the amplitude, i.e. resonances that shift with level)
 |z|·v (damping that grows with the amplitude — what a hysteresis loop's area does), with z the output and v its
 one-sample change, both over their training RMS.  Optionally the features act on the *actuator coordinates*
 ``G(0)⁻¹·y`` instead (the output mapped back through the static gain: the strain of each actuator, where a piezo
-stack's stiffness nonlinearity lives); the model still reports outputs.
+stack's stiffness nonlinearity lives); the model still reports outputs.  And optionally on more *channels* than
+outputs (``channel_map``): each channel a combination of all the model's outputs (e.g. the actuator coordinates and
+the outputs themselves at once, or the difference of two outputs — a spring between them), every feature applied to
+every channel: several nonlinear branches, so that products across outputs (``(y₁ − y₂)³``) are within reach where
+the elementwise basis only has ``y₁³`` and ``y₂³``.  ``add_channels`` widens an identified model by such channels
+with zero coefficients (the same model, a start that cannot do worse); the directions are then learnt with
+everything else by the simulation-error refinement.
 
 Identification is one linear least-squares problem (equation error): the features are evaluated on the *measured*
 output, filtered through the modal banks, and every ``C_s`` is solved for at once, each record weighted by the
@@ -46,7 +52,7 @@ import scipy.signal
 from . import bla
 
 __all__ = ["FEATURES", "FeedbackNonlinearModel", "identify_feedback_nonlinearity", "benchmark_nrmse_percent",
-           "periodic_records"]
+           "periodic_records", "add_channels"]
 
 #: the static functions of each output channel the feedback may use (module docstring)
 FEATURES = ("lin", "abs2", "cube", "vabs2", "yv")
@@ -119,6 +125,10 @@ class FeedbackNonlinearModel:
     output_map : ndarray, optional
         ``[p, p]``: the model runs in coordinates ``y' = y·output_map⁻ᵀ`` (features on them) and reports
         ``y = y'·output_mapᵀ``; None = the outputs themselves.
+    channel_map : ndarray, optional
+        ``[q, p]``: the features act on ``q`` *channels* ``c = (y'/z_scale)·channel_mapᵀ`` (learnt directions
+        through the model's outputs: several nonlinear branches, each a combination of all outputs) instead of
+        on each output; ``v_scale`` then has ``q`` entries.  None = the identity (one channel per output).
     """
 
     poles: np.ndarray
@@ -129,11 +139,21 @@ class FeedbackNonlinearModel:
     theta: np.ndarray
     n_inputs: int
     output_map: np.ndarray | None = None
+    channel_map: np.ndarray | None = None
 
     @property
     def n_outputs(self) -> int:
         """Number of output channels (columns of ``theta``)."""
         return int(self.theta.shape[1])
+
+    @property
+    def n_channels(self) -> int:
+        """Number of nonlinear channels the features act on (rows of ``channel_map``; the outputs without one)."""
+        return self.n_outputs if self.channel_map is None else int(self.channel_map.shape[0])
+
+    def channel_matrix(self) -> np.ndarray:
+        """``channel_map`` (``[q, p]``), the identity when there is none."""
+        return np.eye(self.n_outputs) if self.channel_map is None else np.asarray(self.channel_map, float)
 
     def _complex_output(self, theta_s: np.ndarray) -> np.ndarray:
         """Complex output coefficients ``[n_modes, n_outputs]`` of one signal's bank: ``y = Re(Σ c·x)`` with the
@@ -162,15 +182,16 @@ class FeedbackNonlinearModel:
         if "lin" not in self.features:
             return np.exp(self.poles * self.dt)
         A, B, C = self.small_signal_matrices()
-        return np.asarray(np.linalg.eigvals(A + B @ (C / self.z_scale[:, None])))
+        return np.asarray(np.linalg.eigvals(A + B @ (self.channel_matrix() @ (C / self.z_scale[:, None]))))
 
     def small_signal_matrices(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``A, B, C`` of the ``lin`` feature's banks (real modal form; the loop at rest is ``A + B·C/z_scale``).
+        """``A, B, C`` of the ``lin`` feature's banks (real modal form; the loop at rest is
+        ``A + B·channel_map·C/z_scale``).
 
         Returns
         -------
         tuple of ndarray
-            ``A [n, n]``, ``B [n, p]`` (one bank per fed-back channel) and ``C [p, n]``.
+            ``A [n, n]``, ``B [n, q]`` (one bank per fed-back channel) and ``C [p, n]``.
 
         Raises
         ------
@@ -180,10 +201,10 @@ class FeedbackNonlinearModel:
         if "lin" not in self.features:
             raise ValueError("small-signal matrices: the model has no linear loop (feature 'lin')")
         ns = _n_states(self.poles)
-        m, p = self.n_inputs, self.n_outputs
-        k0 = m + self.features.index("lin") * p          # the lin feature's first signal
+        m, p, nq = self.n_inputs, self.n_outputs, self.n_channels
+        k0 = m + self.features.index("lin") * nq         # the lin feature's first signal
         blocks_a, blocks_b, blocks_c = [], [], []
-        for s in range(p):
+        for s in range(nq):
             theta_s = self.theta[(k0 + s) * ns:(k0 + s + 1) * ns]          # [ns, p]
             i = 0
             for pl in self.poles:
@@ -201,7 +222,7 @@ class FeedbackNonlinearModel:
                     i += 2
         A = scipy.linalg.block_diag(*blocks_a)
         n = A.shape[0]
-        B = np.zeros((n, p))
+        B = np.zeros((n, nq))
         C = np.hstack(blocks_c)                          # [p, n]
         r = 0
         for (b, s) in blocks_b:
@@ -230,7 +251,7 @@ class FeedbackNonlinearModel:
             y = y @ np.linalg.inv(self.output_map).T
         if warmup:
             u, y = np.concatenate([u[-warmup:], u]), np.concatenate([y[-warmup:], y])
-        z = y / self.z_scale
+        z = (y / self.z_scale) @ self.channel_matrix().T
         v = np.diff(z, axis=0, prepend=z[:1]) / self.v_scale
         out: np.ndarray = _modal_bank(self.poles, self.dt, np.hstack([u, _features(z, v, self.features)])) @ self.theta
         return self._mapped(out[warmup:])
@@ -256,7 +277,8 @@ class FeedbackNonlinearModel:
         """
         ns = _n_states(self.poles)
         m, p = self.n_inputs, self.n_outputs
-        nf = len(self.features) * p
+        nf = len(self.features) * self.n_channels
+        P = self.channel_matrix()
         us = [np.asarray(u, float) for u in u_records]
         if any(u.ndim != 2 or u.shape[1] != m for u in us) or len({len(u) for u in us}) != 1:
             raise ValueError(f"simulate: expected records [T, {m}] of one length")
@@ -272,11 +294,11 @@ class FeedbackNonlinearModel:
         R, T = y_lin.shape[:2]
         x = np.zeros((R, nf, len(self.poles)), complex)
         out = np.empty_like(y_lin)
-        z_prev = np.zeros((R, p))
+        z_prev = np.zeros((R, self.n_channels))
         for k in range(T):
             y = y_lin[:, k] + np.einsum("rsm,smo->ro", x, c).real
             out[:, k] = y
-            z = y / self.z_scale
+            z = (y / self.z_scale) @ P.T
             w = _features(z, (z - z_prev) / self.v_scale, self.features)
             z_prev = z
             x = lam * x + beta * w[:, :, None]
@@ -297,7 +319,8 @@ def periodic_records(u: np.ndarray, y: np.ndarray) -> tuple[list[np.ndarray], li
 
 def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: Sequence[np.ndarray], period: int,
                                    dt: float, order: int, features: Sequence[str] = ("lin", "abs2", "cube"),
-                                   coordinates: str = "outputs") -> FeedbackNonlinearModel:
+                                   coordinates: str = "outputs", channels: np.ndarray | None = None
+                                   ) -> FeedbackNonlinearModel:
     """Identify the model of the module docstring from periodic records.
 
     Parameters
@@ -318,6 +341,10 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
         ``G(0)⁻¹·y`` — the output mapped back through the static gain of the best linear approximation (its lowest
         five excited bins, real part), i.e. in volts of the actuator that would produce it statically: where a piezo
         stack's own stiffness nonlinearity lives.
+    channels : ndarray, optional
+        ``[k, p]``: more nonlinear channels, each a combination of the coordinates above (as in
+        :func:`add_channels`, rescaled to unit RMS over the records), fed through every feature besides the
+        coordinates themselves.
 
     Returns
     -------
@@ -357,10 +384,25 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
 
     z_scale = np.sqrt(np.mean(np.vstack([y - y.mean(0) for y in ys]) ** 2, axis=0))
     v_scale = np.sqrt(np.mean(np.vstack([np.diff(y, axis=0) for y in ys]) ** 2, axis=0)) / z_scale
+    channel_map = None
+    if channels is not None:
+        d = np.atleast_2d(np.asarray(channels, float))
+        if d.shape[1] != p:
+            raise ValueError(f"feedback nonlinearity: channels must be [k, {p}], got {d.shape}")
+        d = d * z_scale[None, :]
+        zs = [(y - y.mean(0)) / z_scale for y in ys]
+        rms = np.sqrt(np.mean(np.vstack([z @ d.T for z in zs]) ** 2, axis=0))
+        if np.any(rms <= 0):
+            raise ValueError("feedback nonlinearity: a channel direction has no output along it")
+        d = d / rms[:, None]
+        channel_map = np.vstack([np.eye(p), d])
+        v_scale = np.concatenate([v_scale, np.sqrt(np.mean(np.vstack([np.diff(z @ d.T, axis=0) for z in zs]) ** 2,
+                                                           axis=0))])
+    P = np.eye(p) if channel_map is None else channel_map
     gram = rhs = None
     for u, y in zip(us, ys):
         uw = np.concatenate([u[-period:], u])
-        yw = np.concatenate([y[-period:], y]) / z_scale
+        yw = (np.concatenate([y[-period:], y]) / z_scale) @ P.T
         v = np.diff(yw, axis=0, prepend=yw[:1]) / v_scale
         signals = np.hstack([uw, _features(yw, v, features)]) if features else uw
         X = _modal_bank(poles, dt, signals)[period:]
@@ -373,7 +415,62 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
     sc[sc == 0] = 1.0
     theta = np.linalg.solve(gram / np.outer(sc, sc) + 1e-12 * np.eye(len(sc)), rhs / sc[:, None]) / sc[:, None]
     return FeedbackNonlinearModel(poles=poles, dt=float(dt), features=features, z_scale=z_scale, v_scale=v_scale,
-                                  theta=theta, n_inputs=m, output_map=output_map)
+                                  theta=theta, n_inputs=m, output_map=output_map, channel_map=channel_map)
+
+
+def add_channels(model: FeedbackNonlinearModel, directions: np.ndarray, y_records: Sequence[np.ndarray]
+                 ) -> FeedbackNonlinearModel:
+    """``model`` with more nonlinear channels — each a direction through its scaled outputs, fed through every
+    feature — whose coefficients are zero: the same model (identical simulation), a start from which the
+    simulation-error refinement can only lower its loss (``output_error.refine_output_error`` with
+    ``refine_channels``: the directions are learnt too).
+
+    Parameters
+    ----------
+    model : FeedbackNonlinearModel
+        The model to widen (e.g. the refined elementwise fit).
+    directions : ndarray
+        ``[k, p]``: the new channels as combinations of the model outputs ``y'`` (the outputs, or the actuator
+        coordinates of a model that has an ``output_map``); each is rescaled to unit RMS over ``y_records`` (so its
+        features stay of order one, as the existing channels').
+    y_records : sequence of ndarray
+        Measured output records ``[T, p]`` (training), for the scales.
+
+    Returns
+    -------
+    FeedbackNonlinearModel
+        ``n_channels`` grown by ``k``; ``theta`` with zero rows for the new feature banks.
+
+    Raises
+    ------
+    ValueError
+        Directions of the wrong width, or a direction with no output along it.
+    """
+    d = np.atleast_2d(np.asarray(directions, float))
+    p, nq, m = model.n_outputs, model.n_channels, model.n_inputs
+    if d.shape[1] != p:
+        raise ValueError(f"add channels: directions must be [k, {p}], got {d.shape}")
+    d = d * model.z_scale[None, :]                    # on the scaled outputs the channels are computed from
+    ys = [np.asarray(y, float) for y in y_records]
+    if model.output_map is not None:
+        ys = [y @ np.linalg.inv(model.output_map).T for y in ys]
+    zs = [(y - y.mean(0)) / model.z_scale for y in ys]
+    rms = np.sqrt(np.mean(np.vstack([z @ d.T for z in zs]) ** 2, axis=0))
+    if np.any(rms <= 0):
+        raise ValueError("add channels: a direction has no output along it on the records given")
+    d = d / rms[:, None]
+    v_new = np.sqrt(np.mean(np.vstack([np.diff(z @ d.T, axis=0) for z in zs]) ** 2, axis=0))
+    ns = _n_states(model.poles)
+    nf, k = len(model.features), len(d)
+    theta = np.zeros(((m + nf * (nq + k)) * ns, p))
+    theta[:m * ns] = model.theta[:m * ns]
+    for f in range(nf):
+        old = model.theta[(m + f * nq) * ns:(m + (f + 1) * nq) * ns]
+        theta[(m + f * (nq + k)) * ns:(m + f * (nq + k) + nq) * ns] = old
+    return FeedbackNonlinearModel(poles=model.poles, dt=model.dt, features=model.features, z_scale=model.z_scale,
+                                  v_scale=np.concatenate([model.v_scale, v_new]), theta=theta, n_inputs=m,
+                                  output_map=model.output_map,
+                                  channel_map=np.vstack([model.channel_matrix(), d]))
 
 
 def benchmark_nrmse_percent(y: Sequence[np.ndarray], y_hat: Sequence[np.ndarray], period: int,

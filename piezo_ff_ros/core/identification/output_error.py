@@ -10,7 +10,8 @@ nonlinear (the feature banks) jointly::
 
 (the benchmark's metric, squared: each record and channel relative to its own spread, so every amplitude level
 counts alike), from the equation-error model as the start, over the output coefficients *and* the modes (the
-continuous poles every bank shares; ``refine_poles``).  The gradient is exact and costs about two simulations: a
+continuous poles every bank shares; ``refine_poles``) and, optionally, the directions of the nonlinear channels
+(``channel_map``; ``refine_channels``).  The gradient is exact and costs about two simulations: a
 reverse-mode (adjoint) sweep through the loop, compiled with numba (``_forward`` / ``_adjoint``), so a quasi-Newton
 method (L-BFGS) can use it over ~10³ parameters where a finite-difference Jacobian would need one simulation per
 parameter.  Output coefficients are scaled by the norms of their regressors (a Jacobi preconditioner of the linear
@@ -46,18 +47,21 @@ __all__ = ["OutputErrorResult", "refine_output_error", "simulation_loss"]
 
 @njit
 def _forward(u: np.ndarray, c: np.ndarray, lam: np.ndarray, beta: np.ndarray, zs: np.ndarray, vs: np.ndarray,
-             codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+             codes: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """The loop of :meth:`FeedbackNonlinearModel.simulate` with every bank in it: outputs ``y [R, T, p]`` and fed-back
     features ``w [R, T, nf]`` of inputs ``u [R, T, m]`` (``c [m + nf, modes, p]`` complex output coefficients of the
-    input banks then the feature banks; feature ``codes`` index ``FEATURES``)."""
+    input banks then the feature banks; feature ``codes`` index ``FEATURES``; the features act on the channels
+    ``P [q, p]`` · (y / zs), ``vs [q]`` their one-sample changes' scales)."""
     R, T, m = u.shape
     ns, nm, p = c.shape[0], c.shape[1], c.shape[2]
+    nq = P.shape[0]
     nf = ns - m
     y = np.empty((R, T, p))
     w = np.empty((R, T, nf))
+    yt = np.empty(p)
     for r in range(R):
         x = np.zeros((ns, nm), np.complex128)
-        zp = np.zeros(p)
+        zp = np.zeros(nq)
         for k in range(T):
             for o in range(p):
                 acc = 0.0
@@ -66,7 +70,11 @@ def _forward(u: np.ndarray, c: np.ndarray, lam: np.ndarray, beta: np.ndarray, zs
                         acc += (c[s, j, o] * x[s, j]).real
                 y[r, k, o] = acc
             for o in range(p):
-                z = y[r, k, o] / zs[o]
+                yt[o] = y[r, k, o] / zs[o]
+            for o in range(nq):
+                z = 0.0
+                for i in range(p):
+                    z += P[o, i] * yt[i]
                 v = (z - zp[o]) / vs[o]
                 zp[o] = z
                 for f in range(codes.shape[0]):
@@ -81,7 +89,7 @@ def _forward(u: np.ndarray, c: np.ndarray, lam: np.ndarray, beta: np.ndarray, zs
                         val = v * abs(v)
                     else:
                         val = abs(z) * v
-                    w[r, k, f * p + o] = val
+                    w[r, k, f * nq + o] = val
             for s in range(ns):
                 sv = u[r, k, s] if s < m else w[r, k, s - m]
                 for j in range(nm):
@@ -91,18 +99,21 @@ def _forward(u: np.ndarray, c: np.ndarray, lam: np.ndarray, beta: np.ndarray, zs
 
 @njit
 def _adjoint(gdirect: np.ndarray, y: np.ndarray, sig: np.ndarray, c: np.ndarray, lam: np.ndarray,
-             beta: np.ndarray, zs: np.ndarray, vs: np.ndarray, codes: np.ndarray, m: int
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+             beta: np.ndarray, zs: np.ndarray, vs: np.ndarray, codes: np.ndarray, m: int, P: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Gradients of a loss whose direct gradient on the outputs is ``gdirect [R, T, p]``: ``dL/dc [m + nf, modes,
     p]``, ``dL/dλ`` and ``dL/dβ`` ``[modes]`` (complex: ``∂/∂Re + i·∂/∂Im``); ``sig [R, T, m + nf]`` = inputs then
     fed-back features of the forward pass.  Reverse sweep: ``a_x[k] = conj(λ)·a_x[k+1] + conj(c)·g_y[k]``,
     ``g_w[k] = Re(conj(β)·a_x[k+1])`` through the features' slopes into ``g_y``.  The sums over the states
     (``Σ_k g_y[k]·conj(x[k])`` for ``c``, ``Σ_k a_x[k+1]·conj(x[k])`` for ``λ``) by backward filters, so the states
     need not be stored: ``H[i] = g_y[i+1] + conj(λ)·H[i+1]``, ``G[i] = a_x[i+2] + conj(λ)·G[i+1]``, and
-    ``Σ_k q[k]·conj(x[k]) = Σ_i conj(β)·s[i]·Q[i]``."""
+    ``Σ_k q[k]·conj(x[k]) = Σ_i conj(β)·s[i]·Q[i]``.  Channels ``P [q, p]`` as in :func:`_forward`; also returns
+    ``dL/dP``."""
     R, T, p = y.shape
     ns, nm = c.shape[0], c.shape[1]
+    nq = P.shape[0]
     dc = np.zeros((ns, nm, p), np.complex128)
+    dP = np.zeros((nq, p))
     glam = np.zeros(nm, np.complex128)
     gbeta = np.zeros(nm, np.complex128)
     for r in range(R):
@@ -110,7 +121,7 @@ def _adjoint(gdirect: np.ndarray, y: np.ndarray, sig: np.ndarray, c: np.ndarray,
         axn = np.zeros((ns, nm), np.complex128)      # dL/dx[k+2]
         G = np.zeros((ns, nm), np.complex128)
         H = np.zeros((nm, p), np.complex128)
-        carry = np.zeros(p)
+        carry = np.zeros(nq)
         gy_next = np.zeros(p)
         for k in range(T - 1, -1, -1):
             for j in range(nm):
@@ -128,17 +139,21 @@ def _adjoint(gdirect: np.ndarray, y: np.ndarray, sig: np.ndarray, c: np.ndarray,
                             dc[s, j, o] += bs * H[j, o]
                         glam[j] += bs * G[s, j]
                         gbeta[j] += ax[s, j] * sv
-            gz = np.zeros(p)
-            gv = np.zeros(p)
+            gz = np.zeros(nq)
+            gv = np.zeros(nq)
             for f in range(codes.shape[0]):
                 cd = codes[f]
-                for o in range(p):
-                    s = m + f * p + o
+                for o in range(nq):
+                    s = m + f * nq + o
                     gw = 0.0
                     for j in range(nm):
                         gw += (np.conj(beta[j]) * ax[s, j]).real
-                    z = y[r, k, o] / zs[o]
-                    zprev = y[r, k - 1, o] / zs[o] if k > 0 else 0.0
+                    z = 0.0
+                    zprev = 0.0
+                    for i in range(p):
+                        z += P[o, i] * y[r, k, i] / zs[i]
+                        if k > 0:
+                            zprev += P[o, i] * y[r, k - 1, i] / zs[i]
                     v = (z - zprev) / vs[o]
                     if cd == 0:
                         gz[o] += gw
@@ -152,9 +167,14 @@ def _adjoint(gdirect: np.ndarray, y: np.ndarray, sig: np.ndarray, c: np.ndarray,
                         gz[o] += gw * np.sign(z) * v
                         gv[o] += gw * abs(z)
             gy = np.empty(p)
-            for o in range(p):
-                gy[o] = gdirect[r, k, o] + (gz[o] + gv[o] / vs[o] + carry[o]) / zs[o]
+            for i in range(p):
+                gy[i] = gdirect[r, k, i]
+            for o in range(nq):
+                gch = gz[o] + gv[o] / vs[o] + carry[o]       # dL/d(channel o at k), through v[k] and v[k+1] too
                 carry[o] = -gv[o] / vs[o]
+                for i in range(p):
+                    gy[i] += P[o, i] * gch / zs[i]
+                    dP[o, i] += gch * y[r, k, i] / zs[i]
             for s in range(ns):
                 for j in range(nm):
                     axn[s, j] = ax[s, j]
@@ -163,7 +183,7 @@ def _adjoint(gdirect: np.ndarray, y: np.ndarray, sig: np.ndarray, c: np.ndarray,
                         acc += gy[o] * np.conj(c[s, j, o])
                     ax[s, j] = acc
             gy_next = gy
-    return dc, glam, gbeta
+    return dc, glam, gbeta, dP
 
 
 def _complex_coefficients(model: FeedbackNonlinearModel, theta: np.ndarray) -> np.ndarray:
@@ -230,38 +250,47 @@ class _Problem:
         self.codes = np.array([FEATURES.index(f) for f in model.features], np.int64)
         self.ns = _n_states(model.poles)
 
-    def evaluate(self, theta: np.ndarray, gradient: bool = True, poles: np.ndarray | None = None
-                 ) -> tuple[float, np.ndarray | None]:
-        """Loss ``L(θ, poles)`` and (optionally) its gradient: ``dL/dθ`` flattened, then ``dL/dpoles`` (real part of
-        each real pole; real and imaginary part of one of each pair)."""
+    def _model(self, poles: np.ndarray | None, channel_map: np.ndarray | None) -> FeedbackNonlinearModel:
         mdl = self.model if poles is None else replace(self.model, poles=poles)
+        return mdl if channel_map is None else replace(mdl, channel_map=channel_map)
+
+    def evaluate(self, theta: np.ndarray, gradient: bool = True, poles: np.ndarray | None = None,
+                 channel_map: np.ndarray | None = None) -> tuple[float, np.ndarray | None]:
+        """Loss ``L(θ, poles, channel_map)`` and (optionally) its gradient: ``dL/dθ`` flattened, then ``dL/dpoles``
+        (real part of each real pole; real and imaginary part of one of each pair), then ``dL/dchannel_map``
+        flattened."""
+        mdl = self._model(poles, channel_map)
+        P = np.ascontiguousarray(mdl.channel_matrix())
         lam = np.exp(mdl.poles * mdl.dt)
         beta = (lam - 1.0) / mdl.poles
         c = np.ascontiguousarray(_complex_coefficients(mdl, theta))
         with np.errstate(all="ignore"):
-            y, w = _forward(self.u, c, lam, beta, mdl.z_scale, mdl.v_scale, self.codes)
+            y, w = _forward(self.u, c, lam, beta, mdl.z_scale, mdl.v_scale, self.codes, P)
             e = y[:, self.warmup:] @ self.M.T - self.y_meas
             loss = 0.5 * float(np.sum(self.weight[:, None, :] * e ** 2))
         n_pole = len(_pole_vector(mdl.poles))
         if not np.isfinite(loss):
-            return float("inf"), (np.zeros(theta.size + n_pole) if gradient else None)
+            return float("inf"), (np.zeros(theta.size + n_pole + P.size) if gradient else None)
         if not gradient:
             return loss, None
         gd = np.zeros_like(y)
         gd[:, self.warmup:] = (self.weight[:, None, :] * e) @ self.M
         sig = np.ascontiguousarray(np.concatenate([self.u, w], axis=2))
-        dc, glam, gbeta = _adjoint(gd, y, sig, c, lam, beta, mdl.z_scale, mdl.v_scale, self.codes, mdl.n_inputs)
+        dc, glam, gbeta, dP = _adjoint(gd, y, sig, c, lam, beta, mdl.z_scale, mdl.v_scale, self.codes,
+                                       mdl.n_inputs, P)
         pl, dt = mdl.poles, mdl.dt
         g_p = np.conj(dt * lam) * glam + np.conj((dt * lam * pl - (lam - 1.0)) / pl ** 2) * gbeta
-        return loss, np.concatenate([_theta_gradient(mdl, dc).ravel(), _pole_vector(g_p, pl)])
+        return loss, np.concatenate([_theta_gradient(mdl, dc).ravel(), _pole_vector(g_p, pl), dP.ravel()])
 
-    def outputs(self, theta: np.ndarray, poles: np.ndarray | None = None) -> np.ndarray:
+    def outputs(self, theta: np.ndarray, poles: np.ndarray | None = None, channel_map: np.ndarray | None = None
+                ) -> np.ndarray:
         """Simulated outputs ``[R, T, p]`` in the model's coordinates (warm-up included)."""
-        mdl = self.model if poles is None else replace(self.model, poles=poles)
+        mdl = self._model(poles, channel_map)
         lam = np.exp(mdl.poles * mdl.dt)
         with np.errstate(all="ignore"):
             y, _ = _forward(self.u, np.ascontiguousarray(_complex_coefficients(mdl, theta)), lam,
-                            (lam - 1.0) / mdl.poles, mdl.z_scale, mdl.v_scale, self.codes)
+                            (lam - 1.0) / mdl.poles, mdl.z_scale, mdl.v_scale, self.codes,
+                            np.ascontiguousarray(mdl.channel_matrix()))
         return y
 
     def column_norms(self) -> np.ndarray:
@@ -271,7 +300,7 @@ class _Problem:
         y = self.y_meas @ np.linalg.inv(self.M).T
         if self.warmup:
             y = np.concatenate([y[:, -self.warmup:], y], axis=1)
-        z = y / mdl.z_scale
+        z = (y / mdl.z_scale) @ mdl.channel_matrix().T
         v = np.diff(z, axis=1, prepend=z[:, :1]) / mdl.v_scale
         from .feedback_nonlinearity import _features
 
@@ -293,7 +322,8 @@ def _stability_penalty(model: FeedbackNonlinearModel, theta: np.ndarray, max_rad
         return 0.0, grad
     mdl = replace(model, theta=theta)
     A, B, C = mdl.small_signal_matrices()
-    K = C / mdl.z_scale[:, None]
+    Pc = mdl.channel_matrix()
+    K = Pc @ (C / mdl.z_scale[:, None])
     lam, VL, VR = scipy.linalg.eig(A + B @ K, left=True, right=True)
     over = np.abs(lam) - max_radius
     pen = float(weight * np.sum(np.maximum(over, 0.0) ** 2))
@@ -305,13 +335,13 @@ def _stability_penalty(model: FeedbackNonlinearModel, theta: np.ndarray, max_rad
         dl_dK = np.outer(np.conj(u) @ B, v) / (np.conj(u) @ v)        # dλ/dK[o, n]
         d_abs = np.real(np.conj(lam[e]) / abs(lam[e]) * dl_dK)
         dK += weight * 2 * over[e] * d_abs
-    dC = dK / mdl.z_scale[:, None]                                    # [p, n]
-    # C's columns from θ of the lin banks: per signal s (output channel fed back), per mode: real → θ row;
+    dC = (Pc.T @ dK) / mdl.z_scale[:, None]                          # [p, n]
+    # C's columns from θ of the lin banks: per signal s (channel fed back), per mode: real → θ row;
     # pair → columns 2θa, −2θb (small_signal_matrices' layout)
-    ns, m, p = _n_states(mdl.poles), mdl.n_inputs, mdl.n_outputs
-    k0 = m + mdl.features.index("lin") * p
+    ns, m, nq = _n_states(mdl.poles), mdl.n_inputs, mdl.n_channels
+    k0 = m + mdl.features.index("lin") * nq
     col = 0
-    for s in range(p):
+    for s in range(nq):
         i = 0
         for pl in mdl.poles:
             row = (k0 + s) * ns + i
@@ -392,7 +422,8 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
                         y_records: Sequence[np.ndarray], warmup: int = 0, max_iterations: int = 100,
                         validation: tuple[Sequence[np.ndarray], Sequence[np.ndarray]] | None = None,
                         max_radius: float = 0.9995, stability_weight: float = 1e3, every: int = 5,
-                        refine_poles: bool = True, progress: Callable[[str], None] | None = None) -> OutputErrorResult:
+                        refine_poles: bool = True, refine_channels: bool = False,
+                        progress: Callable[[str], None] | None = None) -> OutputErrorResult:
     """Minimise the simulation error of ``model`` over all its output coefficients (module docstring).
 
     Parameters
@@ -417,6 +448,9 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
     refine_poles : bool
         Refine the modes (the continuous poles shared by every bank) too, each scaled by the output's sensitivity
         to it; False = the start's modes kept.
+    refine_channels : bool
+        Refine the directions of the nonlinear channels too (``channel_map``, the identity when the model has none:
+        see ``feedback_nonlinearity.add_channels``), each entry scaled by the output's sensitivity to it.
     progress : callable, optional
         Progress lines.
 
@@ -452,12 +486,28 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
                             1e-30)
     else:
         pscale = np.ones(0)
+    P0 = model.channel_matrix()
+    if refine_channels:
+        # each entry scaled by the norm of the output's sensitivity to it (a finite difference); an entry the output
+        # does not yet depend on (a new channel whose coefficients are zero) keeps the scale of the largest one
+        y0 = prob.outputs(theta0)
+        cscale = np.empty(P0.size)
+        for i in range(P0.size):
+            h = 1e-6
+            Pp = P0.ravel().copy()
+            Pp[i] += h
+            cscale[i] = float(np.linalg.norm(prob.outputs(theta0, None, Pp.reshape(P0.shape)) - y0)) / h
+        cscale[cscale <= 1e-12 * max(float(cscale.max()), 1e-300)] = max(float(cscale.max()), 1.0)
+    else:
+        cscale = np.ones(0)
+    n_pole = len(pscale)
 
-    def unpack(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def unpack(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         theta = phi[:theta0.size].reshape(shape) / scale[:, None]
-        if not refine_poles:
-            return theta, model.poles
-        return theta, _poles_from_vector(pv0 + phi[theta0.size:] / pscale, model.poles)
+        poles = model.poles if not refine_poles else _poles_from_vector(
+            pv0 + phi[theta0.size:theta0.size + n_pole] / pscale, model.poles)
+        P = None if not refine_channels else P0 + (phi[theta0.size + n_pole:] / cscale).reshape(P0.shape)
+        return theta, poles, P
 
     last: list[tuple[np.ndarray, float, np.ndarray]] = []    # the last finite point: (phi, value, gradient)
 
@@ -472,43 +522,48 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
         return f_f + w * dd, g_f + 2.0 * w * d
 
     def fun(phi: np.ndarray) -> tuple[float, np.ndarray]:
-        theta, poles = unpack(phi)
+        theta, poles, P = unpack(phi)
         if refine_poles and np.any(poles.real >= 0):
             return stand_in(phi)
-        loss, g = prob.evaluate(theta, poles=poles)
+        loss, g = prob.evaluate(theta, poles=poles, channel_map=P)
         if not np.isfinite(loss):
             return stand_in(phi)
-        pen, gp = _stability_penalty(replace(model, poles=poles), theta, max_radius, stability_weight)
+        mdl = replace(model, poles=poles) if P is None else replace(model, poles=poles, channel_map=P)
+        pen, gp = _stability_penalty(mdl, theta, max_radius, stability_weight)
         assert g is not None
         g_theta = (g[:theta0.size].reshape(shape) + gp) / scale[:, None]
+        parts = [g_theta.ravel()]
         if refine_poles:
-            out = loss + pen, np.concatenate([g_theta.ravel(), g[theta0.size:] / pscale])
-        else:
-            out = loss + pen, g_theta.ravel()
+            parts.append(g[theta0.size:theta0.size + n_pole] / pscale)
+        if refine_channels:
+            parts.append(g[theta0.size + n_pole:] / cscale)
+        out = loss + pen, np.concatenate(parts)
         last[:] = [(phi.copy(), out[0], out[1].copy())]
         return out
 
     history: list[dict[str, float]] = []
-    best: tuple[float, int, np.ndarray, np.ndarray] | None = None
+    best: tuple[float, int, FeedbackNonlinearModel] | None = None
 
     def record(it: int, phi: np.ndarray) -> None:
         nonlocal best
-        theta, poles = unpack(phi)
+        theta, poles, P = unpack(phi)
         mdl = replace(model, theta=theta, poles=poles)
-        row = {"iteration": float(it), "loss": prob.evaluate(theta, False, poles)[0],
+        if P is not None:
+            mdl = replace(mdl, channel_map=P)
+        row = {"iteration": float(it), "loss": prob.evaluate(theta, False, poles, P)[0],
                "radius": float(np.max(np.abs(mdl.small_signal_poles()))),
                "penalty": _stability_penalty(mdl, theta, max_radius, stability_weight)[0]}
         score = row["loss"]
         if val is not None:
-            row["validation"] = val.evaluate(theta, False, poles)[0]
+            row["validation"] = val.evaluate(theta, False, poles, P)[0]
             score = row["validation"]
         score += row["penalty"]             # the bound counts in the choice too (a soft one: slightly crossed)
         history.append(row)
         say("output error: " + ", ".join(f"{k} {v:.5g}" for k, v in row.items()))
         if row["radius"] < 1.0 and np.isfinite(score) and (best is None or score < best[0]):
-            best = (score, it, theta.copy(), poles.copy())
+            best = (score, it, mdl)
 
-    phi0 = np.concatenate([(theta0 * scale[:, None]).ravel(), np.zeros(len(pscale))])
+    phi0 = np.concatenate([(theta0 * scale[:, None]).ravel(), np.zeros(len(pscale)), np.zeros(len(cscale))])
     record(0, phi0)
     count = [0]
 
@@ -523,4 +578,4 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
         record(count[0], res.x)
     if best is None:
         return OutputErrorResult(model=model, iteration=0, history=history)
-    return OutputErrorResult(model=replace(model, theta=best[2], poles=best[3]), iteration=best[1], history=history)
+    return OutputErrorResult(model=best[2], iteration=best[1], history=history)
