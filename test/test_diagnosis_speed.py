@@ -37,6 +37,19 @@ def test_modes_sharing_one_base_pass_get_their_own_numbers():
         assert not np.any(BaseExcitedNonlinearMode(freq, zeta, 0.0, 0.0, 1 / FS).deflection_change(y))
 
 
+def test_modes_of_several_dampings_in_one_pass_get_their_own_numbers():
+    """A pass with a damping per mode gives, for each damping, the numbers of a pass with that damping alone."""
+    y = _base()
+    zetas = (0.01, 0.03, 0.1)
+    cubic = np.tile([[1e-3, 1e-3], [0.0, 0.0], [0.0, 0.0]], (3, 1))
+    quad = np.tile([[0.0, 0.0], [1e-3, 1e-3], [0.0, 0.0]], (3, 1))
+    for freq in (60.0, 4000.0):
+        D = base_excited_deflections(y, freq, np.repeat(zetas, 3), cubic, quad, 1 / FS)
+        for i, z in enumerate(zetas):
+            assert np.array_equal(D[3 * i:3 * i + 3], base_excited_deflections(y, freq, z, cubic[:3], quad[:3], 1 / FS))
+        assert not np.array_equal(D[0], D[3])
+
+
 def test_unmodelled_mode_adds_its_terms_as_static_gain_does():
     """The stage's output equals ``y + Σ static_gain(BP·)G + static_gain(HP·)H + static_gain(y − BP − HP)L``
     built from its own filters, bit for bit, in one block or several; without high-/low-pass gains only the band-pass

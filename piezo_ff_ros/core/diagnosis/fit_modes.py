@@ -513,12 +513,12 @@ def _base_excited_change(ctx: FitContext, freq: float, damping: float, cubic: np
     return ctx.windows.apply(st.reset, st.deflection_change, yb)
 
 
-def _base_excited_deflections(ctx: FitContext, freq: float, damping: float, cubic: np.ndarray, quad: np.ndarray,
+def _base_excited_deflections(ctx: FitContext, freq: float, damping: Any, cubic: np.ndarray, quad: np.ndarray,
                               y_base: np.ndarray) -> np.ndarray:
     """Deflections ``[K, rows, n]`` of K base-excited modes (coefficient rows of ``cubic``, ``quad``; a row of
-    zeros is the linear twin) shaken by ``y_base`` over the fit's windows, each from rest at its warm start (rows as
-    the training residual's): one pass over the base for all K, the numbers of :func:`_base_excited_change`'s
-    stage (nonlinear − linear twin = its change)."""
+    zeros is the linear twin; ``damping`` one or per mode) shaken by ``y_base`` over the fit's windows, each from
+    rest at its warm start (rows as the training residual's): one pass over the base for all K, the numbers of
+    :func:`_base_excited_change`'s stage (nonlinear − linear twin = its change)."""
     if ctx.windows.is_whole:
         return base_excited_deflections(y_base, freq, damping, cubic, quad, ctx.dt)
     return np.concatenate([base_excited_deflections(y_base[w:e], freq, damping, cubic, quad, ctx.dt)[:, s - w:]
@@ -602,12 +602,16 @@ def _fit_base_excited_on(ctx: FitContext, linear: tuple[dict[str, Any], int] | N
     eps = 1e-3
     zeros = np.zeros(n)
     best: tuple[float, float, float, np.ndarray, np.ndarray] = (0.0, 0.0, 0.0, zeros, zeros)
-    grid_cubic = np.stack([np.full(n, eps), zeros, zeros])
-    grid_quad = np.stack([zeros, np.full(n, eps), zeros])
+    nz = len(BASE_EXCITED_ZETAS)
+    grid_cubic = np.tile(np.stack([np.full(n, eps), zeros, zeros]), (nz, 1))
+    grid_quad = np.tile(np.stack([zeros, np.full(n, eps), zeros]), (nz, 1))
+    grid_zetas = np.repeat(np.asarray(BASE_EXCITED_ZETAS, float), 3)
     for f in (np.geomspace(fmin, 0.45 * fs, BASE_EXCITED_FREQS) if start is None else ()):
-        for z in BASE_EXCITED_ZETAS:
-            # the cubic-only and quadratic-only modes and their shared linear twin, in one pass over the base
-            D = _base_excited_deflections(ctx, float(f), z, grid_cubic, grid_quad, yb)
+        # for every damping of the grid, the cubic-only and quadratic-only modes and their linear twin: all in one
+        # pass over the base
+        D_all = _base_excited_deflections(ctx, float(f), grid_zetas, grid_cubic, grid_quad, yb)
+        for iz, z in enumerate(BASE_EXCITED_ZETAS):
+            D = D_all[3 * iz:3 * iz + 3]
             Sc = (D[0] - D[2]) / eps
             Sq = (D[1] - D[2]) / eps
             if not (np.all(np.isfinite(Sc)) and np.all(np.isfinite(Sq))):

@@ -304,11 +304,12 @@ def _base_excited_accel(xs: float, vs: float, w: float, z: float, c3: float, c2:
 
 
 @njit
-def _base_excited_run(y: np.ndarray, w: float, z: float, kc: np.ndarray, kq: np.ndarray, ref: float, dt: float,
-                      osc: np.ndarray, hist: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """Deflections of K base-excited modes of one natural frequency and damping, shaken by the same base ``y``:
-    oscillator k has the cubic spring ``kc[k]`` and the quadratic damping ``kq[k]`` (per axis; both 0: the linear
-    twin), RK4 per sample; the base piecewise linear between samples (its velocity step, from the last three
+def _base_excited_run(y: np.ndarray, w: float, zeta: np.ndarray, kc: np.ndarray, kq: np.ndarray, ref: float,
+                      dt: float, osc: np.ndarray, hist: np.ndarray,
+                      out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Deflections of K base-excited modes of one natural frequency, shaken by the same base ``y``: oscillator k has
+    the damping ``zeta[k]``, the cubic spring ``kc[k]`` and the quadratic damping ``kq[k]`` (per axis; both 0: the
+    linear twin), RK4 per sample; the base piecewise linear between samples (its velocity step, from the last three
     samples, an impulse at the interval's start).  ``out[k, t, j]`` = oscillator k's deflection.
     ``osc[k, j]`` = (d, d'), ``hist[j]`` = (y[k−1], y[k−2], samples seen).
 
@@ -352,6 +353,7 @@ def _base_excited_run(y: np.ndarray, w: float, z: float, kc: np.ndarray, kq: np.
                     c3 = kc[k, j]
                     c2 = kq[k, j]
                     ln = lin[k, j]
+                    z = zeta[k]
                     k_v = _base_excited_accel(x, v, w, z, c3, c2, ref, ln)
                     kx = 0.0 + 1.0 * v
                     kv = 0.0 + 1.0 * k_v
@@ -376,10 +378,10 @@ def _base_excited_run(y: np.ndarray, w: float, z: float, kc: np.ndarray, kq: np.
                 out[k, t, j] = X[k, j]
 
 
-def base_excited_deflections(y: np.ndarray, freq: float, damping: float, cubic: ArrayLike, quadratic_damping: ArrayLike,
-                             dt: float) -> np.ndarray:
+def base_excited_deflections(y: np.ndarray, freq: float, damping: ArrayLike, cubic: ArrayLike,
+                             quadratic_damping: ArrayLike, dt: float) -> np.ndarray:
     """Deflections ``[K, N, n]`` of K base-excited modes (``cubic``, ``quadratic_damping``: ``[K, n]``; a row of
-    zeros is the linear twin) from rest, shaken by the block ``y [N, n]``: what
+    zeros is the linear twin; ``damping``: one for all or ``[K]``) from rest, shaken by the block ``y [N, n]``: what
     :meth:`BaseExcitedNonlinearMode.deflection_change` subtracts, for several coefficient sets in one pass over
     the base (the same numbers as one pass each)."""
     y = np.ascontiguousarray(y, dtype=float)
@@ -387,7 +389,8 @@ def base_excited_deflections(y: np.ndarray, freq: float, damping: float, cubic: 
     kq = np.ascontiguousarray(np.atleast_2d(np.asarray(quadratic_damping, float)))
     K, n = kc.shape
     out = np.empty((K,) + y.shape)
-    _base_excited_run(y, 2 * math.pi * float(freq), float(damping), kc, kq, LEVEL_REF, float(dt),
+    zeta = np.ascontiguousarray(np.broadcast_to(np.asarray(damping, float), (K,)))
+    _base_excited_run(y, 2 * math.pi * float(freq), zeta, kc, kq, LEVEL_REF, float(dt),
                       np.zeros((K, n, 2)), np.zeros((n, 3)), out)
     return out
 
@@ -423,12 +426,13 @@ class BaseExcitedNonlinearMode:
         self._hist = np.zeros((self.n, 3))
         self._kc = np.ascontiguousarray(np.stack([self.cubic, np.zeros(self.n)]))
         self._kq = np.ascontiguousarray(np.stack([self.quadratic_damping, np.zeros(self.n)]))
+        self._zeta = np.full(2, self.damping)
 
     def deflection_change(self, y: np.ndarray) -> np.ndarray:
         """``participation·(d − d_lin)`` of every column of one block (advances the state)."""
         y = np.ascontiguousarray(_block(y, self.n), dtype=float)
         out = np.empty((2,) + y.shape)
-        _base_excited_run(y, 2 * math.pi * self.freq, self.damping, self._kc, self._kq, LEVEL_REF, self.dt,
+        _base_excited_run(y, 2 * math.pi * self.freq, self._zeta, self._kc, self._kq, LEVEL_REF, self.dt,
                           self._osc, self._hist, out)
         scaled: np.ndarray = (out[0] - out[1]) * self.participation
         return scaled
