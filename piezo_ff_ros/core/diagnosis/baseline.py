@@ -117,7 +117,8 @@ def _check(cfg: PiezoConfig, train: RunData, test: RunData, opts: DiagnosisOptio
     H = 0
     test_ext = test
     if test_history is not None:
-        check_run(test_history, "test history")
+        if test_history is not train:  # the training run (a --data split) is checked above
+            check_run(test_history, "test history")
         H = len(test_history)
         test_ext = RunData(np.arange(H + len(test)) * cfg.dt, np.vstack([test_history.u, test.u]),
                            np.vstack([test_history.y, test.y]), test.axes)

@@ -13,6 +13,7 @@ from scipy import optimize
 
 from .._jit import njit
 from ..models import effects as fx
+from ..models.effects.modes import base_excited_deflections
 from . import stats
 from .fit_common import FitContext, FitResult, _rms, _stderr, n_eff_ratio, search_context
 from .replay import Windows, residual
@@ -512,6 +513,18 @@ def _base_excited_change(ctx: FitContext, freq: float, damping: float, cubic: np
     return ctx.windows.apply(st.reset, st.deflection_change, yb)
 
 
+def _base_excited_deflections(ctx: FitContext, freq: float, damping: Any, cubic: np.ndarray, quad: np.ndarray,
+                              y_base: np.ndarray) -> np.ndarray:
+    """Deflections ``[K, rows, n]`` of K base-excited modes (coefficient rows of ``cubic``, ``quad``; a row of
+    zeros is the linear twin; ``damping`` one or per mode) shaken by ``y_base`` over the fit's windows, each from
+    rest at its warm start (rows as the training residual's): one pass over the base for all K, the numbers of
+    :func:`_base_excited_change`'s stage (nonlinear − linear twin = its change)."""
+    if ctx.windows.is_whole:
+        return base_excited_deflections(y_base, freq, damping, cubic, quad, ctx.dt)
+    return np.concatenate([base_excited_deflections(y_base[w:e], freq, damping, cubic, quad, ctx.dt)[:, s - w:]
+                           for w, s, e in ctx.windows.spans], axis=1)
+
+
 def _linear_modes(ctx: FitContext, found: list[Mode]) -> tuple[dict[str, Any], int] | None:
     """The linear resonances :func:`fit_unmodelled_mode` found on this context (else ``found``), their gains
     refitted: the ``unmodelled_mode`` parameters and their count (``None`` when there are none)."""
@@ -546,16 +559,29 @@ def fit_base_excited_mode(ctx: FitContext, linear: tuple[dict[str, Any], int] | 
     simulation (``scipy.optimize.least_squares``).  Each trial replays the mode over the fit windows: on a long run
     the search runs on half of them and the point found is refined briefly on all of them."""
     sub = search_context(ctx)
-    found = _fit_base_excited_on(sub, linear)
+    # on top of the linear resonances the mode is shaken by the output they shape, on the whole run: filtered once
+    # for the search and the refinement
+    yb_linear = None if linear is None else _linear_stage(ctx, linear).process(ctx.y_base)
+    found = _fit_base_excited_on(sub, linear, yb_linear=yb_linear)
     if sub is ctx:
         return found
-    return _fit_base_excited_on(ctx, linear, np.asarray(found.extra["theta"], float), BASE_EXCITED_FULL_NFEV)
+    return _fit_base_excited_on(ctx, linear, np.asarray(found.extra["theta"], float), BASE_EXCITED_FULL_NFEV,
+                                yb_linear)
+
+
+def _linear_stage(ctx: FitContext, linear: tuple[dict[str, Any], int]) -> Any:
+    """The ``unmodelled_mode`` stage of the linear resonances ``linear`` (at rest)."""
+    p = linear[0]
+    return fx.UnmodelledMode(p["freq"], p["damping"], p["gains"], ctx.dt, ctx.cfg.n_axes, p["hp_gains"],
+                             p["lp_gains"])
 
 
 def _fit_base_excited_on(ctx: FitContext, linear: tuple[dict[str, Any], int] | None,
-                         start: np.ndarray | None = None, max_nfev: int = 60) -> FitResult:
+                         start: np.ndarray | None = None, max_nfev: int = 60,
+                         yb_linear: np.ndarray | None = None) -> FitResult:
     """:func:`fit_base_excited_mode` on the windows of ``ctx``: the grid start unless ``start`` (the parameter
-    vector, log frequency and log damping first) is given, then at most ``max_nfev`` evaluations of refinement."""
+    vector, log frequency and log damping first) is given, then at most ``max_nfev`` evaluations of refinement.
+    ``yb_linear``: the base output through the ``linear`` stage on the whole run, when already computed."""
     n = ctx.cfg.n_axes
     fs = 1.0 / ctx.dt
     T = len(ctx.y) * ctx.dt
@@ -564,9 +590,8 @@ def _fit_base_excited_on(ctx: FitContext, linear: tuple[dict[str, Any], int] | N
     if linear is not None:
         # on top of the linear resonances: the mode is shaken by the output they shape
         lin_effects = [("unmodelled_mode", linear[0])]
-        stage = fx.UnmodelledMode(linear[0]["freq"], linear[0]["damping"], linear[0]["gains"], ctx.dt, n,
-                                  linear[0]["hp_gains"], linear[0]["lp_gains"])
-        yb = stage.process(ctx.y_base)
+        stage = _linear_stage(ctx, linear)
+        yb = stage.process(ctx.y_base) if yb_linear is None else yb_linear
         stage.reset()
         yb_win = (stage.process(ctx.y_base_win) if ctx.windows.is_whole else
                   ctx.windows.apply(stage.reset, stage.process, ctx.y_base) - ctx.windows.take(ctx.y_base)
@@ -577,10 +602,18 @@ def _fit_base_excited_on(ctx: FitContext, linear: tuple[dict[str, Any], int] | N
     eps = 1e-3
     zeros = np.zeros(n)
     best: tuple[float, float, float, np.ndarray, np.ndarray] = (0.0, 0.0, 0.0, zeros, zeros)
+    nz = len(BASE_EXCITED_ZETAS)
+    grid_cubic = np.tile(np.stack([np.full(n, eps), zeros, zeros]), (nz, 1))
+    grid_quad = np.tile(np.stack([zeros, np.full(n, eps), zeros]), (nz, 1))
+    grid_zetas = np.repeat(np.asarray(BASE_EXCITED_ZETAS, float), 3)
     for f in (np.geomspace(fmin, 0.45 * fs, BASE_EXCITED_FREQS) if start is None else ()):
-        for z in BASE_EXCITED_ZETAS:
-            Sc = _base_excited_change(ctx, float(f), z, np.full(n, eps), zeros, yb) / eps
-            Sq = _base_excited_change(ctx, float(f), z, zeros, np.full(n, eps), yb) / eps
+        # for every damping of the grid, the cubic-only and quadratic-only modes and their linear twin: all in one
+        # pass over the base
+        D_all = _base_excited_deflections(ctx, float(f), grid_zetas, grid_cubic, grid_quad, yb)
+        for iz, z in enumerate(BASE_EXCITED_ZETAS):
+            D = D_all[3 * iz:3 * iz + 3]
+            Sc = (D[0] - D[2]) / eps
+            Sq = (D[1] - D[2]) / eps
             if not (np.all(np.isfinite(Sc)) and np.all(np.isfinite(Sq))):
                 continue
             gain, c, q = 0.0, np.zeros(n), np.zeros(n)
@@ -598,9 +631,22 @@ def _fit_base_excited_on(ctx: FitContext, linear: tuple[dict[str, Any], int] | N
     c0 = np.clip(c0, -50.0, 50.0)
     q0 = np.clip(q0, 0.0, 50.0)
 
+    # the deflections a trial needs, remembered: a finite-difference column that moves only the coefficients
+    # reuses the linear twin, one that moves only the participation the nonlinear mode too
+    memo: dict[tuple[float, ...], np.ndarray] = {}
+
+    def deflection(freq: float, zeta: float, cubic: np.ndarray, quad: np.ndarray) -> np.ndarray:
+        key = (freq, zeta, *cubic.tolist(), *quad.tolist())
+        if key not in memo:
+            if len(memo) >= 16:
+                memo.pop(next(iter(memo)))
+            memo[key] = _base_excited_deflections(ctx, freq, zeta, cubic[None], quad[None], yb)[0]
+        return memo[key]
+
     def resid(th: np.ndarray) -> np.ndarray:
-        d = _base_excited_change(ctx, math.exp(th[0]), math.exp(th[1]), th[2:2 + n], th[2 + n:2 + 2 * n], yb,
-                                 th[2 + 2 * n:])
+        freq, zeta = math.exp(th[0]), math.exp(th[1])
+        d = ((deflection(freq, zeta, th[2:2 + n], th[2 + n:2 + 2 * n]) - deflection(freq, zeta, zeros, zeros))
+             * th[2 + 2 * n:])
         r = residual(ctx.target, yb_win + d)
         if not np.all(np.isfinite(r)):
             return np.full(r.size, 1e6)

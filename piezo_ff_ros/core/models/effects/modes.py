@@ -18,7 +18,7 @@ from ...lti import static_gain
 from .common import LEVEL_REF, LEVEL_TAU, _block, _per_axis
 
 __all__ = ["UnmodelledMode", "AmplitudeDependentDynamics", "CubicAmplitudeDynamics", "BaseExcitedNonlinearMode",
-           "MIN_STIFFNESS_FACTOR", "RK4_OMEGA_STEP"]
+           "MIN_STIFFNESS_FACTOR", "RK4_OMEGA_STEP", "base_excited_deflections"]
 
 
 @njit
@@ -140,17 +140,41 @@ class UnmodelledMode:
 
     def process(self, y: np.ndarray) -> np.ndarray:
         """Run one block ``[N, n_in] → [N, n_out]``; the state moves on by N samples."""
-        y = _block(y, self.n)
+        y = np.ascontiguousarray(_block(y, self.n), dtype=float)
         out = y.copy()
         for m in range(len(self._c)):
             bp = self.bandpass(y, m)
-            out += static_gain(bp, self.G[m])
-            if np.any(self.H[m]) or np.any(self.L[m]):
-                hp = self.highpass(y, m)
-                out += static_gain(hp, self.H[m])
-                if np.any(self.L[m]):
-                    out += static_gain(y - bp - hp, self.L[m])
+            with_hp = bool(np.any(self.H[m]) or np.any(self.L[m]))
+            hp = self.highpass(y, m) if with_hp else bp
+            _add_mode_terms(y, bp, hp, self.G[m], self.H[m], self.L[m], with_hp, bool(np.any(self.L[m])), out)
         return out
+
+
+@njit
+def _add_mode_terms(y: np.ndarray, bp: np.ndarray, hp: np.ndarray, G: np.ndarray, H: np.ndarray, L: np.ndarray,
+                    with_hp: bool, with_lp: bool, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``out += static_gain(bp, G)``, then (``with_hp``) ``+= static_gain(hp, H)``, then (``with_lp``)
+    ``+= static_gain(y − bp − hp, L)``, in one pass: the same sums in the same order as
+    :func:`~piezo_ff_ros.core.lti.static_gain` (input by input), without its block-sized temporaries."""
+    N, n_in = y.shape
+    n_out = G.shape[0]
+    for t in range(N):
+        for i in range(n_out):
+            acc = bp[t, 0] * G[i, 0]
+            for j in range(1, n_in):
+                acc += bp[t, j] * G[i, j]
+            o = out[t, i] + acc
+            if with_hp:
+                acc = hp[t, 0] * H[i, 0]
+                for j in range(1, n_in):
+                    acc += hp[t, j] * H[i, j]
+                o = o + acc
+                if with_lp:
+                    acc = (y[t, 0] - bp[t, 0] - hp[t, 0]) * L[i, 0]
+                    for j in range(1, n_in):
+                        acc += (y[t, j] - bp[t, j] - hp[t, j]) * L[i, j]
+                    o = o + acc
+            out[t, i] = o
 
 
 @njit
@@ -269,61 +293,106 @@ RK4_OMEGA_STEP = 0.25
 
 
 @njit
-def _nl_mode_run(y: np.ndarray, w: float, z: float, kc: np.ndarray, kq: np.ndarray, ref: float, dt: float,
-                 st: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """Relative deflection of a base-excited mode, nonlinear (``kc``, ``kq``) and linear twin, RK4 per sample; the
-    base piecewise linear between samples (its velocity step, from the last three samples, an impulse at the
-    interval's start); ``out`` = nonlinear − linear deflection.
-    ``st[j]`` = (d, d', d_lin, d'_lin, y[k−1], y[k−2], samples seen)."""
+def _base_excited_accel(xs: float, vs: float, w: float, z: float, c3: float, c2: float, ref: float,
+                        linear: bool) -> float:  # pragma: no cover - compiled
+    """The relative acceleration of a base-excited mode at deflection ``xs``, velocity ``vs`` (between the base's
+    velocity steps).  ``linear`` (c = q = 0): the same number without the cubic and quadratic factors (exactly 1)."""
+    if linear:
+        return -2.0 * z * w * vs - w * w * xs
+    fk = max(MIN_STIFFNESS_FACTOR, 1.0 + c3 * (xs / ref) ** 2)
+    return -2.0 * z * w * (1.0 + c2 * abs(vs) / (w * ref)) * vs - w * w * xs * fk
+
+
+@njit
+def _base_excited_run(y: np.ndarray, w: float, zeta: np.ndarray, kc: np.ndarray, kq: np.ndarray, ref: float,
+                      dt: float, osc: np.ndarray, hist: np.ndarray,
+                      out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Deflections of K base-excited modes of one natural frequency, shaken by the same base ``y``: oscillator k has
+    the damping ``zeta[k]``, the cubic spring ``kc[k]`` and the quadratic damping ``kq[k]`` (per axis; both 0: the
+    linear twin), RK4 per sample; the base piecewise linear between samples (its velocity step, from the last three
+    samples, an impulse at the interval's start).  ``out[k, t, j]`` = oscillator k's deflection.
+    ``osc[k, j]`` = (d, d'), ``hist[j]`` = (y[k−1], y[k−2], samples seen).
+
+    The oscillators share the base but not their states: each gets the numbers it gets alone.  Their RK4 steps
+    are interleaved (every oscillator's sub-step, then the next sub-step), so that the processor overlaps these
+    independent chains instead of waiting on one serial chain at a time."""
     N, n = y.shape
+    K = kc.shape[0]
     # RK4 sub-steps of at most RK4_OMEGA_STEP radians of the mode (its phase error then stays below ~1e-5 a step)
     sub = max(1, int(math.ceil(w * dt / RK4_OMEGA_STEP)))
     h = dt / sub
+    lin = np.empty((K, n), np.bool_)
+    for k in range(K):
+        for j in range(n):
+            lin[k, j] = kc[k, j] == 0.0 and kq[k, j] == 0.0
+    X = np.empty((K, n))
+    V = np.empty((K, n))
     for t in range(N):
         for j in range(n):
             yk = y[t, j]
-            seen = st[j, 6]
+            seen = hist[j, 2]
             if seen < 1.0:
-                st[j, 4] = yk
-                st[j, 5] = yk
+                hist[j, 0] = yk
+                hist[j, 1] = yk
             elif seen < 2.0:
-                st[j, 5] = st[j, 4]
+                hist[j, 1] = hist[j, 0]
             # the base's velocity steps at the sample it starts the interval from (a piecewise-linear base): an
             # impulse on the relative velocity, then the mode moves freely over the interval
-            dv = (yk - 2.0 * st[j, 4] + st[j, 5]) / dt if seen >= 1.0 else 0.0
-            for lin in range(2):
-                c3 = 0.0 if lin == 1 else kc[j]
-                c2 = 0.0 if lin == 1 else kq[j]
-                x = st[j, 2 * lin]
-                v = st[j, 2 * lin + 1] - dv
-                for _ in range(sub):
-                    xs = x
-                    vs = v
-                    k_x = 0.0
-                    k_v = 0.0
-                    kx = 0.0
-                    kv = 0.0
-                    for s in range(4):
-                        if s == 0:
-                            xs, vs = x, v
-                        elif s < 3:
-                            xs, vs = x + 0.5 * h * k_x, v + 0.5 * h * k_v
-                        else:
-                            xs, vs = x + h * k_x, v + h * k_v
-                        fk = max(MIN_STIFFNESS_FACTOR, 1.0 + c3 * (xs / ref) ** 2)
-                        k_v = -2.0 * z * w * (1.0 + c2 * abs(vs) / (w * ref)) * vs - w * w * xs * fk
-                        k_x = vs
-                        wgt = 1.0 if (s == 0 or s == 3) else 2.0
-                        kx += wgt * k_x
-                        kv += wgt * k_v
-                    x = x + h * kx / 6.0
-                    v = v + h * kv / 6.0
-                st[j, 2 * lin] = x
-                st[j, 2 * lin + 1] = v
-            out[t, j] = st[j, 0] - st[j, 2]
-            st[j, 5] = st[j, 4]
-            st[j, 4] = yk
-            st[j, 6] = seen + 1.0
+            dv = (yk - 2.0 * hist[j, 0] + hist[j, 1]) / dt if seen >= 1.0 else 0.0
+            for k in range(K):
+                X[k, j] = osc[k, j, 0]
+                V[k, j] = osc[k, j, 1] - dv
+            hist[j, 1] = hist[j, 0]
+            hist[j, 0] = yk
+            hist[j, 2] = seen + 1.0
+        for _ in range(sub):
+            for k in range(K):
+                for j in range(n):
+                    x = X[k, j]
+                    v = V[k, j]
+                    c3 = kc[k, j]
+                    c2 = kq[k, j]
+                    ln = lin[k, j]
+                    z = zeta[k]
+                    k_v = _base_excited_accel(x, v, w, z, c3, c2, ref, ln)
+                    kx = 0.0 + 1.0 * v
+                    kv = 0.0 + 1.0 * k_v
+                    xs, vs = x + 0.5 * h * v, v + 0.5 * h * k_v
+                    k_v = _base_excited_accel(xs, vs, w, z, c3, c2, ref, ln)
+                    kx += 2.0 * vs
+                    kv += 2.0 * k_v
+                    xs, vs = x + 0.5 * h * vs, v + 0.5 * h * k_v
+                    k_v = _base_excited_accel(xs, vs, w, z, c3, c2, ref, ln)
+                    kx += 2.0 * vs
+                    kv += 2.0 * k_v
+                    xs, vs = x + h * vs, v + h * k_v
+                    k_v = _base_excited_accel(xs, vs, w, z, c3, c2, ref, ln)
+                    kx += 1.0 * vs
+                    kv += 1.0 * k_v
+                    X[k, j] = x + h * kx / 6.0
+                    V[k, j] = v + h * kv / 6.0
+        for k in range(K):
+            for j in range(n):
+                osc[k, j, 0] = X[k, j]
+                osc[k, j, 1] = V[k, j]
+                out[k, t, j] = X[k, j]
+
+
+def base_excited_deflections(y: np.ndarray, freq: float, damping: ArrayLike, cubic: ArrayLike,
+                             quadratic_damping: ArrayLike, dt: float) -> np.ndarray:
+    """Deflections ``[K, N, n]`` of K base-excited modes (``cubic``, ``quadratic_damping``: ``[K, n]``; a row of
+    zeros is the linear twin; ``damping``: one for all or ``[K]``) from rest, shaken by the block ``y [N, n]``: what
+    :meth:`BaseExcitedNonlinearMode.deflection_change` subtracts, for several coefficient sets in one pass over
+    the base (the same numbers as one pass each)."""
+    y = np.ascontiguousarray(y, dtype=float)
+    kc = np.ascontiguousarray(np.atleast_2d(np.asarray(cubic, float)))
+    kq = np.ascontiguousarray(np.atleast_2d(np.asarray(quadratic_damping, float)))
+    K, n = kc.shape
+    out = np.empty((K,) + y.shape)
+    zeta = np.ascontiguousarray(np.broadcast_to(np.asarray(damping, float), (K,)))
+    _base_excited_run(y, 2 * math.pi * float(freq), zeta, kc, kq, LEVEL_REF, float(dt),
+                      np.zeros((K, n, 2)), np.zeros((n, 3)), out)
+    return out
 
 
 class BaseExcitedNonlinearMode:
@@ -352,15 +421,20 @@ class BaseExcitedNonlinearMode:
 
     def reset(self) -> None:
         """All states back to rest."""
-        self._st = np.zeros((self.n, 7))
+        # the nonlinear mode and its linear twin: (d, d') per axis; the base's last two samples and their count
+        self._osc = np.zeros((2, self.n, 2))
+        self._hist = np.zeros((self.n, 3))
+        self._kc = np.ascontiguousarray(np.stack([self.cubic, np.zeros(self.n)]))
+        self._kq = np.ascontiguousarray(np.stack([self.quadratic_damping, np.zeros(self.n)]))
+        self._zeta = np.full(2, self.damping)
 
     def deflection_change(self, y: np.ndarray) -> np.ndarray:
         """``participation·(d − d_lin)`` of every column of one block (advances the state)."""
         y = np.ascontiguousarray(_block(y, self.n), dtype=float)
-        out = np.empty_like(y)
-        _nl_mode_run(y, 2 * math.pi * self.freq, self.damping, self.cubic, self.quadratic_damping, LEVEL_REF,
-                     self.dt, self._st, out)
-        scaled: np.ndarray = out * self.participation
+        out = np.empty((2,) + y.shape)
+        _base_excited_run(y, 2 * math.pi * self.freq, self._zeta, self._kc, self._kq, LEVEL_REF, self.dt,
+                          self._osc, self._hist, out)
+        scaled: np.ndarray = (out[0] - out[1]) * self.participation
         return scaled
 
     def process(self, y: np.ndarray) -> np.ndarray:
