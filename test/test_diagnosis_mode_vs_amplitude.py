@@ -87,3 +87,13 @@ def test_linear_form_test(cubic, se, linear):
     """Linear when every nonlinear coefficient is within the Bonferroni two-sided z of zero; missing or zero standard
     errors never call a fit linear."""
     assert base_excited_is_linear(_base_excited_fit(cubic, se)) is linear
+
+
+def test_a_linear_base_excited_fit_is_not_the_runner_up_of_a_linear_mode_verdict():
+    """Beside a linear-mode verdict, a base-excited fit with no nonlinearity told from zero is that mode, not a
+    rival: it is neither the runner-up (whose paired z sets the confidence) nor a tie."""
+    from piezo_ff_ros.core.diagnosis.decision import _ties
+    scored, mode, ad = _case(_base_excited_fit([1.8e-4, -9.7e-5], [1.1e-4, 7.2e-3]))
+    j = types.SimpleNamespace(scored=scored, psd=stats.noise_psd(mode.extra["r_after"]), zc=stats.z_critical(3))
+    runner, tie_z, ties = _ties(mode, j)
+    assert runner is not ad and ad not in ties

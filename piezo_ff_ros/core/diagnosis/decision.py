@@ -601,8 +601,11 @@ def _ties(verdict: Scored, j: _Judged) -> tuple[Scored | None, float | None, lis
     the paired z by which the verdict beats it, and the ties; sets every rival's ``paired_z``."""
     runner, tie_z = None, None
     # a generic family that absorbs the verdict (see GENERIC_MIN_EXTRA) is not a rival explanation
+    # nor is a base-excited mode without a nonlinearity told from zero beside a linear-mode verdict: it is that
+    # linear mode (base_excited_is_linear), not a rival
     others = [x for x in j.scored if x is not verdict and x.extra["delta"] > 0
-              and x.extra.get("absorbs") != verdict.fit.effect]
+              and x.extra.get("absorbs") != verdict.fit.effect
+              and not (verdict.fit.effect == "unmodelled_mode" and x.extra.get("linear_form"))]
     for x in others:
         x.extra["paired_z"] = stats.paired_z(verdict.extra["r_after"], x.extra["r_after"], j.psd)
     if others:
