@@ -219,20 +219,16 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
     mode = next((x for x in scored if x.fit.effect == "unmodelled_mode" and x.accepted), None)
     rich_ad = next((x for x in scored if x.fit.effect == "amplitude_dependent_dynamics" and x.accepted), None)
     shift = (rich_ad.fit.extra.get("level_shift") or {}) if rich_ad is not None else {}
-    linear_form = rich_ad is not None and base_excited_is_linear(rich_ad.fit)
-    if rich_ad is not None and linear_form:
-        rich_ad.extra["linear_form"] = True
+    # ... and only when the linear mode leaves something above the white-noise floor on the held-out run (at least
+    # GENERIC_MIN_EXTRA of the gap above it): amplitude dependence is evidenced by what a linear resonance cannot
+    # explain; when the linear mode already takes the whole gap above the floor there is nothing left for a
+    # nonlinearity to be, whatever its resonance refitted on two halves of TRAIN does (a misspecified or noisy
+    # half-fit moves too)
     if mode is not None and rich_ad is not None and scored.index(rich_ad) > scored.index(mode) and \
-            shift.get("significant") and not shift.get("one_level") and not linear_form:
+            shift.get("significant") and not shift.get("one_level") and \
+            mode.extra["excess_shrink"] < 1.0 - GENERIC_MIN_EXTRA:
         scored.remove(rich_ad)
         scored.insert(scored.index(mode), rich_ad)
-    # amplitude dependence needs a nonlinearity: a base-excited mode whose cubic spring and quadratic damping are
-    # all within noise of zero on TRAIN is a linear mode (it explains the same at every amplitude), whatever a
-    # held-out paired z says about its small differences to the linear family — the linear mode, when accepted,
-    # ranks above it
-    if mode is not None and rich_ad is not None and linear_form and scored.index(rich_ad) < scored.index(mode):
-        scored.remove(mode)
-        scored.insert(scored.index(rich_ad), mode)
     # parsimony: a generic filter family above an accepted physical candidate that leaves it < GENERIC_MIN_EXTRA
     # of the gap above the floor absorbs that candidate; it does not name a different effect.  Nor does it when it
     # does not beat the physical candidate significantly on the held-out run (paired z < TIE_Z): with fewer
@@ -255,35 +251,6 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
                         g.extra["absorb_paired_z"] = stats.paired_z(g.extra["r_after"], s.extra["r_after"], psd)
                 break
     return psd
-
-
-#: the base-excited mode's nonlinear coefficients (cubic spring, quadratic damping; 2 per axis) are told from zero at
-#: this two-sided z, Bonferroni over the 2·n coefficients (family-wise α = stats.ALPHA; computed per call from n)
-def nonlinearity_z_critical(n_axes: int) -> float:
-    """Two-sided critical z of the 2·``n_axes`` nonlinear coefficients of a base-excited mode."""
-    return stats.z_critical(2 * 2 * int(n_axes))
-
-
-def base_excited_is_linear(fit: FitResult) -> bool:
-    """Whether an ``amplitude_dependent_dynamics`` fit in the base-excited form (a mode with a cubic spring and a
-    quadratic damping) has no nonlinear coefficient told from zero on TRAIN: every ``|value| / stderr`` of ``cubic``
-    and ``quadratic_damping`` at most :func:`nonlinearity_z_critical`.  Such a fit is a linear resonance: it predicts
-    the same response shape at every amplitude, so it is no evidence of amplitude dependence.  False for the filter
-    family (its evidence is the level shift) and when the standard errors are missing."""
-    p, se = fit.params, fit.stderr or {}
-    if fit.effect != "amplitude_dependent_dynamics" or p.get("form") != "base_excited":
-        return False
-    vals = np.r_[np.ravel(np.asarray(p.get("cubic", []), float)), np.ravel(np.asarray(p.get("quadratic_damping", []),
-                                                                                     float))]
-    try:
-        errs = np.r_[np.ravel(np.asarray(se.get("cubic"), float)), np.ravel(np.asarray(se.get("quadratic_damping"),
-                                                                                         float))]
-    except (TypeError, ValueError):
-        return False
-    if vals.size == 0 or errs.shape != vals.shape or not np.all(np.isfinite(errs)) or np.any(errs <= 0):
-        return False
-    zc = nonlinearity_z_critical(max(vals.size // 2, 1))
-    return bool(np.all(np.abs(vals) <= zc * errs))
 
 
 #: what a generic mode family takes beyond a physical candidate is a resonance (not that candidate's form error)
@@ -601,15 +568,15 @@ def _ties(verdict: Scored, j: _Judged) -> tuple[Scored | None, float | None, lis
     the paired z by which the verdict beats it, and the ties; sets every rival's ``paired_z``."""
     runner, tie_z = None, None
     # a generic family that absorbs the verdict (see GENERIC_MIN_EXTRA) is not a rival explanation
-    # nor is a base-excited mode without a nonlinearity told from zero beside a linear-mode verdict: it is that
-    # linear mode (base_excited_is_linear), not a rival
     others = [x for x in j.scored if x is not verdict and x.extra["delta"] > 0
-              and x.extra.get("absorbs") != verdict.fit.effect
-              and not (verdict.fit.effect == "unmodelled_mode" and x.extra.get("linear_form"))]
+              and x.extra.get("absorbs") != verdict.fit.effect]
     for x in others:
         x.extra["paired_z"] = stats.paired_z(verdict.extra["r_after"], x.extra["r_after"], j.psd)
-    if others:
-        runner = min(others, key=lambda x: x.extra["paired_z"])
+    # the runner-up is a rival explanation: a candidate nesting the verdict or nested in it is the same model with
+    # or without a part (ranked where the nesting rule put it), not a rival
+    rivals = [x for x in others if not _nested(verdict.fit.effect, x.fit.effect)]
+    if rivals:
+        runner = min(rivals, key=lambda x: x.extra["paired_z"])
         tie_z = runner.extra["paired_z"]
     ties = [x for x in others if x.extra["paired_z"] < TIE_Z and _significant(x, j.zc)
             and not _nested(verdict.fit.effect, x.fit.effect)]
