@@ -95,10 +95,13 @@ def test_a_level_shift_on_one_motion_level_promotes_nothing():
     assert scored[0] is mode, [s.fit.effect for s in scored]
 
 
-def test_a_nested_candidate_is_not_the_runner_up_of_the_verdict():
-    """Beside a linear-mode verdict, the amplitude-dependent fit that nests it is the same model with a part more,
-    not a rival: it is neither the runner-up (whose paired z sets the confidence) nor a tie."""
+def test_a_richer_nesting_candidate_is_not_the_runner_up_of_the_verdict():
+    """Beside a linear-mode verdict, the amplitude-dependent fit that nests it is the same model with a part the
+    held-out run does not need, not a rival: it is neither the runner-up (whose paired z sets the confidence) nor a
+    tie.  The other way round (an amplitude-dependent verdict), the linear mode stays its runner-up."""
     scored, mode, ad = _case(_base_excited_fit(*LINEAR_LIKE))
     j = types.SimpleNamespace(scored=scored, psd=stats.noise_psd(mode.extra["r_after"]), zc=stats.z_critical(3))
     runner, tie_z, ties = _ties(mode, j)
     assert runner is not ad and ad not in ties
+    runner, tie_z, ties = _ties(ad, j)
+    assert runner is mode

@@ -572,9 +572,10 @@ def _ties(verdict: Scored, j: _Judged) -> tuple[Scored | None, float | None, lis
               and x.extra.get("absorbs") != verdict.fit.effect]
     for x in others:
         x.extra["paired_z"] = stats.paired_z(verdict.extra["r_after"], x.extra["r_after"], j.psd)
-    # the runner-up is a rival explanation: a candidate nesting the verdict or nested in it is the same model with
-    # or without a part (ranked where the nesting rule put it), not a rival
-    rivals = [x for x in others if not _nested(verdict.fit.effect, x.fit.effect)]
+    # the runner-up is a rival explanation: a richer candidate nesting the verdict, ranked below it by the nesting
+    # rule, is the verdict with a part the held-out run does not need, not a rival (a simpler candidate nested in a
+    # richer verdict stays the runner-up: whether the richer part is needed is what their paired z measures)
+    rivals = [x for x in others if (x.fit.effect, verdict.fit.effect) not in RICHER]
     if rivals:
         runner = min(rivals, key=lambda x: x.extra["paired_z"])
         tie_z = runner.extra["paired_z"]
