@@ -105,3 +105,24 @@ def test_a_richer_nesting_candidate_is_not_the_runner_up_of_the_verdict():
     assert runner is not ad and ad not in ties
     runner, tie_z, ties = _ties(ad, j)
     assert runner is mode
+
+
+def test_a_richer_fit_better_only_on_the_noise_level_rest_does_not_outrank_the_linear_mode():
+    """No level shift; the amplitude-dependent fit beats the linear mode by a paired z ≫ 2 and 9 % of the held-out
+    residual energy, but both leave the residual at the floor (the extra part takes < 1 % of the gap above it): the
+    linear mode ranks first (the nesting rule ranked the richer fit first before)."""
+    fit = _base_excited_fit(*LINEAR_LIKE)
+    fit.extra["level_shift"] = None
+    rng = np.random.default_rng(4)
+    t = np.arange(N) / 5000.0
+    gap = 1e-7 * np.sin(2 * np.pi * 171.0 * t)[:, None] * np.array([[0.2, 1.0]])
+    noise = 1e-8 * rng.standard_normal((N, 2))
+    rest = 4e-9 * np.sin(2 * np.pi * 37.0 * t)[:, None] * np.ones((1, 2))
+    r_before = gap + noise + rest
+    mode, ad = _scored(_mode_fit(), r_before, noise + rest), _scored(fit, r_before, noise + 0.3 * rest)
+    scored = [ad, mode]
+    held = types.SimpleNamespace(r_before=r_before, cfg=types.SimpleNamespace(dt=1 / 5000.0))
+    _judge(scored, None, held, 1e-16, stats.z_critical(3))
+    assert ad.sse_after < 0.95 * mode.sse_after
+    assert ad.extra["excess_shrink"] - mode.extra["excess_shrink"] < 0.05
+    assert scored[0] is mode, [s.fit.effect for s in scored]

@@ -203,13 +203,17 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
         s.accepted = bool(_significant(s, zc) and s.extra["share"] >= MIN_SHARE
                           and s.extra["excess_shrink"] >= MIN_EXCESS_SHRINK)
     scored.sort(key=lambda s: s.sse_after + s.penalty)
-    # a richer candidate that nests a simpler one must beat it clearly on held-out data to rank above it
+    # a richer candidate that nests a simpler one must beat it clearly on held-out data to rank above it: by a paired
+    # z, by RICHER_MIN_GAIN of the residual energy, and by GENERIC_MIN_EXTRA of the gap above the white-noise floor
+    # (what its extra part names must be a material part of the effect, not of the noise-level rest the simpler one
+    # leaves: a linear mode that leaves 0.1 % of the gap above the floor leaves nothing for amplitude dependence)
     for i in range(len(scored)):
         for j in range(i + 1, len(scored)):
             rich, simple = scored[i], scored[j]
             if (rich.fit.effect, simple.fit.effect) in RICHER and simple.accepted and \
                     (stats.paired_z(rich.extra["r_after"], simple.extra["r_after"], psd) < TIE_Z
-                     or rich.sse_after > (1 - RICHER_MIN_GAIN) * simple.sse_after):
+                     or rich.sse_after > (1 - RICHER_MIN_GAIN) * simple.sse_after
+                     or rich.extra["excess_shrink"] - simple.extra["excess_shrink"] < GENERIC_MIN_EXTRA):
                 scored[i], scored[j] = simple, rich
     # amplitude dependence by physics: the linear mode family fits a nonlinear resonance with several linear modes
     # about as well on held-out data, but the resonance refitted on the small- and on the large-motion half of TRAIN
