@@ -29,7 +29,9 @@ def _base_excited_fit(cubic, cubic_se, quad=(0.0, 0.0), quad_se=(1e-6, 1e-6)):
               "quadratic_damping": list(quad), "participation": [1.0, 0.7]}
     stderr = {"form": None, "freq": 0.6, "damping": 0.003, "cubic": list(cubic_se),
               "quadratic_damping": list(quad_se), "participation": [0.5, 50.0]}
-    return FitResult("amplitude_dependent_dynamics", params, stderr, [], 44, 1e-8,
+    # on the linear resonances found: the fit contains the linear mode family
+    effects = [("unmodelled_mode", {}), ("amplitude_dependent_dynamics", params)]
+    return FitResult("amplitude_dependent_dynamics", params, stderr, effects, 44, 1e-8,
                      extra={"level_shift": dict(SHIFT)})
 
 
@@ -126,3 +128,23 @@ def test_a_richer_fit_better_only_on_the_noise_level_rest_does_not_outrank_the_l
     assert ad.sse_after < 0.95 * mode.sse_after
     assert ad.extra["excess_shrink"] - mode.extra["excess_shrink"] < 0.05
     assert scored[0] is mode, [s.fit.effect for s in scored]
+
+
+def test_the_base_excited_mode_alone_is_a_rival_not_an_extension_of_the_linear_family():
+    """The same residuals with the base-excited mode fitted alone (8 parameters, no linear resonances under it): it
+    is a smaller model beside the linear family, not an extension of it, and its better held-out fit ranks it first."""
+    fit = _base_excited_fit(*LINEAR_LIKE)
+    fit.extra["level_shift"] = None
+    fit.effects[:] = [("amplitude_dependent_dynamics", fit.params)]
+    fit.n_params = 8
+    rng = np.random.default_rng(4)
+    t = np.arange(N) / 5000.0
+    gap = 1e-7 * np.sin(2 * np.pi * 171.0 * t)[:, None] * np.array([[0.2, 1.0]])
+    noise = 1e-8 * rng.standard_normal((N, 2))
+    rest = 4e-9 * np.sin(2 * np.pi * 37.0 * t)[:, None] * np.ones((1, 2))
+    r_before = gap + noise + rest
+    mode, ad = _scored(_mode_fit(), r_before, noise + rest), _scored(fit, r_before, noise + 0.3 * rest)
+    scored = [ad, mode]
+    held = types.SimpleNamespace(r_before=r_before, cfg=types.SimpleNamespace(dt=1 / 5000.0))
+    _judge(scored, None, held, 1e-16, stats.z_critical(3))
+    assert scored[0] is ad, [s.fit.effect for s in scored]

@@ -213,7 +213,8 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
             if (rich.fit.effect, simple.fit.effect) in RICHER and simple.accepted and \
                     (stats.paired_z(rich.extra["r_after"], simple.extra["r_after"], psd) < TIE_Z
                      or rich.sse_after > (1 - RICHER_MIN_GAIN) * simple.sse_after
-                     or rich.extra["excess_shrink"] - simple.extra["excess_shrink"] < GENERIC_MIN_EXTRA):
+                     or (_contains_linear_modes(rich.fit)
+                         and rich.extra["excess_shrink"] - simple.extra["excess_shrink"] < GENERIC_MIN_EXTRA)):
                 scored[i], scored[j] = simple, rich
     # amplitude dependence by physics: the linear mode family fits a nonlinear resonance with several linear modes
     # about as well on held-out data, but the resonance refitted on the small- and on the large-motion half of TRAIN
@@ -230,7 +231,7 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
     # half-fit moves too)
     if mode is not None and rich_ad is not None and scored.index(rich_ad) > scored.index(mode) and \
             shift.get("significant") and not shift.get("one_level") and \
-            mode.extra["excess_shrink"] < 1.0 - GENERIC_MIN_EXTRA:
+            (not _contains_linear_modes(rich_ad.fit) or mode.extra["excess_shrink"] < 1.0 - GENERIC_MIN_EXTRA):
         scored.remove(rich_ad)
         scored.insert(scored.index(mode), rich_ad)
     # parsimony: a generic filter family above an accepted physical candidate that leaves it < GENERIC_MIN_EXTRA
@@ -366,6 +367,16 @@ def _confidence(best: Scored, runner: "Scored | None", tie_z: float | None, zc: 
     if share >= MIN_SHARE and tie_z >= TIE_Z:
         return "medium", why
     return "low", why
+
+
+def _contains_linear_modes(fit: FitResult) -> bool:
+    """Whether an ``amplitude_dependent_dynamics`` fit contains the linear mode family as a special case: the
+    level-modulated filter family does, and so does the base-excited mode fitted on the linear resonances found; the
+    base-excited mode alone (2 + 3n parameters) does not — it is a smaller model beside the linear family, not an
+    extension of it, and is ranked by its held-out fit like any rival."""
+    if fit.params.get("form") != "base_excited":
+        return True
+    return any(name == "unmodelled_mode" for name, _ in fit.effects)
 
 
 def _nested(a: str, b: str) -> bool:
@@ -579,7 +590,8 @@ def _ties(verdict: Scored, j: _Judged) -> tuple[Scored | None, float | None, lis
     # the runner-up is a rival explanation: a richer candidate nesting the verdict, ranked below it by the nesting
     # rule, is the verdict with a part the held-out run does not need, not a rival (a simpler candidate nested in a
     # richer verdict stays the runner-up: whether the richer part is needed is what their paired z measures)
-    rivals = [x for x in others if (x.fit.effect, verdict.fit.effect) not in RICHER]
+    rivals = [x for x in others if not ((x.fit.effect, verdict.fit.effect) in RICHER
+                                        and _contains_linear_modes(x.fit))]
     if rivals:
         runner = min(rivals, key=lambda x: x.extra["paired_z"])
         tie_z = runner.extra["paired_z"]
