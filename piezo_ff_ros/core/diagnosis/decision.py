@@ -587,13 +587,8 @@ def _ties(verdict: Scored, j: _Judged) -> tuple[Scored | None, float | None, lis
               and x.extra.get("absorbs") != verdict.fit.effect]
     for x in others:
         x.extra["paired_z"] = stats.paired_z(verdict.extra["r_after"], x.extra["r_after"], j.psd)
-    # the runner-up is a rival explanation: a richer candidate nesting the verdict, ranked below it by the nesting
-    # rule, is the verdict with a part the held-out run does not need, not a rival (a simpler candidate nested in a
-    # richer verdict stays the runner-up: whether the richer part is needed is what their paired z measures)
-    rivals = [x for x in others if not ((x.fit.effect, verdict.fit.effect) in RICHER
-                                        and _contains_linear_modes(x.fit))]
-    if rivals:
-        runner = min(rivals, key=lambda x: x.extra["paired_z"])
+    if others:
+        runner = min(others, key=lambda x: x.extra["paired_z"])
         tie_z = runner.extra["paired_z"]
     ties = [x for x in others if x.extra["paired_z"] < TIE_Z and _significant(x, j.zc)
             and not _nested(verdict.fit.effect, x.fit.effect)]
