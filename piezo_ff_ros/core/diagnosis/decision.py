@@ -203,13 +203,18 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
         s.accepted = bool(_significant(s, zc) and s.extra["share"] >= MIN_SHARE
                           and s.extra["excess_shrink"] >= MIN_EXCESS_SHRINK)
     scored.sort(key=lambda s: s.sse_after + s.penalty)
-    # a richer candidate that nests a simpler one must beat it clearly on held-out data to rank above it
+    # a richer candidate that nests a simpler one must beat it clearly on held-out data to rank above it: by a paired
+    # z, by RICHER_MIN_GAIN of the residual energy, and by GENERIC_MIN_EXTRA of the gap above the white-noise floor
+    # (what its extra part names must be a material part of the effect, not of the noise-level rest the simpler one
+    # leaves: a linear mode that leaves 0.1 % of the gap above the floor leaves nothing for amplitude dependence)
     for i in range(len(scored)):
         for j in range(i + 1, len(scored)):
             rich, simple = scored[i], scored[j]
             if (rich.fit.effect, simple.fit.effect) in RICHER and simple.accepted and \
                     (stats.paired_z(rich.extra["r_after"], simple.extra["r_after"], psd) < TIE_Z
-                     or rich.sse_after > (1 - RICHER_MIN_GAIN) * simple.sse_after):
+                     or rich.sse_after > (1 - RICHER_MIN_GAIN) * simple.sse_after
+                     or (_contains_linear_modes(rich.fit)
+                         and rich.extra["excess_shrink"] - simple.extra["excess_shrink"] < GENERIC_MIN_EXTRA)):
                 scored[i], scored[j] = simple, rich
     # amplitude dependence by physics: the linear mode family fits a nonlinear resonance with several linear modes
     # about as well on held-out data, but the resonance refitted on the small- and on the large-motion half of TRAIN
@@ -219,8 +224,14 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
     mode = next((x for x in scored if x.fit.effect == "unmodelled_mode" and x.accepted), None)
     rich_ad = next((x for x in scored if x.fit.effect == "amplitude_dependent_dynamics" and x.accepted), None)
     shift = (rich_ad.fit.extra.get("level_shift") or {}) if rich_ad is not None else {}
+    # ... and only when the linear mode leaves something above the white-noise floor on the held-out run (at least
+    # GENERIC_MIN_EXTRA of the gap above it): amplitude dependence is evidenced by what a linear resonance cannot
+    # explain; when the linear mode already takes the whole gap above the floor there is nothing left for a
+    # nonlinearity to be, whatever its resonance refitted on two halves of TRAIN does (a misspecified or noisy
+    # half-fit moves too)
     if mode is not None and rich_ad is not None and scored.index(rich_ad) > scored.index(mode) and \
-            shift.get("significant") and not shift.get("one_level"):
+            shift.get("significant") and not shift.get("one_level") and \
+            (not _contains_linear_modes(rich_ad.fit) or mode.extra["excess_shrink"] < 1.0 - GENERIC_MIN_EXTRA):
         scored.remove(rich_ad)
         scored.insert(scored.index(mode), rich_ad)
     # parsimony: a generic filter family above an accepted physical candidate that leaves it < GENERIC_MIN_EXTRA
@@ -356,6 +367,16 @@ def _confidence(best: Scored, runner: "Scored | None", tie_z: float | None, zc: 
     if share >= MIN_SHARE and tie_z >= TIE_Z:
         return "medium", why
     return "low", why
+
+
+def _contains_linear_modes(fit: FitResult) -> bool:
+    """Whether an ``amplitude_dependent_dynamics`` fit contains the linear mode family as a special case: the
+    level-modulated filter family does, and so does the base-excited mode fitted on the linear resonances found; the
+    base-excited mode alone (2 + 3n parameters) does not — it is a smaller model beside the linear family, not an
+    extension of it, and is ranked by its held-out fit like any rival."""
+    if fit.params.get("form") != "base_excited":
+        return True
+    return any(name == "unmodelled_mode" for name, _ in fit.effects)
 
 
 def _nested(a: str, b: str) -> bool:
