@@ -67,6 +67,8 @@ def main(argv=None) -> int:
         wall = time.perf_counter() - t1
         r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+        system = r1.ru_stime - r0.ru_stime
+        peak_mb = r1.ru_maxrss / 1024          # the largest child's peak resident set (kB on Linux)
         if p.returncode != 0:
             print(p.stderr[-2000:])
             return 1
@@ -76,7 +78,9 @@ def main(argv=None) -> int:
         print(f"piezo-ff diagnose --data: {wall:.1f} s wall-clock, {cpu:.1f} s CPU (user+sys, all threads), "
               f"diagnosis itself {res['seconds']:.1f} s; load average {load:.1f}; verdict {res['verdict']} "
               f"({res['confidence']}), delay {delay * 1e3:.4f} ms (truth 0.5 ms); target <= 20 s")
-        summary = {"samples": n, "wall_seconds": wall, "cpu_seconds": cpu, "diagnose_seconds": res["seconds"],
+        print(f"  of which system time {system:.1f} s; peak resident memory {peak_mb:.0f} MB")
+        summary = {"samples": n, "wall_seconds": wall, "cpu_seconds": cpu, "system_seconds": system,
+                   "peak_rss_mb": peak_mb, "diagnose_seconds": res["seconds"],
                    "load_average": load, "verdict": res["verdict"], "delay_s": delay}
         if a.profile:
             import cProfile

@@ -79,6 +79,26 @@ def _load_inputs(args: argparse.Namespace) -> tuple[RunData, RunData, RunData | 
     return train, test, None, info
 
 
+def keep_freed_memory_for_reuse() -> bool:
+    """Serve large arrays from the heap and keep freed memory for the next one (glibc only; returns whether set).
+
+    A long record's diagnosis allocates and frees arrays of hundreds of MB many times over.  glibc maps each such
+    block afresh (``mmap``) and unmaps it on ``free``, so every allocation faults its pages in again: about 4 s of
+    system time on a 10-minute 20 kHz record (``bench/bench_diagnose_speed.py``).  Without ``mmap`` and with a high
+    trim threshold, a freed block's pages stay mapped and the next array reuses them.  The process keeps its peak
+    heap until it exits, which a one-shot command can afford.
+    """
+    import ctypes
+
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):      # not glibc (musl, macOS, Windows): leave the allocator as it is
+        return False
+    m_trim_threshold, m_top_pad, m_mmap_max = -1, -2, -4
+    return bool(mallopt(m_mmap_max, 0) and mallopt(m_trim_threshold, 2 ** 31 - 1)
+                and mallopt(m_top_pad, 64 << 20))
+
+
 def run(args: argparse.Namespace) -> int:
     from ..core.config import load_config
     from ..core.diagnosis import DiagnosisOptions, diagnose, json_ready
@@ -86,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.models.effects import EFFECT_NAMES
     from ..core.diagnosis.inputs import load_for_diagnosis
 
+    keep_freed_memory_for_reuse()
     cfg = load_config(args.model, args.variant)
     train, test, history, input_info = _load_inputs(args)
     opts = DiagnosisOptions(verbose=not args.quiet)
