@@ -197,6 +197,7 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
     excess = max(float(np.sum(held.r_before ** 2)) - N * sigma2, 1e-300)
     for s in pool:
         s.extra["excess_shrink"] = s.extra["delta"] / excess
+        s.extra["gap_above_floor"] = excess > 1e-300      # else the share above the floor is no measure of it
     for s in scored:
         s.extra["share"] = s.extra["delta"] / explainable if explainable > 0 else 0.0
         s.penalty = s.fit.n_params * math.log(max(N / ratio, 2.0)) * sigma2 * ratio
@@ -357,7 +358,11 @@ def _confidence(best: Scored, runner: "Scored | None", tie_z: float | None, zc: 
         tie_z = math.inf
     else:
         why += f"; it beats the runner-up ({runner.fit.effect}) by z = {tie_z:.3g}"
-    why += f"; it removes {100 * best.extra['excess_shrink']:.0f} % of the gap above the white-noise floor"
+    if best.extra.get("gap_above_floor", True):
+        why += f"; it removes {100 * best.extra['excess_shrink']:.0f} % of the gap above the white-noise floor"
+    else:
+        why += ("; the held-out gap is not above the white-noise floor estimated from the residual (a "
+                "high-frequency effect can raise that estimate), so no share of a gap above it is measured")
     if z > zc + HIGH_Z_MARGIN and share >= HIGH_SHARE and tie_z >= HIGH_PAIRED_Z and \
             best.extra["excess_shrink"] >= HIGH_EXCESS_SHRINK:
         if best.fit.effect in GENERIC:

@@ -206,7 +206,8 @@ def _ranking(j: _Judged, sig: dict[str, float]) -> list[dict[str, Any]]:
             "heldout_shrink_percent": 100 * (1 - s.sse_after / s.sse_before) if s.sse_before > 0 else 0.0,
             "z": s.extra["z"],
             "explainable_share_percent": 100 * s.extra.get("share", 0.0),
-            "excess_shrink_percent": 100 * s.extra.get("excess_shrink", 0.0),
+            "excess_shrink_percent": 100 * s.extra.get("excess_shrink", 0.0)
+            if s.extra.get("gap_above_floor", True) else None,
             "paired_z_vs_verdict": s.extra.get("paired_z"),
             "absorbs": s.extra.get("absorbs"),
             "signature": {"name": SIGNATURE_OF.get(s.fit.effect, ""), "value": sig.get(SIGNATURE_OF.get(s.fit.effect, ""))},
