@@ -102,3 +102,28 @@ def test_a_stop_while_the_start_up_heap_is_frozen_is_clean(monkeypatch):
     finally:
         rclpy.try_shutdown()
     assert finished == [True]     # the driver's on_exit is its safe ramp: it must run
+
+
+def test_a_node_prints_its_stacks_on_sigusr1_and_says_when_it_stops(tmp_path):
+    """``kill -USR1`` makes a running node print every thread's Python stack to its log (what a node that stopped
+    answering waits for) and it keeps running; SIGINT then stops it cleanly, and its log says so."""
+    import signal
+    import time
+
+    from test_nodes_integration import start_node, stop_node
+
+    proc = start_node("trajectory", log_dir=tmp_path)
+    log = proc.log_path
+    try:
+        deadline = time.monotonic() + 60
+        while "heap frozen" not in log.read_text(errors="replace"):
+            assert time.monotonic() < deadline and proc.poll() is None, log.read_text(errors="replace")[-2000:]
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGUSR1)
+        while "Current thread" not in log.read_text(errors="replace"):
+            assert time.monotonic() < deadline and proc.poll() is None, log.read_text(errors="replace")[-2000:]
+            time.sleep(0.05)
+        assert "spin_node" in log.read_text(errors="replace")
+    finally:
+        assert stop_node(proc) == 0
+    assert log.read_text(errors="replace").rstrip().endswith("trajectory: stopping")

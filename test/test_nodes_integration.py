@@ -57,6 +57,11 @@ def stop_node(p: subprocess.Popen, timeout: float = 15.0) -> int:
         try:
             code = p.wait(timeout)
         except subprocess.TimeoutExpired:
+            p.send_signal(signal.SIGUSR1)      # the node prints its threads' stacks to its log (run_node)
+            try:
+                p.wait(1.0)
+            except subprocess.TimeoutExpired:
+                pass
             p.kill()
             p.wait()
             code = -9

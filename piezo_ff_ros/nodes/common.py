@@ -7,7 +7,9 @@ itself is :mod:`piezo_ff_ros.core.recording.blocks` (one codec for the nodes, th
 """
 from __future__ import annotations
 
+import faulthandler
 import gc
+import signal
 import sys
 import threading
 import time
@@ -139,7 +141,7 @@ def spin_node(node: Any, on_exit: Callable[[], None] | None = None) -> int:
                                "collection of them stalls the stream)")
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        print(f"{name}: stopping", file=sys.stderr, flush=True)
     except Exception as exc:  # noqa: BLE001 - last resort: a clear one-line message, not a traceback
         if _context_ends(node.context, SHUTDOWN_GRACE_S):
             # SIGINT/SIGTERM shut the context down under a running callback (publish → InvalidHandle), or the
@@ -165,6 +167,10 @@ def run_node(name: str, make_node: Callable[[], Any], on_exit: Callable[[Any], N
     """A node's ``main``: init rclpy with ``argv``, build the node (a bad config/parameter is one clear line and
     exit code 2, not a traceback), spin until SIGINT/SIGTERM, then ``on_exit(node)``."""
     args = sys.argv if argv is None else [sys.argv[0], *argv]
+    if hasattr(signal, "SIGUSR1"):
+        # `kill -USR1 <pid>` prints every thread's Python stack to stderr (the node's log): what a node that stopped
+        # answering is waiting for
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
     try:
         rclpy.init(args=args)
         node = make_node()
