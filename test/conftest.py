@@ -117,3 +117,12 @@ def _no_node_outlives_its_test():
             except OSError:
                 pass
         pytest.fail(f"node processes left running on ROS domain {_DOMAIN} after the test (killed): {left}")
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Every node process a test had to kill because it ignored SIGINT, with the Python stacks it printed
+    (test_nodes_integration.stop_node): shown even when the test passed on its rerun."""
+    report = Path(os.environ["ROS_LOG_DIR"]) / "unstoppable_nodes.txt"
+    if report.exists():
+        terminalreporter.write_sep("=", "node processes that ignored SIGINT (killed)")
+        terminalreporter.write_line(report.read_text(errors="replace"))

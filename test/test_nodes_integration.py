@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -48,6 +49,19 @@ def start_node(name: str, *ros_args: str, log_dir: Path) -> subprocess.Popen:
     return p
 
 
+#: where stop_node reports a node that ignored SIGINT (test/conftest.py prints them at the end of the run)
+UNSTOPPABLE_REPORT = Path(os.environ.get("ROS_LOG_DIR", tempfile.gettempdir())) / "unstoppable_nodes.txt"
+
+
+def _report_unstoppable(p: subprocess.Popen, timeout: float) -> None:
+    log_path = getattr(p, "log_path", None)
+    tail = Path(log_path).read_text(errors="replace").splitlines()[-60:] if log_path and Path(log_path).exists() \
+        else []
+    with open(UNSTOPPABLE_REPORT, "a") as fh:
+        fh.write(f"--- {' '.join(map(str, p.args))[:200]}: still running {timeout:g} s after SIGINT, killed; "
+                 f"its log ends:\n" + "\n".join(tail) + "\n")
+
+
 def stop_node(p: subprocess.Popen, timeout: float = 15.0) -> int:
     """SIGINT, wait, exit code (-9 if it had to be killed); a non-zero code prints the node's log tail, which
     pytest shows with the failure."""
@@ -63,6 +77,7 @@ def stop_node(p: subprocess.Popen, timeout: float = 15.0) -> int:
             except subprocess.TimeoutExpired:
                 pass
             p.kill()
+            _report_unstoppable(p, timeout)
             p.wait()
             code = -9
     else:
