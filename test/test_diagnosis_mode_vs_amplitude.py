@@ -98,12 +98,9 @@ def test_a_level_shift_on_one_motion_level_promotes_nothing():
     assert scored[0] is mode, [s.fit.effect for s in scored]
 
 
-def test_a_richer_fit_better_only_on_the_noise_level_rest_does_not_outrank_the_linear_mode():
-    """No level shift; the amplitude-dependent fit beats the linear mode by a paired z ≫ 2 and 9 % of the held-out
-    residual energy, but both leave the residual at the floor (the extra part takes < 1 % of the gap above it): the
-    linear mode ranks first (the nesting rule ranked the richer fit first before)."""
-    fit = _base_excited_fit(*LINEAR_LIKE)
-    fit.extra["level_shift"] = None
+def _judged_against_a_noise_level_rest(fit):
+    """The linear mode and ``fit`` judged on a gap both take, over the noise and a small rest: the linear mode leaves
+    the rest, ``fit`` 30 % of it.  Returns (ranking, mode, fit's scored)."""
     rng = np.random.default_rng(4)
     t = np.arange(N) / 5000.0
     gap = 1e-7 * np.sin(2 * np.pi * 171.0 * t)[:, None] * np.array([[0.2, 1.0]])
@@ -114,6 +111,16 @@ def test_a_richer_fit_better_only_on_the_noise_level_rest_does_not_outrank_the_l
     scored = [ad, mode]
     held = types.SimpleNamespace(r_before=r_before, cfg=types.SimpleNamespace(dt=1 / 5000.0))
     _judge(scored, None, held, 1e-16, stats.z_critical(3))
+    return scored, mode, ad
+
+
+def test_a_richer_fit_better_only_on_the_noise_level_rest_does_not_outrank_the_linear_mode():
+    """No level shift; the amplitude-dependent fit beats the linear mode by a paired z ≫ 2 and 9 % of the held-out
+    residual energy, but both leave the residual at the floor (the extra part takes < 1 % of the gap above it): the
+    linear mode ranks first (the nesting rule ranked the richer fit first before)."""
+    fit = _base_excited_fit(*LINEAR_LIKE)
+    fit.extra["level_shift"] = None
+    scored, mode, ad = _judged_against_a_noise_level_rest(fit)
     assert ad.sse_after < 0.95 * mode.sse_after
     assert ad.extra["excess_shrink"] - mode.extra["excess_shrink"] < 0.05
     assert scored[0] is mode, [s.fit.effect for s in scored]
@@ -126,14 +133,5 @@ def test_the_base_excited_mode_alone_is_a_rival_not_an_extension_of_the_linear_f
     fit.extra["level_shift"] = None
     fit.effects[:] = [("amplitude_dependent_dynamics", fit.params)]
     fit.n_params = 8
-    rng = np.random.default_rng(4)
-    t = np.arange(N) / 5000.0
-    gap = 1e-7 * np.sin(2 * np.pi * 171.0 * t)[:, None] * np.array([[0.2, 1.0]])
-    noise = 1e-8 * rng.standard_normal((N, 2))
-    rest = 4e-9 * np.sin(2 * np.pi * 37.0 * t)[:, None] * np.ones((1, 2))
-    r_before = gap + noise + rest
-    mode, ad = _scored(_mode_fit(), r_before, noise + rest), _scored(fit, r_before, noise + 0.3 * rest)
-    scored = [ad, mode]
-    held = types.SimpleNamespace(r_before=r_before, cfg=types.SimpleNamespace(dt=1 / 5000.0))
-    _judge(scored, None, held, 1e-16, stats.z_critical(3))
+    scored, mode, ad = _judged_against_a_noise_level_rest(fit)
     assert scored[0] is ad, [s.fit.effect for s in scored]
