@@ -45,19 +45,26 @@ def _scored(fit, r_before, r_after):
                   {"r_after": r_after})
 
 
+def _gap_noise_rest(seed, rest):
+    """Held-out residuals at 5 kHz: a 171 Hz resonant gap, white noise (1e-8 m) and a 37 Hz rest of amplitude
+    ``rest`` [m].  Returns (gap, noise, rest, held) with ``held.r_before`` their sum."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(N) / 5000.0
+    gap = 1e-7 * np.sin(2 * np.pi * 171.0 * t)[:, None] * np.array([[0.2, 1.0]])
+    noise = 1e-8 * rng.standard_normal((N, 2))
+    rest_part = rest * np.sin(2 * np.pi * 37.0 * t)[:, None] * np.ones((1, 2))
+    held = types.SimpleNamespace(r_before=gap + noise + rest_part, cfg=types.SimpleNamespace(dt=1 / 5000.0))
+    return gap, noise, rest_part, held
+
+
 def _case(ad_fit, left=0.0):
     """Held-out residuals: a resonant gap both families remove (the linear mode leaves ``left`` of it, the
     amplitude-dependent fit the same); the base-excited fit also removes a tiny part of the noise-level rest that the
     linear one leaves (paired z ≫ 2, energy < 1 % lower)."""
-    rng = np.random.default_rng(3)
-    t = np.arange(N) / 5000.0
-    gap = 1e-7 * np.sin(2 * np.pi * 171.0 * t)[:, None] * np.array([[0.2, 1.0]])
-    noise = 1e-8 * rng.standard_normal((N, 2))
-    tiny = 1e-9 * np.sin(2 * np.pi * 37.0 * t)[:, None] * np.ones((1, 2))
-    r_before = gap + noise + tiny
+    gap, noise, tiny, held = _gap_noise_rest(seed=3, rest=1e-9)
+    r_before = held.r_before
     r_mode = noise + tiny + left * gap
     r_ad = noise + 0.05 * tiny + left * gap
-    held = types.SimpleNamespace(r_before=r_before, cfg=types.SimpleNamespace(dt=1 / 5000.0))
     mode, ad = _scored(_mode_fit(), r_before, r_mode), _scored(ad_fit, r_before, r_ad)
     scored = [ad, mode]
     _judge(scored, None, held, 1e-16, stats.z_critical(3))
@@ -101,15 +108,9 @@ def test_a_level_shift_on_one_motion_level_promotes_nothing():
 def _judged_against_a_noise_level_rest(fit):
     """The linear mode and ``fit`` judged on a gap both take, over the noise and a small rest: the linear mode leaves
     the rest, ``fit`` 30 % of it.  Returns (ranking, mode, fit's scored)."""
-    rng = np.random.default_rng(4)
-    t = np.arange(N) / 5000.0
-    gap = 1e-7 * np.sin(2 * np.pi * 171.0 * t)[:, None] * np.array([[0.2, 1.0]])
-    noise = 1e-8 * rng.standard_normal((N, 2))
-    rest = 4e-9 * np.sin(2 * np.pi * 37.0 * t)[:, None] * np.ones((1, 2))
-    r_before = gap + noise + rest
-    mode, ad = _scored(_mode_fit(), r_before, noise + rest), _scored(fit, r_before, noise + 0.3 * rest)
+    _, noise, rest, held = _gap_noise_rest(seed=4, rest=4e-9)
+    mode, ad = _scored(_mode_fit(), held.r_before, noise + rest), _scored(fit, held.r_before, noise + 0.3 * rest)
     scored = [ad, mode]
-    held = types.SimpleNamespace(r_before=r_before, cfg=types.SimpleNamespace(dt=1 / 5000.0))
     _judge(scored, None, held, 1e-16, stats.z_critical(3))
     return scored, mode, ad
 

@@ -13,13 +13,10 @@ import pytest
 from bench.synthetic.in_family import excitation
 from piezo_ff_ros.core.config import load_config
 from piezo_ff_ros.core.diagnosis import DiagnosisOptions, diagnose, json_ready
-from piezo_ff_ros.core.models.effects import build_plant
 from piezo_ff_ros.core.recording.run import RunData
 
-FS = 5000.0
-DUR = 6.0
-FINE = 20           # the truth's steps per record sample
-EDGE_LATE = 1       # fine steps by which the truth's DAC edges settle late: 1/20 sample
+from test_diagnosis_nulls import DUR, EDGE_LATE, FINE, FS, late_edge_response  # the null tests' late-edge truth
+
 CANDIDATES = ("unmodelled_mode", "gain_mismatch", "input_delay")
 
 
@@ -30,9 +27,7 @@ def cfg():
 
 def _run(cfg, kind, seed, noise_m):
     u = excitation(kind, FS, DUR, seed=seed)
-    uf = np.repeat(u, FINE, axis=0)
-    uf = np.vstack([np.repeat(u[:1], EDGE_LATE, axis=0), uf[:len(uf) - EDGE_LATE]])
-    y = build_plant(cfg.with_sample_rate(FS * FINE), []).process(uf)[::FINE]
+    y = late_edge_response(cfg, u, [])
     rng = np.random.default_rng(seed + 11)
     return RunData(t=np.arange(len(u)) / FS, u=u, y=y + noise_m * rng.standard_normal(y.shape), axes=tuple(cfg.axes))
 

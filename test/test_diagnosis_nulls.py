@@ -29,12 +29,18 @@ def cfg():
     return load_config().with_sample_rate(FS)
 
 
+def late_edge_response(cfg, u, effects):
+    """The nominal plant (plus ``effects``) behind a DAC whose edges settle ``EDGE_LATE`` fine steps late, simulated
+    ``FINE`` times faster than the record and sampled at its rate."""
+    uf = np.repeat(u, FINE, axis=0)
+    uf = np.vstack([np.repeat(u[:1], EDGE_LATE, axis=0), uf[:len(uf) - EDGE_LATE]])
+    return build_plant(cfg.with_sample_rate(FS * FINE), effects).process(uf)[::FINE]
+
+
 def _run(cfg, kind, seed, effects):
     """A record of the nominal plant (plus ``effects``) behind a DAC whose edges settle late, AR(1) noise."""
     u = excitation(kind, FS, DUR, seed=seed)
-    uf = np.repeat(u, FINE, axis=0)
-    uf = np.vstack([np.repeat(u[:1], EDGE_LATE, axis=0), uf[:len(uf) - EDGE_LATE]])
-    y = build_plant(cfg.with_sample_rate(FS * FINE), effects).process(uf)[::FINE]
+    y = late_edge_response(cfg, u, effects)
     rng = np.random.default_rng(seed + 7)
     noise = scipy.signal.lfilter([1.0], [1.0, -0.95], rng.standard_normal((len(u), 2)) * 3e-9 * np.sqrt(1 - 0.95 ** 2),
                                  axis=0)
