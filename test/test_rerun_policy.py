@@ -1,6 +1,6 @@
 """The test command (scripts/test.sh) runs a test once more only for the two symptoms of a node process that stopped
 answering DDS — a service reply that never came (``Probe.call``) and a node killed after ignoring SIGINT
-(``assert stop_node(p) == 0``) — and any other failure fails at once."""
+(``assert stop_node(p) == 0``, or an exit code -9 among several nodes' codes) — and any other failure fails at once."""
 import re
 import shlex
 import subprocess
@@ -47,6 +47,16 @@ def test_a_node_that_ignored_sigint():
     assert stop_node(None) == 0
 
 
+def test_nodes_stopped_together_one_ignored_sigint():
+    codes = [-9, 0, 0] if _first_time("codes") else [0, 0, 0]
+    assert codes == [0, 0, 0]
+
+
+def test_a_small_number_is_not_an_exit_code():
+    if _first_time("small"):
+        assert 3.2e-9 == 0
+
+
 def test_any_other_failure():
     if _first_time("other"):
         assert 1 + 1 == 3
@@ -63,5 +73,6 @@ def test_only_the_unresponsive_node_symptoms_are_rerun(tmp_path):
                           str(tmp_path / "test_sample.py")], cwd=tmp_path, capture_output=True, text=True,
                          env={**__import__("os").environ, "RERUN_MARK_DIR": str(marks)}).stdout
     last = out.strip().splitlines()[-1]
-    assert re.search(r"1 failed, 2 passed, 2 rerun", last), out[-3000:]
+    assert re.search(r"2 failed, 3 passed, 3 rerun", last), out[-3000:]
     assert "FAILED test_sample.py::test_any_other_failure" in out, out[-3000:]
+    assert "FAILED test_sample.py::test_a_small_number_is_not_an_exit_code" in out, out[-3000:]
