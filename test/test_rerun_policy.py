@@ -52,6 +52,12 @@ def test_nodes_stopped_together_one_ignored_sigint():
     assert codes == [0, 0, 0]
 
 
+def test_nodes_stopped_by_name_one_ignored_sigint():
+    codes = {"compensator": 0, "trajectory": -9, "recorder": 0} if _first_time("dict") else \
+        {"compensator": 0, "trajectory": 0, "recorder": 0}
+    assert codes == {"compensator": 0, "trajectory": 0, "recorder": 0}
+
+
 def test_a_small_number_is_not_an_exit_code():
     if _first_time("small"):
         assert 3.2e-9 == 0
@@ -73,6 +79,6 @@ def test_only_the_unresponsive_node_symptoms_are_rerun(tmp_path):
                           str(tmp_path / "test_sample.py")], cwd=tmp_path, capture_output=True, text=True,
                          env={**__import__("os").environ, "RERUN_MARK_DIR": str(marks)}).stdout
     last = out.strip().splitlines()[-1]
-    assert re.search(r"2 failed, 3 passed, 3 rerun", last), out[-3000:]
+    assert re.search(r"2 failed, 4 passed, 4 rerun", last), out[-3000:]
     assert "FAILED test_sample.py::test_any_other_failure" in out, out[-3000:]
     assert "FAILED test_sample.py::test_a_small_number_is_not_an_exit_code" in out, out[-3000:]
