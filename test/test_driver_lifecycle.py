@@ -191,6 +191,11 @@ def test_sigint_while_active_at_100_volts_ramps_before_closing(tmp_path, probe):
     line = next(ln for ln in log.splitlines() if "shutting down: ramping from" in ln)
     n = int(line.split(" in ")[-1].split()[0])
     assert "[100.0, 100.0]" in line and n >= 100 / SAFE_STEP, line
+    # the ramp is published too (the node stops with its context up): voltage_applied's readers see it end safe
+    probe.spin_until(lambda: rig.applied and rig.series()[-1].tolist() == [0.0, 0.0], 10,
+                     "the SIGINT ramp's last sample on voltage_applied")
+    u = rig.series()
+    assert np.abs(np.diff(u, axis=0)).max() <= SAFE_STEP + 1e-9
 
 
 def test_an_error_in_a_transition_goes_through_error_processing_to_safe():

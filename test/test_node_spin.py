@@ -127,3 +127,56 @@ def test_a_node_prints_its_stacks_on_sigusr1_and_says_when_it_stops(tmp_path):
     finally:
         assert stop_node(proc) == 0
     assert log.read_text(errors="replace").rstrip().endswith("trajectory: stopping")
+
+
+_DEAF_NODE = r"""
+import sys
+import rclpy
+from piezo_ff_ros.nodes.common import run_node
+
+
+def make():
+    node = rclpy.create_node("deaf")
+    # what the full-suite stacks showed: SIGINT arrived, yet the idle executor never woke (its only thread stayed in
+    # rclpy's wait).  Here that wake-up is taken away: rclpy's signal handling can no longer reach the executor
+    # rclpy.spin would use.
+    executor = rclpy.get_global_executor()
+    if executor._sigint_gc is not None:
+        executor._sigint_gc.destroy()
+        executor._sigint_gc = None
+
+    def spinning():   # once, from inside the spin: then the node is idle in the executor's wait
+        timer.cancel()
+        print("ready", flush=True)
+
+    timer = node.create_timer(0.05, spinning)
+    return node
+
+
+sys.exit(run_node("deaf", make, lambda n: print("finished", flush=True), argv=[]))
+"""
+
+
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_a_stop_signal_stops_an_idle_node_whose_executor_wake_up_is_lost(tmp_path, signame):
+    """A node with nothing to do (no timer, no traffic) stops on SIGINT/SIGTERM even when rclpy's signal handling
+    never wakes its executor — seen in full-suite runs: a trajectory node that had finished its run ignored SIGINT
+    for 15 s, idle in rclpy's executor wait, until it was killed (and its on-exit never ran)."""
+    import signal
+    import subprocess
+    import sys
+
+    from test_nodes_integration import child_env
+
+    proc = subprocess.Popen([sys.executable, "-c", _DEAF_NODE], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=child_env(), cwd=tmp_path)
+    try:
+        assert proc.stdout.readline().strip() == "ready", proc.stderr.read()
+        proc.send_signal(getattr(signal, signame))
+        out, err = proc.communicate(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        pytest.fail(f"the idle node ignored {signame} for 10 s")
+    assert proc.returncode == 0, err
+    assert "finished" in out and "Traceback" not in err

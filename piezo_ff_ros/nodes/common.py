@@ -18,7 +18,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2, PointField
 
@@ -128,18 +129,71 @@ def freeze_startup_heap() -> int:
     return gc.get_freeze_count()   # O(objects), once
 
 
-def spin_node(node: Any, on_exit: Callable[[], None] | None = None) -> int:
-    """Spin until SIGINT/SIGTERM (ExternalShutdownException in these rclpy versions); clean exit code 0.  The
-    start-up heap is frozen first (:func:`freeze_startup_heap`): no full garbage collection of it stalls the
-    stream."""
+#: longest an idle executor waits before the spin loop looks at a stop request again [s]
+STOP_POLL_S = 0.1
+
+
+class StopRequest:
+    """SIGINT/SIGTERM as a flag that the spin loop polls, instead of rclpy's own signal handling.
+
+    rclpy's handler shuts the context down from its own thread and must then wake the executor; in full-suite runs
+    that wake-up was lost now and then, and an idle node (a trajectory that had finished its run) sat in the
+    executor's wait with no timeout, ignoring SIGINT until it was killed — its on-exit never ran.  Here the handler
+    only records the signal; the spin loop waits at most :data:`STOP_POLL_S` at a time and, once asked, leaves the
+    loop with the context still up, so ``on_exit`` (the driver's safe ramp) can still publish what it does.
+    A second signal while stopping changes nothing: a ramp is never cut short by an impatient Ctrl-C.
+    """
+
+    SIGNALS = ("SIGINT", "SIGTERM")
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def __call__(self, signum: int, frame: Any) -> None:
+        if self.signum is None:
+            self.signum = signum
+
+    @property
+    def requested(self) -> bool:
+        """True once SIGINT or SIGTERM has arrived."""
+        return self.signum is not None
+
+    def install(self) -> bool:
+        """Handle SIGINT/SIGTERM from now on; False (nothing changed) off the main thread, where Python cannot."""
+        if threading.current_thread() is not threading.main_thread():
+            return False
+        for name in self.SIGNALS:
+            signum = getattr(signal, name)
+            self._previous[signum] = signal.signal(signum, self)
+        return True
+
+    def restore(self) -> None:
+        """Put back the handlers :meth:`install` replaced."""
+        while self._previous:
+            signum, handler = self._previous.popitem()
+            signal.signal(signum, handler)
+
+
+def spin_node(node: Any, on_exit: Callable[[], None] | None = None, stop: StopRequest | None = None) -> int:
+    """Spin until a stop: ``stop`` requested (SIGINT/SIGTERM through :class:`StopRequest`, as :func:`run_node`
+    installs it) or the context shut down (ExternalShutdownException, KeyboardInterrupt with rclpy's own handler);
+    then ``on_exit``; clean exit code 0.  The start-up heap is frozen first (:func:`freeze_startup_heap`): no full
+    garbage collection of it stalls the stream."""
     code = 0
     name = node.get_name()   # read now: after a shutdown the node's handle is gone and get_name() raises
+    executor = None
     try:
         # inside the try: a SIGINT during the (loaded-host: ~0.5 s) collection is a clean stop, on_exit included
         frozen = freeze_startup_heap()
         node.get_logger().info(f"start-up heap frozen: {frozen} objects out of garbage collection (no full "
                                "collection of them stalls the stream)")
-        rclpy.spin(node)
+        executor = SingleThreadedExecutor(context=node.context)
+        executor.add_node(node)
+        # never an unbounded wait: a stop request is seen within STOP_POLL_S even when nothing else happens
+        while node.context.ok() and not (stop is not None and stop.requested):
+            executor.spin_once(timeout_sec=STOP_POLL_S)
+        print(f"{name}: stopping", file=sys.stderr, flush=True)
     except (KeyboardInterrupt, ExternalShutdownException):
         print(f"{name}: stopping", file=sys.stderr, flush=True)
     except Exception as exc:  # noqa: BLE001 - last resort: a clear one-line message, not a traceback
@@ -151,12 +205,16 @@ def spin_node(node: Any, on_exit: Callable[[], None] | None = None) -> int:
             print(f"{name}: fatal: {exc}", file=sys.stderr)
             code = 1
     finally:
+        if executor is not None:
+            executor.remove_node(node)
         if on_exit is not None:
             try:
                 on_exit()
             except Exception as exc:  # noqa: BLE001
                 print(f"{name}: error while finishing: {exc}", file=sys.stderr)
                 code = 1
+        if executor is not None:
+            executor.shutdown(timeout_sec=0)
         node.destroy_node()
         rclpy.try_shutdown()
     return code
@@ -165,24 +223,34 @@ def spin_node(node: Any, on_exit: Callable[[], None] | None = None) -> int:
 def run_node(name: str, make_node: Callable[[], Any], on_exit: Callable[[Any], None] | None = None,
              argv: Sequence[str] | None = None) -> int:
     """A node's ``main``: init rclpy with ``argv``, build the node (a bad config/parameter is one clear line and
-    exit code 2, not a traceback), spin until SIGINT/SIGTERM, then ``on_exit(node)``."""
+    exit code 2, not a traceback), spin until SIGINT/SIGTERM, then ``on_exit(node)``.
+
+    SIGINT/SIGTERM are handled here (:class:`StopRequest`), not by rclpy: the signal is polled by the spin loop,
+    so no lost executor wake-up can leave the node deaf to it.  A signal while the node is being built stops it
+    right after (on_exit included)."""
     args = sys.argv if argv is None else [sys.argv[0], *argv]
     if hasattr(signal, "SIGUSR1"):
         # `kill -USR1 <pid>` prints every thread's Python stack to stderr (the node's log): what a node that stopped
         # answering is waiting for
         faulthandler.register(signal.SIGUSR1, all_threads=True)
+    stop = StopRequest()
+    own_signals = stop.install()
     try:
-        rclpy.init(args=args)
-        node = make_node()
-    except (KeyboardInterrupt, ExternalShutdownException):   # SIGINT/SIGTERM while starting: a clean stop
-        print(f"{name}: stopped while starting", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 0
-    except Exception as exc:  # noqa: BLE001 - bad config/parameter: one clear line, no traceback
-        print(f"{name}: error: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    return spin_node(node, on_exit=(lambda: on_exit(node)) if on_exit is not None else None)
+        try:
+            rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO if own_signals else None)
+            node = make_node()
+        except (KeyboardInterrupt, ExternalShutdownException):   # SIGINT/SIGTERM while starting: a clean stop
+            print(f"{name}: stopped while starting", file=sys.stderr)
+            rclpy.try_shutdown()
+            return 0
+        except Exception as exc:  # noqa: BLE001 - bad config/parameter: one clear line, no traceback
+            print(f"{name}: error: {exc}", file=sys.stderr)
+            rclpy.try_shutdown()
+            return 2
+        return spin_node(node, on_exit=(lambda: on_exit(node)) if on_exit is not None else None,
+                         stop=stop if own_signals else None)
+    finally:
+        stop.restore()
 
 
 def writer_matches(publishers: Mapping[str, Any]) -> dict[str, int]:
