@@ -174,9 +174,14 @@ def test_failing_configure_stays_unconfigured_with_one_line_and_can_be_fixed(tmp
     assert "Traceback" not in drv.log_path.read_text()
 
 
-def test_sigint_while_active_at_100_volts_ramps_before_closing(tmp_path, probe):
-    """SIGINT of an active driver holding 100 V: the output ramps to the safe voltage before the backend closes
-    (the ramp is played on the device; the log says from where and in how many samples)."""
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_sigint_while_active_at_100_volts_ramps_before_closing(tmp_path, probe, signame):
+    """SIGINT (Ctrl-C) or SIGTERM (a supervisor's stop) of an active driver holding 100 V: the output ramps to the
+    safe voltage before the backend closes (the ramp is played on the device; the log says from where and in how
+    many samples)."""
+    import signal
+    import subprocess
+
     rig = Rig(probe)
     drv = _start(tmp_path)
     try:
@@ -185,6 +190,9 @@ def test_sigint_while_active_at_100_volts_ramps_before_closing(tmp_path, probe):
         probe.spin_for(1.0)
         rig.stream(100.0, 0.5)
         assert np.any(rig.series() == 100.0)
+        drv.send_signal(getattr(signal, signame))
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            drv.wait(15)
     finally:
         assert stop_node(drv) == 0
     log = drv.log_path.read_text()
