@@ -310,7 +310,8 @@ class HotSwapCascade:
         if track and k0 is not None:   # (track implies k0 is not None)
             end = self._inflight[-1].k0 + len(self._inflight[-1].u) if self._inflight else \
                 (self._conf[0] if self._conf is not None else None)
-            if end != k0:   # first block, or the reference stream restarted / jumped: track from here
+            resumed = end is not None and 0 < k0 - end <= self.max_inflight_samples - self._inflight_samples
+            if end != k0 and not resumed:   # first block, or the reference stream restarted / jumped back
                 self._inflight.clear()
                 self._inflight_samples = 0
                 self._conf = (k0, self.active, self.active.state(CompensatorCascade.PLANT_STAGES))
@@ -434,6 +435,7 @@ class HotSwapCascade:
         k_end = k0 + u.shape[0]
         self._conf = (k_end, c, c.state(CompensatorCascade.PLANT_STAGES))
         rest: deque[_InFlight] = deque()
+        reached = k_end
         for rec in self._inflight:                    # the commands still in flight, as they will be applied
             end = rec.k0 + len(rec.u)
             if end <= k_end:
@@ -442,7 +444,12 @@ class HotSwapCascade:
             follower = copy.deepcopy(c) if not rest else rest[-1].cascade
             if not rest:
                 follower.load_state(self._conf[2])
+            if rec.k0 > reached:   # a gap in the stream sent (a stall): the amplifier holds its last voltage
+                last = follower.last_voltage()
+                follower.follow_applied(np.tile(last if last is not None else np.zeros(sent.shape[1]),
+                                                (rec.k0 - reached, 1)))
             follower.follow_applied(sent)
+            reached = end
             rest.append(_InFlight(max(rec.k0, k_end), sent, follower, follower.state(CompensatorCascade.PLANT_STAGES)))
         self._inflight = rest
         self._inflight_samples = sum(len(r.u) for r in rest)
