@@ -7,6 +7,7 @@ statements anywhere, ``importlib.import_module("literal")``), not from a list ke
 from __future__ import annotations
 
 import ast
+import functools
 import sys
 from pathlib import Path
 
@@ -55,8 +56,10 @@ OPTIONAL_WITHOUT_KEY = {"nidaqmx": "pip install 'piezo_ff_ros[nidaqmx]' (and NI-
 OPTIONAL_CONDITIONED = {"pipython": "$PIEZO_FF_WITH_PI == 1"}
 
 
+@functools.lru_cache(maxsize=None)
 def _third_party_imports() -> dict[str, set[str]]:
-    """Top-level names of every non-stdlib module imported by the installed package → the files importing it."""
+    """Top-level names of every non-stdlib module imported by the installed package → the files importing it
+    (scanned once for the two tests that read it: the walk over every module's syntax tree is their whole cost)."""
     found: dict[str, set[str]] = {}
     for path in sorted(PKG.rglob("*.py")):
         rel = path.relative_to(PKG)
