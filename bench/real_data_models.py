@@ -10,14 +10,18 @@
    every pole, L-BFGS with an exact adjoint gradient, stability at rest as a penalty) on the last period of training
    realizations 0–2 of every level, its iteration count chosen on training realization 5.  Then fitted on all 18
    training realizations (equation error), refined for that many iterations on realizations 0–2 of every level.
-   Then widened by more nonlinear channels (``feedback_nonlinearity.add_channels``: the measured outputs as well as
-   the actuator coordinates, zero coefficients — the same model) and refined again, channel directions included
-   (``--channel-iterations``; its count chosen on training realization 5 the same way, 0 = not widened),
-   and scored on the 9 test realizations with the data set's metric
+   Then more nonlinear channels (the features on the measured outputs as well as on the actuator coordinates), two
+   ways (``--structures``; the default tries ``from_start`` against the refined elementwise model on training
+   realization 5 and keeps the better): ``widened`` — the refined model widened
+   by them (``feedback_nonlinearity.add_channels``, zero coefficients — the same model) and refined again, channel
+   directions included (``--channel-iterations``; its count chosen the same way, 0 = not widened); ``from_start`` —
+   the equation-error fit with them included (``channels='outputs'``), refined with the channel directions for up
+   to ``--oe-iterations``.  The final model, the chosen structure fitted and refined the same way on all training
+   data, is scored on the 9 test realizations with the data set's metric
    (``benchmark_nrmse_percent``: per channel, realization and period RMS(error)/std(y), averaged; pure simulation
    from the periodic steady state), next to the linear model of the same modes (the same fit without features)
    and the published NL-LFR.  Withheld amplitude: the same (fit and refinement), trained on two levels, tested on
-   the third.
+   the third (``--withheld``: which levels; fewer, or none, for a faster run).
 2. ``dbo_piezo_micromanipulator`` (one axis, 200 Hz; Y. N. Aye, W. T. Ang, ICSTSD 2018, MIT): rate-independent
    hysteresis as a Prandtl–Ishlinskii sum of play operators plus a static polynomial (saturation/asymmetry) of
    the voltage and a one-sample delay, by least squares on ``Model_Vi_Do`` and scored on ``Test_Vi_Do_Di`` (whole
@@ -25,7 +29,11 @@
    Bouc-Wen.
 
     PYTHONPATH=. PIEZO_FF_SHARED_DATA=/work/shared/data nice -n 5 .venv/bin/python bench/real_data_models.py \
-        [--only fsm|dbo] [--orders 28,32] [--oe-iterations 60] [--channel-iterations 40] [--json out.json]
+        [--only fsm|dbo] [--orders 28,32] [--oe-iterations 60] [--channel-iterations 40]
+        [--structures from_start] [--withheld 100,200,300] [--json out.json]
+
+A faster sub-run to iterate on (minutes, not the hour): ``--only fsm --orders 32 --oe-iterations 10
+--channel-iterations 5 --withheld 300`` (or ``--withheld ''``, ``--structures from_start``).
 
 Prints the tables docs/diagnosis.md quotes (data attribution: each folder's SOURCE.md).
 """
@@ -58,6 +66,13 @@ COORDINATES = ("outputs", "actuators")
 #: its iteration count (the gradient sweeps are the cost: three realizations per level keep a run within minutes)
 OE_REALIZATIONS = (0, 1, 2)
 OE_VALIDATION = 5
+#: ways of adding the nonlinear channels: the refined elementwise model widened by them, or the equation-error fit
+#: with them included from the start (then refined)
+STRUCTURES = ("widened", "from_start")
+#: tried by default: 'from_start' alone (with the refined elementwise model as the other candidate) — on training
+#: realization 5 it beat 'widened' at every level (5.56 / 5.31 / 5.60 % against 5.60 / 5.56 / 5.82 %, training data
+#: only), and the hour a full run may take has no room for both (``--structures widened,from_start`` tries both)
+DEFAULT_STRUCTURES = ("from_start",)
 
 
 def _last_periods(u_list, y_list):
@@ -94,10 +109,10 @@ def _refine_channels(start, recs, levels, realizations, iterations, validation=N
     return res
 
 
-def _refine(start, recs, levels, realizations, iterations, validation=None, label=""):
+def _refine(start, recs, levels, realizations, iterations, validation=None, label="", refine_channels=False):
     """Simulation-error refinement (``core/identification/output_error.py``) of ``start`` on the last periods of
     ``realizations`` of ``levels`` (training set), stability at rest enforced; ``validation`` realization: the
-    iteration count is chosen on it."""
+    iteration count is chosen on it; ``refine_channels``: the nonlinear channels' directions are refined too."""
     t0 = time.perf_counter()
     val = _last_periods(*_pool(recs, levels, "train", [validation])) if validation is not None else None
     train = _last_periods(*_pool(recs, levels, "train", realizations))
@@ -107,14 +122,26 @@ def _refine(start, recs, levels, realizations, iterations, validation=None, labe
         print(f"fsm {label}: the equation-error start diverges on its training records; refined from its linear "
               "part (feature coefficients zero)", flush=True)
         start = oe.linear_part(start)
-    res = oe.refine_output_error(start, *train, warmup=PERIOD, max_iterations=iterations, validation=val, every=5)
+    res = oe.refine_output_error(start, *train, warmup=PERIOD, max_iterations=iterations, validation=val, every=5,
+                                 refine_channels=refine_channels)
     h = res.history
     if not h:
         return res
-    print(f"fsm {label}: output-error refinement {h[0]['loss']:.5f} -> {h[-1]['loss']:.5f} (training loss) in "
+    print(f"fsm {label}: {start.n_channels} nonlinear channels, output-error refinement {h[0]['loss']:.5f} -> {h[-1]['loss']:.5f} (training loss) in "
           f"{int(h[-1]['iteration'])} iterations, kept iteration {res.iteration} "
           f"({time.perf_counter() - t0:.0f} s)", flush=True)
     return res
+
+
+def _fit_with_channels(u_records, y_records, order, coords):
+    """The equation-error fit with the nonlinear channels of ``_channel_directions`` included from the start (every
+    feature on the coordinates and on those channels, one least-squares fit): on actuator coordinates the measured
+    outputs (``channels='outputs'``), on the outputs their pairwise differences."""
+    p = y_records[0].shape[1]
+    channels = ("outputs" if coords == "actuators" else
+                np.array([np.eye(p)[i] - np.eye(p)[j] for i in range(p) for j in range(i + 1, p)]))
+    return fnl.identify_feedback_nonlinearity(u_records, y_records, PERIOD, 1 / FSM_FS, order, FEATURES,
+                                              coordinates=coords, channels=channels)
 
 
 def _fsm_records():
@@ -161,7 +188,15 @@ def _peaks(u_list, y_list, f_lo=600.0, f_hi=2600.0, n=4):
     return sorted(float(f[band][i]) for i in top)
 
 
-def fsm(orders, oe_iterations: int = 60, channel_iterations: int = 40) -> dict:
+def _pct(x) -> str:
+    """A percentage for the tables, '—' for a figure not computed."""
+    return "—" if x is None else f"{x:.2f} %"
+
+
+def fsm(orders, oe_iterations: int = 60, channel_iterations: int = 40, structures=DEFAULT_STRUCTURES,
+        withheld=LEVELS) -> dict:
+    """The FSM models of the module docstring; ``structures``: the channel structures tried on the training hold-out
+    (``STRUCTURES``); ``withheld``: the levels withheld in turn (fewer = a faster run)."""
     recs = _fsm_records()
     out: dict = {"order_selection": {}, "levels": {}, "withheld": {}}
     fitted = {}
@@ -192,57 +227,105 @@ def fsm(orders, oe_iterations: int = 60, channel_iterations: int = 40) -> dict:
     out["oe_selection"] = {"history": res.history, "iterations": n_oe, "validation_percent": v}
     print(f"fsm output error: iterations {n_oe} (best on training realization {OE_VALIDATION}); validation NRMSE "
           + " / ".join(f"{x:.2f}" for x in v) + " %", flush=True)
-    # 1c. the richer nonlinearity's iteration count, the same way: the refined model widened by more nonlinear
-    # channels (zero coefficients: the same model), refined, scored every 5 iterations on realization OE_VALIDATION
-    n_ch = 0
-    if channel_iterations > 0:
+    # 1c. the richer nonlinearity (several nonlinear channels: the features on the actuator coordinates and on the
+    # measured outputs), two ways, each with its iteration count chosen on realization OE_VALIDATION as above:
+    # 'widened' = the refined elementwise model widened by the channels (zero coefficients: the same model) and
+    # refined again; 'from_start' = the equation-error fit with the channels included, refined (channel directions
+    # too) for up to as many iterations as the elementwise refinement.  The structure kept is the one with the lower
+    # mean validation NRMSE (the refined elementwise model itself when no channel structure is tried).
+    candidates = {"elementwise": (float(np.mean(v)), v, n_oe)}
+    if channel_iterations > 0 and "widened" in structures:
         res_ch = _refine_channels(res.model, recs, LEVELS, OE_REALIZATIONS, channel_iterations, OE_VALIDATION,
-                                  "channels, validation run")
-        n_ch = res_ch.iteration
+                                  "widened, validation run")
         v_ch = [_score(res_ch.model, recs, L, "train", [OE_VALIDATION])[0] for L in LEVELS]
-        out["channel_selection"] = {"history": res_ch.history, "iterations": n_ch, "validation_percent": v_ch,
-                                    "n_channels": res_ch.model.n_channels}
-        print(f"fsm nonlinear channels: iterations {n_ch} (best on training realization {OE_VALIDATION}; 0 = the "
-              "elementwise model kept); validation NRMSE " + " / ".join(f"{x:.2f}" for x in v_ch) + " %", flush=True)
+        out["channel_selection"] = {"history": res_ch.history, "iterations": res_ch.iteration,
+                                    "validation_percent": v_ch, "n_channels": res_ch.model.n_channels}
+        candidates["widened"] = (float(np.mean(v_ch)), v_ch, res_ch.iteration)
+        print(f"fsm widened by nonlinear channels: iterations {res_ch.iteration} (best on training realization "
+              f"{OE_VALIDATION}; 0 = the elementwise model kept); validation NRMSE "
+              + " / ".join(f"{x:.2f}" for x in v_ch) + " %", flush=True)
+    if "from_start" in structures:
+        t0 = time.perf_counter()
+        start_ch = _fit_with_channels(*_pool(recs, LEVELS, "train", range(5)), order, coords)
+        v_eq = [_score(start_ch, recs, L, "train", [OE_VALIDATION])[0] for L in LEVELS]
+        print(f"fsm channels from the start: equation-error fit ({start_ch.n_channels} channels, "
+              f"{time.perf_counter() - t0:.0f} s), validation NRMSE " + " / ".join(f"{x:.2f}" for x in v_eq) + " %",
+              flush=True)
+        res_fs = _refine(start_ch, recs, LEVELS, OE_REALIZATIONS, oe_iterations, OE_VALIDATION,
+                         "channels from the start, validation run", refine_channels=True)
+        n_fs = max(res_fs.iteration, 1)
+        v_fs = [_score(res_fs.model, recs, L, "train", [OE_VALIDATION])[0] for L in LEVELS]
+        out["from_start_selection"] = {"history": res_fs.history, "iterations": n_fs, "validation_percent": v_fs,
+                                       "equation_error_validation_percent": v_eq,
+                                       "n_channels": res_fs.model.n_channels}
+        if all(np.isfinite(v_fs)):
+            candidates["from_start"] = (float(np.mean(v_fs)), v_fs, n_fs)
+        print(f"fsm channels from the start: iterations {n_fs} (best on training realization {OE_VALIDATION}); "
+              "validation NRMSE " + " / ".join(f"{x:.2f}" for x in v_fs) + " %", flush=True)
+    structure = min(candidates, key=lambda k: candidates[k][0])
+    n_ch = candidates[structure][2]
+    out["structure"] = {"chosen": structure, "iterations": n_ch,
+                        "validation_percent": {k: c[1] for k, c in candidates.items()}}
+    print(f"fsm structure chosen on training realization {OE_VALIDATION}: {structure} ({n_ch} iterations; mean "
+          "validation NRMSE " + ", ".join(f"{k} {c[0]:.2f} %" for k, c in candidates.items()) + ")", flush=True)
+
+    def final_model(u_fit, y_fit, levels, label, elementwise=True):
+        """The chosen structure fitted on ``u_fit, y_fit`` (equation error) and refined on ``OE_REALIZATIONS`` of
+        ``levels``: (elementwise equation-error fit or None, the refined structure's start, elementwise refined or
+        None, the model); ``elementwise=False``: the elementwise fit is skipped where the structure does not need
+        it."""
+        eq = None
+        if elementwise or structure != "from_start":
+            eq = fnl.identify_feedback_nonlinearity(u_fit, y_fit, PERIOD, 1 / FSM_FS, order, FEATURES,
+                                                    coordinates=coords)
+        if structure == "from_start":
+            start = _fit_with_channels(u_fit, y_fit, order, coords)
+            model = _refine(start, recs, levels, OE_REALIZATIONS, n_ch, None, f"channels from the start, {label}",
+                            refine_channels=True).model
+            return eq, start, None, model
+        elem = _refine(eq, recs, levels, OE_REALIZATIONS, n_oe, None, label).model
+        model = elem
+        if structure == "widened" and n_ch > 0:
+            model = _refine_channels(elem, recs, levels, OE_REALIZATIONS, n_ch, None, f"widened, {label}").model
+        return eq, eq, elem, model
+
     # 2. all training realizations of all levels; the test realizations of each level
     t0 = time.perf_counter()
     u_tr, y_tr = _pool(recs, LEVELS, "train")
-    nl = fnl.identify_feedback_nonlinearity(u_tr, y_tr, PERIOD, 1 / FSM_FS, order, FEATURES, coordinates=coords)
     lin = fnl.identify_feedback_nonlinearity(u_tr, y_tr, PERIOD, 1 / FSM_FS, order, ())
-    nl_eq = nl
-    nl = _refine(nl_eq, recs, LEVELS, OE_REALIZATIONS, n_oe, None, "all levels").model
-    nl_elem = nl
-    if n_ch > 0:
-        nl = _refine_channels(nl_elem, recs, LEVELS, OE_REALIZATIONS, n_ch, None, "channels, all levels").model
+    nl_eq, nl_start, nl_elem, nl = final_model(u_tr, y_tr, LEVELS, "all levels")
     out["small_signal_spectral_radius"] = float(np.max(np.abs(nl.small_signal_poles())))
-    print(f"fsm: fitted on all 18 training realizations, features on {coords}, order {order} "
+    print(f"fsm: fitted on all 18 training realizations, features on {coords}, order {order}, {structure} "
           f"({time.perf_counter() - t0:.0f} s); its loop "
           f"linearised at rest: largest pole magnitude {out['small_signal_spectral_radius']:.4f}")
     for L in LEVELS:
         e_nl, per_nl, sim = _score(nl, recs, L)
         e_lin, per_lin, _ = _score(lin, recs, L)
         e_ee, per_ee, _ = _score(nl_eq, recs, L)
-        e_el, per_el, _ = _score(nl_elem, recs, L)
+        e_st = _score(nl_start, recs, L)[0] if nl_start is not nl_eq else None
+        e_el, per_el = _score(nl_elem, recs, L)[:2] if nl_elem is not None else (None, None)
         u_te, y_te = recs[L]["test"]
         e_eq = fnl.benchmark_nrmse_percent(y_te, [nl.equation_error_output(u, y, warmup=PERIOD)
                                                   for u, y in zip(u_te, y_te)], PERIOD)
         row = {"equation_error_percent": e_eq, "linear_percent": e_lin, "linear_per_realization": per_lin,
-               "equation_error_fit_percent": e_ee, "elementwise_refined_percent": e_el,
-               "elementwise_refined_per_realization": per_el, "n_channels": nl.n_channels,
+               "equation_error_fit_percent": e_ee, "channels_equation_error_fit_percent": e_st,
+               "elementwise_refined_percent": e_el,
+               "elementwise_refined_per_realization": per_el, "n_channels": nl.n_channels, "structure": structure,
                "model_percent": e_nl,
                "model_per_realization": per_nl, "nllfr_percent": NLLFR_PERCENT[L],
                "bla_all_published_percent": BLA_ALL_PERCENT[L],
                "peaks_measured_hz": _peaks(u_te, y_te), "peaks_model_hz": _peaks(u_te, sim)}
         out["levels"][L] = row
         print(f"fsm {L} mV test: linear {e_lin:.2f} % -> with the feedback nonlinearity {e_ee:.2f} % (equation-error "
-              f"fit) -> {e_el:.2f} % (simulation-error refined) -> {e_nl:.2f} % ({nl.n_channels} channels) "
+              f"fit, elementwise) -> {_pct(e_st)} (equation-error fit with channels) -> {_pct(e_el)} (elementwise "
+              f"refined) -> {e_nl:.2f} % ({structure}, {nl.n_channels} channels) "
               f"(per realization {', '.join(f'{x:.2f}' for x in per_nl)}; equation error {e_eq:.2f} %; NL-LFR "
               f"{NLLFR_PERCENT[L]:.2f} %); "
               f"resonances measured {row['peaks_measured_hz']} Hz, model {row['peaks_model_hz']} Hz", flush=True)
     out["effect"] = {
         "effect": "amplitude_dependent_stiffness",
         "model": "static nonlinearity of the output fed back through the pooled BLA's modes",
-        "features": list(FEATURES), "coordinates": coords, "order": order,
+        "features": list(FEATURES), "coordinates": coords, "order": order, "structure": structure,
         "test_nrmse_percent": {L: {"linear": r["linear_percent"], "added": r["model_percent"],
                                    "nllfr": r["nllfr_percent"]} for L, r in out["levels"].items()}}
     print("fsm diagnosed effect: amplitude_dependent_stiffness (resonances soften with the level), added as a static "
@@ -251,16 +334,13 @@ def fsm(orders, oe_iterations: int = 60, channel_iterations: int = 40) -> dict:
           "test NRMSE " + ", ".join(f"{L} mV {r['linear_percent']:.2f} -> {r['model_percent']:.2f} %"
                                     for L, r in out["levels"].items()), flush=True)
     # 3. withheld amplitude: train on two levels, test on the third
-    for L in LEVELS:
+    for L in withheld:
         others = tuple(k for k in LEVELS if k != L)
         t0 = time.perf_counter()
         u2, y2 = _pool(recs, others, "train")
-        nl2_eq = fnl.identify_feedback_nonlinearity(u2, y2, PERIOD, 1 / FSM_FS, order, FEATURES, coordinates=coords)
-        rho_eq = float(np.max(np.abs(nl2_eq.small_signal_poles())))
-        nl2 = _refine(nl2_eq, recs, others, OE_REALIZATIONS, n_oe, None, f"withheld {L} mV").model
-        e_el = _score(nl2, recs, L)[0]
-        if n_ch > 0:
-            nl2 = _refine_channels(nl2, recs, others, OE_REALIZATIONS, n_ch, None, f"channels, withheld {L} mV").model
+        _, nl2_start, nl2_elem, nl2 = final_model(u2, y2, others, f"withheld {L} mV", elementwise=False)
+        rho_eq = float(np.max(np.abs(nl2_start.small_signal_poles())))
+        e_el = _score(nl2_elem, recs, L)[0] if nl2_elem is not None else None
         lin2 = fnl.identify_feedback_nonlinearity(u2, y2, PERIOD, 1 / FSM_FS, order, ())
         e_nl, per_nl, _ = _score(nl2, recs, L)
         e_lin, per_lin, _ = _score(lin2, recs, L)
@@ -269,7 +349,8 @@ def fsm(orders, oe_iterations: int = 60, channel_iterations: int = 40) -> dict:
         verdict = "amplitude_dependent_stiffness" if better_everywhere else "none"
         rho = float(np.max(np.abs(nl2.small_signal_poles())))
         row = {"trained_on_mV": list(others), "linear_percent": e_lin, "model_percent": e_nl if ok else None,
-               "elementwise_refined_percent": e_el if np.isfinite(e_el) else None, "n_channels": nl2.n_channels,
+               "elementwise_refined_percent": e_el if e_el is not None and np.isfinite(e_el) else None,
+               "n_channels": nl2.n_channels, "structure": structure,
                "linear_per_realization": per_lin, "model_per_realization": per_nl if ok else None,
                "shrink_percent": 100 * (1 - e_nl / e_lin) if ok else None, "verdict": verdict,
                "small_signal_spectral_radius": rho, "equation_error_fit_spectral_radius": rho_eq,
@@ -278,30 +359,29 @@ def fsm(orders, oe_iterations: int = 60, channel_iterations: int = 40) -> dict:
         what = (f"model {e_nl:.2f} % (shrink {row['shrink_percent']:.0f} %)" if ok else
                 f"model DIVERGES (its loop linearised at rest has a pole of magnitude {rho:.4f})")
         print(f"fsm withheld {L} mV (trained on {others}): linear {e_lin:.2f} % -> {what}, verdict {verdict} "
-              f"(pole magnitude at rest: equation-error fit {rho_eq:.4f}, refined {rho:.4f})",
-              flush=True)
+              f"(pole magnitude at rest: equation-error fit {rho_eq:.4f}, refined {rho:.4f}; "
+              f"{time.perf_counter() - t0:.0f} s)", flush=True)
     out["seconds"] = time.perf_counter() - t_all
     print("\n| level | linear, same modes (all levels) | + static nonlinearity in feedback, equation error | "
-          "+ simulation-error refinement | + nonlinear channels (refined) | NL-LFR | single BLA (published) | "
-          "resonances measured → model [Hz] |")
-    print("|---|---|---|---|---|---|---|---|")
+          "+ nonlinear channels, equation error | + simulation-error refinement (elementwise) | "
+          f"chosen: {structure}, refined | NL-LFR | single BLA (published) | resonances measured → model [Hz] |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for L, r in out["levels"].items():
         print(f"| {L} mV | {r['linear_percent']:.2f} % | {r['equation_error_fit_percent']:.2f} % | "
-              f"{r['elementwise_refined_percent']:.2f} % | "
+              f"{_pct(r['channels_equation_error_fit_percent'])} | {_pct(r['elementwise_refined_percent'])} | "
               f"**{r['model_percent']:.2f} %** ({r['n_channels']} ch.) | {r['nllfr_percent']:.2f} % | "
               f"{r['bla_all_published_percent']:.2f} % | {', '.join(f'{x:.0f}' for x in r['peaks_measured_hz'])} → "
               f"{', '.join(f'{x:.0f}' for x in r['peaks_model_hz'])} |")
-    print("\n| withheld | trained on | linear | + nonlinearity (refined, elementwise) | + nonlinear channels | shrink | "
-          "verdict (better on all 3 test realizations) | pole magnitude at rest, equation error → refined |")
+    print("\n| withheld | trained on | linear | + nonlinearity (refined, elementwise) | chosen structure, refined | "
+          "shrink | verdict (better on all 3 test realizations) | pole magnitude at rest, equation error → refined |")
     print("|---|---|---|---|---|---|---|---|")
     for L, r in out["withheld"].items():
         sh = "—" if r["shrink_percent"] is None else f"{r['shrink_percent']:.0f} %"
         mp = (f"{r['model_percent']:.2f} %" if r["model_percent"] is not None else
               f"diverges (pole {r['small_signal_spectral_radius']:.4f} at rest)")
-        el = "—" if r["elementwise_refined_percent"] is None else f"{r['elementwise_refined_percent']:.2f} %"
         print(f"| {L} mV | {' + '.join(str(k) for k in r['trained_on_mV'])} mV | {r['linear_percent']:.2f} % | "
-              f"{el} | {mp} ({r['n_channels']} ch.) | {sh} | `{r['verdict']}` | {r['equation_error_fit_spectral_radius']:.4f} → "
-              f"{r['small_signal_spectral_radius']:.4f} |")
+              f"{_pct(r['elementwise_refined_percent'])} | {mp} ({r['n_channels']} ch.) | {sh} | `{r['verdict']}` | "
+              f"{r['equation_error_fit_spectral_radius']:.4f} → {r['small_signal_spectral_radius']:.4f} |")
     return out
 
 
@@ -314,12 +394,26 @@ def main(argv=None) -> int:
     ap.add_argument("--channel-iterations", type=int, default=40,
                     help="FSM: most iterations of the refinement with added nonlinear channels, tried on the training "
                          "hold-out (default 40; 0 = elementwise model only)")
+    ap.add_argument("--structures", default=",".join(DEFAULT_STRUCTURES),
+                    help="FSM: channel structures tried on the training hold-out, comma-separated among "
+                         f"{', '.join(STRUCTURES)} (default {','.join(DEFAULT_STRUCTURES)}; empty = elementwise "
+                         "model only)")
+    ap.add_argument("--withheld", default=",".join(str(L) for L in LEVELS),
+                    help="FSM: levels withheld in turn (default 100,200,300; empty = none: a faster run)")
     ap.add_argument("--json", help="write the findings")
     a = ap.parse_args(argv)
     out = {}
     try:
         if a.only in (None, "fsm"):
-            out["fsm"] = fsm([int(x) for x in a.orders.split(",")], a.oe_iterations, a.channel_iterations)
+            structures = tuple(x for x in a.structures.split(",") if x)
+            withheld = tuple(int(x) for x in a.withheld.split(",") if x)
+            bad = [x for x in structures if x not in STRUCTURES] + [str(L) for L in withheld if L not in LEVELS]
+            if bad:
+                print(f"unknown structure or level: {', '.join(bad)} (structures: {', '.join(STRUCTURES)}; levels: "
+                      f"{', '.join(str(L) for L in LEVELS)})", file=sys.stderr)
+                return 2
+            out["fsm"] = fsm([int(x) for x in a.orders.split(",")], a.oe_iterations, a.channel_iterations,
+                             structures, withheld)
         if a.only in (None, "dbo"):
             out["dbo"] = dbo()
     except FileNotFoundError as exc:

@@ -319,7 +319,7 @@ def periodic_records(u: np.ndarray, y: np.ndarray) -> tuple[list[np.ndarray], li
 
 def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: Sequence[np.ndarray], period: int,
                                    dt: float, order: int, features: Sequence[str] = ("lin", "abs2", "cube"),
-                                   coordinates: str = "outputs", channels: np.ndarray | None = None
+                                   coordinates: str = "outputs", channels: np.ndarray | str | None = None
                                    ) -> FeedbackNonlinearModel:
     """Identify the model of the module docstring from periodic records.
 
@@ -341,10 +341,12 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
         ``G(0)⁻¹·y`` — the output mapped back through the static gain of the best linear approximation (its lowest
         five excited bins, real part), i.e. in volts of the actuator that would produce it statically: where a piezo
         stack's own stiffness nonlinearity lives.
-    channels : ndarray, optional
+    channels : ndarray or 'outputs', optional
         ``[k, p]``: more nonlinear channels, each a combination of the coordinates above (as in
         :func:`add_channels`, rescaled to unit RMS over the records), fed through every feature besides the
-        coordinates themselves.
+        coordinates themselves.  ``'outputs'`` (with ``coordinates='actuators'``): the measured outputs themselves
+        (the rows of the static gain that maps the actuator coordinates back to them), so the features act in both
+        coordinate systems at once — one fit, the gain computed once.
 
     Returns
     -------
@@ -358,6 +360,9 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
     features = tuple(features)
     if coordinates not in ("outputs", "actuators"):
         raise ValueError(f"coordinates {coordinates!r}: expected 'outputs' or 'actuators'")
+    if isinstance(channels, str) and (channels != "outputs" or coordinates != "actuators"):
+        raise ValueError(f"feedback nonlinearity: channels={channels!r} needs coordinates='actuators' (the measured "
+                         "outputs as channels) or an array of directions")
     _features(np.zeros((1, 1)), np.zeros((1, 1)), features)          # names checked before any work
     if not u_records or len(u_records) != len(y_records):
         raise ValueError("feedback nonlinearity: expected as many output records as input records (≥ 1)")
@@ -385,6 +390,9 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
     z_scale = np.sqrt(np.mean(np.vstack([y - y.mean(0) for y in ys]) ** 2, axis=0))
     v_scale = np.sqrt(np.mean(np.vstack([np.diff(y, axis=0) for y in ys]) ** 2, axis=0)) / z_scale
     channel_map = None
+    if isinstance(channels, str):
+        assert output_map is not None
+        channels = output_map                  # y = y'·output_mapᵀ: each measured output, a row
     if channels is not None:
         d = np.atleast_2d(np.asarray(channels, float))
         if d.shape[1] != p:
