@@ -118,14 +118,19 @@ def _none(j: _Judged, sigma2: float) -> _Verdict:
     else:
         real = [s for s in sig if not s.extra.get("timing_artefact", False)]
         most = max([s.extra.get("excess_shrink", 0.0) for s in real] + [0.0])
+        above = sig[0].extra.get("gap_above_floor", True)
+        of_what = "of the gap above the white-noise floor" if above else \
+            "of the held-out residual (it is not above the white-noise floor estimate)"
         why = (f"models fitted on TRAIN repeat a sliver of the held-out residual beyond noise (largest z = "
                f"{zmax:.3g}, threshold {zc:.2f}) but none a material part of the gap: at most "
-               f"{100 * most:.0f} % of the gap above the white-noise floor (naming an effect, or calling the gap "
-               f"unexplained, needs {100 * MIN_EXCESS_SHRINK:.0f} %)")
+               f"{100 * most:.0f} % {of_what} (naming an effect, or calling the gap unexplained, needs "
+               f"{100 * MIN_EXCESS_SHRINK:.0f} %)")
         artefacts = [s.fit.effect for s in sig if s.extra.get("timing_artefact", False)]
         if artefacts:
-            why += (f"; {', '.join(artefacts)} improve the held-out fit only at their own timing convention (their "
-                    "held-out residual at the recorded timing grows): not counted")
+            one = len(artefacts) == 1
+            why += (f"; {', '.join(artefacts)} {'improves' if one else 'improve'} the held-out fit only at "
+                    f"{'its' if one else 'their'} own timing convention (at the nominal model's convention "
+                    f"{'its' if one else 'their'} held-out residual grows): not counted")
     tau = _timing_offset(held)
     if tau is not None:
         why += (f"; the held-out gap is taken at the nominal model's own timing convention: a DAC-edge / ADC-sampling "
