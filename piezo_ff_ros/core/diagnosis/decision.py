@@ -12,9 +12,13 @@ Decision rule (:mod:`.stats` states the test):
   were noise of the measured spectrum (white, coloured or quantised alike); significant above the one-sided
   Bonferroni threshold at family-wise α = 1 %;
 * a candidate is **accepted** when it is significant and removes at least :data:`MIN_SHARE` of the explainable
-  held-out gap (the largest drop any model achieves, the flexible one included); the verdict is the best accepted
-  candidate (ranked by held-out residual energy plus a small complexity penalty);
-* nothing accepted but something significant → ``unexplained`` (the gap is reproducible, no candidate names it);
+  held-out gap (the largest drop any model achieves, the flexible one included), at least :data:`MIN_EXCESS_SHRINK`
+  of the gap above the white-noise floor (of the whole residual when it is not above that floor), and is no timing
+  artefact (:func:`_timing_artefact`: at the nominal model's timing convention its residual does not grow); the
+  verdict is the best accepted candidate (ranked by held-out residual energy plus a small complexity penalty);
+* nothing accepted but some significant model, no timing artefact, takes at least :data:`MIN_EXCESS_SHRINK` of the gap
+  above the floor → ``unexplained`` (the gap is reproducible, no candidate names it); a significant sliver alone is
+  ``none``;
   nothing significant → ``none``;
 * a runner-up whose held-out residual is not significantly worse than the verdict's (paired z < :data:`TIE_Z`)
   makes the verdict ambiguous: confidence ``low`` and a proposed discrimination experiment (:mod:`.discriminate`).
