@@ -12,9 +12,13 @@ Decision rule (:mod:`.stats` states the test):
   were noise of the measured spectrum (white, coloured or quantised alike); significant above the one-sided
   Bonferroni threshold at family-wise α = 1 %;
 * a candidate is **accepted** when it is significant and removes at least :data:`MIN_SHARE` of the explainable
-  held-out gap (the largest drop any model achieves, the flexible one included); the verdict is the best accepted
-  candidate (ranked by held-out residual energy plus a small complexity penalty);
-* nothing accepted but something significant → ``unexplained`` (the gap is reproducible, no candidate names it);
+  held-out gap (the largest drop any model achieves, the flexible one included), at least :data:`MIN_EXCESS_SHRINK`
+  of the gap above the white-noise floor (of the whole residual when it is not above that floor), and is no timing
+  artefact (:func:`_timing_artefact`: at the nominal model's timing convention its residual does not grow); the
+  verdict is the best accepted candidate (ranked by held-out residual energy plus a small complexity penalty);
+* nothing accepted but some significant model, no timing artefact, takes at least :data:`MIN_EXCESS_SHRINK` of the gap
+  above the floor → ``unexplained`` (the gap is reproducible, no candidate names it); a significant sliver alone is
+  ``none``;
   nothing significant → ``none``;
 * a runner-up whose held-out residual is not significantly worse than the verdict's (paired z < :data:`TIE_Z`)
   makes the verdict ambiguous: confidence ``low`` and a proposed discrimination experiment (:mod:`.discriminate`).
@@ -112,8 +116,12 @@ class _Held:
         return align_timing(r, self.timing)
 
     def score(self, effects: _Effects) -> np.ndarray:
-        return self.align(residual(self.target, simulate(self.cfg, self.run.u, self.base + list(effects),
-                                                         self.windows)))
+        return self.align(self.score_raw(effects))
+
+    def score_raw(self, effects: _Effects) -> np.ndarray:
+        """The held-out residual with ``effects`` added, at the recorded timing (not aligned): what the reported
+        held-out NRMSE measures."""
+        return residual(self.target, simulate(self.cfg, self.run.u, self.base + list(effects), self.windows))
 
 
 #: the largest sub-sample timing offset between the record's voltages and displacements that is a convention of the
@@ -174,11 +182,35 @@ def align_timing(r: np.ndarray, direction: np.ndarray,
 
 
 def _evaluate(fit: FitResult, held: _Held, t0: float) -> Scored:
-    r_after = held.score(fit.effects)
+    r_raw_after = held.score_raw(fit.effects)
+    r_after = held.align(r_raw_after)
     sse_b = float(np.sum(held.r_before ** 2))
     sse_a = float(np.sum(r_after ** 2))
     return Scored(fit, sse_b, sse_a, 0.0, held.nrmse(held.r_before), held.nrmse(r_after), False,
-                   time.perf_counter() - t0, {"r_after": r_after})
+                   time.perf_counter() - t0, {"r_after": r_after, "r_raw_after": r_raw_after})
+
+
+def _timing_artefact(s: Scored, held: Any) -> bool:
+    """Whether the held-out improvement of ``s`` exists only at its own timing convention: its held-out residual
+    taken at the nominal model's convention (the offset fitted under H0, a property of the recording) is larger
+    than the nominal model's.
+
+    The timing convention is a nuisance of H0 (bounded to ±:data:`TIMING_CONVENTION_SAMPLES`), fitted on the
+    nominal model's held-out residual.  Each model's residual is also scored at its own best convention; a model
+    that beats the nominal model only there — whose change of the replay, added at the recording's convention,
+    moves the replay away from the measurement — has had the nuisance take back what it got wrong (a roll-off
+    fitted at its bound far above the sample rate only shifts the held edges, for one).  It is never accepted and
+    is no evidence of a reproducible gap.  A real effect, fitted on TRAIN at the nominal model's convention, lowers
+    the residual at that convention as well.  (Not the residual at the recorded timing: when the recording's
+    convention differs from the nominal model's, that residual is dominated by the offset, and the cross term of a
+    real effect's correction with it can have either sign.)"""
+    r_raw, r_before = getattr(held, "r_raw", None), getattr(held, "r_before", None)
+    r_raw_after = s.extra.get("r_raw_after")
+    if r_raw is None or r_before is None or r_raw_after is None:
+        return False
+    at_nominal_convention = np.asarray(r_before, float) - (np.asarray(r_raw, float) - np.asarray(r_raw_after, float))
+    s.extra["sse_after_at_nominal_convention"] = float(np.sum(at_nominal_convention ** 2))
+    return bool(s.extra["sse_after_at_nominal_convention"] > float(np.sum(np.asarray(r_before, float) ** 2)))
 
 
 def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: float, zc: float) -> "stats.NoisePSD":
@@ -194,15 +226,22 @@ def _judge(scored: list[Scored], flex: "Scored | None", held: _Held, sigma2: flo
     explainable = max([s.extra["delta"] for s in pool] + [0.0])
     N = held.r_before.size
     ratio = n_eff_ratio(r_best)
-    excess = max(float(np.sum(held.r_before ** 2)) - N * sigma2, 1e-300)
+    sse_before = float(np.sum(held.r_before ** 2))
+    above = sse_before > N * sigma2
+    # the gap above the white-noise floor; when the residual is not above that floor (a high-frequency effect can
+    # raise the estimate, or there is no gap), the floor is unknown somewhere in [0, floor]: the gap is then at most
+    # the whole residual energy, and a share of it is measured against that bound — the smallest share the model
+    # can have of the true gap, so that a model is credited only with what it takes whatever the true floor is
+    excess = sse_before - N * sigma2 if above else max(sse_before, 1e-300)
     for s in pool:
         s.extra["excess_shrink"] = s.extra["delta"] / excess
-        s.extra["gap_above_floor"] = excess > 1e-300      # else the share above the floor is no measure of it
+        s.extra["gap_above_floor"] = above                # else the share above the floor is no measure of it
+        s.extra["timing_artefact"] = _timing_artefact(s, held)
     for s in scored:
         s.extra["share"] = s.extra["delta"] / explainable if explainable > 0 else 0.0
         s.penalty = s.fit.n_params * math.log(max(N / ratio, 2.0)) * sigma2 * ratio
         s.accepted = bool(_significant(s, zc) and s.extra["share"] >= MIN_SHARE
-                          and s.extra["excess_shrink"] >= MIN_EXCESS_SHRINK)
+                          and s.extra["excess_shrink"] >= MIN_EXCESS_SHRINK and not s.extra["timing_artefact"])
     scored.sort(key=lambda s: s.sse_after + s.penalty)
     # a richer candidate that nests a simpler one must beat it clearly on held-out data to rank above it: by a paired
     # z, by RICHER_MIN_GAIN of the residual energy, and by GENERIC_MIN_EXTRA of the gap above the white-noise floor
@@ -338,11 +377,12 @@ def _fit_flexible(cfg: PiezoConfig, train: RunData, y_train_nom: np.ndarray, hel
     except (ValueError, np.linalg.LinAlgError) as exc:
         log(f"  flexible model failed ({exc})")
         return None
-    r_after = held.align(residual(held.r_raw, d))
+    r_raw_after = residual(held.r_raw, d)
+    r_after = held.align(r_raw_after)
     fit = FitResult("flexible", {}, {}, [], fm.n_features * cfg.n_axes, float("nan"))
     s = Scored(fit, float(np.sum(held.r_before ** 2)), float(np.sum(r_after ** 2)), 0.0,
                 held.nrmse(held.r_before), held.nrmse(r_after), False, time.perf_counter() - t0,
-                {"r_after": r_after, "ridge": fm.ridge})
+                {"r_after": r_after, "ridge": fm.ridge, "r_raw_after": r_raw_after})
     log(f"  {'(flexible reference model)':28s} held-out {s.before_nrmse:7.3f} % -> {s.after_nrmse:7.3f} %  "
         f"({s.seconds:.1f} s, {fm.n_features} features per output)")
     return s
