@@ -23,6 +23,7 @@ from .hysteresis import (BranchEvenTerm, HysteresisStage, LoopShapeTerm, PlayWid
                          RelaxedHysteresisStage, VelocityTerm, asymmetric_hysteresis_config)
 from .modes import AmplitudeDependentDynamics, BaseExcitedNonlinearMode, CubicAmplitudeDynamics, UnmodelledMode
 from .saturation import SoftSaturation
+from .slew import AsymmetricSlewLimit
 from .voltage import (AllPassDelay, AmplifierBandwidth, AmplifierSaturation, AmplifierSlewLimit, AsymmetricSaturation,
                       InputDelay)
 
@@ -82,8 +83,10 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                "delay between the commanded and the acting voltage: pure (interpolated), or all-pass (form "
                "'allpass': 2nd-order Padé, unit gain, the phase lag of the delay)",
                "residual ∝ −delay·dŶ/dt: phase lag growing linearly with frequency"),
-    EffectSpec("amplifier_slew_limit", "pre", {"rate": ("V/s", False)},
-               "amplifier slew-rate limit", "error concentrated where |dU/dt| is large (steps, fast ramps)"),
+    EffectSpec("amplifier_slew_limit", "pre", {"rate": ("V/s", False), "rate_down": ("V/s", False)},
+               "amplifier slew-rate limit (``rate``; with ``rate_down`` the falling voltage has its own: a driver "
+               "that sources and sinks different currents)",
+               "error concentrated where |dU/dt| is large (steps, fast ramps)"),
     EffectSpec("amplifier_saturation", "pre", {"limit": ("V", False), "lower_limit": ("V", False),
                                                "sharpness": ("-", False)},
                "amplifier output rails clip the voltage (hard, or a soft knee v/(1 + (|v|/L)^p)^(1/p) per rail)",
@@ -123,6 +126,8 @@ def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
             raise ValueError(f"input_delay.form: must be 'pure' or 'allpass', got {form!r}")
         return InputDelay(p["delay"], dt, n)
     if name == "amplifier_slew_limit":
+        if p.get("rate_down") is not None:
+            return AsymmetricSlewLimit(p["rate"], p["rate_down"], dt, n)
         return AmplifierSlewLimit(p["rate"], dt, n)
     if name == "amplifier_saturation":
         if p.get("sharpness") is not None:
