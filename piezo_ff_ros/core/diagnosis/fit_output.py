@@ -165,8 +165,10 @@ def _creep_spectrum(r0: np.ndarray, O1: np.ndarray, O2: np.ndarray,
 
 def fit_creep_nonlinearity(ctx: FitContext) -> FitResult:
     """The level-dependent creep law: γ per axis and a shared β, by regression on the relaxation bank applied to
-    Ŷ and to Ŷ|Ŷ|/Y_ref (the log-time law); then the relaxation spectrum (a weight per decade and axis, any linear
-    creep law), kept when it earns its parameters on TRAIN (:data:`CREEP_SPECTRUM_MIN_GAIN`)."""
+    Ŷ and to Ŷ|Ŷ|/Y_ref (the log-time law); then one Kelvin–Voigt element of free retardation time fed by Ŷ and
+    Ŷ|Ŷ|/Y_ref (:func:`_kelvin_voigt_creep`: a creep that saturates within the record, growing with the level);
+    then the relaxation spectrum (a weight per decade and axis, any linear creep law).  Each richer form is kept
+    when it earns its parameters on TRAIN (:data:`CREEP_SPECTRUM_MIN_GAIN` below the best simpler form)."""
     k = _stride(len(ctx.y))
     r0 = residual(ctx.y[::k], ctx.y_base[::k])
     taus = np.asarray(fx.CREEP_TAUS, float)
