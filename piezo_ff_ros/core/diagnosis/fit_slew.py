@@ -32,7 +32,7 @@ SLEW_ASYM_MIN_GAIN = RAIL_MIN_GAIN
 SLEW_SPAN = 50.0
 #: points of the log grid of one rate (the coarse grid of the pair has SLEW_GRID_PAIR per direction)
 SLEW_GRID = 14
-SLEW_GRID_PAIR = 7
+SLEW_GRID_PAIR = 5
 
 
 def _rate_bounds(ctx: FitContext) -> tuple[float, float]:
