@@ -24,6 +24,7 @@ from .fit_modes import (MAX_MODES, MODE_FMIN, MODE_MIN_GAIN, MODE_ZMAX, Mode, fi
                         fit_unmodelled_mode)
 from .fit_output import fit_creep_nonlinearity, fit_gain_mismatch, fit_thermal_drift
 from .fit_saturation import fit_amplifier_saturation_any
+from .fit_slew import fit_amplifier_slew_limit_any
 from .fit_voltage import (RAIL_MIN_GAIN, fit_amplifier_bandwidth, fit_amplifier_saturation, fit_amplifier_slew_limit,
                           fit_input_delay)
 
@@ -42,7 +43,7 @@ CANDIDATES: dict[str, Callable[[FitContext], FitResult]] = {
     "creep_nonlinearity": fit_creep_nonlinearity,
     "thermal_drift": fit_thermal_drift,
     "input_delay": fit_input_delay,
-    "amplifier_slew_limit": fit_amplifier_slew_limit,
+    "amplifier_slew_limit": fit_amplifier_slew_limit_any,   # one rate, or a rate per direction
     "amplifier_saturation": fit_amplifier_saturation_any,   # hard clip, or a soft knee per rail
     "amplifier_bandwidth": fit_amplifier_bandwidth,
     "unmodelled_mode": fit_unmodelled_mode,

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import optimize
+from scipy import optimize, signal
 
 from .._jit import njit
 from ..models import effects as fx
@@ -165,8 +165,10 @@ def _creep_spectrum(r0: np.ndarray, O1: np.ndarray, O2: np.ndarray,
 
 def fit_creep_nonlinearity(ctx: FitContext) -> FitResult:
     """The level-dependent creep law: γ per axis and a shared β, by regression on the relaxation bank applied to
-    Ŷ and to Ŷ|Ŷ|/Y_ref (the log-time law); then the relaxation spectrum (a weight per decade and axis, any linear
-    creep law), kept when it earns its parameters on TRAIN (:data:`CREEP_SPECTRUM_MIN_GAIN`)."""
+    Ŷ and to Ŷ|Ŷ|/Y_ref (the log-time law); then one Kelvin–Voigt element of free retardation time fed by Ŷ and
+    Ŷ|Ŷ|/Y_ref (:func:`_kelvin_voigt_creep`: a creep that saturates within the record, growing with the level);
+    then the relaxation spectrum (a weight per decade and axis, any linear creep law).  Each richer form is kept
+    when it earns its parameters on TRAIN (:data:`CREEP_SPECTRUM_MIN_GAIN` below the best simpler form)."""
     k = _stride(len(ctx.y))
     r0 = residual(ctx.y[::k], ctx.y_base[::k])
     taus = np.asarray(fx.CREEP_TAUS, float)
@@ -181,8 +183,16 @@ def fit_creep_nonlinearity(ctx: FitContext) -> FitResult:
     gamma, beta, res, Sb = _creep_at(r0, S1, S2)
     n = ctx.cfg.n_axes
     sse_log = float(np.sum(res ** 2))
+    # the forms in order of their parameter count, each richer one kept only when it earns its parameters on TRAIN
+    # (CREEP_SPECTRUM_MIN_GAIN below the best simpler form's residual energy)
+    kv = _kelvin_voigt_creep(ctx, r0, k)
+    sse_best = sse_log
+    if kv is not None and kv.train_rms ** 2 * r0.size < (1 - CREEP_SPECTRUM_MIN_GAIN) * sse_best:
+        sse_best = kv.train_rms ** 2 * r0.size
+    else:
+        kv = None
     w, (beta_s, beta_e), res_s, jac_s = _creep_spectrum(r0, O1, O2, O3)
-    if float(np.sum(res_s ** 2)) < (1 - CREEP_SPECTRUM_MIN_GAIN) * sse_log:
+    if float(np.sum(res_s ** 2)) < (1 - CREEP_SPECTRUM_MIN_GAIN) * sse_best:
         # γ_i: the mean weight (the log law's γ when the spectrum is flat); the spectrum relative to it
         g = w.mean(axis=0)
         g = np.where(np.abs(g) > 1e-12, g, 1.0)
@@ -192,6 +202,8 @@ def fit_creep_nonlinearity(ctx: FitContext) -> FitResult:
         return FitResult("creep_nonlinearity", params, stderr, [("creep_nonlinearity", params)],
                          w.size + 2, _rms(res_s),
                          note="relaxation spectrum per decade " + ", ".join(f"{t:g} s" for t in taus))
+    if kv is not None:
+        return kv
     cols = []
     for i in range(n):
         col = np.zeros_like(r0)
@@ -203,6 +215,70 @@ def fit_creep_nonlinearity(ctx: FitContext) -> FitResult:
     params = {"gamma": gamma.tolist(), "beta": beta}
     return FitResult("creep_nonlinearity", params, {"gamma": se[:n].tolist(), "beta": float(se[n])},
                      [("creep_nonlinearity", params)], n + 1, _rms(res))
+
+
+#: the Kelvin–Voigt creep's retardation time is searched between KV_TAU_MIN [s] (or KV_TAU_MIN_SAMPLES samples, the
+#: longer) and the training record's duration: a relaxation slower than the record is a ramp over it, its time
+#: constant not measured
+KV_TAU_MIN = 0.01
+KV_TAU_MIN_SAMPLES = 20
+KV_GRID = 13
+
+
+def _kv_regs(y: np.ndarray, tau: float, dt: float) -> list[np.ndarray]:
+    """The Kelvin–Voigt creep's regressors: the unit-DC relaxation of Ŷ and of Ŷ|Ŷ|/Y_ref, from rest."""
+    a = math.exp(-dt / tau)
+    b, den = [1.0 - a], [1.0, -a]
+    return [signal.lfilter(b, den, y, axis=0), signal.lfilter(b, den, y * np.abs(y) / fx.CREEP_YREF, axis=0)]
+
+
+def _kelvin_voigt_creep(ctx: FitContext, r0: np.ndarray, k: int) -> FitResult | None:
+    """One Kelvin–Voigt creep element (:class:`~..models.effects.creep_kv.KelvinVoigtCreep`): its retardation time
+    on a log grid and a bounded refinement (the gains are linear given it: closed-form energy, the search on a
+    thinned copy of a long run), the gains per axis by regression on every kept row.  ``None`` on a run too short
+    for the grid."""
+    dt = ctx.dt
+    T = len(ctx.y) * dt
+    lo, hi = max(KV_TAU_MIN, KV_TAU_MIN_SAMPLES * dt), T
+    if not hi > 2 * lo:
+        return None
+    q = max(1, -(-len(ctx.y) // _DRIFT_SEARCH_ROWS))
+    yq = np.ascontiguousarray(ctx.y_base[::q], dtype=float)
+    rq = residual(ctx.y[::q], ctx.y_base[::q])
+
+    def sse(z: float) -> float:
+        return _lin_sse(rq, _kv_regs(yq, math.exp(z), dt * q))
+
+    grid = np.linspace(math.log(lo), math.log(hi), KV_GRID)
+    vals = [sse(z) for z in grid]
+    j = int(np.argmin(vals))
+    a, b = grid[max(j - 1, 0)], grid[min(j + 1, len(grid) - 1)]
+    z = float(optimize.minimize_scalar(sse, bounds=(a, b), method="bounded", options={"xatol": 1e-3}).x)
+    if sse(z) > vals[j]:
+        z = float(grid[j])
+    tau = math.exp(z)
+    y = np.ascontiguousarray(ctx.y_base, dtype=float)
+    R = [g[::k] for g in _kv_regs(y, tau, dt)]
+    coef, res, _ = _lin_per_axis(r0, R)
+    n = r0.shape[1]
+    # Jacobian over (a_1..a_n, b_1..b_n, log τ) for the standard errors
+    h = 1e-3
+    Rp = [g[::k] for g in _kv_regs(y, tau * math.exp(h), dt)]
+    Rm = [g[::k] for g in _kv_regs(y, tau * math.exp(-h), dt)]
+    cols = []
+    for m in range(2):
+        for i in range(n):
+            col = np.zeros_like(r0)
+            col[:, i] = -(R[m][:, i] - R[m][:, i].mean())
+            cols.append(col.reshape(-1))
+    dF = sum(coef[m] * (Rp[m] - Rm[m]) / (2 * h) for m in range(2))
+    cols.append((-(dF - dF.mean(axis=0))).reshape(-1))
+    se = _stderr(np.column_stack(cols), res)
+    params = {"retardation": tau, "kv_gains": coef[0].tolist(), "kv_level_gains": coef[1].tolist()}
+    stderr = {"retardation": float(se[-1] * tau), "kv_gains": se[:n].tolist(), "kv_level_gains": se[n:2 * n].tolist()}
+    return FitResult("creep_nonlinearity", params, stderr, [("creep_nonlinearity", params)], 2 * n + 1, _rms(res),
+                     note=f"one Kelvin–Voigt element, retardation time {tau:.3g} s, fed by the level and its "
+                          "signed square")
 
 
 def fit_thermal_drift(ctx: FitContext) -> FitResult:

@@ -18,11 +18,13 @@ from ...config import PiezoConfig
 from ...stage import Processor
 from ..plant import Plant
 from .common import LEVEL_REF, LEVEL_TAU, RATE_REF
+from .creep_kv import KelvinVoigtCreep
 from .displacement import CreepNonlinearity, GainMismatch, ThermalDrift
 from .hysteresis import (BranchEvenTerm, HysteresisStage, LoopShapeTerm, PlayWidthTerm, RatePlayTerm, RelayPlaneTerm,
                          RelaxedHysteresisStage, VelocityTerm, asymmetric_hysteresis_config)
 from .modes import AmplitudeDependentDynamics, BaseExcitedNonlinearMode, CubicAmplitudeDynamics, UnmodelledMode
 from .saturation import SoftSaturation
+from .slew import AsymmetricSlewLimit
 from .voltage import (AllPassDelay, AmplifierBandwidth, AmplifierSaturation, AmplifierSlewLimit, AsymmetricSaturation,
                       InputDelay)
 
@@ -69,9 +71,12 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                "play widths growing with the rate (rate-dependent Prandtl-Ishlinskii thresholds)",
                "loop-width error grows with frequency (error correlates with sign(dU/dt)·|dU/dt|)"),
     EffectSpec("creep_nonlinearity", "post", {"gamma": ("-", True), "beta": ("-", False),
-                                              "beta_even": ("-", False), "spectrum": ("-", True)},
+                                              "beta_even": ("-", False), "spectrum": ("-", True),
+                                              "retardation": ("s", False), "kv_gains": ("-", True),
+                                              "kv_level_gains": ("-", True)},
                "creep growing with the level (γ per decade, β at 10 µm), logarithmic in time or, with a relaxation "
-               "spectrum (Prony series over the decades), any linear creep law",
+               "spectrum (Prony series over the decades), any linear creep law; or one Kelvin–Voigt element of "
+               "free retardation time fed by the level and its signed square (``retardation``)",
                "slow residual after level changes, linear in log-time"),
     EffectSpec("thermal_drift", "post", {"amplitudes": ("m", True), "time_constant": ("s", False),
                                         "amplitudes2": ("m", True), "time_constant2": ("s", False),
@@ -82,8 +87,10 @@ EFFECTS: dict[str, EffectSpec] = {s.name: s for s in [
                "delay between the commanded and the acting voltage: pure (interpolated), or all-pass (form "
                "'allpass': 2nd-order Padé, unit gain, the phase lag of the delay)",
                "residual ∝ −delay·dŶ/dt: phase lag growing linearly with frequency"),
-    EffectSpec("amplifier_slew_limit", "pre", {"rate": ("V/s", False)},
-               "amplifier slew-rate limit", "error concentrated where |dU/dt| is large (steps, fast ramps)"),
+    EffectSpec("amplifier_slew_limit", "pre", {"rate": ("V/s", False), "rate_down": ("V/s", False)},
+               "amplifier slew-rate limit (``rate``; with ``rate_down`` the falling voltage has its own: a driver "
+               "that sources and sinks different currents)",
+               "error concentrated where |dU/dt| is large (steps, fast ramps)"),
     EffectSpec("amplifier_saturation", "pre", {"limit": ("V", False), "lower_limit": ("V", False),
                                                "sharpness": ("-", False)},
                "amplifier output rails clip the voltage (hard, or a soft knee v/(1 + (|v|/L)^p)^(1/p) per rail)",
@@ -123,6 +130,8 @@ def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
             raise ValueError(f"input_delay.form: must be 'pure' or 'allpass', got {form!r}")
         return InputDelay(p["delay"], dt, n)
     if name == "amplifier_slew_limit":
+        if p.get("rate_down") is not None:
+            return AsymmetricSlewLimit(p["rate"], p["rate_down"], dt, n)
         return AmplifierSlewLimit(p["rate"], dt, n)
     if name == "amplifier_saturation":
         if p.get("sharpness") is not None:
@@ -139,6 +148,8 @@ def _stage(name: str, p: Mapping[str, Any], cfg: PiezoConfig) -> Processor:
         return ThermalDrift(p["amplitudes"], p["time_constant"], dt, n, p.get("amplitudes2"), p.get("time_constant2"),
                             p.get("gain_drift"), p.get("gain_drift2"))
     if name == "creep_nonlinearity":
+        if p.get("retardation") is not None:
+            return KelvinVoigtCreep(p["retardation"], p["kv_gains"], p["kv_level_gains"], dt, n)
         return CreepNonlinearity(p["gamma"], p.get("beta", 0.0), dt, n, spectrum=p.get("spectrum"),
                                  beta_even=float(p.get("beta_even", 0.0)))
     if name == "unmodelled_mode":
