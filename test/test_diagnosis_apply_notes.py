@@ -33,3 +33,14 @@ def test_an_added_loop_of_another_form_is_not_claimed_as_compensated(cfg, extra)
     (note,) = notes
     assert "Δ1/Δ2 added" not in note
     assert "no compensator" in note and "hysteresis config unchanged" in note
+
+
+def test_a_slew_limit_measured_per_direction_writes_the_slower_one(cfg):
+    """An amplifier that rises at 1341 V/s and falls at 737 V/s: the driver's one slew limit must be the falling
+    rate, else the compensator plans falls the amplifier cannot follow."""
+    new, _, notes = corrected_config(cfg, [("amplifier_slew_limit", {"rate": 1341.0, "rate_down": 737.0})])
+    assert new.limits.slew == 737.0
+    (note,) = notes
+    assert "737" in note and "1341" in note
+    new, _, _ = corrected_config(cfg, [("amplifier_slew_limit", {"rate": 1200.0})])
+    assert new.limits.slew == 1200.0

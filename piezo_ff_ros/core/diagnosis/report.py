@@ -64,8 +64,14 @@ def corrected_config(cfg: PiezoConfig, effects: Iterable[tuple[str, Mapping[str,
             notes.append(f"amplifier_saturation: limits.voltage = {p['limit']:.4g} V (the measured rail; "
                          "references needing more cannot be compensated)")
         elif name == "amplifier_slew_limit":
-            cfg = dataclasses.replace(cfg, limits=dataclasses.replace(cfg.limits, slew=float(p["rate"])))
-            notes.append(f"amplifier_slew_limit: limits.slew = {p['rate']:.4g} V/s (the measured slew rate)")
+            # one limit for both directions in the driver: the slower one, so no planned fall outruns the amplifier
+            rate = min(float(p["rate"]), float(p.get("rate_down", p["rate"])))
+            cfg = dataclasses.replace(cfg, limits=dataclasses.replace(cfg.limits, slew=rate))
+            if "rate_down" in p and float(p["rate_down"]) != float(p["rate"]):
+                notes.append(f"amplifier_slew_limit: limits.slew = {rate:.4g} V/s (the slower of the measured rates: "
+                             f"{float(p['rate']):.4g} V/s rising, {float(p['rate_down']):.4g} V/s falling)")
+            else:
+                notes.append(f"amplifier_slew_limit: limits.slew = {rate:.4g} V/s (the measured slew rate)")
         else:
             notes.append(f"{name}: no compensator for it in the cascade; the model knows it, the config does not")
     return cfg.validate(), extra, notes
