@@ -42,8 +42,8 @@ def _rate_bounds(ctx: FitContext) -> tuple[float, float]:
     return math.log(rmax / SLEW_SPAN), math.log(rmax * 1.05)
 
 
-def _fit_symmetric(ctx: FitContext) -> FitResult:
-    lo, hi = _rate_bounds(ctx)
+def _fit_symmetric(ctx: FitContext, bounds: tuple[float, float]) -> FitResult:
+    lo, hi = bounds
     grid = np.linspace(lo, hi, SLEW_GRID)
     return _fit_scalar(ctx, "amplifier_slew_limit", "rate", lambda z: {"rate": math.exp(z)}, grid, math.exp,
                        math.exp)
@@ -57,8 +57,8 @@ def fit_amplifier_slew_limit_any(ctx: FitContext) -> FitResult:
     """One slew rate (log grid + bounded refinement), then a rate per direction: a coarse log grid of the pair and
     a simplex refinement on half the windows of a long run, the result and its standard errors on all of them;
     the pair replaces the one rate when it lowers the training residual energy by :data:`SLEW_ASYM_MIN_GAIN`."""
-    sym = _fit_symmetric(ctx)
-    lo, hi = _rate_bounds(ctx)
+    lo, hi = _rate_bounds(ctx)      # once: a pass over the whole record
+    sym = _fit_symmetric(ctx, (lo, hi))
     unit = max(sym.train_rms, 1e-15)
     sub = search_context(ctx)
     cache: dict[tuple[float, float], float] = {}
