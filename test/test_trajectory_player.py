@@ -315,3 +315,28 @@ def test_parse_trajectory_names_the_field(tmp_path):
 def test_a_period_that_is_not_a_positive_integer_is_refused():
     with pytest.raises(ValueError, match="period_ns"):
         TrajectoryPlayer(FakeGraph(), 0)
+
+
+def test_a_start_as_soon_as_finished_is_heard_is_accepted():
+    """A client starts the next run the moment it hears ``finished`` (commissioning does, experiment after
+    experiment); the play thread may still be winding up (its last log line, on a loaded host).  Seen in a full-suite
+    run: ``/trajectory/start: already playing``.  Once the state says the run ended, a new start is accepted."""
+    g = FakeGraph()
+    heard, release = threading.Event(), threading.Event()
+    publish = g.publish_state
+
+    def winding_up(state):
+        publish(state)
+        if state["state"] == "finished" and not heard.is_set():
+            heard.set()
+            release.wait(30)         # the play thread stays alive a moment after publishing its end
+
+    g.publish_state = winding_up
+    p = _player(g)
+    assert p.start(_circle(0.05), FS, PlaySettings(mode="lockstep", block_size=100, window=4))[0]
+    assert heard.wait(30)
+    threading.Timer(0.2, release.set).start()
+    ok, msg = p.start(_circle(0.05), FS, PlaySettings(mode="lockstep", block_size=100, window=4))
+    assert ok, msg
+    p.stop()
+    assert [s["state"] for s in g.states if s["state"] in ("finished", "stopped")][0] == "finished"

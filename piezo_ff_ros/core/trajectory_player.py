@@ -257,6 +257,7 @@ class TrajectoryPlayer:
         self._last_ack = host.monotonic()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._ended_by: threading.Thread | None = None   # the play thread that has published its run's end
         self._run_mode: str | None = None         # the mode of the run being played (the parameter may change)
 
     # -- state -------------------------------------------------------------------------------------------------
@@ -290,6 +291,8 @@ class TrajectoryPlayer:
         """
         self.state = {"state": state, "mode": self._run_mode or mode, "k": int(self.k_stream),
                       "unanswered_blocks": self.unanswered, **extra}
+        if state in ("finished", "stopped", "failed"):
+            self._ended_by = threading.current_thread()   # that run's thread only winds up from here (see start)
         self.host.publish_state(self.state)
 
     # -- start / stop ------------------------------------------------------------------------------------------
@@ -310,6 +313,11 @@ class TrajectoryPlayer:
         (bool, str)
             Whether it started, and a line for the caller.
         """
+        if self.playing and self._ended_by is self._thread:
+            # the run has ended and said so: a client may start the next one the moment it hears it, while the
+            # play thread only winds up (its last log line; long on a loaded host)
+            assert self._thread is not None
+            self._thread.join(timeout=5.0)
         if self.playing:
             return False, "already playing (call ~/stop first)"
         self._stop.clear()
