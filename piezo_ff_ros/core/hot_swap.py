@@ -125,6 +125,12 @@ class _InFlight:
     state_after: _PlantState      # plant-side state after these samples, had they been applied as sent
 
 
+def _follow_hold(cascade: CompensatorCascade, n: int, axes: int) -> None:
+    """``cascade``'s plant-side states follow ``n`` samples of its last voltage held (0 V before any)."""
+    last = cascade.last_voltage()
+    cascade.follow_applied(np.tile(last if last is not None else np.zeros(axes), (n, 1)))
+
+
 class HotSwapCascade:
     """A compensator cascade that can be reconfigured while it runs, and re-synchronised on the applied voltage.
 
@@ -428,9 +434,7 @@ class HotSwapCascade:
         c = copy.deepcopy(casc)
         c.load_state(st)
         if k0 > k_conf:  # samples nobody reported: the amplifier held its last voltage
-            last = c.last_voltage()
-            hold = last if last is not None else np.zeros(u.shape[1])
-            c.follow_applied(np.tile(hold, (k0 - k_conf, 1)))
+            _follow_hold(c, k0 - k_conf, u.shape[1])
         c.follow_applied(u)
         k_end = k0 + u.shape[0]
         self._conf = (k_end, c, c.state(CompensatorCascade.PLANT_STAGES))
@@ -445,9 +449,7 @@ class HotSwapCascade:
             if not rest:
                 follower.load_state(self._conf[2])
             if rec.k0 > reached:   # a gap in the stream sent (a stall): the amplifier holds its last voltage
-                last = follower.last_voltage()
-                follower.follow_applied(np.tile(last if last is not None else np.zeros(sent.shape[1]),
-                                                (rec.k0 - reached, 1)))
+                _follow_hold(follower, rec.k0 - reached, sent.shape[1])
             follower.follow_applied(sent)
             reached = end
             rest.append(_InFlight(max(rec.k0, k_end), sent, follower, follower.state(CompensatorCascade.PLANT_STAGES)))

@@ -25,7 +25,8 @@ from .fit_modes import (MAX_MODES, MODE_FMIN, MODE_MIN_GAIN, MODE_ZMAX, Mode, fi
 from .fit_output import fit_creep_nonlinearity, fit_gain_mismatch, fit_thermal_drift
 from .fit_saturation import fit_amplifier_saturation_any
 from .fit_slew import fit_amplifier_slew_limit_any
-from .fit_voltage import (RAIL_MIN_GAIN, fit_amplifier_bandwidth, fit_amplifier_saturation, fit_amplifier_slew_limit,
+from .fit_slew import fit_amplifier_slew_limit_any as fit_amplifier_slew_limit   # the name before the split
+from .fit_voltage import (RAIL_MIN_GAIN, fit_amplifier_bandwidth, fit_amplifier_saturation,
                           fit_input_delay)
 
 __all__ = ["FitContext", "FitResult", "fit_candidate", "CANDIDATES", "n_eff_ratio",

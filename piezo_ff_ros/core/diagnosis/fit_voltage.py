@@ -15,7 +15,7 @@ from scipy import optimize
 from .fit_common import FitContext, FitResult, _fit_scalar, _rms, _stderr
 from .replay import residual
 
-__all__ = ["fit_input_delay", "fit_amplifier_slew_limit", "fit_amplifier_saturation", "fit_amplifier_bandwidth",
+__all__ = ["fit_input_delay", "fit_amplifier_saturation", "fit_amplifier_bandwidth",
            "RAIL_MIN_GAIN"]
 
 
@@ -85,16 +85,6 @@ def _fit_allpass_delay(ctx: FitContext, d_pure: float) -> FitResult | None:
     p = make(z)
     return FitResult("input_delay", p, {"delay": se, "form": None}, [("input_delay", p)], 1, _rms(r),
                      note="all-pass form (2nd-order Padé): unit gain, the delay's phase lag")
-
-
-def fit_amplifier_slew_limit(ctx: FitContext) -> FitResult:
-    """The amplifier's slew-rate limit [V/s] on a log grid between the median and the largest voltage rate."""
-    rates = np.abs(np.diff(ctx.u, axis=0)) / ctx.dt
-    rmax = float(rates.max()) if rates.size else 1.0
-    lo = max(float(np.quantile(rates, 0.5)), 1e-3 * rmax, 1e-6)
-    grid = np.linspace(math.log(lo), math.log(rmax * 1.05), 12)
-    return _fit_scalar(ctx, "amplifier_slew_limit", "rate", lambda z: {"rate": math.exp(z)}, grid, math.exp,
-                       math.exp)
 
 
 #: the rails are fitted apart when that lowers the training residual energy by at least this share
