@@ -244,7 +244,8 @@ def build_cases(split: str, family: str, quick: bool, only) -> list[tuple[str, C
     for sp in splits:
         seeds = {"tuning": S.TUNING_SEEDS, "heldout": S.HELDOUT_SEEDS, "fresh": S.FRESH_HELDOUT_SEEDS,
                  "fresh2": S.FRESH2_HELDOUT_SEEDS, "fresh3": S.FRESH3_HELDOUT_SEEDS,
-                 "fresh4": S.FRESH4_HELDOUT_SEEDS, "fresh5": S.FRESH5_HELDOUT_SEEDS}[sp]
+                 "fresh4": S.FRESH4_HELDOUT_SEEDS, "fresh5": S.FRESH5_HELDOUT_SEEDS,
+                 "fresh6": S.FRESH6_HELDOUT_SEEDS}[sp]
         if family in ("out", "all"):
             out += [(sp, c) for c in C.make_cases(seeds, quick=quick, only=only)]
         if family in ("in", "all"):
@@ -254,11 +255,13 @@ def build_cases(split: str, family: str, quick: bool, only) -> list[tuple[str, C
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--split", choices=("tuning", "heldout", "fresh", "fresh2", "fresh3", "fresh4", "fresh5", "all"), default="tuning",
+    ap.add_argument("--split", choices=("tuning", "heldout", "fresh", "fresh2", "fresh3", "fresh4", "fresh5", "fresh6", "all"),
+                    default="tuning",
                     help="seed set: the tuning one (default), the frozen held-out one (looked at since), the fresh "
                          "held-out one (frozen in session 3, looked at since), the second fresh held-out one "
                          "(frozen in session 4, looked at since), the third (frozen in session 6, looked at since), the fourth "
-                         "(frozen in session 8, looked at since), the fifth (frozen in session 9), or tuning + held-out")
+                         "(frozen in session 8, looked at since), the fifth (frozen in session 9, looked at since), the sixth (frozen in session 10), or "
+                         "tuning + held-out")
     ap.add_argument("--family", choices=("out", "in", "all"), default="all",
                     help="out-of-family (this benchmark's truths), in-family (the old bench cases), or both")
     ap.add_argument("--jobs", type=int, default=1, help="cases diagnosed in parallel (default 1)")
@@ -309,7 +312,7 @@ def main(argv=None) -> int:
         if tmp is not None:
             tmp.cleanup()
     summaries = {}
-    for sp in ("tuning", "heldout", "fresh", "fresh2", "fresh3", "fresh4", "fresh5"):
+    for sp in ("tuning", "heldout", "fresh", "fresh2", "fresh3", "fresh4", "fresh5", "fresh6"):
         for fam in ("out", "in"):
             sel = [r for r in rows if r["split"] == sp and r["family"] == fam]
             if sel:
@@ -326,7 +329,8 @@ def main(argv=None) -> int:
                                                       "fresh2": S.FRESH2_HELDOUT_SEEDS,
                                                       "fresh3": S.FRESH3_HELDOUT_SEEDS,
                                                       "fresh4": S.FRESH4_HELDOUT_SEEDS,
-                                                      "fresh5": S.FRESH5_HELDOUT_SEEDS}},
+                                                      "fresh5": S.FRESH5_HELDOUT_SEEDS,
+                                                      "fresh6": S.FRESH6_HELDOUT_SEEDS}},
                                            indent=1, default=float))
     return 0
 

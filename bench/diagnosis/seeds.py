@@ -37,6 +37,11 @@ FRESH4_HELDOUT_SEEDS = (19275, 63690)
 # the round, report, never tune.
 FRESH5_HELDOUT_SEEDS = (61576, 91086)
 
+# drawn at random (Python ``secrets``) and frozen 2026-11-28 02:03 UTC (session 10), before this round's work and before
+# any diagnosis ran on them; fresh5 was run and looked at per case since.  Run once (``--split fresh6``) at the end of
+# the round, report, never tune.
+FRESH6_HELDOUT_SEEDS = (44157, 73849)
+
 #: the seeds of the in-family cases (the project's own generator) per split
 IN_FAMILY_SEED = {"tuning": 0, "heldout": 90417, "fresh": 52609, "fresh2": 94129, "fresh3": 16403, "fresh4": 19275,
-                  "fresh5": 61576}
+                  "fresh5": 61576, "fresh6": 44157}
