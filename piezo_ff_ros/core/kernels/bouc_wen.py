@@ -38,7 +38,7 @@ from .._jit import njit
 from .limits import CLAMPED, SLEWED, limit_step
 
 __all__ = ["BoucWenParams", "CompState", "CompOptions", "FALLBACKS", "SATURATED", "N_COUNTERS", "params_of",
-           "KAPPA_MAX", "PIECE_KAPPA", "SERIES_TERMS", "MAX_PIECES", "path_weight", "path_scratch", "bw_sigma",
+           "KAPPA_MAX", "PIECE_KAPPA", "SERIES_TERMS", "MAX_PIECES", "LONG_PIECES", "path_weight", "path_scratch", "bw_sigma",
            "bw_exact_path", "bw_path_increment", "bw_refine", "bw2_sigma", "bw2_path_weight", "bw2_exact_path",
            "bw2_path_increment", "bw2_refine",
            "bw_increment", "bw_model_run", "bw_model_rate_run", "bw_model_run_2x2", "bw_comp_run", "bw_comp_run_2x2", "solve_small",
@@ -63,6 +63,11 @@ _INV = tuple(1.0 / k if k else 0.0 for k in range(SERIES_TERMS + 1))
 #: cap on the pieces of one sample's exact path (~2κ plus the sign changes of h: a 400 V step on the paper's tube
 #: takes ~8)
 MAX_PIECES = 1 << 20
+#: pieces of one sample's exact path summed one by one; a longer path (``κ > PIECE_KAPPA·LONG_PIECES = 16``: beyond
+#: 1.7 kV on the paper's tube, 4× the largest step ±200 V allow, or more sign changes of h than that) goes by
+#: propagators of doubling length (:func:`_long_path`), so that its cost grows with log κ, not κ.  Every other path
+#: keeps its numbers bit for bit.
+LONG_PIECES = 32
 
 
 class BoucWenParams(NamedTuple):
@@ -192,10 +197,190 @@ def _bw_orthant(p: BoucWenParams, q: np.ndarray, s: np.ndarray, M: np.ndarray) -
 
     ``|h_j| = s_j·h_j`` there, so ``−(|q_j|·φ_ij + q_j·ψ_ij) = M_ij·h_j``.
     """
+    _orthant_matrix(p.B, p.G, p.D1, p.D2, q, s, M)
+
+
+@njit
+def _orthant_matrix(B: np.ndarray, G: np.ndarray, D1: np.ndarray, D2: np.ndarray, q: np.ndarray, s: np.ndarray,
+                    M: np.ndarray) -> None:  # pragma: no cover - compiled
+    """:func:`_bw_orthant` from the four h-dependent matrices (Γ = ``G``, Δ1 = ``D1``, Δ2 = ``D2``)."""
     n = q.shape[0]
     for i in range(n):
         for j in range(n):
-            M[i, j] = -(abs(q[j]) * (p.B[i, j] + p.D2[i, j] * s[j]) + q[j] * (p.G[i, j] * s[j] + p.D1[i, j]))
+            M[i, j] = -(abs(q[j]) * (B[i, j] + D2[i, j] * s[j]) + q[j] * (G[i, j] * s[j] + D1[i, j]))
+
+
+@njit
+def _orthant_signs(M: np.ndarray, a: np.ndarray, he: np.ndarray, s: np.ndarray, B: np.ndarray, G: np.ndarray,
+                   D1: np.ndarray, D2: np.ndarray, q: np.ndarray, tmp: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``s`` ← the sign orthant the path continues in from ``he`` and ``M`` ← its matrix (as :func:`bw_exact_path`:
+    a component at zero leaves it in the direction of its derivative)."""
+    n = he.shape[0]
+    zero = False
+    for j in range(n):
+        s[j] = 1.0 if he[j] > 0.0 else (-1.0 if he[j] < 0.0 else 0.0)
+        if s[j] == 0.0:
+            zero = True
+    _orthant_matrix(B, G, D1, D2, q, s, M)
+    if zero:
+        for i in range(n):
+            acc = a[i]
+            for j in range(n):
+                acc += M[i, j] * he[j]
+            tmp[i] = acc
+        for j in range(n):
+            if s[j] == 0.0:
+                s[j] = -1.0 if tmp[j] < 0.0 else 1.0
+        _orthant_matrix(B, G, D1, D2, q, s, M)
+
+
+@njit
+def _long_path(B: np.ndarray, G: np.ndarray, D1: np.ndarray, D2: np.ndarray, q: np.ndarray, a: np.ndarray,
+               tau0: float, he: np.ndarray, lam: float) -> None:  # pragma: no cover - compiled
+    """``he`` ← h at the end of the path (``λ = 1``), from ``he`` at ``lam``: the rest of a long path
+    (:func:`bw_exact_path` after :data:`LONG_PIECES` pieces; ``q = P·dU``, ``a = A·dU``, ``tau0`` its piece length).
+
+    Inside an orthant the flow ``dh/dλ = a + M·h`` is affine with constant coefficients, so the map over a length
+    ``τ`` is ``h ← Φ(τ)·h + ψ(τ)`` whatever h is.  ``Φ, ψ`` of ``τ0`` come from the same Taylor series
+    (:func:`_flow`, on the unit vectors and on 0), those of ``τ0·2^m`` by squaring (``Φ(2τ) = Φ(τ)²``,
+    ``ψ(2τ) = Φ(τ)·ψ(τ) + ψ(τ)``): ``log2(1/τ0)`` levels, ~log2(2κ).  The path then goes on by pieces whose length
+    doubles after each one taken and halves when a component of h would change sign at its end (or, on a stretch
+    where a component moves back towards zero and then away again, could have: its derivative changed sign beyond
+    rounding), down to ``τ0``, where the sign change is located as :func:`bw_exact_path` does and the next orthant
+    starts.  Each orthant costs O(log κ) small matrix products instead of ~2κ series.  A Bouc-Wen state driven far
+    saturates: once ``Φ`` of a piece taken has underflowed to zero, h is the orthant's fixed point ``−M⁻¹a`` to
+    rounding and the rest of the path leaves it there (the walk stops).
+    """
+    n = he.shape[0]
+    rem = 1.0 - lam
+    if not rem > 0.0:
+        return
+    L = 0
+    span = tau0
+    while span < rem and L < 4096:
+        span *= 2.0
+        L += 1
+    lens = np.empty(L + 1)
+    lens[0] = tau0
+    for m in range(1, L + 1):
+        lens[m] = 2.0 * lens[m - 1]
+    Phi = np.empty((L + 1, n, n))
+    psi = np.empty((L + 1, n))
+    M = np.empty((n, n))
+    s = np.empty(n)
+    zero = np.zeros(n)
+    unit = np.zeros(n)
+    hx = np.empty(n)
+    hr = np.empty(n)
+    term = np.empty(n)
+    tmp = np.empty(n)
+    d0 = np.empty(n)
+    pieces = 0
+    while pieces < MAX_PIECES:
+        rem = 1.0 - lam
+        if not rem > 0.0:
+            return
+        _orthant_signs(M, a, he, s, B, G, D1, D2, q, tmp)
+        for j in range(n):
+            unit[j] = 1.0
+            _flow(M, zero, unit, tau0, hx, term, tmp)
+            unit[j] = 0.0
+            for i in range(n):
+                Phi[0, i, j] = hx[i]
+        _flow(M, a, zero, tau0, hx, term, tmp)
+        for i in range(n):
+            psi[0, i] = hx[i]
+        for m in range(1, L + 1):
+            for i in range(n):
+                acc = psi[m - 1, i]
+                for l in range(n):
+                    acc += Phi[m - 1, i, l] * psi[m - 1, l]
+                psi[m, i] = acc
+                for j in range(n):
+                    acc = 0.0
+                    for l in range(n):
+                        acc += Phi[m - 1, i, l] * Phi[m - 1, l, j]
+                    Phi[m, i, j] = acc
+        m = 0
+        new_orthant = False
+        while pieces < MAX_PIECES and not new_orthant:
+            pieces += 1
+            rem = 1.0 - lam
+            if not rem > 0.0:
+                return
+            while m > 0 and lens[m] > rem:
+                m -= 1
+            if lens[m] <= rem:
+                # the derivative here (rounding scale: what its evaluation cannot resolve)
+                for i in range(n):
+                    acc = a[i]
+                    mag = abs(a[i])
+                    for l in range(n):
+                        acc += M[i, l] * he[l]
+                        mag += abs(M[i, l] * he[l])
+                    d0[i] = acc
+                    tmp[i] = 64.0 * 2.2e-16 * mag
+                for i in range(n):
+                    acc = psi[m, i]
+                    for l in range(n):
+                        acc += Phi[m, i, l] * he[l]
+                    hx[i] = acc
+                ok = True
+                for j in range(n):
+                    if s[j] * hx[j] < 0.0:
+                        ok = False
+                if ok and m > 0:
+                    for i in range(n):
+                        acc = a[i]
+                        mag = abs(a[i])
+                        for l in range(n):
+                            acc += M[i, l] * hx[l]
+                            mag += abs(M[i, l] * hx[l])
+                        # s_i·h_i went down, then up again: its minimum inside the piece may lie across zero
+                        if s[i] * d0[i] < -tmp[i] and s[i] * acc > 64.0 * 2.2e-16 * mag:
+                            ok = False
+                if ok:
+                    for i in range(n):
+                        he[i] = hx[i]
+                    lam += lens[m]
+                    saturated = True
+                    for i in range(n):
+                        for l in range(n):
+                            if Phi[m, i, l] != 0.0:
+                                saturated = False
+                    if saturated:
+                        # Φ underflowed: h is the orthant's fixed point −M⁻¹a to rounding, where the rest of the
+                        # path leaves it (every longer piece maps any h to exactly this ψ)
+                        return
+                    if m < L:
+                        m += 1
+                    continue
+                if m > 0:
+                    m -= 1
+                    continue
+            # one piece of at most τ0 as bw_exact_path takes it: a sign change located on the series
+            tau = rem if rem < tau0 else tau0
+            _flow(M, a, he, tau, hx, term, tmp)
+            tc = tau
+            jc = -1
+            for j in range(n):
+                if s[j] * hx[j] < 0.0:
+                    t = _crossing(M, a, he, j, s[j], tau, s[j] * hx[j], hr, term, tmp)
+                    if t < tc:
+                        tc = t
+                        jc = j
+            if jc >= 0:
+                _flow(M, a, he, tc, hx, term, tmp)
+                hx[jc] = 0.0
+                lam += tc
+                new_orthant = True
+            else:
+                lam += tau
+            for i in range(n):
+                he[i] = hx[i]
+            if jc < 0 and tau == rem:
+                return
+            m = 1 if L >= 1 else 0
 
 
 @njit
@@ -312,11 +497,19 @@ def bw_exact_path(p: BoucWenParams, sigma: float, h: np.ndarray, du: np.ndarray,
         tau_max = PIECE_KAPPA / kap
     for i in range(n):
         he[i] = h[i]
+    if kap > PIECE_KAPPA * LONG_PIECES:
+        # a long path (more than LONG_PIECES pieces): by propagators, cost ~log κ instead of ~2κ
+        _long_path(p.B, p.G, p.D1, p.D2, q, a, tau_max, he, 0.0)
+        return
     lam = 0.0
-    for _ in range(MAX_PIECES):
+    for piece in range(MAX_PIECES):
         rem = 1.0 - lam
         if not rem > 0.0:
             break
+        if piece == LONG_PIECES:
+            # many sign changes of h: the rest by propagators too
+            _long_path(p.B, p.G, p.D1, p.D2, q, a, tau_max, he, lam)
+            return
         zero = False
         for j in range(n):
             s[j] = 1.0 if he[j] > 0.0 else (-1.0 if he[j] < 0.0 else 0.0)
@@ -631,6 +824,9 @@ def bw_comp_run(p: BoucWenParams, Dp_pinv: np.ndarray, st: CompState, opt: CompO
                 for i in range(n):
                     acc += Dp_pinv[j, i] * yh[t, i]
                 v, f = limit_step(0.0, acc, opt.ulim, np.inf)
+                if not abs(v) < np.inf:
+                    v = 0.0   # no finite voltage: the rest voltage of the definition
+                    f = CLAMPED
                 if f & CLAMPED:
                     counters[SATURATED] += 1
                 u_prev[j] = v
@@ -682,6 +878,12 @@ def bw_comp_run(p: BoucWenParams, Dp_pinv: np.ndarray, st: CompState, opt: CompO
                 counters[FALLBACKS] += 1
             else:
                 bw_refine(p, sigma, h, r, du, F0, Fj, x, M, lu, rhs, dh, duh, hw, he, ws)
+                for j in range(k):
+                    if not abs(du[j]) < np.inf:
+                        # beyond double precision (a reference of ~1e300 m): the delayed formula's direction
+                        solved = False
+                if not solved:
+                    counters[FALLBACKS] += 1
         if not solved:
             for j in range(k):
                 acc = 0.0
@@ -690,6 +892,10 @@ def bw_comp_run(p: BoucWenParams, Dp_pinv: np.ndarray, st: CompState, opt: CompO
                 du[j] = acc - u_prev[j]
         for j in range(k):
             v, f = limit_step(u_prev[j], u_prev[j] + du[j], opt.ulim, opt.dulim)
+            if not abs(v) < np.inf:
+                # no finite voltage (no limit and an overflowing reference, or inf − inf): hold the last one
+                v = u_prev[j]
+                f = CLAMPED
             counters[SATURATED] += (1 if f & CLAMPED else 0) + (1 if f & SLEWED else 0)
             du[j] = v - u_prev[j]  # the step actually made: h follows the voltage output
             u_prev[j] = v
@@ -906,6 +1112,33 @@ def _bw2_crossing(m00: float, m01: float, m10: float, m11: float, a0: float, a1:
     return t
 
 
+@njit
+def _bw2_long_path(c: Coeffs2, q0: float, q1: float, a0: float, a1: float, tau0: float, e0: float, e1: float,
+                   lam: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    """:func:`_long_path` for two axes (the generic one on the same numbers, out of line: a long path is rare)."""
+    B = np.empty((2, 2))
+    G = np.empty((2, 2))
+    D1 = np.empty((2, 2))
+    D2 = np.empty((2, 2))
+    for i in range(2):
+        for j in range(2):
+            B[i, j] = c[8 + 2 * i + j]
+            G[i, j] = c[12 + 2 * i + j]
+            D1[i, j] = c[16 + 2 * i + j]
+            D2[i, j] = c[20 + 2 * i + j]
+    q = np.empty(2)
+    q[0] = q0
+    q[1] = q1
+    a = np.empty(2)
+    a[0] = a0
+    a[1] = a1
+    he = np.empty(2)
+    he[0] = e0
+    he[1] = e1
+    _long_path(B, G, D1, D2, q, a, tau0, he, lam)
+    return he[0], he[1]
+
+
 @njit(inline="always")
 def bw2_exact_path(c: Coeffs2, sigma: float, h0: float, h1: float, du0: float,
                    du1: float) -> tuple[float, float]:  # pragma: no cover - compiled
@@ -928,11 +1161,15 @@ def bw2_exact_path(c: Coeffs2, sigma: float, h0: float, h1: float, du0: float,
         tau_max = PIECE_KAPPA / kap
     e0 = h0
     e1 = h1
+    if kap > PIECE_KAPPA * LONG_PIECES:
+        return _bw2_long_path(c, q0, q1, a0, a1, tau_max, e0, e1, 0.0)
     lam = 0.0
-    for _ in range(MAX_PIECES):
+    for piece in range(MAX_PIECES):
         rem = 1.0 - lam
         if not rem > 0.0:
             break
+        if piece == LONG_PIECES:
+            return _bw2_long_path(c, q0, q1, a0, a1, tau_max, e0, e1, lam)
         s0 = 1.0 if e0 > 0.0 else (-1.0 if e0 < 0.0 else 0.0)
         s1 = 1.0 if e1 > 0.0 else (-1.0 if e1 < 0.0 else 0.0)
         m00, m01, m10, m11 = _bw2_orthant(c, q0, q1, s0, s1)
@@ -1171,11 +1408,22 @@ def bw2_comp_step(c: Coeffs2, sigma: float, exact: bool, ulim: float, dulim: flo
             n_fallback = 1
         elif bw2_path_weight(c, sigma, du0, du1) >= 0.0:
             du0, du1 = bw2_refine(c, sigma, h0, h1, r0, r1, du0, du1)
+            if not (abs(du0) < np.inf and abs(du1) < np.inf):
+                # beyond double precision (a reference of ~1e300 m): the delayed formula's direction
+                solved = False
+                n_fallback = 1
     if not solved:
         du0 = 0.0 + q00 * (y0 + h0) + q01 * (y1 + h1) - up0
         du1 = 0.0 + q10 * (y0 + h0) + q11 * (y1 + h1) - up1
     v0, fl0 = limit_step(up0, up0 + du0, ulim, dulim)
     v1, fl1 = limit_step(up1, up1 + du1, ulim, dulim)
+    if not abs(v0) < np.inf:
+        # no finite voltage (no limit and an overflowing reference, or inf − inf): hold the last one
+        v0 = up0
+        fl0 = CLAMPED
+    if not abs(v1) < np.inf:
+        v1 = up1
+        fl1 = CLAMPED
     n_saturated = ((1 if fl0 & CLAMPED else 0) + (1 if fl0 & SLEWED else 0)
                    + (1 if fl1 & CLAMPED else 0) + (1 if fl1 & SLEWED else 0))
     h0, h1 = bw2_path_increment(c, sigma, h0, h1, v0 - up0, v1 - up1)
@@ -1188,6 +1436,12 @@ def bw2_comp_first(c: Coeffs2, ulim: float, y0: float, y1: float) -> tuple[float
     ``(u0, u1, saturated)``."""
     v0, f0 = limit_step(0.0, 0.0 + c[28] * y0 + c[29] * y1, ulim, np.inf)
     v1, f1 = limit_step(0.0, 0.0 + c[30] * y0 + c[31] * y1, ulim, np.inf)
+    if not abs(v0) < np.inf:
+        v0 = 0.0   # no finite voltage: the rest voltage of the definition
+        f0 = CLAMPED
+    if not abs(v1) < np.inf:
+        v1 = 0.0
+        f1 = CLAMPED
     return v0, v1, (1 if f0 & CLAMPED else 0) + (1 if f1 & CLAMPED else 0)
 
 
