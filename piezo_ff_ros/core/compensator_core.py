@@ -8,7 +8,8 @@ parameter transactions.  The compensator node only declares and types the ROS pa
 logs and sets what each call returns in a :class:`CompensatorOutput`:
 
 - ``on_reference(stamp, block, now)`` — a reference block from the topic: NaN/Inf, an empty block, a stamp off the
-  sample grid and a sample outside ``reference_limit`` refused (counted, one ERROR line a second at most,
+  sample grid and a sample outside ``reference_limit`` (when it is empty: beyond :data:`HARD_REFERENCE_FACTOR` ×
+  the stage's reach) refused (counted, one ERROR line a second at most,
   ``/diagnostics`` at ERROR while it lasts); a jump of more than 1 s in the stamps is a new stream or a stray stamp
   (``input_jumps``), never lost samples; after a pause of
   ``max(hold_timeout, 0.5 s)`` a jump in the stamps starts a new stream, otherwise a jump forward is a gap (lost
@@ -49,6 +50,7 @@ from .recording.blocks import BlockFormatError, check_stamp, sample_period_ns
 from .status import ERROR, OK, WARN
 from .tracking.front import TrackingFront
 from .tracking.linear import controller_matrices
+from .trajectories.workspace import reachable_range
 
 __all__ = ["CompensatorCore", "CompensatorSettings", "CompensatorOutput", "ParameterBook", "SETTING_NAMES", "Verdict",
            "VoltageBlock", "build_notice", "check_box_parameter", "parse_config_yaml", "same_value", "OK", "WARN",
@@ -67,6 +69,13 @@ _WARN_KEYS = ("failed_builds", "rejected_blocks", "applied_rejected", "input_gap
 #: a jump in the reference stamps of more than this [s] is no gap (no lost blocks are that long): a stray stamp or
 #: a new stream, counted in ``input_jumps`` and never as lost samples
 _MAX_GAP_S = 1.0
+
+#: a reference beyond this many times the stage's reach (:func:`~.trajectories.workspace.reachable_range` at
+#: margin 1: the static gain times ``±limits.voltage``) is refused even with ``reference_limit`` empty.  The
+#: hysteresis inverse handles any finite reference with bounded work, but the linear stages (C(s), the creep
+#: inverse) have no saturation: their states grow with the reference, and far enough out (~1e300 m) they overflow
+#: and would stay non-finite.  1e12 × tens of µm is ~1e7 m: no real reference comes near it.
+HARD_REFERENCE_FACTOR = 1e12
 
 
 
@@ -116,8 +125,8 @@ class CompensatorSettings:
     reference_limit : tuple of float
         ``[min_x, max_x, min_y, …]`` [m]: a reference block (or ``reference_point``) with a sample outside is
         refused whole (the node's default: the stage's reachable range with a margin,
-        :func:`~.trajectories.workspace.reachable_range`); empty = none.  In ``bypass`` the reference is in volts
-        and ``±limits.voltage`` bounds it instead.
+        :func:`~.trajectories.workspace.reachable_range`); empty = only the hard bound, :data:`HARD_REFERENCE_FACTOR`
+        × the stage's reach.  In ``bypass`` the reference is in volts and ``±limits.voltage`` bounds it instead.
     """
 
     crossfade: float = 0.01
@@ -326,6 +335,7 @@ class CompensatorCore:
         self._reject_log = {"reference": _Throttle(1.0), "voltage_applied": _Throttle(1.0)}
         self._refused_now = {"reference": 0, "voltage_applied": 0}   # since the last diagnostics() call
         self._last_refusal = {"reference": "", "voltage_applied": ""}
+        self._hard_bound: tuple[PiezoConfig, np.ndarray] | None = None
 
     # -- data path -------------------------------------------------------------------------------------------------
     def on_reference(self, stamp: int, block: np.ndarray, now: float) -> CompensatorOutput:
@@ -404,7 +414,7 @@ class CompensatorCore:
             lim = self.settings.reference_limit
             lo, hi, name, unit = np.asarray(lim[0::2]), np.asarray(lim[1::2]), "reference_limit", "m"
         else:
-            return ""
+            return self._beyond_hard_bound(block)
         bad = np.any((block < lo) | (block > hi), axis=1)
         n = int(np.count_nonzero(bad))
         if not n:
@@ -412,6 +422,22 @@ class CompensatorCore:
         worst = block[int(np.argmax(bad))]
         return (f"{name}: {n} sample(s) outside {[float(x) for pair in zip(lo, hi) for x in pair]} [{unit}] "
                 f"(e.g. {[float(f'{x:.6g}') for x in worst]}); adjust {name} if the stage really goes there")
+
+    def _beyond_hard_bound(self, block: np.ndarray) -> str:
+        """Why ``block`` lies beyond ``±HARD_REFERENCE_FACTOR ×`` the stage's reach (checked when
+        ``reference_limit`` is empty); empty when it does not."""
+        if self._hard_bound is None or self._hard_bound[0] is not self.cfg:
+            reach = np.abs(np.asarray(reachable_range(self.cfg, margin=1.0), float)).reshape(-1, 2).max(axis=1)
+            self._hard_bound = (self.cfg, HARD_REFERENCE_FACTOR * reach)
+        bound = self._hard_bound[1]
+        bad = np.any(np.abs(block) > bound, axis=1)
+        n = int(np.count_nonzero(bad))
+        if not n:
+            return ""
+        worst = block[int(np.argmax(bad))]
+        return (f"hard reference bound: {n} sample(s) beyond ±{[float(f'{b:.6g}') for b in bound]} [m] "
+                f"(e.g. {[float(f'{x:.6g}') for x in worst]}; {HARD_REFERENCE_FACTOR:g} × the stage's reach at "
+                f"±limits.voltage), refused even with reference_limit empty")
 
     def process(self, block: np.ndarray, stamp: int | None, now: float, *, from_topic: bool = False,
                 restart: bool = False) -> CompensatorOutput:
