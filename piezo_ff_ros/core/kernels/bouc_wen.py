@@ -19,7 +19,10 @@ along a straight step ``dÛ`` is constant, so the ODE in the path parameter is l
 of h, and is summed by its Taylor series piece by piece, stopping where a component of h changes sign), blended
 with the one explicit step for ``KAPPA_MAX < κ < 2·KAPPA_MAX`` so that h is a continuous function of the step (the
 compensator inverts it).  The model follows the continuous Bouc-Wen equally well at 100 Hz and at 20 kHz, and a
-100 V step costs a few series instead of ~1000 explicit sub-steps.  The compensator inverts the same path
+100 V step costs a few series instead of ~1000 explicit sub-steps.  A path longer than :data:`LONG_PIECES` pieces
+(``κ > 16``: the compensator's Newton steps on a reference far beyond the stage's reach ask for kV to TV) goes by
+propagators of doubling length per orthant (:func:`_long_path`): its cost grows with log κ, not κ, and a state
+driven far saturates at the orthant's fixed point, where the walk stops.  The compensator inverts the same path
 increment (Newton, :func:`bw_refine`, :func:`bw2_refine`), so the model and its inverse stay exact inverses and
 share h bit for bit.
 
