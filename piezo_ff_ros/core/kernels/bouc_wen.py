@@ -41,7 +41,8 @@ from .._jit import njit
 from .limits import CLAMPED, SLEWED, limit_step
 
 __all__ = ["BoucWenParams", "CompState", "CompOptions", "FALLBACKS", "SATURATED", "N_COUNTERS", "params_of",
-           "KAPPA_MAX", "PIECE_KAPPA", "SERIES_TERMS", "MAX_PIECES", "LONG_PIECES", "path_weight", "path_scratch", "bw_sigma",
+           "KAPPA_MAX", "PIECE_KAPPA", "SERIES_TERMS", "MAX_PIECES", "LONG_PIECES", "path_weight", "path_scratch",
+           "bw_sigma",
            "bw_exact_path", "bw_path_increment", "bw_refine", "bw2_sigma", "bw2_path_weight", "bw2_exact_path",
            "bw2_path_increment", "bw2_refine",
            "bw_increment", "bw_model_run", "bw_model_rate_run", "bw_model_run_2x2", "bw_comp_run", "bw_comp_run_2x2", "solve_small",
@@ -71,6 +72,8 @@ MAX_PIECES = 1 << 20
 #: propagators of doubling length (:func:`_long_path`), so that its cost grows with log κ, not κ.  Every other path
 #: keeps its numbers bit for bit.
 LONG_PIECES = 32
+#: a derivative within this fraction of the size of its terms is rounding (the long path's turning test)
+_ROUNDING = 64.0 * 2.2e-16
 
 
 class BoucWenParams(NamedTuple):
@@ -240,8 +243,9 @@ def _orthant_signs(M: np.ndarray, a: np.ndarray, he: np.ndarray, s: np.ndarray, 
 @njit
 def _long_path(B: np.ndarray, G: np.ndarray, D1: np.ndarray, D2: np.ndarray, q: np.ndarray, a: np.ndarray,
                tau0: float, he: np.ndarray, lam: float) -> None:  # pragma: no cover - compiled
-    """``he`` ← h at the end of the path (``λ = 1``), from ``he`` at ``lam``: the rest of a long path
-    (:func:`bw_exact_path` after :data:`LONG_PIECES` pieces; ``q = P·dU``, ``a = A·dU``, ``tau0`` its piece length).
+    """``he`` ← h at the end of the path (``λ = 1``), from ``he`` at ``lam``: a long path (:func:`bw_exact_path`
+    beyond :data:`LONG_PIECES` pieces: from its start, or after that many sign changes of h; ``q = P·dU``,
+    ``a = A·dU``, ``tau0`` the length of one Taylor piece).
 
     Inside an orthant the flow ``dh/dλ = a + M·h`` is affine with constant coefficients, so the map over a length
     ``τ`` is ``h ← Φ(τ)·h + ψ(τ)`` whatever h is.  ``Φ, ψ`` of ``τ0`` come from the same Taylor series
@@ -322,7 +326,7 @@ def _long_path(B: np.ndarray, G: np.ndarray, D1: np.ndarray, D2: np.ndarray, q: 
                         acc += M[i, l] * he[l]
                         mag += abs(M[i, l] * he[l])
                     d0[i] = acc
-                    tmp[i] = 64.0 * 2.2e-16 * mag
+                    tmp[i] = _ROUNDING * mag
                 for i in range(n):
                     acc = psi[m, i]
                     for l in range(n):
@@ -340,7 +344,7 @@ def _long_path(B: np.ndarray, G: np.ndarray, D1: np.ndarray, D2: np.ndarray, q: 
                             acc += M[i, l] * hx[l]
                             mag += abs(M[i, l] * hx[l])
                         # s_i·h_i went down, then up again: its minimum inside the piece may lie across zero
-                        if s[i] * d0[i] < -tmp[i] and s[i] * acc > 64.0 * 2.2e-16 * mag:
+                        if s[i] * d0[i] < -tmp[i] and s[i] * acc > _ROUNDING * mag:
                             ok = False
                 if ok:
                     for i in range(n):
