@@ -32,7 +32,8 @@ and stamps as ``voltage``) and rebuild the hysteresis and creep states when what
 was sent (clamps, safe ramps, stalls).  ``workspace`` (double[], ``[min_x, max_x, min_y, max_y]`` [m]; default
 the config's ``limits.workspace``, empty = none): references outside are clamped, with a WARN and a count.
 ``reference_limit`` (double[], same layout [m]; default the stage's reachable range at ``±limits.voltage`` with a
-margin of 2, :func:`~piezo_ff_ros.core.trajectories.workspace.reachable_range`; empty = none): a reference block or
+margin of 2, :func:`~piezo_ff_ros.core.trajectories.workspace.reachable_range`; empty = only the hard bound of
+1e12 × the static reach (margin 1), :data:`~piezo_ff_ros.core.compensator_core.HARD_REFERENCE_FACTOR`): a reference block or
 ``reference_point`` with a sample outside is refused whole (one ERROR line a second at most, counted in
 ``rejected_blocks``, ``/diagnostics`` at ERROR while it lasts) — a unit mistake or a corrupt sample never reaches
 the cascade.  ``driver`` (read-only, default ``driver``): the node name of the paired driver, resolved in this
@@ -153,7 +154,7 @@ class CompensatorNode(Node):
             reference_limit=tuple(float(v) for v in self._declare(
                 "reference_limit", list(reachable_range(base)),
                 "a reference outside [m] ([min, max] per axis, flat) is refused; default: the stage's reachable "
-                "range at the voltage limit with a margin of 2; empty = none")))
+                "range at the voltage limit with a margin of 2; empty = none but a hard bound of 1e12 x the reach")))
         self.driver_name = str(self._declare("driver", "driver", "node name of the paired driver: voltage_applied "
                                              "is used only from it", read_only=True))
         self._declare("config_yaml", "", "a YAML mapping of stage parameters applied as one atomic change "
