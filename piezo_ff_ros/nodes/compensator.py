@@ -33,7 +33,7 @@ was sent (clamps, safe ramps, stalls).  ``workspace`` (double[], ``[min_x, max_x
 the config's ``limits.workspace``, empty = none): references outside are clamped, with a WARN and a count.
 ``reference_limit`` (double[], same layout [m]; default the stage's reachable range at ``±limits.voltage`` with a
 margin of 2, :func:`~piezo_ff_ros.core.trajectories.workspace.reachable_range`; empty = only the hard bound of
-1e12 × the static reach (margin 1), :data:`~piezo_ff_ros.core.compensator_core.HARD_REFERENCE_FACTOR`): a reference block or
+1e12 × the static reach, :data:`~piezo_ff_ros.core.compensator_core.HARD_REFERENCE_FACTOR`): a reference block or
 ``reference_point`` with a sample outside is refused whole (one ERROR line a second at most, counted in
 ``rejected_blocks``, ``/diagnostics`` at ERROR while it lasts) — a unit mistake or a corrupt sample never reaches
 the cascade.  ``driver`` (read-only, default ``driver``): the node name of the paired driver, resolved in this
