@@ -31,6 +31,12 @@ if TYPE_CHECKING:
     from ..core.stage import Processor
 
 
+#: exit code of a refused identification (a held-out fit below the floor, no --accept-poor-fit)
+EXIT_POOR_FIT = 3
+#: = core.commissioning.FIT_FLOOR_PERCENT (not imported here: the parser is built without loading the core)
+FIT_FLOOR = 50.0
+
+
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     p = subparsers.add_parser("commission", help="characterise, identify, synthesise and verify in one command",
                               description=__doc__.split("\n\n")[0])
@@ -55,6 +61,10 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
                    help="starting config: the stage's axes (1 to 6), name, weights and limits; with --sim-only also "
                         "the simulated truth (default: the paper's printed values, 2 axes)")
     p.add_argument("--variant", metavar="NAME", help="named variant of the starting config")
+    p.add_argument("--accept-poor-fit", action="store_true",
+                   help="keep an identification whose held-out fit (hysteresis per axis, creep and G_L diagonal, "
+                        f"whole plant) is below the floor ({FIT_FLOOR:g} %%) instead of refusing it (exit code "
+                        f"{EXIT_POOR_FIT}, nothing written or applied)")
     p.add_argument("--quiet", action="store_true")
     g = p.add_argument_group("ROS graph (without --sim-only)")
     g.add_argument("--domain-id", type=int, metavar="ID",
@@ -121,7 +131,7 @@ def after_vs_printed(after: Mapping[str, Mapping[str, float | None]],
 def run(args: argparse.Namespace) -> int:
     from ..core.characterisation import CharacterisationSettings
     from ..core.config import load_config
-    from ..core.commissioning import SimRig, commission, save_config, save_report
+    from ..core.commissioning import PoorFitError, SimRig, commission, save_config, save_report
     from ..core.jsonable import parse_order
     from ..core.reproduce import format_tables, truth_plant
     from . import output_dir
@@ -141,10 +151,13 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.sim_only:
         _check_graph_args(args)
+        from ..core.commissioning import PoorFitError
         from ..ros.commission import run_graph
 
         try:
             return run_graph(args, say)
+        except PoorFitError as exc:
+            return _refused(exc)
         except (RuntimeError, TimeoutError) as exc:   # a node died, a service timed out…: one clear message
             print(f"piezo-ff commission: error: {exc}", file=sys.stderr)
             return 1
@@ -155,9 +168,13 @@ def run(args: argparse.Namespace) -> int:
     noise = args.noise_nm * 1e-9
     truth = truth_plant(printed, args.truth, noise, seed=args.seed)
     settings = CharacterisationSettings(creep_duration=args.creep_duration)
-    result = commission(SimRig(truth, printed.sample_rate, printed.axes), base=printed, settings=settings,
-                        generalized=args.generalized, creep_order=parse_order(args.creep_order),
-                        dynamics_order=parse_order(args.dynamics_order), progress=say)
+    try:
+        result = commission(SimRig(truth, printed.sample_rate, printed.axes), base=printed, settings=settings,
+                            generalized=args.generalized, creep_order=parse_order(args.creep_order),
+                            dynamics_order=parse_order(args.dynamics_order), progress=say,
+                            accept_poor_fit=args.accept_poor_fit)
+    except PoorFitError as exc:
+        return _refused(exc)
     cfg, design, note, report = result.config, result.design, result.hinf_note, result.report
     cfg_path = out / "config.yaml"
     save_config(cfg, cfg_path)
@@ -176,6 +193,8 @@ def run(args: argparse.Namespace) -> int:
     if report.plant_fit_noise_free is not None:
         out_json["plant_fit_noise_free"] = report.plant_fit_noise_free
     out_json["plant_fit_parts"] = report.plant_fit_parts
+    if report.accepted_poor_fits:
+        out_json["accepted_poor_fits"] = report.accepted_poor_fits
     if res.cross_coupling_pairs_percent is not None:   # three axes or more: Table II per ordered pair
         out_json["cross_coupling_pairs_percent"] = res.cross_coupling_pairs_percent
     print(format_tables(res, label="identified cascade", axes=printed.axes))
@@ -201,6 +220,12 @@ def run(args: argparse.Namespace) -> int:
     save_report(out_json, out, args.json)
     say(f"done in {time.perf_counter() - t_start:.1f} s")
     return 0
+
+
+def _refused(exc: Exception) -> int:
+    """One line for an identification refused for a held-out fit below the floor; its exit code."""
+    print(f"piezo-ff commission: refused: {exc}", file=sys.stderr)
+    return EXIT_POOR_FIT
 
 
 def _check_graph_args(args: argparse.Namespace) -> None:

@@ -128,7 +128,7 @@ def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
         result = commission(rig, base=printed, settings=settings, generalized=args.generalized,
                             creep_order=parse_order(args.creep_order),
                             dynamics_order=parse_order(args.dynamics_order),
-                            progress=say)
+                            progress=say, accept_poor_fit=args.accept_poor_fit)
         cfg, design, note = result.config, result.design, result.hinf_note
         cfg_path = out / "config.yaml"
         save_config(cfg, cfg_path)
@@ -153,6 +153,7 @@ def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     out_json = {"fit_percent": report.fit_percent,
                 "plant_fit_basis": "measured output (recorded through the graph)",
                 "plant_fit_parts": report.plant_fit_parts,
+                **({"accepted_poor_fits": report.accepted_poor_fits} if report.accepted_poor_fits else {}),
                 "orders": report.orders,
                 "before": res.before, "after": res.after, "hinf": res.hinf,
                 "tracking": res.tracking, "static_error_percent": res.static_error_percent,
