@@ -33,6 +33,9 @@ if TYPE_CHECKING:
 
 #: exit code of a refused identification (a held-out fit below the floor, no --accept-poor-fit)
 EXIT_POOR_FIT = 3
+#: the options of the ROS graph path and their defaults (given otherwise with --sim-only: one warning line)
+GRAPH_ONLY: dict[str, Any] = {"domain_id": None, "probe_timeout": 3.0, "step_um": 15.0, "only": None,
+                              "block_size": 2000, "voltage_limit": None}
 #: = core.commissioning.FIT_FLOOR_PERCENT (not imported here: the parser is built without loading the core)
 FIT_FLOOR = 50.0
 
@@ -66,21 +69,22 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
                         f"whole plant) is below the floor ({FIT_FLOOR:g} %%) instead of refusing it (exit code "
                         f"{EXIT_POOR_FIT}, nothing written or applied)")
     p.add_argument("--quiet", action="store_true")
+    p.add_argument("--sine-frequency", type=float, default=0.1, metavar="HZ",
+                   help="hysteresis characterisation sine frequency (paper 0.1 Hz)")
+    p.add_argument("--sine-periods", type=int, default=2, metavar="N", help="periods per hysteresis sine (2)")
     g = p.add_argument_group("ROS graph (without --sim-only)")
     g.add_argument("--domain-id", type=int, metavar="ID",
                    help="ROS_DOMAIN_ID to look for a driver on and to start the sim graph on (default: look on the "
                         "caller's domain; start the sim graph on a private one)")
-    g.add_argument("--probe-timeout", type=float, default=3.0, metavar="S",
+    g.add_argument("--probe-timeout", type=float, default=GRAPH_ONLY["probe_timeout"], metavar="S",
                    help="how long to look for a running driver (default 3 s)")
-    g.add_argument("--step-um", type=float, default=15.0, metavar="UM",
+    g.add_argument("--step-um", type=float, default=GRAPH_ONLY["step_um"], metavar="UM",
                    help="creep/dynamics characterisation step, µm (default 15: keeps the step well inside the ±200 V "
                         "amplifier on a stage stiffer than the paper's — its 20 µm asks ≈ 159 V on x — since a "
                         "clamped step biases the creep fit)")
-    g.add_argument("--sine-frequency", type=float, default=0.1, metavar="HZ",
-                   help="hysteresis characterisation sine frequency (paper 0.1 Hz)")
-    g.add_argument("--sine-periods", type=int, default=2, metavar="N", help="periods per hysteresis sine (2)")
     g.add_argument("--only", metavar="NAMES", help="verification: comma-separated experiment names (default: all)")
-    g.add_argument("--block-size", type=int, default=2000, metavar="N", help="samples per block (default 2000)")
+    g.add_argument("--block-size", type=int, default=GRAPH_ONLY["block_size"], metavar="N",
+                   help="samples per block (default 2000)")
     g.add_argument("--voltage-limit", type=float, default=None, metavar="V",
                    help="driver/compensator voltage limit (default: the config's limits.voltage)")
     p.set_defaults(func=run)
@@ -149,6 +153,7 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"[{time.perf_counter() - t_start:7.1f} s] {msg}", file=sys.stderr, flush=True)
 
+    _check_sine_args(args)
     if not args.sim_only:
         _check_graph_args(args)
         from ..core.commissioning import PoorFitError
@@ -167,7 +172,12 @@ def run(args: argparse.Namespace) -> int:
     printed = load_config(args.config, variant=args.variant)   # the stage to commission: truth and starting point
     noise = args.noise_nm * 1e-9
     truth = truth_plant(printed, args.truth, noise, seed=args.seed)
-    settings = CharacterisationSettings(creep_duration=args.creep_duration)
+    ignored = [name for name, default in GRAPH_ONLY.items() if getattr(args, name) != default]
+    if ignored:
+        print("piezo-ff commission: warning: ROS graph options ignored with --sim-only: "
+              + ", ".join("--" + n.replace("_", "-") for n in ignored), file=sys.stderr)
+    settings = CharacterisationSettings(creep_duration=args.creep_duration, sine_frequency=args.sine_frequency,
+                                        sine_periods=args.sine_periods)
     try:
         result = commission(SimRig(truth, printed.sample_rate, printed.axes), base=printed, settings=settings,
                             generalized=args.generalized, creep_order=parse_order(args.creep_order),
@@ -187,6 +197,7 @@ def run(args: argparse.Namespace) -> int:
               "before": res.before, "after": res.after, "hinf": res.hinf, "tracking": res.tracking,
               "static_error_percent": res.static_error_percent, "errors": res.errors,
               "conditions": {"truth": args.truth, "noise_std_m": noise, "creep_duration_s": args.creep_duration,
+                             "sine_frequency_hz": settings.sine_frequency, "sine_periods": settings.sine_periods,
                              "sample_rate_hz": printed.sample_rate, "generalized": bool(args.generalized)},
               "config": str(cfg_path), "hinf_note": note,
               "plant_fit_basis": report.plant_fit_basis}
@@ -228,15 +239,20 @@ def _refused(exc: Exception) -> int:
     return EXIT_POOR_FIT
 
 
+def _check_sine_args(args: argparse.Namespace) -> None:
+    if not (math.isfinite(args.sine_frequency) and args.sine_frequency > 0):
+        raise ValueError(f"--sine-frequency must be a positive number, got {args.sine_frequency}")
+    if args.sine_periods < 1:
+        raise ValueError(f"--sine-periods must be >= 1, got {args.sine_periods}")
+
+
 def _check_graph_args(args: argparse.Namespace) -> None:
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         raise ValueError(f"--domain-id must be in 0..232, got {args.domain_id}")
-    for name in ("probe_timeout", "step_um", "sine_frequency"):
+    for name in ("probe_timeout", "step_um"):
         v = getattr(args, name)
         if not (math.isfinite(v) and v > 0):
             raise ValueError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
-    if args.sine_periods < 1:
-        raise ValueError(f"--sine-periods must be >= 1, got {args.sine_periods}")
     if not 1 <= args.block_size <= 20000:
         raise ValueError(f"--block-size must be in 1..20000, got {args.block_size}")
     if args.voltage_limit is not None and not (math.isfinite(args.voltage_limit) and args.voltage_limit > 0):
