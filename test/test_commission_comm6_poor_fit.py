@@ -4,6 +4,7 @@
 The untrustworthy identification is made by physics, not by a fake: a displacement sensor whose noise (50 µm rms)
 exceeds the motion it measures (the held-out hysteresis run moves about ±20 µm).
 """
+import json
 import os
 import subprocess
 import sys
@@ -136,3 +137,15 @@ def test_graph_refuses_the_identification_of_a_noisy_driver_before_applying_it(t
 
     names = [s["name"] for s in read_run(out / "commission.mcap").meta["segments"]]
     assert names == ["sine_x", "sine_y", "sine_all", "sine_validation"]
+
+
+def test_cli_sim_only_accept_poor_fit_completes_and_lists_what_it_kept(tmp_path):
+    out = tmp_path / "c"
+    r = subprocess.run([sys.executable, "-m", "piezo_ff_ros", "commission", "--sim-only", "--out", str(out),
+                        "--quiet", "--no-compare", "--creep-duration", "2", "--sine-frequency", "1",
+                        "--sine-periods", "1", "--noise-nm", str(NOISE_M * 1e9), "--accept-poor-fit"],
+                       env=_env(), capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    kept = json.loads((out / "commission.json").read_text())["accepted_poor_fits"]
+    assert kept[0].startswith("hysteresis held-out fit x: ") and any(k.startswith("plant held-out") for k in kept)
+    assert "BELOW THE FLOOR" in r.stdout and (out / "config.yaml").exists()
