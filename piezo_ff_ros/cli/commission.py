@@ -31,6 +31,15 @@ if TYPE_CHECKING:
     from ..core.stage import Processor
 
 
+#: exit code of a refused identification (a held-out fit below the floor, no --accept-poor-fit)
+EXIT_POOR_FIT = 3
+#: the options of the ROS graph path and their defaults (given otherwise with --sim-only: one warning line)
+GRAPH_ONLY: dict[str, Any] = {"domain_id": None, "probe_timeout": 3.0, "step_um": 15.0, "only": None,
+                              "block_size": 2000, "voltage_limit": None}
+#: = core.commissioning.FIT_FLOOR_PERCENT (not imported here: the parser is built without loading the core)
+FIT_FLOOR = 50.0
+
+
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     p = subparsers.add_parser("commission", help="characterise, identify, synthesise and verify in one command",
                               description=__doc__.split("\n\n")[0])
@@ -55,22 +64,27 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
                    help="starting config: the stage's axes (1 to 6), name, weights and limits; with --sim-only also "
                         "the simulated truth (default: the paper's printed values, 2 axes)")
     p.add_argument("--variant", metavar="NAME", help="named variant of the starting config")
+    p.add_argument("--accept-poor-fit", action="store_true",
+                   help="keep an identification whose held-out fit (hysteresis per axis, creep and G_L diagonal, "
+                        f"whole plant) is below the floor ({FIT_FLOOR:g} %%) instead of refusing it (exit code "
+                        f"{EXIT_POOR_FIT}, nothing written or applied)")
     p.add_argument("--quiet", action="store_true")
+    p.add_argument("--sine-frequency", type=float, default=0.1, metavar="HZ",
+                   help="hysteresis characterisation sine frequency (paper 0.1 Hz)")
+    p.add_argument("--sine-periods", type=int, default=2, metavar="N", help="periods per hysteresis sine (2)")
     g = p.add_argument_group("ROS graph (without --sim-only)")
     g.add_argument("--domain-id", type=int, metavar="ID",
                    help="ROS_DOMAIN_ID to look for a driver on and to start the sim graph on (default: look on the "
                         "caller's domain; start the sim graph on a private one)")
-    g.add_argument("--probe-timeout", type=float, default=3.0, metavar="S",
+    g.add_argument("--probe-timeout", type=float, default=GRAPH_ONLY["probe_timeout"], metavar="S",
                    help="how long to look for a running driver (default 3 s)")
-    g.add_argument("--step-um", type=float, default=15.0, metavar="UM",
+    g.add_argument("--step-um", type=float, default=GRAPH_ONLY["step_um"], metavar="UM",
                    help="creep/dynamics characterisation step, µm (default 15: keeps the step well inside the ±200 V "
                         "amplifier on a stage stiffer than the paper's — its 20 µm asks ≈ 159 V on x — since a "
                         "clamped step biases the creep fit)")
-    g.add_argument("--sine-frequency", type=float, default=0.1, metavar="HZ",
-                   help="hysteresis characterisation sine frequency (paper 0.1 Hz)")
-    g.add_argument("--sine-periods", type=int, default=2, metavar="N", help="periods per hysteresis sine (2)")
     g.add_argument("--only", metavar="NAMES", help="verification: comma-separated experiment names (default: all)")
-    g.add_argument("--block-size", type=int, default=2000, metavar="N", help="samples per block (default 2000)")
+    g.add_argument("--block-size", type=int, default=GRAPH_ONLY["block_size"], metavar="N",
+                   help="samples per block (default 2000)")
     g.add_argument("--voltage-limit", type=float, default=None, metavar="V",
                    help="driver/compensator voltage limit (default: the config's limits.voltage)")
     p.set_defaults(func=run)
@@ -121,7 +135,7 @@ def after_vs_printed(after: Mapping[str, Mapping[str, float | None]],
 def run(args: argparse.Namespace) -> int:
     from ..core.characterisation import CharacterisationSettings
     from ..core.config import load_config
-    from ..core.commissioning import SimRig, commission, save_config, save_report
+    from ..core.commissioning import PoorFitError, SimRig, commission, save_config, save_report
     from ..core.jsonable import parse_order
     from ..core.reproduce import format_tables, truth_plant
     from . import output_dir
@@ -139,12 +153,16 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"[{time.perf_counter() - t_start:7.1f} s] {msg}", file=sys.stderr, flush=True)
 
+    _check_sine_args(args)
     if not args.sim_only:
         _check_graph_args(args)
+        from ..core.commissioning import PoorFitError
         from ..ros.commission import run_graph
 
         try:
             return run_graph(args, say)
+        except PoorFitError as exc:
+            return _refused(exc)
         except (RuntimeError, TimeoutError) as exc:   # a node died, a service timed out…: one clear message
             print(f"piezo-ff commission: error: {exc}", file=sys.stderr)
             return 1
@@ -154,10 +172,19 @@ def run(args: argparse.Namespace) -> int:
     printed = load_config(args.config, variant=args.variant)   # the stage to commission: truth and starting point
     noise = args.noise_nm * 1e-9
     truth = truth_plant(printed, args.truth, noise, seed=args.seed)
-    settings = CharacterisationSettings(creep_duration=args.creep_duration)
-    result = commission(SimRig(truth, printed.sample_rate, printed.axes), base=printed, settings=settings,
-                        generalized=args.generalized, creep_order=parse_order(args.creep_order),
-                        dynamics_order=parse_order(args.dynamics_order), progress=say)
+    ignored = [name for name, default in GRAPH_ONLY.items() if getattr(args, name) != default]
+    if ignored:
+        print("piezo-ff commission: warning: ROS graph options ignored with --sim-only: "
+              + ", ".join("--" + n.replace("_", "-") for n in ignored), file=sys.stderr)
+    settings = CharacterisationSettings(creep_duration=args.creep_duration, sine_frequency=args.sine_frequency,
+                                        sine_periods=args.sine_periods)
+    try:
+        result = commission(SimRig(truth, printed.sample_rate, printed.axes), base=printed, settings=settings,
+                            generalized=args.generalized, creep_order=parse_order(args.creep_order),
+                            dynamics_order=parse_order(args.dynamics_order), progress=say,
+                            accept_poor_fit=args.accept_poor_fit)
+    except PoorFitError as exc:
+        return _refused(exc)
     cfg, design, note, report = result.config, result.design, result.hinf_note, result.report
     cfg_path = out / "config.yaml"
     save_config(cfg, cfg_path)
@@ -170,12 +197,15 @@ def run(args: argparse.Namespace) -> int:
               "before": res.before, "after": res.after, "hinf": res.hinf, "tracking": res.tracking,
               "static_error_percent": res.static_error_percent, "errors": res.errors,
               "conditions": {"truth": args.truth, "noise_std_m": noise, "creep_duration_s": args.creep_duration,
+                             "sine_frequency_hz": settings.sine_frequency, "sine_periods": settings.sine_periods,
                              "sample_rate_hz": printed.sample_rate, "generalized": bool(args.generalized)},
               "config": str(cfg_path), "hinf_note": note,
               "plant_fit_basis": report.plant_fit_basis}
     if report.plant_fit_noise_free is not None:
         out_json["plant_fit_noise_free"] = report.plant_fit_noise_free
     out_json["plant_fit_parts"] = report.plant_fit_parts
+    if report.accepted_poor_fits:
+        out_json["accepted_poor_fits"] = report.accepted_poor_fits
     if res.cross_coupling_pairs_percent is not None:   # three axes or more: Table II per ordered pair
         out_json["cross_coupling_pairs_percent"] = res.cross_coupling_pairs_percent
     print(format_tables(res, label="identified cascade", axes=printed.axes))
@@ -203,15 +233,26 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _refused(exc: Exception) -> int:
+    """One line for an identification refused for a held-out fit below the floor; its exit code."""
+    print(f"piezo-ff commission: refused: {exc}", file=sys.stderr)
+    return EXIT_POOR_FIT
+
+
+def _check_sine_args(args: argparse.Namespace) -> None:
+    if not (math.isfinite(args.sine_frequency) and args.sine_frequency > 0):
+        raise ValueError(f"--sine-frequency must be a positive number, got {args.sine_frequency}")
+    if args.sine_periods < 1:
+        raise ValueError(f"--sine-periods must be >= 1, got {args.sine_periods}")
+
+
 def _check_graph_args(args: argparse.Namespace) -> None:
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         raise ValueError(f"--domain-id must be in 0..232, got {args.domain_id}")
-    for name in ("probe_timeout", "step_um", "sine_frequency"):
+    for name in ("probe_timeout", "step_um"):
         v = getattr(args, name)
         if not (math.isfinite(v) and v > 0):
             raise ValueError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
-    if args.sine_periods < 1:
-        raise ValueError(f"--sine-periods must be >= 1, got {args.sine_periods}")
     if not 1 <= args.block_size <= 20000:
         raise ValueError(f"--block-size must be in 1..20000, got {args.block_size}")
     if args.voltage_limit is not None and not (math.isfinite(args.voltage_limit) and args.voltage_limit > 0):

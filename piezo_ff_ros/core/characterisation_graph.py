@@ -27,7 +27,10 @@ from numpy.typing import ArrayLike
 from .characterisation import Ramp, Sum
 from .trajectories import TRAJECTORY_TYPES, Circle, Sine, Staircase, Table, Trajectory, TrajectorySequence
 
-__all__ = ["graph_playable", "from_rest"]
+__all__ = ["FROM_REST_S", "graph_playable", "from_rest", "graph_run_trajectory"]
+
+#: s, the ramp from rest to a run's first sample
+FROM_REST_S = 2e-3   # = CharacterisationSettings.step_ramp: an amplifier-like 200 V/ms edge
 
 
 def _ramp_staircase(start: ArrayLike, end: ArrayLike, n: int, fs: float, axes: tuple[str, ...]) -> Staircase:
@@ -100,3 +103,31 @@ def from_rest(name: str, traj: Trajectory, fs: float, ramp: float) -> Trajectory
     zero = tuple(0.0 for _ in traj.axes)
     return TrajectorySequence([("from_rest", _ramp_staircase(zero, first, n, fs, traj.axes)), (name, traj)],
                               axes=traj.axes)
+
+
+def graph_run_trajectory(name: str, traj: Trajectory, fs: float, table_dir: Path | str,
+                         ramp: float = FROM_REST_S) -> Trajectory:
+    """What the graph rig plays for the characterisation run ``name``: ``traj`` as graph types, from rest.
+
+    The driver is reset to rest before each run: a run that starts elsewhere is reached by a ``ramp`` s ramp,
+    which stays part of the run (the hysteresis state it builds is the run's initial state).  The recorded run
+    (voltages and displacements) therefore has exactly these samples.
+
+    Parameters
+    ----------
+    name : str
+        The run's name (the segment the recorder names).
+    traj : Trajectory
+        The planned run.
+    fs : float
+        The rate the graph plays at [Hz].
+    table_dir : path
+        Where a signal with no graph type is written as a ``.npy`` table (see :func:`graph_playable`).
+    ramp : float
+        Seconds of the ramp from rest (0: none).
+
+    Returns
+    -------
+    Trajectory
+    """
+    return from_rest(name, graph_playable(traj, fs, table_dir), fs, ramp)

@@ -42,8 +42,8 @@ if TYPE_CHECKING:  # imported where used (the simulation and the evaluation are 
     from .experiments import Experiment, Recorded
     from .reproduce import ReproduceResult
 
-__all__ = ["CommissioningError", "PlannedRun", "Rig", "RigLimits", "SimRig", "CommissionResult", "CommissionReport",
-           "characterisation_plan", "check_voltage_runs", "commission", "commission_sim", "part_fits", "verify",
+__all__ = ["CommissioningError", "PoorFitError", "FIT_FLOOR_PERCENT", "PlannedRun", "Rig", "RigLimits", "SimRig", "CommissionResult", "CommissionReport",
+           "below_floor", "characterisation_plan", "check_voltage_runs", "commission", "commission_sim", "part_fits", "verify",
            "save_config", "save_report"]
 
 Progress = Callable[[str], None]
@@ -51,6 +51,60 @@ Progress = Callable[[str], None]
 
 class CommissioningError(RuntimeError):
     """Commissioning cannot start or go on (no sensor, a run outside the limits, a configuration refused…)."""
+
+
+class PoorFitError(CommissioningError):
+    """An identified stage predicts its held-out record worse than the floor (:data:`FIT_FLOOR_PERCENT`): the
+    identification is refused before it is applied or written."""
+
+
+#: Held-out fit [%] (MATLAB ``compare``: 100·(1 − ‖y − ŷ‖/‖y − ȳ‖)) below which an identified stage is refused.
+#: 0 % is a model no better than predicting the record's mean; at 50 % the model misses half of the motion (rms),
+#: more than the hysteresis (15–20 % of the range, paper Table I) or the overshoot the compensators exist to remove,
+#: so a compensator built on it cannot be trusted to do better than none.  Sound identifications of these stages
+#: score above 90 % (sim and graph, one to three axes, one or more sine periods, sensor noise of a few nm: a noise
+#: of 1 % of the motion costs a fit about 1 point), so the floor sits far below them and far above a broken one.
+FIT_FLOOR_PERCENT = 50.0
+
+#: what the user can do when a stage's held-out fit is below the floor
+_FIT_ADVICE = {
+    "hysteresis": "record more of the hysteresis (more sine periods, --sine-periods, or a lower --sine-frequency) "
+                  "and check the sensor",
+    "creep": "record longer creep steps (--creep-duration) and check the sensor's drift",
+    "dynamics": "check the dynamics step (--step-um) against the sensor's noise and bandwidth",
+    "plant": "the identified stages do not reproduce the plant: check the stage fits and the sensor",
+}
+
+
+def below_floor(stage: str, fits: Mapping[str, float | None], keys: Sequence[str],
+                floor: float = FIT_FLOOR_PERCENT, label: str | None = None) -> str | None:
+    """One line naming the entries of ``fits`` below ``floor`` (or undefined), None when all are at or above it.
+
+    Parameters
+    ----------
+    stage : str
+        ``hysteresis``, ``creep``, ``dynamics`` or ``plant``.
+    fits : mapping
+        Held-out fit [%] per axis or entry (None: not finite).
+    keys : sequence of str
+        The entries that are checked (the axes; the diagonal ``xx``, ``yy``… for creep and G_L).
+    floor : float
+        The lowest acceptable fit [%].
+    label : str, optional
+        How the line names the stage (default: ``stage``; ``dynamics (G_L)`` for ``dynamics``).
+
+    Returns
+    -------
+    str or None
+        e.g. ``hysteresis held-out fit y: -9776542.385 % (floor 50 %)``.
+    """
+    bad = [(k, fits.get(k)) for k in keys]
+    bad = [(k, v) for k, v in bad if v is None or not np.isfinite(v) or v < floor]
+    if not bad:
+        return None
+    what = ", ".join(f"{k}: {'undefined' if v is None or not np.isfinite(v) else f'{v:.3f} %'}" for k, v in bad)
+    label = label or {"dynamics": "dynamics (G_L)"}.get(stage, stage)
+    return f"{label} held-out fit {what} (floor {floor:g} %)"
 
 
 @dataclass(frozen=True)
@@ -286,6 +340,8 @@ class CommissionReport(JsonResult):
         Wall time [s] per step and ``total``.
     plant_fit_noise_free : dict or None
         Whole-plant fit [%] against the noise-free truth (simulated rigs only; absent from the JSON when None).
+    accepted_poor_fits : list of str or None
+        The held-out fits below the floor that were kept on request (``accept_poor_fit``); absent when None.
     """
 
     fit_percent: dict[str, dict[str, float | None]]
@@ -294,6 +350,7 @@ class CommissionReport(JsonResult):
     plant_fit_parts: dict[str, dict[str, float]]
     timing_s: dict[str, float]
     plant_fit_noise_free: dict[str, float | None] | None = field(default=None, metadata={"omit_none": True})
+    accepted_poor_fits: list[str] | None = field(default=None, metadata={"omit_none": True})
 
     def format_fits(self) -> str:
         """The held-out fits as the printed table of ``piezo-ff commission`` (sim-only and graph alike).
@@ -313,6 +370,8 @@ class CommissionReport(JsonResult):
         if self.plant_fit_noise_free is not None:
             lines.append("  plant vs the noise-free truth: " + "  ".join(
                 f"{k}: {f(v)}" for k, v in self.plant_fit_noise_free.items()))
+        for text in self.accepted_poor_fits or ():
+            lines.append(f"  BELOW THE FLOOR, kept on request (accept poor fit): {text}")
         return "\n".join(lines)
 
 
@@ -397,7 +456,8 @@ def _tagged(recorded: Mapping[str, RunData], planned: Sequence[PlannedRun], fs: 
 def commission(rig: Rig, base: PiezoConfig | None = None, settings: CharacterisationSettings | None = None,
                generalized: bool = False, creep_order: int | str = "auto", dynamics_order: int | str = "auto",
                refine_hysteresis: bool = True, synthesize: bool = True,
-               progress: Progress | None = None) -> CommissionResult:
+               progress: Progress | None = None, fit_floor: float = FIT_FLOOR_PERCENT,
+               accept_poor_fit: bool = False) -> CommissionResult:
     """Characterise and identify ``rig`` stage by stage (paper Fig. 3), then synthesise the H∞ compensator.
 
     Parameters
@@ -418,6 +478,12 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
         Synthesise the H∞ compensator and store it in the config.
     progress : callable, optional
         Called with one line per step.
+    fit_floor : float
+        Lowest acceptable held-out fit [%] of the hysteresis (per axis), creep and G_L (diagonal) and the whole
+        plant (per axis); default :data:`FIT_FLOOR_PERCENT`.  Each stage is checked as soon as it is identified,
+        before it is put in front of the plant.
+    accept_poor_fit : bool
+        Keep a stage below ``fit_floor`` anyway (a warning line, and ``report.accepted_poor_fits``).
 
     Returns
     -------
@@ -425,6 +491,9 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
 
     Raises
     ------
+    PoorFitError
+        A held-out fit is below ``fit_floor`` (and ``accept_poor_fit`` is False): one line naming the stage, the
+        entries, their figures and what to do.
     CommissioningError
         The rig has no sensor, ``base`` has other axes than the rig, a voltage run would leave its limits, or its
         compensator refused a configuration.
@@ -444,6 +513,23 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
     timing: dict[str, float] = {}
     t_all = time.perf_counter()
     runs: list[RunData] = []
+    accepted: list[str] = []
+    diagonal = [a + a for a in axes]
+
+    def gate(stage: str, fits: Mapping[str, float | None], keys: Sequence[str], label: str | None = None) -> None:
+        """Refuse (or, on request, keep with a warning) a stage whose held-out fit is below the floor."""
+        text = below_floor(stage, fits, keys, fit_floor, label)
+        if text is None:
+            return
+        if not accept_poor_fit:
+            raise PoorFitError(f"{text}: the identified model cannot be trusted, nothing was applied or written; "
+                               f"{_FIT_ADVICE[stage]} (or accept it anyway: --accept-poor-fit)")
+        say(f"warning: {text}: kept on request (accept poor fit)")
+        accepted.append(text)
+
+    def hysteresis_fits(fit: Any) -> dict[str, float | None]:
+        v = fit.fit_validation if fit.fit_validation is not None else fit.fit_train
+        return {a: float(x) for a, x in zip(axes, v)}
 
     def characterise(stage: str, extra: Mapping[str, object] | None = None) -> tuple[list[RunData], list[RunData]]:
         t0 = time.perf_counter()
@@ -456,11 +542,12 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
     say("characterise hysteresis on S0 (compensator bypassed: sines in volts)")
     rig.configure(None, frozenset(), bypass=True)
     hfit, hval = characterise("hysteresis")
-    say("held-out whole-plant voltage record (multisine + step pair, never fitted on), still bypassed")
-    _, plant_runs = characterise("plant")
     t0 = time.perf_counter()
     hf = identify_bouc_wen(hfit, hval, generalized=generalized, progress=say)
     timing["identify_hysteresis"] = time.perf_counter() - t0
+    gate("hysteresis", hysteresis_fits(hf), axes)   # before it is put in front of the plant
+    say("held-out whole-plant voltage record (multisine + step pair, never fitted on), still bypassed")
+    _, plant_runs = characterise("plant")
 
     say(f"characterise creep on S_H ({s.creep_duration:g} s steps up and down per axis) through the identified "
         "hysteresis compensator")
@@ -469,6 +556,7 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
     t0 = time.perf_counter()
     cf = identify_creep(cfit, cval, order=creep_order, axes=axes, progress=say)
     timing["identify_creep"] = time.perf_counter() - t0
+    gate("creep", cf.fit_validation or cf.fit_train, diagonal)
 
     extra: dict[str, object] = {}
     if refine_hysteresis:
@@ -477,6 +565,7 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
         hf = refit_hysteresis_without_creep(hfit + hval, cf.config, generalized=generalized, init=hf, progress=say)
         timing["identify_hysteresis_refit"] = time.perf_counter() - t0
         extra["hysteresis_compensator"] = REFIT_TAG
+        gate("hysteresis", hysteresis_fits(hf), axes, "hysteresis (refitted once creep is known)")
 
     say("characterise dynamics on S_L through the creep and hysteresis compensators")
     rig.configure(replace(base, hysteresis=hf.config, creep=cf.config), frozenset({"creep", "hysteresis"}))
@@ -484,6 +573,7 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
     t0 = time.perf_counter()
     df = identify_dynamics(dfit, dval, order=dynamics_order, axes=axes, progress=say)
     timing["identify_dynamics"] = time.perf_counter() - t0
+    gate("dynamics", df.fit_validation or df.fit_train, diagonal)
     cfg = build_config(base, hf, cf, df, fs, axes)
     fits = fits_report(hf, cf, df, axes)
 
@@ -491,6 +581,7 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
     t0 = time.perf_counter()
     pv = plant_runs[0]
     fits["plant"] = plant_fit(cfg, plant_runs)
+    gate("plant", fits["plant"], axes)
     noise_free = getattr(rig, "noise_free_output", lambda u: None)(pv.u)
     fit_noise_free = plant_fit(cfg, [pv], [noise_free]) if noise_free is not None else None
     parts = part_fits(cfg, pv, pv.y if noise_free is None else noise_free, plan["plant"][0].trajectory, axes)
@@ -505,15 +596,16 @@ def commission(rig: Rig, base: PiezoConfig | None = None, settings: Characterisa
     report = CommissionReport(fit_percent=fits, orders={"creep": cf.orders, "dynamics": df.orders},
                               plant_fit_basis="measured output" + (" (with sensor noise)" if noise_free is not None
                                                                    else ""),
-                              plant_fit_parts=parts, timing_s=timing, plant_fit_noise_free=fit_noise_free)
+                              plant_fit_parts=parts, timing_s=timing, plant_fit_noise_free=fit_noise_free,
+                              accepted_poor_fits=accepted or None)
     return CommissionResult(config=cfg, design=design, hinf_note=note, report=report, runs=runs)
 
 
 def commission_sim(plant: Processor, fs: float, axes: Sequence[str] = ("x", "y"),
                    settings: CharacterisationSettings | None = None, base: PiezoConfig | None = None,
                    generalized: bool = False, creep_order: int | str = "auto", dynamics_order: int | str = "auto",
-                   refine_hysteresis: bool = True,
-                   progress: Progress | None = None) -> tuple[PiezoConfig, CommissionReport, list[RunData]]:
+                   refine_hysteresis: bool = True, progress: Progress | None = None,
+                   accept_poor_fit: bool = False) -> tuple[PiezoConfig, CommissionReport, list[RunData]]:
     """Characterise and identify stage by stage on a sim plant (``process``/``reset``), as in Fig. 3.
 
     The sequence of :func:`commission` on a :class:`SimRig`, without the H∞ synthesis.  Returns ``(config, report,
@@ -522,7 +614,7 @@ def commission_sim(plant: Processor, fs: float, axes: Sequence[str] = ("x", "y")
 
     res = commission(SimRig(plant, fs, axes), base=base, settings=settings, generalized=generalized,
                      creep_order=creep_order, dynamics_order=dynamics_order, refine_hysteresis=refine_hysteresis,
-                     synthesize=False, progress=progress)
+                     synthesize=False, progress=progress, accept_poor_fit=accept_poor_fit)
     return res.config, res.report, res.runs
 
 

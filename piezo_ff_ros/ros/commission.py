@@ -128,7 +128,7 @@ def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
         result = commission(rig, base=printed, settings=settings, generalized=args.generalized,
                             creep_order=parse_order(args.creep_order),
                             dynamics_order=parse_order(args.dynamics_order),
-                            progress=say)
+                            progress=say, accept_poor_fit=args.accept_poor_fit)
         cfg, design, note = result.config, result.design, result.hinf_note
         cfg_path = out / "config.yaml"
         save_config(cfg, cfg_path)
@@ -153,6 +153,7 @@ def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     out_json = {"fit_percent": report.fit_percent,
                 "plant_fit_basis": "measured output (recorded through the graph)",
                 "plant_fit_parts": report.plant_fit_parts,
+                **({"accepted_poor_fits": report.accepted_poor_fits} if report.accepted_poor_fits else {}),
                 "orders": report.orders,
                 "before": res.before, "after": res.after, "hinf": res.hinf,
                 "tracking": res.tracking, "static_error_percent": res.static_error_percent,
@@ -162,7 +163,8 @@ def run_graph(args: argparse.Namespace, say: Callable[[str], None]) -> int:
                                "ros_domain_id": int(os.environ["ROS_DOMAIN_ID"]),
                                "creep_duration_s": args.creep_duration,
                                "characterisation_step_m": settings.creep_step,
-                               "sine_frequency_hz": settings.sine_frequency, "sample_rate_hz": fs,
+                               "sine_frequency_hz": settings.sine_frequency,
+                               "sine_periods": settings.sine_periods, "sample_rate_hz": fs,
                                "generalized": bool(args.generalized), "voltage_limit_v": vlim,
                                "experiments": [e.name for e in exps]},
                 "config": str(out / "config.yaml"), "recording": str(mcap_path), "hinf_note": note,

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence, TypeVar
 
 import numpy as np
 
-from ..core.characterisation_graph import from_rest, graph_playable
+from ..core.characterisation_graph import FROM_REST_S, graph_run_trajectory
 from ..core.commissioning import CommissioningError, PlannedRun, RigLimits
 from ..core.config import PiezoConfig
 from ..core.param_map import config_to_params
@@ -30,8 +30,6 @@ _T = TypeVar("_T")
 
 #: which flat parameters each stage's switch needs pushed with it
 _STAGE_PARAMS = {"hysteresis": ("hysteresis.",), "creep": ("creep.",), "vibration": ("dynamics.", "vibration.")}
-#: s, the ramp from rest to a run's first sample
-FROM_REST_S = 2e-3   # = CharacterisationSettings.step_ramp: an amplifier-like 200 V/ms edge
 
 
 class GraphRig(RigLimits):
@@ -79,11 +77,9 @@ class GraphRig(RigLimits):
         fs = self.sample_rate
         played = {}
         for r in runs:
-            # The driver is reset to rest before each run: a run that starts elsewhere is reached by a short ramp,
-            # which stays part of the run (the hysteresis state it builds is the run's initial state).
-            # a signal with no graph type travels as a .npy table beside the recording: played sample-exactly
-            traj = from_rest(r.name, graph_playable(r.trajectory, fs, self.mcap_path.parent / "tables"), fs,
-                             FROM_REST_S)
+            # from rest (a ramp to the first sample, part of the run); a signal with no graph type travels as a
+            # .npy table beside the recording: played sample-exactly
+            traj = graph_run_trajectory(r.name, r.trajectory, fs, self.mcap_path.parent / "tables", FROM_REST_S)
             played[r.name] = int(traj.n_samples(fs))
             dt = self.client.play(r.name, traj, {**(meta or {}), "role": r.role})
             self.say(f"  {r.name}: {traj.n_samples(fs) / fs:.1f} s of signal in {dt:.1f} s")

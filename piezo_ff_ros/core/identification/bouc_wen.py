@@ -187,11 +187,25 @@ class _Problem:
         return r
 
 
+#: A regression row whose voltage step exceeds this many times the 99th percentile of the moving rows' steps is a
+#: ramp, not the excitation (see :func:`_linear_abg`): a sine's or multisine's steps stay below its largest slope,
+#: so the continuous part is kept whole; a record of steps and holds only (every moving row a ramp row) keeps all.
+_RAMP_STEP_FACTOR = 2.0
+
+
 def _linear_abg(u: Sequence[np.ndarray], y: Sequence[np.ndarray], Dp: np.ndarray, c: np.ndarray, generalized: bool
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Given Dp and offset c, solve ``Δh = A·ΔU − B(|ΔU|∘h) − Γ(ΔU∘|h|) [− Δ1(ΔU∘h) − Δ2(|ΔU|∘|h|)]`` by LS."""
+    """Given Dp and offset c, solve ``Δh = A·ΔU − B(|ΔU|∘h) − Γ(ΔU∘|h|) [− Δ1(ΔU∘h) − Δ2(|ΔU|∘|h|)]`` by LS.
+
+    Rows whose voltage step exceeds :data:`_RAMP_STEP_FACTOR` times the record's typical step (the 99th percentile
+    of the moving rows) are left out: that is a brief ramp (a driver's slew-limited move from rest to a run's first
+    sample, 5 V per sample at 20 kHz), not the continuous excitation.  The one-step equation holds only to first
+    order in ``B·|ΔU|`` while the data integrate it in many small steps; such a row carries that error at a weight
+    ∝ ΔU² (80× the sine's step: ~6400×), and seven of them in a one-period run made B negative and the start
+    diverge.  Leaving a row out costs one equation of thousands and biases nothing (equation error).
+    """
     n, k = Dp.shape
-    rows_X, rows_t = [], []
+    rows_X, rows_t, rows_step = [], [], []
     for uu, yy in zip(u, y):
         h = uu @ Dp.T + c - yy
         du = np.diff(uu, axis=0)
@@ -203,8 +217,14 @@ def _linear_abg(u: Sequence[np.ndarray], y: Sequence[np.ndarray], Dp: np.ndarray
             feats += [-duh * hk, -np.abs(duh) * np.abs(hk)]
         rows_X.append(np.hstack(feats))
         rows_t.append(dh)
+        rows_step.append(np.max(np.abs(du), axis=1) if len(du) else np.zeros(0))
     X = np.vstack(rows_X)
     T = np.vstack(rows_t)
+    step = np.concatenate(rows_step)
+    moving = step[step > 0]
+    if moving.size:
+        keep = step <= _RAMP_STEP_FACTOR * float(np.percentile(moving, 99))
+        X, T = X[keep], T[keep]
     col = np.linalg.norm(X, axis=0)
     col[col == 0] = 1.0
     coef, *_ = np.linalg.lstsq(X / col, T, rcond=None)
