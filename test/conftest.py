@@ -46,6 +46,9 @@ else:
     _DOMAIN, _DOMAIN_LOCK = claim_test_domain()   # held until this process exits
     os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN)
 os.environ["ROS_LOG_DIR"] = tempfile.mkdtemp(prefix="piezo_ff_test_roslog_")
+# H∞ designs cached for this run only (every node and command started inherits it): the first compensator on a
+# configuration synthesises, the next ones load it; never the user's cache, never one from an earlier run
+os.environ["PIEZO_FF_HINF_CACHE"] = tempfile.mkdtemp(prefix="piezo_ff_test_hinf_")
 
 SHARED_DATA = Path(os.environ.get("PIEZO_FF_SHARED_DATA", ROOT.parent / "shared" / "data"))
 

@@ -131,9 +131,9 @@ class CompensatorCascade(Chain):
             c = cfg.vibration.controller
             return tuple(np.atleast_2d(np.asarray(c[k], float)) for k in ("A", "B", "C", "D"))
         if controller is None:
-            from ..synthesis.hinf import synthesize_hinf
+            from ..synthesis.cache import cached_synthesis
 
-            self.design = synthesize_hinf(cfg.dynamics.G_L, cfg.vibration)
+            self.design = cached_synthesis(cfg.dynamics.G_L, cfg.vibration)   # the same design when built before
             controller = self.design
         if hasattr(controller, "controller"):
             self.design = controller
