@@ -52,6 +52,25 @@ def test_other_layouts_and_types_give_numpy_numbers():
     assert np.array_equal(centered_difference(np.ascontiguousarray(base[:, :2]), one), r - r.mean(axis=0))
 
 
+@pytest.mark.parametrize("y_order,yhat_order", [("C", "C"), ("F", "C"), ("C", "F"), ("F", "F")])
+def test_residual_keeps_numpys_numbers_and_layout(y_order, yhat_order):
+    """A MATLAB record's columns are Fortran-ordered: whatever numpy lays ``y − ŷ`` out as, the result has its
+    numbers and its layout (a later full-array sum adds in memory order)."""
+    y = np.asarray(_data((50_001, 2), 10), order=y_order)
+    y_hat = np.asarray(_data((50_001, 2), 11), order=yhat_order)
+    r = y - y_hat
+    want = r - r.mean(axis=0)
+    got = centered_difference(y, y_hat)
+    assert np.array_equal(got, want)
+    assert (got.flags.c_contiguous, got.flags.f_contiguous) == (want.flags.c_contiguous, want.flags.f_contiguous)
+    assert np.sum(got ** 2) == np.sum(want ** 2)
+
+
+def test_long_columns_equal_numpy_bit_for_bit():
+    x = _data((3_000_000, 2), 12)
+    assert np.array_equal(column_means(x), x.mean(axis=0))
+
+
 def test_non_finite_values_propagate_like_numpy():
     x = _data((1000, 2), 6)
     x[10, 1] = np.nan

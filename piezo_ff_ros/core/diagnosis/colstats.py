@@ -38,26 +38,6 @@ def _column_sums(x: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
 
 
 @njit
-def _difference_sums(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """Per column, the sequential sum of ``y − ŷ`` (each difference rounded as numpy rounds it)."""
-    n, k = y.shape
-    s = np.zeros(k)
-    for i in range(n):
-        for j in range(k):
-            s[j] += y[i, j] - y_hat[i, j]
-    return s
-
-
-@njit
-def _centered_difference(y: np.ndarray, y_hat: np.ndarray, m: np.ndarray,
-                         out: np.ndarray) -> None:  # pragma: no cover - compiled
-    n, k = y.shape
-    for i in range(n):
-        for j in range(k):
-            out[i, j] = (y[i, j] - y_hat[i, j]) - m[j]
-
-
-@njit
 def _centered_square_sums(x: np.ndarray, m: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
     n, k = x.shape
     s = np.zeros(k)
@@ -95,28 +75,22 @@ def column_means(x: np.ndarray) -> np.ndarray:
 
 
 def centered_difference(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
-    """``r − r.mean(axis=0)`` with ``r = y − ŷ``: the same numbers as the numpy expression, in two compiled passes
-    and without the intermediate ``r`` (when both are C-ordered float ``[N, k ≥ 2]`` arrays of one shape).
+    """``r − r.mean(axis=0)`` with ``r = y − ŷ``: the numbers and the memory layout of the numpy expression (``r`` as
+    numpy lays it out, its column means by :func:`column_means`, removed in place: one temporary less).
 
     Parameters
     ----------
     y, y_hat : ndarray
-        ``[N, k]``.
+        ``[N, k]`` (``y_hat`` may broadcast).
 
     Returns
     -------
     ndarray
         ``[N, k]``, each column's mean removed.
     """
-    y = np.asarray(y, float)
-    if not (_fast(y) and isinstance(y_hat, np.ndarray) and y_hat.shape == y.shape and _fast(y_hat)):
-        r = y - y_hat
-        out: np.ndarray = r - r.mean(axis=0)
-        return out
-    m = _difference_sums(y, y_hat) / y.shape[0]
-    res = np.empty_like(y)
-    _centered_difference(y, y_hat, m, res)
-    return res
+    r: np.ndarray = np.asarray(y, float) - y_hat
+    r -= column_means(r)
+    return r
 
 
 def column_rms_about_mean(x: np.ndarray) -> np.ndarray:
