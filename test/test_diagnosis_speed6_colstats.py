@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from piezo_ff_ros.core.diagnosis.colstats import centered_difference, column_means, column_rms_about_mean
-from piezo_ff_ros.core.diagnosis.replay import check_scale, residual
+from piezo_ff_ros.core.diagnosis.replay import (centered_difference, check_scale, column_means,
+                                                 column_rms_about_mean, residual)
 
 SHAPES = [(1, 2), (2, 2), (3, 2), (7501, 2), (100_000, 2), (1_000_003, 2), (5, 3), (40_000, 3), (10, 1),
           (20_000, 1), (64, 6)]

@@ -20,9 +20,8 @@ from scipy import linalg, optimize
 
 from ..models import effects as fx
 from ..models.plant import Plant
-from .colstats import column_means
 from .fit_common import FitContext, FitResult, _fit_scalar, _lin_per_axis, _rms, _stderr, n_eff_ratio, search_context
-from .replay import Windows, residual, simulate
+from .replay import Windows, column_means, residual, simulate
 
 __all__ = ["fit_hysteresis_rate_dependence", "fit_hysteresis_asymmetry", "search_context", "RELAX_MIN_GAIN",
            "PLAY_FRACTIONS", "RELAY_LEVELS",
