@@ -21,7 +21,7 @@ from scipy import linalg, optimize
 from ..models import effects as fx
 from ..models.plant import Plant
 from .fit_common import FitContext, FitResult, _fit_scalar, _lin_per_axis, _rms, _stderr, n_eff_ratio, search_context
-from .replay import Windows, residual, simulate
+from .replay import Windows, column_means, residual, simulate
 
 __all__ = ["fit_hysteresis_rate_dependence", "fit_hysteresis_asymmetry", "search_context", "RELAX_MIN_GAIN",
            "PLAY_FRACTIONS", "RELAY_LEVELS",
@@ -89,7 +89,7 @@ def _chain_response(ctx: FitContext, make: Callable[[], Any], terms: Callable[[A
     cols = []
     for p in parts:
         yi = np.concatenate(p)
-        cols.append((yi - yi.mean(axis=0)).reshape(-1))
+        cols.append((yi - column_means(yi)).reshape(-1))
     return np.column_stack(cols)
 
 

@@ -4,9 +4,10 @@ cube-modulated terms (``amplitude_dependent_dynamics``).
 """
 from __future__ import annotations
 
+import inspect
 import math
 import warnings
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 from scipy import optimize
@@ -545,6 +546,10 @@ def _linear_modes(ctx: FitContext, found: list[Mode]) -> tuple[dict[str, Any], i
     return params, K * (2 + 2 * n * n + n * (n - 1))
 
 
+#: whether ``scipy.optimize.least_squares`` takes ``workers`` (the map its finite differences are evaluated with;
+#: scipy ≥ 1.16): the base-excited refinement then integrates the Jacobian's columns together
+_LSQ_WORKERS = "workers" in inspect.signature(optimize.least_squares).parameters
+
 #: on a long run the grid and the refinement run on every other fit window (:func:`~.fit_common.search_context`);
 #: the point found is refined on all windows with at most this many further evaluations (and its standard errors
 #: taken there)
@@ -643,6 +648,27 @@ def _fit_base_excited_on(ctx: FitContext, linear: tuple[dict[str, Any], int] | N
             memo[key] = _base_excited_deflections(ctx, freq, zeta, cubic[None], quad[None], yb)[0]
         return memo[key]
 
+    def batched(fun: Callable[[np.ndarray], np.ndarray], points: Iterable[np.ndarray]) -> list[np.ndarray]:
+        """``map(fun, points)`` for the finite-difference columns of the Jacobian: the deflections the points need
+        and ``memo`` lacks are first integrated together, one pass over the base per frequency (most columns share
+        the current one), each the numbers of its own pass; ``fun`` then finds them all in ``memo``."""
+        pts = [np.asarray(p, float) for p in points]
+        # by frequency, the nonlinear modes apart from the linear twins (a pass of twins alone is the cheaper one)
+        todo: dict[tuple[float, bool], dict[tuple[float, ...], tuple[float, np.ndarray, np.ndarray]]] = {}
+        for th in pts:
+            freq, zeta = math.exp(th[0]), math.exp(th[1])
+            for cubic, quad, twin in ((th[2:2 + n], th[2 + n:2 + 2 * n], False), (zeros, zeros, True)):
+                key = (freq, zeta, *cubic.tolist(), *quad.tolist())
+                if key not in memo:
+                    todo.setdefault((freq, twin), {})[key] = (zeta, cubic, quad)
+        for (freq, _), lanes in todo.items():
+            zetas = np.array([v[0] for v in lanes.values()])
+            D = _base_excited_deflections(ctx, freq, zetas, np.array([v[1] for v in lanes.values()]),
+                                          np.array([v[2] for v in lanes.values()]), yb)
+            for key, d in zip(lanes, D):
+                memo[key] = d
+        return [fun(p) for p in pts]
+
     def resid(th: np.ndarray) -> np.ndarray:
         freq, zeta = math.exp(th[0]), math.exp(th[1])
         d = ((deflection(freq, zeta, th[2:2 + n], th[2 + n:2 + 2 * n]) - deflection(freq, zeta, zeros, zeros))
@@ -661,7 +687,8 @@ def _fit_base_excited_on(ctx: FitContext, linear: tuple[dict[str, Any], int] | N
                  lo + 1e-9, hi - 1e-9)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sol = optimize.least_squares(resid, x0, diff_step=1e-3, max_nfev=max_nfev, bounds=(lo, hi))
+        sol = optimize.least_squares(resid, x0, diff_step=1e-3, max_nfev=max_nfev, bounds=(lo, hi),
+                                     **({"workers": batched} if _LSQ_WORKERS else {}))
     th = sol.x
     r = sol.fun.reshape(-1, n) * unit
     se = _stderr(sol.jac, sol.fun)

@@ -82,6 +82,13 @@ def _feature_blocks(sig: np.ndarray, filters: list[Filter], scale: np.ndarray,
         yield y[rows]
 
 
+def _signals(u: np.ndarray, y_nom: np.ndarray, start: int, stop: int) -> np.ndarray:
+    """``[u, ŷ]`` on rows ``start:stop``: the rows of ``np.hstack([u, y_nom])``, laid out as numpy lays out that
+    whole array (the statistics taken from it then add in the same order)."""
+    out: np.ndarray = np.hstack([u[start:stop], y_nom[start:stop]])
+    return out
+
+
 def _features(sig: np.ndarray, filters: list[Filter], scale: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
     """All feature columns, [rows, n_sig·(1 + n_filters)] (filled block by block into one array)."""
     m = sig.shape[1]
@@ -105,13 +112,13 @@ class FlexibleModel:
 
     def predict(self, u: np.ndarray, y_nom: np.ndarray, windows: Windows) -> np.ndarray:
         """Correction on the scoring windows of a run (features warmed up like the simulations)."""
-        sig = np.hstack([u, y_nom])
         outs = []
-        m = sig.shape[1]
+        m = u.shape[1] + y_nom.shape[1]
         offset = self.mean @ self.theta
         for w, s, e in windows.spans:
             d = -np.broadcast_to(offset, (e - s, self.theta.shape[1])).copy()
-            for k, F in enumerate(_feature_blocks(sig[w:e], self.filters, self.scale, slice(s - w, None))):
+            for k, F in enumerate(_feature_blocks(_signals(u, y_nom, w, e), self.filters, self.scale,
+                                                  slice(s - w, None))):
                 d += F @ self.theta[k * m:(k + 1) * m]
             outs.append(d)
         return np.concatenate(outs)
@@ -119,8 +126,11 @@ class FlexibleModel:
 
 def fit_flexible(u: np.ndarray, y: np.ndarray, y_nom: np.ndarray, windows: Windows, fs: float) -> FlexibleModel:
     """Fit the flexible model on the training windows (see the module docstring)."""
-    sig = np.hstack([u, y_nom])
-    sample = sig if windows.is_whole else windows.take(sig)  # statistics on the fitted samples only
+    # the signals [u, ŷ] of each window only (not of the whole run, which is 12 M rows on a 10-minute record)
+    sigs = [_signals(u, y_nom, w, e) for w, _, e in windows.spans]
+    # statistics on the fitted samples only
+    sample = sigs[0] if windows.is_whole else \
+        np.concatenate([sg[s - w:e - w] for sg, (w, s, e) in zip(sigs, windows.spans)])
     scale = np.maximum(np.std(sample, axis=0), 1e-300)
     duration = len(u) / fs
     filters = _filters(fs, duration, _excited_band(sample[:, :u.shape[1]], fs))
@@ -130,7 +140,7 @@ def fit_flexible(u: np.ndarray, y: np.ndarray, y_nom: np.ndarray, windows: Windo
     spans = windows.spans
     if len(spans) == 1:  # one span: cut it into chunks for the cross-validation folds
         w, s, e = spans[0]
-        Xall = _features(sig[w:e], filters, scale)[s - w:]
+        Xall = _features(sigs[0], filters, scale)[s - w:]
         rall = y[s:e] - y_nom[s:e]
         k = 8
         edges = np.linspace(0, len(Xall), k + 1).astype(int)
@@ -138,8 +148,8 @@ def fit_flexible(u: np.ndarray, y: np.ndarray, y_nom: np.ndarray, windows: Windo
             blocks_X.append(Xall[edges[i]:edges[i + 1]:stride])
             blocks_r.append(rall[edges[i]:edges[i + 1]:stride])
     else:
-        for w, s, e in spans:
-            blocks_X.append(_features(sig[w:e], filters, scale, slice(s - w, None, stride)))
+        for sg, (w, s, e) in zip(sigs, spans):
+            blocks_X.append(_features(sg, filters, scale, slice(s - w, None, stride)))
             blocks_r.append(y[s:e:stride] - y_nom[s:e:stride])
     X = np.vstack(blocks_X)
     r = np.vstack(blocks_r)

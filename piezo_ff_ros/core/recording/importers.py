@@ -18,6 +18,7 @@ optional ``r_<axis>`` column is read as the reference).  ``.mat``: variables ``t
 from __future__ import annotations
 
 import csv
+import math
 from pathlib import Path
 from typing import Any, NoReturn, Sequence
 
@@ -67,12 +68,17 @@ def check_run_arrays(path: Any, t: np.ndarray, u: np.ndarray, y: np.ndarray, u_n
     n = len(t)
     if n < 2:
         _fail(path, f"only {n} sample(s); need at least 2")
-    for name, arr in [("t", t[:, None])] + [(nm, u[:, [i]]) for i, nm in enumerate(u_names)] + \
-            [(nm, y[:, [i]]) for i, nm in enumerate(y_names)]:
-        bad = ~np.isfinite(arr[:, 0])
+    for name, arr in [("t", t)] + [(nm, u[:, i]) for i, nm in enumerate(u_names)] + \
+            [(nm, y[:, i]) for i, nm in enumerate(y_names)]:
+        # a finite sum has no NaN/Inf to find (one pass over the column view, no copy and no mask of a long record);
+        # an infinite one may be an overflow only
+        with np.errstate(over="ignore", invalid="ignore"):
+            if math.isfinite(float(np.sum(arr))):
+                continue
+        bad = ~np.isfinite(arr)
         if bad.any():
             k = int(np.argmax(bad))
-            _fail(path, f"column {name!r}: {'NaN' if np.isnan(arr[k, 0]) else 'Inf'} at row {k + row_offset} "
+            _fail(path, f"column {name!r}: {'NaN' if np.isnan(arr[k]) else 'Inf'} at row {k + row_offset} "
                         f"({int(bad.sum())} non-finite value(s) in total)")
     dt = np.diff(t)
     if np.any(dt <= 0):

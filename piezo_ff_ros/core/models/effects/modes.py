@@ -292,15 +292,64 @@ MIN_STIFFNESS_FACTOR = 0.2
 RK4_OMEGA_STEP = 0.25
 
 
-@njit
+@njit(inline="always")
 def _base_excited_accel(xs: float, vs: float, w: float, z: float, c3: float, c2: float, ref: float,
                         linear: bool) -> float:  # pragma: no cover - compiled
     """The relative acceleration of a base-excited mode at deflection ``xs``, velocity ``vs`` (between the base's
-    velocity steps).  ``linear`` (c = q = 0): the same number without the cubic and quadratic factors (exactly 1)."""
-    if linear:
-        return -2.0 * z * w * vs - w * w * xs
-    fk = max(MIN_STIFFNESS_FACTOR, 1.0 + c3 * (xs / ref) ** 2)
-    return -2.0 * z * w * (1.0 + c2 * abs(vs) / (w * ref)) * vs - w * w * xs * fk
+    velocity steps).  ``linear`` (c = q = 0): the same number without the cubic and quadratic factors (exactly 1).
+
+    Both are computed and one is selected (no branch: the lanes of :func:`_base_excited_run` then run in SIMD
+    registers); each is the expression it is alone, so the number is the same."""
+    lin_accel = -2.0 * z * w * vs - w * w * xs
+    nonlin_accel = (-2.0 * z * w * (1.0 + c2 * abs(vs) / (w * ref)) * vs
+                    - w * w * xs * max(MIN_STIFFNESS_FACTOR, 1.0 + c3 * (xs / ref) ** 2))
+    return lin_accel if linear else nonlin_accel
+
+
+@njit(inline="always")
+def _rk4_lanes(X: np.ndarray, V: np.ndarray, zl: np.ndarray, c3l: np.ndarray, c2l: np.ndarray, lin: np.ndarray,
+               w: float, h: float, ref: float, linear_only: bool) -> None:  # pragma: no cover - compiled
+    """One RK4 sub-step of every lane (deflection ``X``, velocity ``V``): a flat loop without branches.
+    ``linear_only``: every lane is a linear twin (the accelerations are then the linear ones only)."""
+    for lane in range(X.shape[0]):
+        x = X[lane]
+        v = V[lane]
+        z = zl[lane]
+        if linear_only:
+            k_v = -2.0 * z * w * v - w * w * x
+            kx = 0.0 + 1.0 * v
+            kv = 0.0 + 1.0 * k_v
+            xs, vs = x + 0.5 * h * v, v + 0.5 * h * k_v
+            k_v = -2.0 * z * w * vs - w * w * xs
+            kx += 2.0 * vs
+            kv += 2.0 * k_v
+            xs, vs = x + 0.5 * h * vs, v + 0.5 * h * k_v
+            k_v = -2.0 * z * w * vs - w * w * xs
+            kx += 2.0 * vs
+            kv += 2.0 * k_v
+            xs, vs = x + h * vs, v + h * k_v
+            k_v = -2.0 * z * w * vs - w * w * xs
+        else:
+            c3 = c3l[lane]
+            c2 = c2l[lane]
+            ln = lin[lane]
+            k_v = _base_excited_accel(x, v, w, z, c3, c2, ref, ln)
+            kx = 0.0 + 1.0 * v
+            kv = 0.0 + 1.0 * k_v
+            xs, vs = x + 0.5 * h * v, v + 0.5 * h * k_v
+            k_v = _base_excited_accel(xs, vs, w, z, c3, c2, ref, ln)
+            kx += 2.0 * vs
+            kv += 2.0 * k_v
+            xs, vs = x + 0.5 * h * vs, v + 0.5 * h * k_v
+            k_v = _base_excited_accel(xs, vs, w, z, c3, c2, ref, ln)
+            kx += 2.0 * vs
+            kv += 2.0 * k_v
+            xs, vs = x + h * vs, v + h * k_v
+            k_v = _base_excited_accel(xs, vs, w, z, c3, c2, ref, ln)
+        kx += 1.0 * vs
+        kv += 1.0 * k_v
+        X[lane] = x + h * kx / 6.0
+        V[lane] = v + h * kv / 6.0
 
 
 @njit
@@ -313,20 +362,34 @@ def _base_excited_run(y: np.ndarray, w: float, zeta: np.ndarray, kc: np.ndarray,
     samples, an impulse at the interval's start).  ``out[k, t, j]`` = oscillator k's deflection.
     ``osc[k, j]`` = (d, d'), ``hist[j]`` = (y[k−1], y[k−2], samples seen).
 
-    The oscillators share the base but not their states: each gets the numbers it gets alone.  Their RK4 steps
-    are interleaved (every oscillator's sub-step, then the next sub-step), so that the processor overlaps these
-    independent chains instead of waiting on one serial chain at a time."""
+    The oscillators share the base but not their states: each gets the numbers it gets alone.  Every (oscillator,
+    axis) is one lane of a flat loop without branches (:func:`_base_excited_accel` selects the linear twin's
+    acceleration), so that the compiler runs the lanes' RK4 sub-steps side by side in SIMD registers instead of
+    one serial chain at a time (``test/test_diagnosis_speed6_base_excited.py``: the numbers of the plain loop
+    oscillator by oscillator)."""
     N, n = y.shape
     K = kc.shape[0]
+    L = K * n
     # RK4 sub-steps of at most RK4_OMEGA_STEP radians of the mode (its phase error then stays below ~1e-5 a step)
     sub = max(1, int(math.ceil(w * dt / RK4_OMEGA_STEP)))
     h = dt / sub
-    lin = np.empty((K, n), np.bool_)
+    lin = np.empty(L, np.bool_)
+    zl = np.empty(L)
+    c3l = np.empty(L)
+    c2l = np.empty(L)
     for k in range(K):
         for j in range(n):
-            lin[k, j] = kc[k, j] == 0.0 and kq[k, j] == 0.0
-    X = np.empty((K, n))
-    V = np.empty((K, n))
+            lane = k * n + j
+            lin[lane] = kc[k, j] == 0.0 and kq[k, j] == 0.0
+            zl[lane] = zeta[k]
+            c3l[lane] = kc[k, j]
+            c2l[lane] = kq[k, j]
+    all_linear = True
+    for lane in range(L):
+        all_linear = all_linear and lin[lane]
+    X = np.empty(L)
+    V = np.empty(L)
+    dv = np.empty(n)
     for t in range(N):
         for j in range(n):
             yk = y[t, j]
@@ -338,44 +401,25 @@ def _base_excited_run(y: np.ndarray, w: float, zeta: np.ndarray, kc: np.ndarray,
                 hist[j, 1] = hist[j, 0]
             # the base's velocity steps at the sample it starts the interval from (a piecewise-linear base): an
             # impulse on the relative velocity, then the mode moves freely over the interval
-            dv = (yk - 2.0 * hist[j, 0] + hist[j, 1]) / dt if seen >= 1.0 else 0.0
-            for k in range(K):
-                X[k, j] = osc[k, j, 0]
-                V[k, j] = osc[k, j, 1] - dv
+            dv[j] = (yk - 2.0 * hist[j, 0] + hist[j, 1]) / dt if seen >= 1.0 else 0.0
             hist[j, 1] = hist[j, 0]
             hist[j, 0] = yk
             hist[j, 2] = seen + 1.0
-        for _ in range(sub):
-            for k in range(K):
-                for j in range(n):
-                    x = X[k, j]
-                    v = V[k, j]
-                    c3 = kc[k, j]
-                    c2 = kq[k, j]
-                    ln = lin[k, j]
-                    z = zeta[k]
-                    k_v = _base_excited_accel(x, v, w, z, c3, c2, ref, ln)
-                    kx = 0.0 + 1.0 * v
-                    kv = 0.0 + 1.0 * k_v
-                    xs, vs = x + 0.5 * h * v, v + 0.5 * h * k_v
-                    k_v = _base_excited_accel(xs, vs, w, z, c3, c2, ref, ln)
-                    kx += 2.0 * vs
-                    kv += 2.0 * k_v
-                    xs, vs = x + 0.5 * h * vs, v + 0.5 * h * k_v
-                    k_v = _base_excited_accel(xs, vs, w, z, c3, c2, ref, ln)
-                    kx += 2.0 * vs
-                    kv += 2.0 * k_v
-                    xs, vs = x + h * vs, v + h * k_v
-                    k_v = _base_excited_accel(xs, vs, w, z, c3, c2, ref, ln)
-                    kx += 1.0 * vs
-                    kv += 1.0 * k_v
-                    X[k, j] = x + h * kx / 6.0
-                    V[k, j] = v + h * kv / 6.0
         for k in range(K):
             for j in range(n):
-                osc[k, j, 0] = X[k, j]
-                osc[k, j, 1] = V[k, j]
-                out[k, t, j] = X[k, j]
+                X[k * n + j] = osc[k, j, 0]
+                V[k * n + j] = osc[k, j, 1] - dv[j]
+        if all_linear:  # linear twins only (a refinement's): the nonlinear expression is not computed at all
+            for _ in range(sub):
+                _rk4_lanes(X, V, zl, zl, zl, lin, w, h, ref, True)
+        else:
+            for _ in range(sub):
+                _rk4_lanes(X, V, zl, c3l, c2l, lin, w, h, ref, False)
+        for k in range(K):
+            for j in range(n):
+                osc[k, j, 0] = X[k * n + j]
+                osc[k, j, 1] = V[k * n + j]
+                out[k, t, j] = X[k * n + j]
 
 
 def base_excited_deflections(y: np.ndarray, freq: float, damping: ArrayLike, cubic: ArrayLike,
