@@ -367,22 +367,10 @@ def _long_path(B: np.ndarray, G: np.ndarray, D1: np.ndarray, D2: np.ndarray, q: 
                     continue
             # one piece of at most τ0 as bw_exact_path takes it: a sign change located on the series
             tau = rem if rem < tau0 else tau0
-            _flow(M, a, he, tau, hx, term, tmp)
-            tc = tau
-            jc = -1
-            for j in range(n):
-                if s[j] * hx[j] < 0.0:
-                    t = _crossing(M, a, he, j, s[j], tau, s[j] * hx[j], hr, term, tmp)
-                    if t < tc:
-                        tc = t
-                        jc = j
+            tc, jc = _piece(M, a, he, s, tau, hx, hr, term, tmp)
+            lam += tc
             if jc >= 0:
-                _flow(M, a, he, tc, hx, term, tmp)
-                hx[jc] = 0.0
-                lam += tc
                 new_orthant = True
-            else:
-                lam += tau
             for i in range(n):
                 he[i] = hx[i]
             if jc < 0 and tau == rem:
@@ -420,6 +408,27 @@ def _flow(M: np.ndarray, a: np.ndarray, hc: np.ndarray, t: float, out: np.ndarra
                 scale = abs(out[i])
         if not big > 1e-17 * scale:
             break
+
+
+@njit
+def _piece(M: np.ndarray, a: np.ndarray, he: np.ndarray, s: np.ndarray, tau: float, hx: np.ndarray, hr: np.ndarray,
+           term: np.ndarray, tmp: np.ndarray) -> tuple[float, int]:  # pragma: no cover - compiled
+    """One piece of at most ``tau`` in the orthant ``s`` from ``he``: ``hx`` ← the flow (:func:`_flow`) up to the
+    first component that changes sign (set to exactly 0 there), or up to ``tau``; returns ``(λ covered, that
+    component or -1)``."""
+    _flow(M, a, he, tau, hx, term, tmp)
+    tc = tau
+    jc = -1
+    for j in range(he.shape[0]):
+        if s[j] * hx[j] < 0.0:
+            t = _crossing(M, a, he, j, s[j], tau, s[j] * hx[j], hr, term, tmp)
+            if t < tc:
+                tc = t
+                jc = j
+    if jc >= 0:
+        _flow(M, a, he, tc, hx, term, tmp)
+        hx[jc] = 0.0
+    return tc, jc
 
 
 @njit
@@ -534,21 +543,8 @@ def bw_exact_path(p: BoucWenParams, sigma: float, h: np.ndarray, du: np.ndarray,
                     s[j] = -1.0 if tmp[j] < 0.0 else 1.0
             _bw_orthant(p, q, s, M)
         tau = rem if rem < tau_max else tau_max
-        _flow(M, a, he, tau, hx, term, tmp)
-        tc = tau
-        jc = -1
-        for j in range(n):
-            if s[j] * hx[j] < 0.0:
-                t = _crossing(M, a, he, j, s[j], tau, s[j] * hx[j], hr, term, tmp)
-                if t < tc:
-                    tc = t
-                    jc = j
-        if jc >= 0:
-            _flow(M, a, he, tc, hx, term, tmp)
-            hx[jc] = 0.0
-            lam += tc
-        else:
-            lam += tau
+        tc, jc = _piece(M, a, he, s, tau, hx, hr, term, tmp)
+        lam += tc
         for i in range(n):
             he[i] = hx[i]
         if jc < 0 and tau == rem:
