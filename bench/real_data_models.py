@@ -133,6 +133,28 @@ def _refine(start, recs, levels, realizations, iterations, validation=None, labe
     return res
 
 
+def _refine_with_channels(start, elementwise_start, recs, levels, realizations, iterations, elementwise_iterations,
+                          label=""):
+    """The channels-from-the-start fit ``start`` refined on the simulation error (channel directions too) on the
+    last periods of ``realizations`` of ``levels``; when it diverges on those training records, the elementwise fit
+    ``elementwise_start`` (a model, or a function making it) refined for ``elementwise_iterations``, widened by the
+    channels and refined (``output_error.refine_with_channels``)."""
+    t0 = time.perf_counter()
+    train = _last_periods(*_pool(recs, levels, "train", realizations))
+    res = oe.refine_with_channels(start, elementwise_start, _channel_directions(start), *train, warmup=PERIOD,
+                                  max_iterations=iterations, elementwise_iterations=elementwise_iterations, every=5)
+    h = res.history
+    if res.route == "widened":
+        he = res.elementwise.history
+        print(f"fsm {label}: the equation-error fit with channels diverges on its training records; refined from "
+              f"the elementwise fit (training loss {he[0]['loss']:.5f} -> {he[-1]['loss']:.5f} in "
+              f"{int(he[-1]['iteration'])} iterations) widened by the channels", flush=True)
+    print(f"fsm {label}: {res.model.n_channels} nonlinear channels ({res.route}), output-error refinement "
+          f"{h[0]['loss']:.5f} -> {h[-1]['loss']:.5f} (training loss) in {int(h[-1]['iteration'])} iterations, kept "
+          f"iteration {res.iteration} ({time.perf_counter() - t0:.0f} s)", flush=True)
+    return res
+
+
 def _fit_with_channels(u_records, y_records, order, coords):
     """The equation-error fit with the nonlinear channels of ``_channel_directions`` included from the start (every
     feature on the coordinates and on those channels, one least-squares fit): on actuator coordinates the measured
@@ -280,9 +302,12 @@ def fsm(orders, oe_iterations: int = 60, channel_iterations: int = 40, structure
                                                     coordinates=coords)
         if structure == "from_start":
             start = _fit_with_channels(u_fit, y_fit, order, coords)
-            model = _refine(start, recs, levels, OE_REALIZATIONS, n_ch, None, f"channels from the start, {label}",
-                            refine_channels=True).model
-            return eq, start, None, model
+            res_fs = _refine_with_channels(start, eq if eq is not None else (
+                lambda: fnl.identify_feedback_nonlinearity(u_fit, y_fit, PERIOD, 1 / FSM_FS, order, FEATURES,
+                                                           coordinates=coords)),
+                recs, levels, OE_REALIZATIONS, n_ch, n_oe, f"channels from the start, {label}")
+            elem = res_fs.elementwise.model if res_fs.elementwise is not None else None
+            return eq, start, elem, res_fs.model
         elem = _refine(eq, recs, levels, OE_REALIZATIONS, n_oe, None, label).model
         model = elem
         if structure == "widened" and n_ch > 0:
@@ -348,7 +373,9 @@ def fsm(orders, oe_iterations: int = 60, channel_iterations: int = 40, structure
         better_everywhere = ok and all(a < b for a, b in zip(per_nl, per_lin))
         verdict = "amplitude_dependent_stiffness" if better_everywhere else "none"
         rho = float(np.max(np.abs(nl2.small_signal_poles())))
-        row = {"trained_on_mV": list(others), "linear_percent": e_lin, "model_percent": e_nl if ok else None,
+        # on 'from_start', a refined elementwise model exists only when the channel fit diverged (the widened route)
+        route = structure if structure != "from_start" or nl2_elem is None else "widened (fit with channels diverged)"
+        row = {"trained_on_mV": list(others), "route": route, "linear_percent": e_lin, "model_percent": e_nl if ok else None,
                "elementwise_refined_percent": e_el if e_el is not None and np.isfinite(e_el) else None,
                "n_channels": nl2.n_channels, "structure": structure,
                "linear_per_realization": per_lin, "model_per_realization": per_nl if ok else None,
@@ -358,7 +385,7 @@ def fsm(orders, oe_iterations: int = 60, channel_iterations: int = 40, structure
         out["withheld"][L] = row
         what = (f"model {e_nl:.2f} % (shrink {row['shrink_percent']:.0f} %)" if ok else
                 f"model DIVERGES (its loop linearised at rest has a pole of magnitude {rho:.4f})")
-        print(f"fsm withheld {L} mV (trained on {others}): linear {e_lin:.2f} % -> {what}, verdict {verdict} "
+        print(f"fsm withheld {L} mV (trained on {others}, {route}): linear {e_lin:.2f} % -> {what}, verdict {verdict} "
               f"(pole magnitude at rest: equation-error fit {rho_eq:.4f}, refined {rho:.4f}; "
               f"{time.perf_counter() - t0:.0f} s)", flush=True)
     out["seconds"] = time.perf_counter() - t_all
@@ -380,7 +407,7 @@ def fsm(orders, oe_iterations: int = 60, channel_iterations: int = 40, structure
         mp = (f"{r['model_percent']:.2f} %" if r["model_percent"] is not None else
               f"diverges (pole {r['small_signal_spectral_radius']:.4f} at rest)")
         print(f"| {L} mV | {' + '.join(str(k) for k in r['trained_on_mV'])} mV | {r['linear_percent']:.2f} % | "
-              f"{_pct(r['elementwise_refined_percent'])} | {mp} ({r['n_channels']} ch.) | {sh} | `{r['verdict']}` | "
+              f"{_pct(r['elementwise_refined_percent'])} | {mp} ({r['n_channels']} ch., {r['route']}) | {sh} | `{r['verdict']}` | "
               f"{r['equation_error_fit_spectral_radius']:.4f} → {r['small_signal_spectral_radius']:.4f} |")
     return out
 
