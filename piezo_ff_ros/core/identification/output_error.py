@@ -424,7 +424,7 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
                         y_records: Sequence[np.ndarray], warmup: int = 0, max_iterations: int = 100,
                         validation: tuple[Sequence[np.ndarray], Sequence[np.ndarray]] | None = None,
                         max_radius: float = 0.9995, stability_weight: float = 1e3, every: int = 5,
-                        refine_poles: bool = True, refine_channels: bool = False,
+                        refine_poles: bool = True, refine_channels: bool = False, memory: int = 20,
                         progress: Callable[[str], None] | None = None) -> OutputErrorResult:
     """Minimise the simulation error of ``model`` over all its output coefficients (module docstring).
 
@@ -453,6 +453,9 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
     refine_channels : bool
         Refine the directions of the nonlinear channels too (``channel_map``, the identity when the model has none:
         see ``feedback_nonlinearity.add_channels``), each entry scaled by the output's sensitivity to it.
+    memory : int
+        Correction pairs L-BFGS keeps (its approximation of the curvature: more pairs, a better one on a badly
+        conditioned loss, for little more than the gradient's cost).
     progress : callable, optional
         Progress lines.
 
@@ -575,7 +578,7 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
             record(count[0], xk)
 
     res = scipy.optimize.minimize(fun, phi0, jac=True, method="L-BFGS-B", callback=callback,
-                                  options={"maxiter": max_iterations, "maxcor": 20})
+                                  options={"maxiter": max_iterations, "maxcor": memory})
     if count[0] % every:                                       # stopped between two scores: score the last
         record(count[0], res.x)
     if best is None:
