@@ -16,7 +16,9 @@
    by them (``feedback_nonlinearity.add_channels``, zero coefficients — the same model) and refined again, channel
    directions included (``--channel-iterations``; its count chosen the same way, 0 = not widened); ``from_start`` —
    the equation-error fit with them included (``channels='outputs'``), refined with the channel directions for up
-   to ``--oe-iterations``.  The final model, the chosen structure fitted and refined the same way on all training
+   to ``--oe-iterations`` — or, when that fit diverges in simulation on its own training records (the withheld
+   100 mV: trained on 200 + 300 mV only), the elementwise fit refined, widened by the channels and refined again
+   (``output_error.refine_with_channels``; the withheld table names the route).  The final model, the chosen structure fitted and refined the same way on all training
    data, is scored on the 9 test realizations with the data set's metric
    (``benchmark_nrmse_percent``: per channel, realization and period RMS(error)/std(y), averaged; pure simulation
    from the periodic steady state), next to the linear model of the same modes (the same fit without features)
