@@ -60,3 +60,17 @@ def test_a_channel_fit_that_simulates_is_refined_from_itself(fits):
     assert res.route == "from_start" and res.elementwise is None
     assert res.model.n_channels == chan.n_channels
     assert oe.simulation_loss(res.model, *val, PERIOD) <= oe.simulation_loss(chan, *val, PERIOD) * (1 + 1e-6)
+
+
+def test_outputs_and_their_differences_as_channels_are_those_directions_fitted_explicitly(fits):
+    """``channels='outputs+differences'`` on actuator coordinates is the fit with the measured outputs and their
+    pairwise differences given as explicit directions (the same model to rounding)."""
+    train = fits[0]
+    named = fnl.identify_feedback_nonlinearity(*train, PERIOD, DT, order=4, features=FEATURES, coordinates="actuators",
+                                               channels="outputs+differences")
+    M = np.asarray(named.output_map, float)
+    explicit = fnl.identify_feedback_nonlinearity(*train, PERIOD, DT, order=4, features=FEATURES,
+                                                  coordinates="actuators", channels=np.vstack([M, [M[0] - M[1]]]))
+    assert named.n_channels == 2 + 3
+    np.testing.assert_allclose(named.channel_map, explicit.channel_map, rtol=1e-12)
+    np.testing.assert_allclose(named.theta, explicit.theta, rtol=1e-8, atol=1e-12 * np.abs(explicit.theta).max())
