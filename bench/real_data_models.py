@@ -10,7 +10,8 @@
    every pole, L-BFGS with an exact adjoint gradient, stability at rest as a penalty) on the last period of training
    realizations 0–2 of every level, its iteration count chosen on training realization 5.  Then fitted on all 18
    training realizations (equation error), refined for that many iterations on realizations 0–2 of every level.
-   Then more nonlinear channels (the features on the measured outputs as well as on the actuator coordinates), two
+   Then more nonlinear channels (the features on the measured outputs — and, by default, on their pairwise
+   differences: ``--channel-set`` — as well as on the actuator coordinates), two
    ways (``--structures``; the default tries ``from_start`` against the refined elementwise model on training
    realization 5 and keeps the better): ``widened`` — the refined model widened
    by them (``feedback_nonlinearity.add_channels``, zero coefficients — the same model) and refined again, channel
@@ -32,7 +33,7 @@
 
     PYTHONPATH=. PIEZO_FF_SHARED_DATA=/work/shared/data nice -n 5 .venv/bin/python bench/real_data_models.py \
         [--only fsm|dbo] [--orders 28,32] [--oe-iterations 60] [--channel-iterations 40]
-        [--structures from_start] [--withheld 100,200,300] [--json out.json]
+        [--structures from_start] [--channel-set outputs+differences] [--withheld 100,200,300] [--json out.json]
 
 A faster sub-run to iterate on (minutes, not the hour): ``--only fsm --orders 32 --oe-iterations 10
 --channel-iterations 5 --withheld 300`` (or ``--withheld ''``, ``--structures from_start``).
