@@ -341,12 +341,13 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
         ``G(0)⁻¹·y`` — the output mapped back through the static gain of the best linear approximation (its lowest
         five excited bins, real part), i.e. in volts of the actuator that would produce it statically: where a piezo
         stack's own stiffness nonlinearity lives.
-    channels : ndarray or 'outputs', optional
+    channels : ndarray, 'outputs' or 'outputs+differences', optional
         ``[k, p]``: more nonlinear channels, each a combination of the coordinates above (as in
         :func:`add_channels`, rescaled to unit RMS over the records), fed through every feature besides the
         coordinates themselves.  ``'outputs'`` (with ``coordinates='actuators'``): the measured outputs themselves
         (the rows of the static gain that maps the actuator coordinates back to them), so the features act in both
-        coordinate systems at once — one fit, the gain computed once.
+        coordinate systems at once — one fit, the gain computed once.  ``'outputs+differences'``: those and the
+        pairwise differences of the measured outputs (the mirror's tilts between its reference points).
 
     Returns
     -------
@@ -360,7 +361,8 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
     features = tuple(features)
     if coordinates not in ("outputs", "actuators"):
         raise ValueError(f"coordinates {coordinates!r}: expected 'outputs' or 'actuators'")
-    if isinstance(channels, str) and (channels != "outputs" or coordinates != "actuators"):
+    if isinstance(channels, str) and (channels not in ("outputs", "outputs+differences")
+                                      or coordinates != "actuators"):
         raise ValueError(f"feedback nonlinearity: channels={channels!r} needs coordinates='actuators' (the measured "
                          "outputs as channels) or an array of directions")
     _features(np.zeros((1, 1)), np.zeros((1, 1)), features)          # names checked before any work
@@ -392,7 +394,11 @@ def identify_feedback_nonlinearity(u_records: Sequence[np.ndarray], y_records: S
     channel_map = None
     if isinstance(channels, str):
         assert output_map is not None
+        channels_name = channels
         channels = output_map                  # y = y'·output_mapᵀ: each measured output, a row
+        if channels_name == "outputs+differences":
+            pairs = np.array([np.eye(p)[i] - np.eye(p)[j] for i in range(p) for j in range(i + 1, p)])
+            channels = np.vstack([output_map, pairs @ output_map])
     if channels is not None:
         d = np.atleast_2d(np.asarray(channels, float))
         if d.shape[1] != p:

@@ -24,7 +24,8 @@ Stability at rest is enforced by a penalty on the loop linearised at rest
 value).  Without it a model trained at large drive only can be unstable at small drive, where the nonlinear terms no
 longer hold the loop (the FSM trained on 200 + 300 mV: a pole of magnitude 1.11). A start that already diverges
 on its training records is refused; :func:`linear_part` (the feature coefficients zeroed) is a stable one on the
-same modes. A trial point whose simulation diverges is answered with a finite wall around the last finite point
+same modes; for a fit with nonlinear channels that diverges, :func:`refine_with_channels` starts instead from the
+refined elementwise model widened by the channels. A trial point whose simulation diverges is answered with a finite wall around the last finite point
 (its gradient pointing back), so the line search shortens its step instead of stopping as converged.
 
 How many iterations: the caller's choice, made on data the fit does not see (``validation``: the iterate with the
@@ -40,9 +41,10 @@ import scipy.linalg
 import scipy.optimize
 
 from .._jit import njit
-from .feedback_nonlinearity import FEATURES, FeedbackNonlinearModel, _modal_bank, _n_states
+from .feedback_nonlinearity import FEATURES, FeedbackNonlinearModel, _modal_bank, _n_states, add_channels
 
-__all__ = ["OutputErrorResult", "refine_output_error", "simulation_loss"]
+__all__ = ["ChannelRefinementResult", "OutputErrorResult", "linear_part", "refine_output_error",
+           "refine_with_channels", "simulation_loss"]
 
 
 @njit
@@ -422,7 +424,7 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
                         y_records: Sequence[np.ndarray], warmup: int = 0, max_iterations: int = 100,
                         validation: tuple[Sequence[np.ndarray], Sequence[np.ndarray]] | None = None,
                         max_radius: float = 0.9995, stability_weight: float = 1e3, every: int = 5,
-                        refine_poles: bool = True, refine_channels: bool = False,
+                        refine_poles: bool = True, refine_channels: bool = False, memory: int = 20,
                         progress: Callable[[str], None] | None = None) -> OutputErrorResult:
     """Minimise the simulation error of ``model`` over all its output coefficients (module docstring).
 
@@ -451,6 +453,9 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
     refine_channels : bool
         Refine the directions of the nonlinear channels too (``channel_map``, the identity when the model has none:
         see ``feedback_nonlinearity.add_channels``), each entry scaled by the output's sensitivity to it.
+    memory : int
+        Correction pairs L-BFGS keeps (its approximation of the curvature: more pairs, a better one on a badly
+        conditioned loss, for little more than the gradient's cost).
     progress : callable, optional
         Progress lines.
 
@@ -573,9 +578,95 @@ def refine_output_error(model: FeedbackNonlinearModel, u_records: Sequence[np.nd
             record(count[0], xk)
 
     res = scipy.optimize.minimize(fun, phi0, jac=True, method="L-BFGS-B", callback=callback,
-                                  options={"maxiter": max_iterations, "maxcor": 20})
+                                  options={"maxiter": max_iterations, "maxcor": memory})
     if count[0] % every:                                       # stopped between two scores: score the last
         record(count[0], res.x)
     if best is None:
         return OutputErrorResult(model=model, iteration=0, history=history)
     return OutputErrorResult(model=best[2], iteration=best[1], history=history)
+
+
+@dataclass(frozen=True)
+class ChannelRefinementResult:
+    """A model with nonlinear channels refined on the simulation error, and which way it was reached.
+
+    Attributes
+    ----------
+    model : FeedbackNonlinearModel
+        The refined model (its channels' directions refined too).
+    iteration : int
+        The kept iterate of the last refinement (0 = its start).
+    history : list of dict
+        The last refinement's course (``OutputErrorResult.history``).
+    route : str
+        ``'from_start'``: the channels-from-the-start fit refined directly; ``'widened'``: that fit diverged in
+        simulation on its own training records, so the elementwise model was refined, widened by the channels
+        (zero coefficients) and refined again.
+    elementwise : OutputErrorResult or None
+        On the ``'widened'`` route, the elementwise refinement (its model is the widened one's start).
+    """
+
+    model: FeedbackNonlinearModel
+    iteration: int
+    history: list[dict[str, float]]
+    route: str
+    elementwise: OutputErrorResult | None = None
+
+
+def refine_with_channels(start: FeedbackNonlinearModel,
+                         elementwise_start: FeedbackNonlinearModel | Callable[[], FeedbackNonlinearModel],
+                         directions: np.ndarray, u_records: Sequence[np.ndarray], y_records: Sequence[np.ndarray],
+                         warmup: int = 0, max_iterations: int = 100, elementwise_iterations: int | None = None,
+                         validation: tuple[Sequence[np.ndarray], Sequence[np.ndarray]] | None = None,
+                         **options) -> ChannelRefinementResult:
+    """Refine an equation-error fit that has nonlinear channels, with a stable way round a start that diverges.
+
+    The fit with the channels in it from the start (``identify_feedback_nonlinearity(..., channels=...)``) is the
+    better start when it simulates (it is not confined to the elementwise model's basin).  When it diverges on its
+    own training records — a fit on large drive only, whose loop at rest the nonlinear terms no longer hold — its
+    linear part is a poor start: every feature coefficient, the channels' included, must then be found by descent
+    from zero.  The refined *elementwise* model widened by the channels (``add_channels``: the same model, so its
+    refinement starts where the elementwise one ended) keeps what the elementwise refinement found.  So: ``start``
+    refined with its channels if it simulates finitely on the training records; otherwise ``elementwise_start`` (its
+    linear part if it diverges too) refined, widened by ``directions``, and refined with the channels.
+
+    Parameters
+    ----------
+    start : FeedbackNonlinearModel
+        The equation-error fit with the channels included.
+    elementwise_start : FeedbackNonlinearModel or callable
+        The equation-error fit of the same data without the added channels (same modes and coordinates), or a
+        function without arguments that returns it (called only on the widened route: the fit is then not made
+        when ``start`` simulates).
+    directions : ndarray
+        ``[k, p]``: the channels ``start`` adds, as combinations of the model outputs (``add_channels``).
+    u_records, y_records : sequences of ndarray
+        Training records (``refine_output_error``).
+    warmup : int
+        As in ``refine_output_error``.
+    max_iterations : int
+        Iterations of the refinement with the channels.
+    elementwise_iterations : int, optional
+        Iterations of the elementwise refinement on the widened route (default ``max_iterations``).
+    validation : (u_records, y_records), optional
+        Records that choose the kept iterate of each refinement (``refine_output_error``).
+    **options
+        Passed to every ``refine_output_error`` call (``max_radius``, ``stability_weight``, ``every``, ...).
+
+    Returns
+    -------
+    ChannelRefinementResult
+    """
+    if np.isfinite(simulation_loss(start, u_records, y_records, warmup)):
+        res = refine_output_error(start, u_records, y_records, warmup, max_iterations, validation,
+                                  refine_channels=True, **options)
+        return ChannelRefinementResult(res.model, res.iteration, res.history, "from_start")
+    elem = elementwise_start() if callable(elementwise_start) else elementwise_start
+    if not np.isfinite(simulation_loss(elem, u_records, y_records, warmup)):
+        elem = linear_part(elem)
+    n_elem = max_iterations if elementwise_iterations is None else elementwise_iterations
+    res_elem = refine_output_error(elem, u_records, y_records, warmup, n_elem, validation, **options)
+    wide = add_channels(res_elem.model, directions, y_records)
+    res = refine_output_error(wide, u_records, y_records, warmup, max_iterations, validation, refine_channels=True,
+                              **options)
+    return ChannelRefinementResult(res.model, res.iteration, res.history, "widened", res_elem)
