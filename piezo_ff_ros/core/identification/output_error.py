@@ -34,7 +34,7 @@ smallest validation loss among the stable ones is returned), never on a test set
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -618,7 +618,7 @@ def refine_with_channels(start: FeedbackNonlinearModel,
                          directions: np.ndarray, u_records: Sequence[np.ndarray], y_records: Sequence[np.ndarray],
                          warmup: int = 0, max_iterations: int = 100, elementwise_iterations: int | None = None,
                          validation: tuple[Sequence[np.ndarray], Sequence[np.ndarray]] | None = None,
-                         **options) -> ChannelRefinementResult:
+                         **options: Any) -> ChannelRefinementResult:
     """Refine an equation-error fit that has nonlinear channels, with a stable way round a start that diverges.
 
     The fit with the channels in it from the start (``identify_feedback_nonlinearity(..., channels=...)``) is the
