@@ -198,18 +198,13 @@ def path_scratch(n: int) -> np.ndarray:  # pragma: no cover - compiled
 
 
 @njit
-def _bw_orthant(p: BoucWenParams, q: np.ndarray, s: np.ndarray, M: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``M`` ← the matrix of the flow ``dh/dλ = A·dU + M·h`` where ``sgn(h) = s`` (``q = P·dU``).
+def _orthant_matrix(B: np.ndarray, G: np.ndarray, D1: np.ndarray, D2: np.ndarray, q: np.ndarray, s: np.ndarray,
+                    M: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``M`` ← the matrix of the flow ``dh/dλ = A·dU + M·h`` where ``sgn(h) = s`` (``q = P·dU``; Γ = ``G``,
+    Δ1 = ``D1``, Δ2 = ``D2``).
 
     ``|h_j| = s_j·h_j`` there, so ``−(|q_j|·φ_ij + q_j·ψ_ij) = M_ij·h_j``.
     """
-    _orthant_matrix(p.B, p.G, p.D1, p.D2, q, s, M)
-
-
-@njit
-def _orthant_matrix(B: np.ndarray, G: np.ndarray, D1: np.ndarray, D2: np.ndarray, q: np.ndarray, s: np.ndarray,
-                    M: np.ndarray) -> None:  # pragma: no cover - compiled
-    """:func:`_bw_orthant` from the four h-dependent matrices (Γ = ``G``, Δ1 = ``D1``, Δ2 = ``D2``)."""
     n = q.shape[0]
     for i in range(n):
         for j in range(n):
@@ -473,7 +468,7 @@ def bw_exact_path(p: BoucWenParams, sigma: float, h: np.ndarray, du: np.ndarray,
 
     Along the path ``U + λ·dU`` (λ from 0 to 1) the increment is the ODE ``dh/dλ = A·dU − Σ_j (|dÛ_j|·φ_ij +
     dÛ_j·ψ_ij)``, linear in h inside each sign orthant of h (``dÛ = P·dU`` is constant): ``dh/dλ = a + M·h``
-    (:func:`_bw_orthant`).  It is solved piece by piece by its Taylor series (:func:`_flow`: pieces with
+    (:func:`_orthant_matrix`).  It is solved piece by piece by its Taylor series (:func:`_flow`: pieces with
     ``‖M‖·Δλ ≤`` :data:`PIECE_KAPPA`, ~2κ of them), stopping where a component of h changes sign
     (:func:`_crossing`) to continue in the next orthant.  A component at zero leaves it in the direction of its
     derivative (which does not depend on its own sign).  ``ws`` is :func:`path_scratch`; nothing is allocated.
@@ -526,22 +521,7 @@ def bw_exact_path(p: BoucWenParams, sigma: float, h: np.ndarray, du: np.ndarray,
             # many sign changes of h: the rest by propagators too
             _long_path(p.B, p.G, p.D1, p.D2, q, a, tau_max, he, lam)
             return
-        zero = False
-        for j in range(n):
-            s[j] = 1.0 if he[j] > 0.0 else (-1.0 if he[j] < 0.0 else 0.0)
-            if s[j] == 0.0:
-                zero = True
-        _bw_orthant(p, q, s, M)
-        if zero:
-            for i in range(n):
-                acc = a[i]
-                for j in range(n):
-                    acc += M[i, j] * he[j]
-                tmp[i] = acc
-            for j in range(n):
-                if s[j] == 0.0:
-                    s[j] = -1.0 if tmp[j] < 0.0 else 1.0
-            _bw_orthant(p, q, s, M)
+        _orthant_signs(M, a, he, s, p.B, p.G, p.D1, p.D2, q, tmp)
         tau = rem if rem < tau_max else tau_max
         tc, jc = _piece(M, a, he, s, tau, hx, hr, term, tmp)
         lam += tc
@@ -1025,7 +1005,7 @@ def bw2_path_weight(c: Coeffs2, sigma: float, du0: float, du1: float) -> float: 
 @njit(inline="always")
 def _bw2_orthant(c: Coeffs2, q0: float, q1: float, s0: float,
                  s1: float) -> tuple[float, float, float, float]:  # pragma: no cover - compiled
-    """:func:`_bw_orthant` for two axes: ``(M00, M01, M10, M11)``."""
+    """:func:`_orthant_matrix` for two axes: ``(M00, M01, M10, M11)``."""
     m00 = -(abs(q0) * (c[8] + c[20] * s0) + q0 * (c[12] * s0 + c[16]))
     m01 = -(abs(q1) * (c[9] + c[21] * s1) + q1 * (c[13] * s1 + c[17]))
     m10 = -(abs(q0) * (c[10] + c[22] * s0) + q0 * (c[14] * s0 + c[18]))
